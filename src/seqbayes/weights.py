@@ -1,0 +1,64 @@
+"""Importance weights in the log domain: normalisation, effective sample size
+and the evidence increment of Eq. (1) of Lye et al. (2023).
+
+All functions take log-weights of shape ``(N,)``; ``-inf`` means zero weight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import logsumexp
+
+__all__ = ["normalise", "ess", "log_mean_exp", "log_evidence_increment"]
+
+
+def normalise(log_weights: np.ndarray) -> np.ndarray:
+    """Normalised log-weights, ``log w_i - logsumexp(log w)`` (Eq. A5).
+
+    Raises
+    ------
+    ValueError
+        If every weight is zero (all ``-inf``) or any is NaN / ``+inf``.
+    """
+    log_weights = np.asarray(log_weights, dtype=float)
+    if np.isnan(log_weights).any() or np.isposinf(log_weights).any():
+        raise ValueError("log_weights: NaN or +inf log-weight")
+    total = logsumexp(log_weights)
+    if not np.isfinite(total):
+        raise ValueError("log_weights: every weight is zero")
+    return log_weights - total
+
+
+def ess(log_weights: np.ndarray) -> float:
+    """Effective sample size ``1 / sum(w_hat^2)`` of (unnormalised) log-weights.
+
+    Examples
+    --------
+    >>> float(ess(np.zeros(10)))
+    10.0
+    """
+    log_w_hat = normalise(log_weights)
+    return float(np.exp(-logsumexp(2.0 * log_w_hat)))
+
+
+def log_mean_exp(values: np.ndarray) -> float:
+    """``log(mean(exp(values)))`` computed stably; ``-inf`` if all are ``-inf``."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        raise ValueError("values: empty array")
+    return float(logsumexp(values) - np.log(values.size))
+
+
+def log_evidence_increment(log_weights_prev: np.ndarray, log_increments: np.ndarray) -> float:
+    """``log sum_i w_hat_i exp(l_i)``: the evidence increment of one reweighting.
+
+    With equal previous weights this is Eq. (1): ``log((1/N) sum_i w_i)``.
+
+    Parameters
+    ----------
+    log_weights_prev : (N,) array
+        Log-weights carried into the step (need not be normalised).
+    log_increments : (N,) array
+        Incremental log-weights (e.g. tempered log-likelihoods).
+    """
+    return float(logsumexp(normalise(log_weights_prev) + log_increments))
