@@ -1,0 +1,26 @@
+"""Structures: the shear building, its discretisation and ground motions."""
+
+from .ground_motion import (
+    G,
+    GroundMotion,
+    band_limited_white_noise,
+    kanai_tajimi,
+    load_el_centro,
+    read_at2,
+    read_two_column,
+    resample,
+    scale_to_pga,
+)
+from .shear_building import (
+    DiscreteModel,
+    ShearBuilding,
+    add_measurement_noise,
+    discretise,
+    simulate,
+)
+
+__all__ = [
+    "G", "GroundMotion", "band_limited_white_noise", "kanai_tajimi", "load_el_centro", "read_at2",
+    "read_two_column", "resample", "scale_to_pga", "DiscreteModel", "ShearBuilding",
+    "add_measurement_noise", "discretise", "simulate",
+]
