@@ -1,7 +1,20 @@
-"""seqbayes: on-line Bayesian model updating of engineering structures."""
+"""seqbayes: on-line Bayesian model updating of engineering structures.
 
+The public API: priors, Markov kernels, the on-line samplers SMC and SEMC, the
+standalone ensemble sampler, model-class comparison and run results.
+"""
+
+from . import aies
+from .density import GaussianMixture, predictive_density, silverman_bandwidth
+from .kernels import Custom, Decay, Drift, MarkovKernel, Static
 from .priors import JointPrior
+from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
+from .selection import ModelComparison, compare
+from .sequential import SEMC, SMC, SamplerConfig, SamplerState, ZeroLikelihoodError, assimilate
 
 __version__ = "0.1.0"
-__all__ = ["JointPrior", "as_generator"]
+__all__ = ["aies", "GaussianMixture", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+           "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
+           "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
+           "assimilate"]

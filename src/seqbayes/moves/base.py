@@ -1,0 +1,65 @@
+"""The accept/reject step shared by every move, and the sweep statistics record."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["metropolis_accept", "SweepStats", "evaluate_inside", "combine"]
+
+
+def metropolis_accept(current_log_prob, proposal_log_prob, log_hastings, rng: np.random.Generator) -> np.ndarray:
+    """Vectorised Metropolis-Hastings decision, ``(n,)`` bool.
+
+    Accept when ``log U < proposal - current + log_hastings``. A proposal with
+    ``-inf`` or NaN log-probability is always rejected; a current point at
+    ``-inf`` is left for any finite proposal.
+    """
+    current = np.asarray(current_log_prob, dtype=float)
+    proposal = np.asarray(proposal_log_prob, dtype=float)
+    finite = np.isfinite(proposal)
+    with np.errstate(invalid="ignore"):
+        log_ratio = np.where(finite, proposal - current + log_hastings, -np.inf)
+    log_ratio = np.where(finite & np.isneginf(current), np.inf, log_ratio)
+    return np.log(rng.random(proposal.shape)) < log_ratio
+
+
+def evaluate_inside(component_fn, points, support, n_components: int) -> tuple[np.ndarray, int]:
+    """``component_fn`` at the points inside the ``(d, 2)`` support box; ``-inf`` outside.
+
+    Returns the ``(n, k)`` log-target components and the number of points
+    evaluated. Points outside are rejected, never redrawn.
+    """
+    out = np.full((points.shape[0], n_components), -np.inf)
+    inside = np.all((points >= support[:, 0]) & (points <= support[:, 1]), axis=1)
+    if inside.any():
+        out[inside] = component_fn(points[inside])
+    return out, int(inside.sum())
+
+
+def combine(components, coefficients) -> np.ndarray:
+    """Log target ``sum_k c_k l_k`` of ``(n, k)`` components; any ``-inf`` component gives ``-inf``."""
+    with np.errstate(invalid="ignore"):
+        total = components @ np.asarray(coefficients, dtype=float)
+    total[np.isnan(total) | np.any(np.isneginf(components), axis=1)] = -np.inf
+    return total
+
+
+@dataclass(frozen=True)
+class SweepStats:
+    """Counts of one or more sweeps; the true acceptance rate is ``n_accepted / n_proposed``."""
+
+    n_proposed: int = 0
+    n_accepted: int = 0
+    n_identical_partner: int = 0
+    n_evaluations: int = 0
+
+    def __add__(self, other: "SweepStats") -> "SweepStats":
+        return SweepStats(self.n_proposed + other.n_proposed, self.n_accepted + other.n_accepted,
+                          self.n_identical_partner + other.n_identical_partner,
+                          self.n_evaluations + other.n_evaluations)
+
+    @property
+    def acceptance_rate(self) -> float:
+        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")

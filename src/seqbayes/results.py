@@ -1,0 +1,245 @@
+"""Step records and the run :class:`Result`, with xarray, NetCDF and ArviZ I/O.
+
+Every record is frozen. A :class:`Result` holds one :class:`StepRecord` per
+assimilated dataset; ``Result.to_xarray()`` lays them out as
+``(step, sample, parameter)`` arrays plus per-step diagnostics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .weights import normalise
+
+__all__ = ["StepInfo", "StepRecord", "Result", "weighted_quantile"]
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """Diagnostics of one on-line step (one dataset).
+
+    Attributes
+    ----------
+    step : int
+        1-based index of the dataset.
+    log_evidence_increment : float
+        ``log p(D^s | D^{1:s-1})``, summed over tempering stages (Eq. 1).
+    log_evidence : float
+        Cumulative ``log p(D^{1:s})``.
+    ess : float
+        Effective sample size after the last reweighting, before resampling.
+    resampled : bool
+        Whether the last stage resampled.
+    acceptance_rate : float
+        True rate over the step's moves: accepted proposals / proposals made.
+    step_size : float
+        Stretch-move step size ``u`` after the step (NaN for SMC).
+    n_virtual : int
+        Virtual iterations (SEMC sweeps) in the step, all stages.
+    n_stages : int
+        Tempering stages (1 without tempering).
+    temperatures : tuple of float
+        Tempering exponents reached, ending with 1.0.
+    n_loglike_evals : int
+        Likelihood evaluations (samples) in the step.
+    n_nan : int
+        Likelihood values that were NaN (counted as zero likelihood).
+    n_distinct : int
+        Distinct posterior samples at the end of the step.
+    n_proposed, n_accepted, n_identical_partner : int
+        Move counts; ``n_identical_partner`` are stretch proposals whose partner
+        was an identical copy of the walker.
+    wall_time : float
+        Seconds spent in the step.
+    """
+
+    step: int
+    log_evidence_increment: float
+    log_evidence: float
+    ess: float
+    resampled: bool
+    acceptance_rate: float
+    step_size: float
+    n_virtual: int
+    n_stages: int
+    temperatures: tuple
+    n_loglike_evals: int
+    n_nan: int
+    n_distinct: int
+    n_proposed: int
+    n_accepted: int
+    n_identical_partner: int
+    wall_time: float
+
+
+def weighted_quantile(samples, log_weights, q) -> np.ndarray:
+    """Weighted quantiles ``(len(q), d)`` of ``samples (N, d)``."""
+    samples = np.asarray(samples, dtype=float)
+    q = np.atleast_1d(np.asarray(q, dtype=float))
+    if np.any((q < 0) | (q > 1)):
+        raise ValueError(f"q: quantiles must lie in [0, 1], got {q}")
+    w = np.exp(normalise(log_weights))
+    out = np.empty((q.size, samples.shape[1]))
+    for j in range(samples.shape[1]):  # loop over parameters, not samples
+        order = np.argsort(samples[:, j])
+        cdf = np.cumsum(w[order]) - 0.5 * w[order]
+        out[:, j] = np.interp(q, cdf, samples[order, j])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class StepRecord:
+    """Samples and diagnostics of one step.
+
+    Attributes
+    ----------
+    info : StepInfo
+    posterior : (N, d) array
+        Samples of ``p(theta_s | D^{1:s})``.
+    log_weights : (N,) array
+        Their normalised log-weights (all equal after resampling).
+    predictive : (N, d) array
+        Samples of ``p(theta_{s+1} | D^{1:s})`` (Eq. A3), the next step's prior.
+    """
+
+    info: StepInfo
+    posterior: np.ndarray
+    log_weights: np.ndarray
+    predictive: np.ndarray
+
+    def _w(self):
+        return np.exp(normalise(self.log_weights))
+
+    def mean(self) -> np.ndarray:
+        """Weighted posterior mean, ``(d,)``."""
+        return self._w() @ self.posterior
+
+    def std(self) -> np.ndarray:
+        """Weighted posterior standard deviation, ``(d,)``."""
+        return np.sqrt(self._w() @ (self.posterior - self.mean()) ** 2)
+
+    def quantile(self, q) -> np.ndarray:
+        """Weighted posterior quantiles, ``(len(q), d)``."""
+        return weighted_quantile(self.posterior, self.log_weights, q)
+
+    def equal_weight_samples(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+        """Resampled (systematic) equal-weight posterior samples, ``(n, d)``."""
+        from .resampling import systematic
+
+        return self.posterior[systematic(self._w(), rng, n)]
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """All steps of one run.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Parameter names.
+    steps : tuple of StepRecord
+    meta : dict
+        Sampler name and settings, kernel and prior descriptions.
+    """
+
+    names: tuple
+    steps: tuple = ()
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def infos(self) -> tuple:
+        return tuple(r.info for r in self.steps)
+
+    @property
+    def log_evidence(self) -> np.ndarray:
+        """Cumulative log-evidence per step, ``(S,)``."""
+        return np.array([r.info.log_evidence for r in self.steps])
+
+    @property
+    def log_evidence_increments(self) -> np.ndarray:
+        return np.array([r.info.log_evidence_increment for r in self.steps])
+
+    def means(self) -> np.ndarray:
+        """Posterior means per step, ``(S, d)``."""
+        return np.array([r.mean() for r in self.steps])
+
+    def stds(self) -> np.ndarray:
+        """Posterior standard deviations per step, ``(S, d)``."""
+        return np.array([r.std() for r in self.steps])
+
+    def to_xarray(self):
+        """An :class:`xarray.Dataset` with dims ``(step, sample, parameter)``."""
+        import xarray as xr
+
+        if not self.steps:
+            raise ValueError("result: no steps to convert")
+        steps = np.array([r.info.step for r in self.steps])
+        coords = {"step": steps, "sample": np.arange(self.steps[0].posterior.shape[0]),
+                  "parameter": list(self.names)}
+        data = {
+            "posterior": (("step", "sample", "parameter"), np.stack([r.posterior for r in self.steps])),
+            "log_weights": (("step", "sample"), np.stack([r.log_weights for r in self.steps])),
+            "predictive": (("step", "sample", "parameter"), np.stack([r.predictive for r in self.steps])),
+        }
+        for f in dataclasses.fields(StepInfo):
+            if f.name in ("step", "temperatures"):
+                continue
+            values = np.array([getattr(r.info, f.name) for r in self.steps])
+            data[f.name] = (("step",), values.astype(np.int8) if values.dtype == bool else values)
+        ds = xr.Dataset(data, coords=coords)
+        ds.attrs["temperatures"] = json.dumps([list(r.info.temperatures) for r in self.steps])
+        ds.attrs["meta"] = json.dumps(self.meta, default=str)
+        ds.attrs["seqbayes_result_version"] = 1
+        return ds
+
+    @classmethod
+    def from_xarray(cls, ds) -> "Result":
+        """Inverse of :meth:`to_xarray`."""
+        if ds.attrs.get("seqbayes_result_version") != 1:
+            raise ValueError("dataset: not a seqbayes Result (missing or unknown seqbayes_result_version)")
+        temperatures = json.loads(ds.attrs["temperatures"])
+        records = []
+        for i, step in enumerate(ds["step"].values):
+            kwargs = {}
+            for f in dataclasses.fields(StepInfo):
+                if f.name == "step":
+                    kwargs[f.name] = int(step)
+                elif f.name == "temperatures":
+                    kwargs[f.name] = tuple(temperatures[i])
+                else:
+                    value = ds[f.name].values[i]
+                    kwargs[f.name] = (bool(value) if f.type in ("bool", bool) else
+                                      int(value) if f.type in ("int", int) else float(value))
+            records.append(StepRecord(StepInfo(**kwargs), ds["posterior"].values[i],
+                                      ds["log_weights"].values[i], ds["predictive"].values[i]))
+        return cls(tuple(str(n) for n in ds["parameter"].values), tuple(records), json.loads(ds.attrs["meta"]))
+
+    def to_netcdf(self, path) -> None:
+        """Write to NetCDF-4 (HDF5) via xarray and h5netcdf."""
+        self.to_xarray().to_netcdf(path, engine="h5netcdf")
+
+    @classmethod
+    def from_netcdf(cls, path) -> "Result":
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            return cls.from_xarray(ds.load())
+
+    def to_arviz(self, step: int = -1, rng: np.random.Generator | None = None):
+        """One step's posterior as :class:`arviz.InferenceData` (one chain of equal-weight draws).
+
+        Requires the optional ``arviz`` extra.
+        """
+        try:
+            import arviz as az
+        except ImportError as err:  # pragma: no cover - depends on the environment
+            raise ImportError("to_arviz: install the optional extra, pip install 'seqbayes[arviz]'") from err
+        from .rng import as_generator
+
+        record = self.steps[step]
+        draws = record.equal_weight_samples(as_generator(0 if rng is None else rng))
+        return az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(self.names)})

@@ -1,0 +1,472 @@
+"""The on-line engine shared by :class:`SMC` and :class:`SEMC`.
+
+One dataset ``D^s`` is assimilated by the pure function :func:`assimilate`:
+
+1. the prior particles (prior draws at ``s = 1``, predictive draws of Eq. A3
+   after) are reweighted by the likelihood (Eq. A4-A5), in adaptive tempering
+   stages ``beta_0 = 0 < beta_1 < ... < 1`` when the data are sharp, each
+   exponent chosen by bisection so that the ESS falls to a target fraction;
+2. after each stage the particles are resampled (always at an intermediate
+   stage, when the ESS is below the threshold at the last) and moved by an MCMC
+   kernel that leaves ``L(theta)^beta p_s(theta)`` invariant: one Gaussian
+   random-walk MH step for SMC (Eq. A6-A8), stretch-move sweeps with the adaptive
+   step size and "virtual iterations" of Algorithm 2 for SEMC;
+3. the log-evidence increment is the sum of the stages' ``log sum W_i L_i^dbeta``
+   (Eq. 1 in the log domain);
+4. the posterior is propagated through the Markov kernel (Eq. A2) and the
+   predictive density (Eq. A3, A9) becomes the next step's prior.
+
+The parameter space is the initial prior's support: a proposal outside it is
+rejected, and predictive draws outside it get zero weight; the predictive
+prior is thereby truncated to the parameter space and renormalised (its
+missing mass is removed from the evidence increment).
+
+The drivers :class:`SMC` and :class:`SEMC` hold the current :class:`SamplerState`
+and call :func:`assimilate`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .density import PREDICTIVE_METHODS, predictive_density
+from .kernels import MarkovKernel
+from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
+                    paper_target_acceptance, stretch_sweep, weighted_covariance)
+from .parallel import evaluate_loglike
+from .priors import as_samples, support_of
+from .resampling import SCHEMES, resample
+from .results import Result, StepInfo, StepRecord
+from .rng import as_generator
+from .weights import ess, logsumexp, normalise
+
+__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "ZeroLikelihoodError"]
+
+
+class ZeroLikelihoodError(RuntimeError):
+    """Every sample has zero likelihood for a dataset."""
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Settings of an on-line sampler (validated on construction).
+
+    Attributes
+    ----------
+    move : {"stretch", "gaussian"}
+        SEMC's affine-invariant stretch move or SMC's Gaussian random walk.
+    n_samples : int
+    tempering : bool
+        Adaptive tempering inside a step (default); ``False`` is the paper's single reweighting.
+    tempering_ess : float
+        Target ESS fraction of each tempering stage.
+    ess_threshold : float
+        Resample at the last stage when ESS < ``ess_threshold * N`` (authors' code: 0.5).
+    resampling : str
+        ``"systematic"``, ``"multinomial"`` (the paper's), ``"stratified"`` or ``"residual"``.
+    predictive : {"transition", "kde"}
+        Predictive prior construction (see :mod:`seqbayes.density`).
+    shrink_static : bool
+        Liu-West shrinkage of the static dimensions' kernel density.
+    target_acceptance : float
+        SEMC's target acceptance rate ``alpha_tr``.
+    step_size : float
+        SEMC's initial stretch step size ``u``.
+    max_virtual : int
+        Cap on SEMC virtual iterations per stage.
+    virtual_tolerance : float
+        Stop virtual iterations when ``|alpha - alpha_old| < virtual_tolerance * alpha_tr``.
+    n_moves : int
+        SMC: MH steps per stage; SEMC: minimum sweeps per stage.
+    proposal_scale : float
+        SMC's ``gamma`` of Eq. (A7).
+    """
+
+    move: str
+    n_samples: int = 1000
+    tempering: bool = True
+    tempering_ess: float = 0.5
+    ess_threshold: float = 0.5
+    resampling: str = "systematic"
+    predictive: str = "transition"
+    shrink_static: bool = True
+    target_acceptance: float = 0.25
+    step_size: float = 2.0
+    max_virtual: int = 20
+    virtual_tolerance: float = 0.1
+    n_moves: int = 1
+    proposal_scale: float = 1.0
+
+    def __post_init__(self):
+        if self.move not in ("stretch", "gaussian"):
+            raise ValueError(f"move: expected 'stretch' or 'gaussian', got {self.move!r}")
+        if int(self.n_samples) != self.n_samples or self.n_samples < 2:
+            raise ValueError(f"n_samples: must be an integer >= 2, got {self.n_samples}")
+        for name in ("tempering_ess", "ess_threshold"):
+            value = getattr(self, name)
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"{name}: must lie in (0, 1], got {value}")
+        if self.resampling not in SCHEMES:
+            raise ValueError(f"resampling: unknown scheme {self.resampling!r}; choose from {sorted(SCHEMES)}")
+        if self.predictive not in PREDICTIVE_METHODS:
+            raise ValueError(f"predictive: expected one of {PREDICTIVE_METHODS}, got {self.predictive!r}")
+        if not 0.0 < self.target_acceptance <= 1.0:
+            raise ValueError(f"target_acceptance: must lie in (0, 1], got {self.target_acceptance}")
+        if not self.step_size > 1.0:
+            raise ValueError(f"step_size: must be > 1, got {self.step_size}")
+        if self.max_virtual < 1 or self.n_moves < 1:
+            raise ValueError("max_virtual and n_moves: must be >= 1")
+        if self.move == "stretch" and self.n_moves > self.max_virtual:
+            raise ValueError(f"n_moves: {self.n_moves} exceeds max_virtual {self.max_virtual}")
+        if not self.proposal_scale > 0:
+            raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
+
+
+@dataclass(frozen=True, eq=False)
+class SamplerState:
+    """Everything needed to assimilate the next dataset.
+
+    Attributes
+    ----------
+    step : int
+        Datasets assimilated so far.
+    particles : (N, d) array
+        Draws of the current prior (the predictive distribution for ``s > 1``).
+    log_weights : (N,) array
+        Their normalised log-weights.
+    prior : object with ``logpdf``
+        The current prior density (the initial prior, then a :class:`~seqbayes.density.GaussianMixture`).
+    log_evidence : float
+        Cumulative log-evidence.
+    step_size : float
+        Current stretch step size (SEMC).
+    posterior, posterior_log_weights : arrays or None
+        The last step's posterior (for forecasts).
+    """
+
+    step: int
+    particles: np.ndarray
+    log_weights: np.ndarray
+    prior: object
+    log_evidence: float
+    step_size: float
+    posterior: np.ndarray | None = None
+    posterior_log_weights: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """The model: initial prior, Markov kernel, likelihood and parameter space."""
+
+    prior: object
+    kernel: MarkovKernel
+    loglike: object
+    support: np.ndarray
+    executor: object = None
+    n_chunks: int | None = None
+
+
+def _check_dataset(dataset, step):
+    if dataset is None:
+        raise ValueError(f"dataset: step {step} got None")
+    size = getattr(dataset, "size", None)
+    if size is not None and np.ndim(size) == 0 and size == 0:
+        raise ValueError(f"dataset: step {step} got an empty array")
+    if hasattr(dataset, "__len__") and not isinstance(dataset, (str, bytes)) and len(dataset) == 0:
+        raise ValueError(f"dataset: step {step} got an empty dataset")
+
+
+def _next_increment(log_weights, loglike, remaining, target_fraction):
+    """Largest ``dbeta <= remaining`` whose reweighting keeps ESS >= target x ESS(0+) (bisection)."""
+    finite = np.isfinite(loglike)
+
+    def ess_at(delta):
+        return ess(np.where(finite, log_weights + delta * np.where(finite, loglike, 0.0), -np.inf))
+
+    target = target_fraction * ess(np.where(finite, log_weights, -np.inf))
+    if ess_at(remaining) >= target:
+        return remaining
+    lo, hi = 0.0, remaining
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if ess_at(mid) >= target:
+            lo = mid
+        else:
+            hi = mid
+    return lo if lo > 0 else hi
+
+
+def _mutate(problem, config, state_step_size, walkers, components, coefficients, prior_logpdf, rng,
+            counter):
+    """The sampler's MCMC move at one tempering stage; returns walkers, components, stats, u, n_virtual."""
+
+    def component_fn(points):
+        return np.column_stack([counter.loglike(points), prior_logpdf(points)])
+
+    if config.move == "gaussian":
+        stats = SweepStats()
+        for _ in range(config.n_moves):
+            cov = weighted_covariance(walkers, np.zeros(walkers.shape[0]))
+            move = GaussianMove(cov, config.proposal_scale)
+            walkers, components, sweep = gaussian_sweep(walkers, components, component_fn, coefficients, move,
+                                                        rng, problem.support)
+            stats = stats + sweep
+        return walkers, components, stats, float("nan"), 0
+    # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
+    step_size = state_step_size
+    alpha_old = config.target_acceptance
+    stats = SweepStats()
+    n_virtual = 0
+    while True:
+        walkers, components, sweep = stretch_sweep(walkers, components, component_fn, coefficients,
+                                                   StretchMove(step_size), rng, problem.support)
+        n_virtual += 1
+        stats = stats + sweep
+        alpha = sweep.acceptance_rate
+        step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
+        converged = abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance
+        if (converged and n_virtual >= config.n_moves) or n_virtual >= config.max_virtual:
+            break
+        alpha_old = alpha
+    return walkers, components, stats, step_size, n_virtual
+
+
+class _Counter:
+    """Evaluates the user's likelihood with validation, counting calls and NaNs."""
+
+    def __init__(self, problem, dataset, step):
+        self.problem, self.dataset, self.step = problem, dataset, step
+        self.n_evals = 0
+        self.n_nan = 0
+
+    def loglike(self, theta):
+        values = evaluate_loglike(self.problem.loglike, theta, self.dataset, self.problem.executor,
+                                  self.problem.n_chunks)
+        if values.shape != (theta.shape[0],):
+            raise ValueError(f"loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
+                             f"expected ({theta.shape[0]},)")
+        if np.isposinf(values).any():
+            raise ValueError(f"loglike: returned +inf at step {self.step}")
+        nan = np.isnan(values)
+        self.n_nan += int(nan.sum())
+        self.n_evals += theta.shape[0]
+        return np.where(nan, -np.inf, values)
+
+
+def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
+               rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
+    """Assimilate one dataset: reweight, resample, move, propagate (pure; ``state`` is not modified).
+
+    Returns
+    -------
+    new_state : SamplerState
+    record : StepRecord
+
+    Raises
+    ------
+    ZeroLikelihoodError
+        If every sample has zero likelihood.
+    """
+    start = time.perf_counter()
+    step = state.step + 1
+    _check_dataset(dataset, step)
+    counter = _Counter(problem, dataset, step)
+    n = config.n_samples
+    particles = state.particles
+    inside = np.all((particles >= problem.support[:, 0]) & (particles <= problem.support[:, 1]), axis=1)
+    if not inside.any():
+        raise ZeroLikelihoodError(f"step {step}: every predictive sample lies outside the parameter space")
+    # truncate the predictive prior to the parameter space and renormalise it
+    log_mass_inside = logsumexp(state.log_weights[inside]) if not inside.all() else 0.0
+    log_weights = normalise(np.where(inside, state.log_weights, -np.inf))
+    loglike = np.full(n, -np.inf)
+    loglike[inside] = counter.loglike(particles[inside])
+    if not np.isfinite(loglike).any():
+        raise ZeroLikelihoodError(
+            f"step {step}: every sample has zero likelihood; the "
+            f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
+    prior_component = np.where(inside, state.prior.logpdf(particles), -np.inf)
+    components = np.column_stack([loglike, prior_component])
+
+    beta, log_z, stats = 0.0, 0.0, SweepStats()
+    step_size, n_virtual, temperatures, resampled = state.step_size, 0, [], False
+    while beta < 1.0:
+        remaining = 1.0 - beta
+        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess)
+                 if config.tempering else remaining)
+        if remaining - delta < 1e-12:
+            delta = remaining
+        finite = np.isfinite(components[:, 0])
+        increment = np.where(finite, delta * np.where(finite, components[:, 0], 0.0), -np.inf)
+        log_z += logsumexp(log_weights + increment)  # Eq. (1), one stage
+        beta = 1.0 if delta == remaining else beta + delta
+        temperatures.append(beta)
+        log_weights = normalise(log_weights + increment)
+        stage_ess = ess(log_weights)
+        resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
+        if resampled:
+            index = resample(config.resampling, np.exp(log_weights), rng, n)
+            particles, components = particles[index], components[index]
+            log_weights = np.full(n, -np.log(n))
+        particles, components, stage_stats, step_size_new, virtual = _mutate(
+            problem, config, step_size, particles, components, np.array([beta, 1.0]), state.prior.logpdf,
+            rng, counter)
+        if config.move == "stretch":
+            step_size = step_size_new
+        stats, n_virtual = stats + stage_stats, n_virtual + virtual
+    log_increment = log_z - log_mass_inside
+
+    density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
+                                             config.shrink_static)
+    info = StepInfo(
+        step=step, log_evidence_increment=float(log_increment),
+        log_evidence=float(state.log_evidence + log_increment), ess=float(stage_ess), resampled=bool(resampled),
+        acceptance_rate=stats.acceptance_rate, step_size=float(step_size) if config.move == "stretch" else float("nan"),
+        n_virtual=n_virtual, n_stages=len(temperatures), temperatures=tuple(temperatures),
+        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=int(np.unique(particles, axis=0).shape[0]),
+        n_proposed=stats.n_proposed, n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
+        wall_time=time.perf_counter() - start)
+    record = StepRecord(info, particles, log_weights, predictive)
+    new_state = SamplerState(step=step, particles=predictive, log_weights=log_weights, prior=density,
+                             log_evidence=info.log_evidence, step_size=float(step_size),
+                             posterior=particles, posterior_log_weights=log_weights)
+    return new_state, record
+
+
+class _SequentialSampler:
+    """Driver: holds the state, calls :func:`assimilate`, keeps the records."""
+
+    _move = ""
+
+    def __init__(self, prior, kernel, loglike, n_samples: int = 1000, rng=None, *, executor=None,
+                 n_chunks: int | None = None, **settings):
+        if not (hasattr(prior, "logpdf") and hasattr(prior, "sample")):
+            raise TypeError("prior: expected an object with logpdf(theta) and sample(n, rng)")
+        if not isinstance(kernel, MarkovKernel):
+            raise TypeError(f"kernel: expected a seqbayes.MarkovKernel, got {type(kernel).__name__}")
+        if not callable(loglike):
+            raise TypeError("loglike: expected a callable loglike(theta (N, d), dataset) -> (N,)")
+        if executor is not None and not hasattr(executor, "map"):
+            raise TypeError("executor: expected an object with a map method (concurrent.futures or dask Client)")
+        self._rng = as_generator(rng)
+        initial = as_samples(prior.sample(int(n_samples), self._rng), name="prior.sample(n, rng)")
+        dim = initial.shape[1]
+        if initial.shape[0] != int(n_samples):
+            raise ValueError(f"prior.sample: returned {initial.shape[0]} rows for n = {n_samples}")
+        if dim != kernel.dim:
+            raise ValueError(f"kernel: has {kernel.dim} parameters but the prior has {dim}")
+        if not np.all(np.isfinite(initial)):
+            raise ValueError("prior.sample: returned non-finite samples")
+        if self._move == "stretch" and int(n_samples) < 2 * dim:
+            raise ValueError(f"n_samples: the stretch move needs at least 2 d = {2 * dim} walkers, got {n_samples}")
+        if "target_acceptance" not in settings or settings["target_acceptance"] is None:
+            settings["target_acceptance"] = paper_target_acceptance(dim)  # Eq. (10)
+        self.config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
+        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks)
+        self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
+        self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
+                                   prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))
+        self._records: list[StepRecord] = []
+
+    @property
+    def state(self) -> SamplerState:
+        return self._state
+
+    @property
+    def rng(self) -> np.random.Generator:
+        return self._rng
+
+    def update(self, dataset) -> StepInfo:
+        """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`."""
+        state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
+        self._state = state
+        self._records.append(record)
+        return record.info
+
+    def run(self, datasets) -> Result:
+        """Assimilate each dataset in turn; returns :attr:`result`."""
+        for dataset in datasets:
+            self.update(dataset)
+        return self.result
+
+    def predict(self, n_steps: int) -> np.ndarray:
+        """Forecast: the posterior propagated ``1..n_steps`` steps through the kernel (Eq. A2).
+
+        Returns
+        -------
+        (n_steps, N, d) array
+            Equal-weight draws; the parameter space is not imposed on forecasts.
+        """
+        if self._state.posterior is None:
+            raise ValueError("predict: no dataset assimilated yet")
+        if int(n_steps) < 1:
+            raise ValueError(f"n_steps: must be >= 1, got {n_steps}")
+        current = self._records[-1].equal_weight_samples(self._rng)
+        out = []
+        for _ in range(int(n_steps)):
+            current = self.problem.kernel.propagate(current, self._rng)
+            out.append(current)
+        return np.stack(out)
+
+    @property
+    def result(self) -> Result:
+        meta = {"sampler": type(self).__name__, "config": {k: v for k, v in vars(self.config).items()},
+                "kernel": self.problem.kernel.describe(),
+                "prior": self.problem.prior.describe() if hasattr(self.problem.prior, "describe") else repr(self.problem.prior)}
+        return Result(self.names, tuple(self._records), meta)
+
+
+class SEMC(_SequentialSampler):
+    """Sequential Ensemble Monte Carlo (Algorithm 2): stretch moves with an adaptive step size.
+
+    Parameters
+    ----------
+    prior : JointPrior or object with ``logpdf`` and ``sample``
+    kernel : MarkovKernel
+    loglike : callable ``(theta (N, d), dataset) -> (N,)``
+    n_samples : int
+        Ensemble size ``N`` (at least ``2 d``).
+    rng : int or numpy.random.Generator
+    executor : object with ``map``, optional
+        Evaluates likelihood chunks in parallel (``concurrent.futures`` executor or ``dask.distributed.Client``).
+    **settings
+        Fields of :class:`SamplerConfig`: ``tempering``, ``target_acceptance`` (default Eq. 10),
+        ``step_size`` (2), ``max_virtual``, ``resampling``, ``predictive``, ...
+
+    Examples
+    --------
+    >>> import numpy as np, seqbayes
+    >>> from scipy import stats
+    >>> prior = seqbayes.JointPrior({"a": stats.norm(0, 1)})
+    >>> kernel = seqbayes.MarkovKernel([seqbayes.Static()])
+    >>> loglike = lambda theta, y: stats.norm.logpdf(y, theta[:, 0], 1.0)
+    >>> sampler = seqbayes.SEMC(prior, kernel, loglike, n_samples=200, rng=1)
+    >>> info = sampler.update(0.5)
+    >>> info.step
+    1
+    """
+
+    _move = "stretch"
+
+
+class SMC(_SequentialSampler):
+    """Sequential Monte Carlo (Algorithm 4): Gaussian random-walk MH with the weighted covariance.
+
+    Parameters as :class:`SEMC`; ``proposal_scale`` is ``gamma`` of Eq. (A7) (1), ``n_moves``
+    the MH steps per stage (1).
+    """
+
+    _move = "gaussian"
+
+    def __init__(self, prior, kernel, loglike, n_samples: int = 1000, rng=None, **settings):
+        for name in ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance"):
+            if name in settings:
+                raise TypeError(f"{name}: not a setting of SMC (it belongs to SEMC)")
+        super().__init__(prior, kernel, loglike, n_samples, rng, **settings)
+
+
+def replace_config(sampler, **changes):  # pragma: no cover - convenience
+    sampler.config = replace(sampler.config, **changes)
