@@ -1,0 +1,389 @@
+"""SG-EnMCMC: on-line stiffness identification with an ensemble Kalman filter,
+sparse-grid transition matrices and MCMC/TMCMC-style resampling of the
+parameters (Lin et al. 2024, Sec. 2 and Algorithm 1).
+
+Each of the ``N`` members carries a parameter vector ``theta_i`` (storey
+stiffness ratios) and a state ``X_i = [x, x']``. Per time step ``k``:
+
+1. **Forecast** (Eq. 21): ``X_i <- A(theta_i) X_i + B0(theta_i) u_{k-1} +
+   B1(theta_i) u_k + b(theta_i) eta_i``. The matrices of the exact (FOH)
+   discretisation are interpolated over ``theta`` by a level-``n`` sparse
+   grid built once on the prior box (Eqs. 12-20), so a batch of members costs
+   one sparse-matrix product instead of one matrix exponential each. They are
+   re-evaluated only for members whose ``theta`` changed.
+2. **Moments and likelihood** (Eqs. 9, 25): predicted observations
+   ``Y_i = H(theta_i) X_i``; per-member predictive log-likelihood
+   ``l_i = log N(y_k; Y_i, C_yy + R)``. The spread ``C_yy`` is the sample
+   covariance of the ``Y`` residuals after regressing on ``theta``
+   (``conditional=True``, default; the spread of the state *given* theta) or
+   the pooled sample covariance of the paper (``conditional=False``).
+3. **Weighting and resampling of theta** (Eqs. 27-28): ``log w_i += l_i``;
+   when the effective sample size falls below ``ess_threshold * N``, the
+   members (theta and state together) are resampled with probabilities
+   ``w_i / sum w`` (Eq. 28), and then **rejuvenated** by a kernel move
+   (Liu and West 2001): ``theta_i <- a theta_i + (1 - a) mean + h eps``,
+   ``eps ~ N(0, Cov(theta))``, ``a^2 + h^2 = 1``, which keeps the ensemble
+   mean and covariance and stops the parameter ensemble collapsing onto a
+   few values. Moves that leave the prior box are reflected back inside.
+4. **State update** (Eq. 22): perturbed-observation EnKF with gain
+   ``K = C_xy (C_yy + R)^-1`` from the same (conditional) sample moments.
+
+What of Eq. 27 is approximated, and what we chose
+-------------------------------------------------
+Eq. 27 writes a Metropolis ratio between the EnKF likelihood of a candidate
+at step ``k`` and that of the current value at ``k - 1``, and Eq. 28 turns
+the ratios into resampling probabilities. Two parts are not computable as
+written: (a) a candidate's likelihood ``p(y_k | y_{1:k-1}, theta*)`` needs
+the whole history filtered with ``theta*``, which would cost a filter run
+per candidate; (b) the ratio mixes two different time steps, so it is not a
+valid Metropolis-Hastings ratio for ``p(theta | y_{1:k})``. We therefore
+use the sequential importance weights ``w_i prop. to prod_k l_i`` of each
+member's own filtered history (what ``alpha`` of Eq. 28 becomes when the
+candidate is the member's own value), resample with them (Eq. 28), and
+replace the Metropolis candidate move by the Liu-West kernel move, whose
+members inherit their parent's state (the approximation
+``p(x_k | x_{k-1}, theta*) ~ p(x_k | x_{k-1}, theta)`` implicit in Eq. 27).
+The shrinkage ``a`` close to 1 keeps that approximation mild.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import sparsegrid
+from .filters.enkf import perturbed_observation_update, predictive_log_likelihood
+from .filters.kalman import check_filter_inputs, measurement_covariance
+from .resampling import resample
+from .rng import as_generator
+from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
+from .weights import normalise
+
+__all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult"]
+
+
+class ExactTransition:
+    """Discrete matrices from one matrix exponential per member (the reference)."""
+
+    def __init__(self, building: ShearBuilding, dt: float, hold: str = "foh",
+                 channels: str = "absolute_acceleration"):
+        self.building, self.dt, self.hold, self.channels = building, float(dt), hold, channels
+
+    def __call__(self, theta) -> DiscreteModel:
+        return discretise(self.building, theta, self.dt, self.hold, self.channels)
+
+
+class SparseGridTransition:
+    """``A, B0, B1`` of the exact discretisation interpolated over ``theta`` (Eqs. 18, 21).
+
+    The observation matrix ``H(theta)`` is affine in ``theta`` and is evaluated
+    exactly. Built once on the box ``[lower, upper]`` (the prior support).
+
+    Parameters
+    ----------
+    building : ShearBuilding
+    dt : float
+    lower, upper : (d,) arrays
+        The box of ``theta``.
+    level : int
+        Sparse-grid level ``n`` (paper: 6).
+    hold, channels, basis : see :func:`~seqbayes.structures.discretise` and
+        :class:`~seqbayes.sparsegrid.SparseGrid`.
+    """
+
+    def __init__(self, building: ShearBuilding, dt: float, lower, upper, level: int = 6,
+                 hold: str = "foh", channels: str = "absolute_acceleration", basis: str = "modified"):
+        self.building, self.dt, self.hold, self.channels = building, float(dt), hold, channels
+        self.m = building.state_dim
+        lower = np.asarray(lower, float)
+        upper = np.asarray(upper, float)
+        building.check_sampling(dt, upper)  # stiffest corner: highest mode
+
+        def matrices(theta):
+            model = discretise(building, theta, dt, hold, channels)
+            return np.concatenate([model.A.reshape(len(theta), -1), model.B0, model.B1], axis=1)
+
+        self.interpolant = sparsegrid.interpolate(matrices, building.n_storeys, level, lower, upper,
+                                                  basis=basis)
+
+    @property
+    def n_points(self) -> int:
+        return self.interpolant.grid.n_points
+
+    def __call__(self, theta) -> DiscreteModel:
+        theta = np.atleast_2d(np.asarray(theta, float))
+        flat = self.interpolant(theta)
+        m, n = self.m, theta.shape[0]
+        A = flat[:, : m * m].reshape(n, m, m)
+        B0 = flat[:, m * m : m * m + m]
+        B1 = flat[:, m * m + m :]
+        H = self.building.observation_matrix(theta, self.channels)
+        return DiscreteModel(A, B0, B1, H, self.dt, self.hold)
+
+
+@dataclass(frozen=True)
+class SGEnMCMCStep:
+    """Per-step summary (one row of the histories in :class:`SGEnMCMCResult`)."""
+
+    k: int
+    ess: float
+    resampled: bool
+    log_evidence_increment: float
+
+
+@dataclass(frozen=True)
+class SGEnMCMCResult:
+    """Histories of an SG-EnMCMC run over ``T`` steps with ``N`` members, ``d`` parameters.
+
+    Attributes
+    ----------
+    theta_mean, theta_var, theta_mpv : (T, d) arrays
+        Weighted mean, variance and most probable value (mode of a
+        per-parameter histogram of the weighted members) after step ``k``.
+    theta_quantiles : (T, 3, d) array
+        Weighted 2.5 %, 50 % and 97.5 % quantiles.
+    ess : (T,) array
+        Effective sample size after weighting at step ``k`` (before resampling).
+    resampled : (T,) bool array
+    log_evidence_increments : (T,) array
+        ``log sum_i w_hat_i exp(l_i)``; their sum estimates ``log p(y | model)``.
+    state_mean : (T, m) array
+        Weighted mean of the updated states.
+    drift_mean, drift_std : (T, n) arrays
+        Inter-storey drifts of the updated states (mean and spread).
+    final_theta : (N, d) array
+        The final members (after a last resampling, equally weighted).
+    final_log_weights : (N,) array
+    elapsed : float
+        Wall-clock seconds of the run.
+    """
+
+    theta_mean: np.ndarray
+    theta_var: np.ndarray
+    theta_mpv: np.ndarray
+    theta_quantiles: np.ndarray
+    ess: np.ndarray
+    resampled: np.ndarray
+    log_evidence_increments: np.ndarray
+    state_mean: np.ndarray
+    drift_mean: np.ndarray
+    drift_std: np.ndarray
+    final_theta: np.ndarray
+    final_log_weights: np.ndarray
+    elapsed: float
+    names: tuple = field(default=())
+
+    @property
+    def log_evidence(self) -> float:
+        return float(self.log_evidence_increments.sum())
+
+    def convergence_step(self, truth, tol: float = 0.01) -> np.ndarray:
+        """First step after which the mean stays within ``tol`` of ``truth``, per parameter
+        (``T`` if never)."""
+        return _convergence_step(self.theta_mean, truth, tol)
+
+
+def _convergence_step(history, truth, tol):
+    ok = np.abs(np.asarray(history) - np.asarray(truth)) <= tol  # (T, d)
+    T = ok.shape[0]
+    # last step that is outside, +1
+    bad = ~ok
+    last_bad = np.where(bad.any(axis=0), T - 1 - np.argmax(bad[::-1], axis=0), -1)
+    return last_bad + 1
+
+
+def weighted_quantiles(samples, weights, probs) -> np.ndarray:
+    """Per-column weighted quantiles: ``samples (N, d)``, ``weights (N,)`` -> ``(len(probs), d)``."""
+    order = np.argsort(samples, axis=0)
+    sorted_x = np.take_along_axis(samples, order, axis=0)
+    cw = np.cumsum(weights[order], axis=0)
+    cw = (cw - 0.5 * weights[order]) / cw[-1:]
+    out = np.empty((len(probs), samples.shape[1]))
+    for j in range(samples.shape[1]):  # loop over parameters (d), not members
+        out[:, j] = np.interp(probs, cw[:, j], sorted_x[:, j])
+    return out
+
+
+def weighted_mode(samples, weights, lower, upper, bins: int = 60) -> np.ndarray:
+    """Most probable value per parameter: centre of the heaviest bin of a weighted
+    histogram over the ensemble's weighted 1st-99th percentile range (one bincount)."""
+    lo, hi = weighted_quantiles(samples, weights, [0.01, 0.99])
+    lo = np.maximum(lo, lower)
+    hi = np.maximum(np.minimum(hi, upper), lo + 1e-12)
+    d = samples.shape[1]
+    b = np.clip(((samples - lo) / (hi - lo) * bins).astype(np.int64), 0, bins - 1)  # (N, d)
+    counts = np.bincount((b + bins * np.arange(d)).ravel(), weights=np.repeat(weights, d),
+                         minlength=bins * d).reshape(d, bins)
+    i = np.argmax(counts, axis=1)
+    return lo + (i + 0.5) * (hi - lo) / bins
+
+
+class SGEnMCMC:
+    """The SG-EnMCMC identifier (Algorithm 1).
+
+    Parameters
+    ----------
+    building : ShearBuilding
+    dt : float
+        Sampling step [s] (0.02 s = 50 Hz in the paper).
+    lower, upper : (d,) arrays
+        Uniform prior box of the stiffness ratios (paper: 0.7 and 1).
+    measurement_noise : (p,) stds or (p, p) covariance
+    process_noise_std : float
+        Std of the unmeasured ground-acceleration noise of the model (m/s^2).
+    n_members : int
+        Ensemble size ``N`` (paper: 500).
+    level : int
+        Sparse-grid level (paper: 6); ``None`` uses exact matrices.
+    ess_threshold : float
+        Resample when ESS < ``ess_threshold * N``.
+    shrinkage : float
+        Liu-West ``a`` in (0, 1]; ``1`` disables the rejuvenation move.
+    conditional : bool
+        Condition the EnKF moments on theta (see module docstring).
+    resampling : str
+        Scheme of :mod:`seqbayes.resampling` (the paper's is multinomial).
+    channels : str
+        Measured channels (default floor absolute accelerations).
+    """
+
+    def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
+                 process_noise_std: float = 0.0, n_members: int = 500, level: int | None = 6,
+                 ess_threshold: float = 0.5, shrinkage: float = 0.98, conditional: bool = True,
+                 resampling: str = "systematic", channels: str = "absolute_acceleration",
+                 basis: str = "modified", transition=None, centre: str = "regression"):
+        d = building.n_storeys
+        self.lower = np.broadcast_to(np.asarray(lower, float), (d,)).copy()
+        self.upper = np.broadcast_to(np.asarray(upper, float), (d,)).copy()
+        if np.any(self.lower <= 0) or np.any(self.upper <= self.lower):
+            raise ValueError(f"lower, upper: need 0 < lower < upper, got {self.lower}, {self.upper}")
+        if not isinstance(n_members, (int, np.integer)) or n_members < 4 * d:
+            raise ValueError(f"n_members: expected an integer >= {4 * d}, got {n_members!r}")
+        if not 0 < shrinkage <= 1:
+            raise ValueError(f"shrinkage: must be in (0, 1], got {shrinkage}")
+        if not 0 < ess_threshold <= 1:
+            raise ValueError(f"ess_threshold: must be in (0, 1], got {ess_threshold}")
+        if process_noise_std < 0:
+            raise ValueError(f"process_noise_std: must be non-negative, got {process_noise_std}")
+        self.building = building
+        self.dt = float(dt)
+        self.n_members = int(n_members)
+        self.measurement_noise = measurement_noise
+        self.process_noise_std = float(process_noise_std)
+        self.ess_threshold = float(ess_threshold)
+        self.shrinkage = float(shrinkage)
+        self.conditional = bool(conditional)
+        self.resampling = resampling
+        self.channels = channels
+        self.centre = centre
+        if transition is not None:
+            self.transition = transition
+        elif level is None:
+            self.transition = ExactTransition(building, dt, channels=channels)
+        else:
+            self.transition = SparseGridTransition(building, dt, self.lower, self.upper, level,
+                                                   channels=channels, basis=basis)
+
+    # ----------------------------------------------------------------- the move
+    def _rejuvenate(self, theta, rng):
+        """Liu-West kernel move, reflected into the prior box."""
+        a = self.shrinkage
+        if a >= 1:
+            return theta
+        mean = theta.mean(axis=0)
+        cov = np.atleast_2d(np.cov(theta.T))
+        L = np.linalg.cholesky(cov + 1e-14 * np.eye(cov.shape[0]) * max(np.trace(cov), 1e-30))
+        new = a * theta + (1 - a) * mean + np.sqrt(1 - a * a) * rng.standard_normal(theta.shape) @ L.T
+        width = self.upper - self.lower
+        z = np.mod(new - self.lower, 2 * width)  # reflect into the box
+        return self.lower + np.where(z > width, 2 * width - z, z)
+
+    def run(self, ground_acceleration, measurements, rng=None, progress: bool = False,
+            initial_theta=None) -> SGEnMCMCResult:
+        """Identify ``theta`` on-line from ``measurements (T, p)`` under ``ground_acceleration (T,)``.
+
+        The structure starts at rest; ``y_0`` is the first measurement.
+        """
+        import time
+
+        rng = as_generator(rng)
+        probe = self.transition(self.lower[None, :])
+        u, y = check_filter_inputs(probe, ground_acceleration, measurements)
+        T = u.size
+        N, d = self.n_members, self.lower.size
+        p = probe.H.shape[1]
+        R = measurement_covariance(self.measurement_noise, p)
+        start = time.perf_counter()
+        if initial_theta is None:
+            theta = self.lower + (self.upper - self.lower) * rng.random((N, d))  # uniform prior
+        else:
+            theta = np.array(initial_theta, float)
+            if theta.shape != (N, d):
+                raise ValueError(f"initial_theta: expected shape ({N}, {d}), got {theta.shape}")
+        model = self.transition(theta)
+        m = model.A.shape[1]
+        X = np.zeros((N, m))
+        logw = np.zeros(N)
+        n = self.building.n_storeys
+        drift_op = np.eye(n) - np.eye(n, k=-1)
+        out = {name: np.empty((T, d)) for name in ("mean", "var", "mpv")}
+        quant = np.empty((T, 3, d))
+        ess_hist = np.empty(T)
+        res_hist = np.zeros(T, bool)
+        evid = np.empty(T)
+        state_mean = np.empty((T, m))
+        drift_mean = np.empty((T, n))
+        drift_std = np.empty((T, n))
+        iterator = range(T)
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(iterator, desc="SG-EnMCMC", unit="step")
+        for k in iterator:
+            if k > 0:  # (1) forecast with the interpolated transition (Eq. 21)
+                X = np.einsum("nij,nj->ni", model.A, X) + model.B0 * u[k - 1] + model.B1 * u[k]
+                if self.process_noise_std > 0:
+                    eta = rng.standard_normal(N) * self.process_noise_std
+                    X += (model.B0 + model.B1) * eta[:, None]
+            Y = np.einsum("npm,nm->np", model.H, X)
+            cov = theta if self.conditional else None
+            # (2)-(3) moments and per-member EnKF likelihood (Eqs. 9, 25)
+            _, loglik = predictive_log_likelihood(y[k], Y, R, cov, self.centre)
+            lw_hat = normalise(logw)
+            evid[k] = float(np.logaddexp.reduce(lw_hat + loglik))
+            logw = logw + loglik
+            lw_hat = normalise(logw)
+            w = np.exp(lw_hat)
+            ess = float(1.0 / np.sum(w * w))
+            ess_hist[k] = ess
+            # (5) state update by the Kalman gain from sample moments (Eq. 22)
+            X, _ = perturbed_observation_update(X, Y, y[k], R, rng, cov)
+            # summaries (weighted, before resampling)
+            mean = w @ theta
+            out["mean"][k] = mean
+            out["var"][k] = w @ (theta - mean) ** 2
+            quant[k] = weighted_quantiles(theta, w, [0.025, 0.5, 0.975])
+            out["mpv"][k] = weighted_mode(theta, w, self.lower, self.upper)
+            state_mean[k] = w @ X
+            drifts = X[:, :n] @ drift_op.T
+            dm = w @ drifts
+            drift_mean[k] = dm
+            drift_std[k] = np.sqrt(np.maximum(w @ (drifts - dm) ** 2, 0))
+            # (4) resample theta with its state (Eq. 28) and rejuvenate
+            if ess < self.ess_threshold * N:
+                idx = resample(self.resampling, w, rng, N)
+                theta, X = theta[idx], X[idx]
+                theta = self._rejuvenate(theta, rng)
+                model = self.transition(theta)
+                logw = np.zeros(N)
+                res_hist[k] = True
+        final_w = np.exp(normalise(logw))
+        idx = resample(self.resampling, final_w, rng, N)
+        elapsed = time.perf_counter() - start
+        return SGEnMCMCResult(
+            theta_mean=out["mean"], theta_var=out["var"], theta_mpv=out["mpv"], theta_quantiles=quant,
+            ess=ess_hist, resampled=res_hist, log_evidence_increments=evid, state_mean=state_mean,
+            drift_mean=drift_mean, drift_std=drift_std, final_theta=theta[idx],
+            final_log_weights=np.zeros(N), elapsed=elapsed,
+            names=tuple(f"theta_{j + 1}" for j in range(d)))
