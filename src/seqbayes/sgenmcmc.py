@@ -250,7 +250,7 @@ class SGEnMCMC:
 
     def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
                  process_noise_std: float = 0.0, n_members: int = 500, level: int | None = 6,
-                 ess_threshold: float = 0.5, shrinkage: float = 0.98, conditional: bool = True,
+                 ess_threshold: float = 0.5, shrinkage: float = 0.95, conditional: bool = True,
                  resampling: str = "systematic", channels: str = "absolute_acceleration",
                  basis: str = "modified", transition=None, centre: str = "regression"):
         d = building.n_storeys
