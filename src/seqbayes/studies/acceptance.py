@@ -111,7 +111,7 @@ def _problem(name):
 
 def run_config(problem: str, n_samples: int, tempering: bool, target: float, step_size: float, seed: int) -> dict:
     """One SEMC run; returns per-step counts and rates (arrays of length S)."""
-    from ..sequential import SEMC
+    from ..sequential import SEMC, ZeroLikelihoodError
 
     prior, kernel, loglike, datasets = _problem(problem)
     support = prior.support
@@ -121,8 +121,16 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
                    step_size=step_size, tempering=tempering)
     rows = []
     n_inside = n_samples
-    for dataset in datasets:
-        info = sampler.update(dataset)
+    failed_step = 0
+    for s, dataset in enumerate(datasets):
+        try:
+            info = sampler.update(dataset)
+        except ZeroLikelihoodError:
+            # every predictive sample left the parameter space (seen untempered, when step 1
+            # missed the posterior); the remaining steps are NaN and the failure is counted
+            failed_step = s + 1
+            rows += [(np.nan,) * 9] * (len(datasets) - s)
+            break
         # proposals evaluated = likelihood evaluations minus the initial evaluation of the inside particles
         evaluated = info.n_loglike_evals - n_inside
         n_outside = info.n_proposed - info.n_identical_partner - evaluated
@@ -135,7 +143,8 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
     return {"true": true, "authors": authors_rate(n_acc, n_id, n_prop, u, dim),
             "authors_redraw": authors_rate(n_acc, n_id, n_prop, u, dim, n_out),
             "identical_fraction": n_id / n_prop, "outside_fraction": n_out / n_prop,
-            "step_size": u, "n_virtual": arr[:, 6], "n_stages": arr[:, 7], "n_distinct": arr[:, 8]}
+            "step_size": u, "n_virtual": arr[:, 6], "n_stages": arr[:, 7], "n_distinct": arr[:, 8],
+            "failed": np.arange(1, len(rows) + 1) >= failed_step if failed_step else np.zeros(len(rows), bool)}
 
 
 def _star(args):
@@ -196,8 +205,8 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
 def bounds_table(ds) -> str:
     """Markdown: per configuration and target, min / mean / max of each rate over steps and seeds."""
     lines = ["| configuration | target | u(s=1) | true min / mean / max | authors' counter min / mean / max "
-             "| + box redraw min / mean / max | identical partners | outside box |",
-             "|:---|---:|---:|:---|:---|:---|---:|---:|"]
+             "| + box redraw min / mean / max | identical partners | outside box | failed runs |",
+             "|:---|---:|---:|:---|:---|:---|---:|---:|---:|"]
     for c in ds["config"].values:
         for t, u in zip(ds["target"].values, ds["start_step_size"].values):
             sub = ds.sel(config=c, target=t)
@@ -205,18 +214,22 @@ def bounds_table(ds) -> str:
             for v in ("true", "authors", "authors_redraw"):
                 a = sub[v].values
                 cells.append(f"{np.nanmin(a):.3f} / {np.nanmean(a):.3f} / {np.nanmax(a):.3f}")
+            failed = int(np.any(sub["failed"].values == 1, axis=1).sum())
             lines.append(f"| {c} | {t:.3f} | {u:g} | " + " | ".join(cells)
-                         + f" | {float(sub['identical_fraction'].mean()):.3f} | {float(sub['outside_fraction'].mean()):.3f} |")
+                         + f" | {float(sub['identical_fraction'].mean()):.3f} | {float(sub['outside_fraction'].mean()):.3f}"
+                         + f" | {failed} |")
     return "\n".join(lines)
 
 
 def overall_bounds(ds) -> str:
     """Per configuration: the lowest and highest rate over every target, step and seed."""
-    lines = ["| configuration | true: lowest / highest | authors' counter: lowest / highest | + box redraw: lowest / highest |",
-             "|:---|:---|:---|:---|"]
+    lines = ["| configuration | true: lowest / highest | authors' counter: lowest / highest "
+             "| + box redraw: lowest / highest | failed runs |",
+             "|:---|:---|:---|:---|---:|"]
     for c in ds["config"].values:
         sub = ds.sel(config=c)
         cells = [f"{float(sub[v].min()):.3f} / {float(sub[v].max()):.3f}" for v in ("true", "authors", "authors_redraw")]
+        cells.append(str(int(np.any(sub["failed"].values == 1, axis=-1).sum())))
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -138,14 +138,14 @@ def plot(result: Illustration, path):
     order = np.argsort(result.normalised_weights)
     sc = axes[0].scatter(*result.prior_samples[order].T, c=result.normalised_weights[order], s=1.5,
                          cmap="viridis", rasterized=True)
-    fig.colorbar(sc, ax=axes[0], label=r"$\hat w_i$", format="%.0e")
-    axes[0].set_title("(a) prior samples, normalised weight")
+    fig.colorbar(sc, ax=axes[0], label=r"$\hat w_i$", format="%.1e")
+    axes[0].set_title("(a) prior samples by weight", fontsize=9)
     panels = ((result.resampled, "(b) after resampling"),
               (result.posterior_smc, "(c) SMC: resample + MH move"),
               (result.posterior_semc, "(d) SEMC: resample + stretch move"))
     for ax, (samples, title) in zip(axes[1:], panels):
         ax.scatter(*samples.T, s=1, alpha=0.3, color="C0", rasterized=True)
-        ax.set_title(title)
+        ax.set_title(title, fontsize=9)
     for ax in axes:
         ax.plot(*MODES.T, "r+", ms=10, mew=2)
         ax.set_xlim(*BOX)
@@ -153,7 +153,7 @@ def plot(result: Illustration, path):
         ax.set_aspect("equal")
         ax.set_xlabel(r"$\theta_1$")
     axes[0].set_ylabel(r"$\theta_2$")
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=60)
     plt.close(fig)
 
 
