@@ -213,7 +213,8 @@ def bounds_table(ds) -> str:
             cells = []
             for v in ("true", "authors", "authors_redraw"):
                 a = sub[v].values
-                cells.append(f"{np.nanmin(a):.3f} / {np.nanmean(a):.3f} / {np.nanmax(a):.3f}")
+                a = a[np.isfinite(a)]                                   # failed runs leave NaN
+                cells.append(f"{a.min():.3f} / {a.mean():.3f} / {a.max():.3f}" if a.size else "- (all failed)")
             failed = int(np.any(sub["failed"].values == 1, axis=1).sum())
             lines.append(f"| {c} | {t:.3f} | {u:g} | " + " | ".join(cells)
                          + f" | {float(sub['identical_fraction'].mean()):.3f} | {float(sub['outside_fraction'].mean()):.3f}"
