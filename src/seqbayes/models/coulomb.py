@@ -126,7 +126,7 @@ class CoulombDataset:
     r_exp : ndarray, shape (M,)
         Measured frequency ratios (input of the phase model).
     omega_b : ndarray, shape (M,)
-        Driving frequencies [rad/s] (input of the r model).
+        Driving frequencies [rad/s] (input of the r model), ``r_exp * OMEGA_N``.
     phi : ndarray, shape (M,)
         Measured phase lags [deg].
     """
@@ -179,7 +179,9 @@ def load_experiment() -> tuple[CoulombDataset, ...]:
         col = lambda key: np.array([float(r[key]) for r in sel])  # noqa: E731
         out.append(CoulombDataset(step=step, coulomb_force=float(sel[0]["coulomb_force_N"]),
                                   beta=float(sel[0]["beta"]), r_nom=col("r_nom"), r_exp=col("r_exp"),
-                                  omega_b=col("omega_b_rad_s"), phi=col("phi_deg")))
+                                  # omega_b = r_exp * omega_n as in the authors' code and the paper's
+                                  # Table 2 (the csv column differs at s = 3, see PROVENANCE_coulomb.md)
+                                  omega_b=col("r_exp") * OMEGA_N, phi=col("phi_deg")))
     return tuple(out)
 
 
@@ -369,10 +371,10 @@ def _ratio_constants(r_values: tuple, boundary: str):
 def _phase_exact(consts, beta):
     """Phase lag [rad] from the cached ratio constants; ``beta`` broadcasts against them."""
     u, one_m_r2, k_re, k_im, _ = consts
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # r = 1 is masked by the caller
         x0 = np.sqrt(1.0 / one_m_r2**2 - (beta * u) ** 2)                     # Eq. (20)
-    phi_e = np.arctan2(-beta * u * one_m_r2, x0 * one_m_r2)                    # Eq. (26)
-    arg_c1 = np.arctan2(beta * k_im, 0.5 * np.pi * x0 + beta * k_re)           # arg of pi * c1
+        phi_e = np.arctan2(-beta * u * one_m_r2, x0 * one_m_r2)                # Eq. (26)
+        arg_c1 = np.arctan2(beta * k_im, 0.5 * np.pi * x0 + beta * k_re)       # arg of pi * c1
     return phi_e - arg_c1
 
 
