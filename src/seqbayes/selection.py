@@ -94,5 +94,5 @@ def compare(results, prior_probabilities=None) -> ModelComparison:
             raise ValueError("prior_probabilities: must be positive")
         log_prior = np.log(p / p.sum())
     log_post = log_z + log_prior
-    probabilities = np.exp(log_post - logsumexp(log_post, axis=1, keepdims=True))
+    probabilities = np.exp(log_post - logsumexp(log_post, axis=1)[:, None])
     return ModelComparison(names, log_z, increments, probabilities)

@@ -1,0 +1,184 @@
+"""The on-line samplers' contract: input validation, NaN handling, errors that name
+the argument or step, reproducibility, results I/O and model comparison."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import seqbayes
+from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static, Drift, ZeroLikelihoodError, compare
+from seqbayes.models.linear_gaussian import LinearGaussianProblem
+
+PROBLEM = LinearGaussianProblem()
+DATA, _ = PROBLEM.simulate(3, rng=11)
+
+
+def make(cls=SEMC, n=200, seed=0, **kw):
+    return cls(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, n_samples=n, rng=seed, **kw)
+
+
+@pytest.mark.parametrize("cls", [SEMC, SMC])
+def test_same_seed_same_numbers_bit_for_bit(cls):
+    a = make(cls, seed=5).run(DATA)
+    b = make(cls, seed=5).run(DATA)
+    c = make(cls, seed=6).run(DATA)
+    for ra, rb in zip(a.steps, b.steps):
+        np.testing.assert_array_equal(ra.posterior, rb.posterior)
+        np.testing.assert_array_equal(ra.predictive, rb.predictive)
+        assert ra.info.log_evidence == rb.info.log_evidence
+    assert not np.array_equal(a.steps[-1].posterior, c.steps[-1].posterior)
+
+
+def test_generator_is_used_not_global_state():
+    np.random.seed(0)
+    a = make(seed=np.random.default_rng(3)).run(DATA)
+    np.random.seed(1)
+    b = make(seed=np.random.default_rng(3)).run(DATA)
+    np.testing.assert_array_equal(a.steps[-1].posterior, b.steps[-1].posterior)
+
+
+def test_step_info_records_everything():
+    sampler = make(SEMC)
+    info = sampler.update(DATA[0])
+    assert info.step == 1 and info.n_stages == len(info.temperatures) and info.temperatures[-1] == 1.0
+    assert info.n_loglike_evals > 200 and info.n_nan == 0 and 1 <= info.n_distinct <= 200
+    assert 0 < info.acceptance_rate < 1 and info.acceptance_rate == info.n_accepted / info.n_proposed
+    assert info.step_size >= 1.01 and info.n_virtual >= info.n_stages
+    assert info.wall_time > 0 and info.log_evidence == info.log_evidence_increment
+    info2 = sampler.update(DATA[1])
+    assert info2.log_evidence == pytest.approx(info.log_evidence + info2.log_evidence_increment)
+    forecast = sampler.predict(3)
+    assert forecast.shape == (3, 200, 2)
+    # the static slope does not move in a forecast; the drifting offset spreads by q per step
+    np.testing.assert_allclose(forecast[2].std(axis=0)[0] ** 2,
+                               forecast[0].std(axis=0)[0] ** 2 + 2 * PROBLEM.drift_std**2, rtol=0.5)
+
+
+def test_smc_has_no_step_size():
+    info = make(SMC).update(DATA[0])
+    assert np.isnan(info.step_size) and info.n_virtual == 0
+    with pytest.raises(TypeError, match="step_size"):
+        make(SMC, step_size=3.0)
+
+
+def test_nan_likelihood_counts_as_zero_and_is_counted():
+    def loglike(theta, y):
+        out = PROBLEM.loglike(theta, y)
+        out[theta[:, 0] > 0.5] = np.nan
+        return out
+
+    sampler = SEMC(PROBLEM.prior, PROBLEM.kernel, loglike, n_samples=300, rng=1)
+    info = sampler.update(DATA[0])
+    assert info.n_nan > 0
+    assert np.all(sampler.result.steps[0].posterior[:, 0] <= 0.5)
+
+
+def test_zero_likelihood_everywhere_names_the_step():
+    def loglike(theta, y):
+        return np.full(len(theta), -np.inf) if isinstance(y, str) else PROBLEM.loglike(theta, y)
+
+    sampler = SEMC(PROBLEM.prior, PROBLEM.kernel, loglike, n_samples=100, rng=0)
+    sampler.update(DATA[0])
+    before = sampler.state
+    with pytest.raises(ZeroLikelihoodError, match="step 2: every sample has zero likelihood; the predictive"):
+        sampler.update("far")
+    # the failed step left the sampler untouched
+    assert sampler.state is before and len(sampler.result.steps) == 1
+    fresh = SEMC(PROBLEM.prior, PROBLEM.kernel, loglike, n_samples=100, rng=0)
+    with pytest.raises(ZeroLikelihoodError, match="step 1: .* the prior is too far"):
+        fresh.update("far")
+
+
+def test_bad_input_messages_name_the_argument():
+    prior, kernel, loglike = PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike
+    with pytest.raises(ValueError, match="kernel: has 1 parameters but the prior has 2"):
+        SEMC(prior, MarkovKernel([Static()]), loglike, n_samples=100)
+    with pytest.raises(ValueError, match="n_samples: the stretch move needs at least 2 d = 4"):
+        SEMC(prior, kernel, loglike, n_samples=3)
+    with pytest.raises(ValueError, match="n_samples"):
+        SMC(prior, kernel, loglike, n_samples=1)
+    with pytest.raises(TypeError, match="prior"):
+        SEMC(object(), kernel, loglike)
+    with pytest.raises(TypeError, match="kernel"):
+        SEMC(prior, "drift", loglike)
+    with pytest.raises(TypeError, match="loglike"):
+        SEMC(prior, kernel, 3.0)
+    with pytest.raises(ValueError, match="resampling"):
+        SEMC(prior, kernel, loglike, resampling="bogus")
+    with pytest.raises(ValueError, match="target_acceptance"):
+        SEMC(prior, kernel, loglike, target_acceptance=1.5)
+    with pytest.raises(ValueError, match="step_size"):
+        SEMC(prior, kernel, loglike, step_size=1.0)
+
+    class NaNPrior:
+        def logpdf(self, theta):
+            return np.zeros(len(theta))
+
+        def sample(self, n, rng):
+            return np.full((n, 2), np.nan)
+
+    with pytest.raises(ValueError, match="prior.sample: returned non-finite"):
+        SEMC(NaNPrior(), kernel, loglike, n_samples=10)
+
+    class FlatPrior(NaNPrior):
+        def sample(self, n, rng):
+            return np.zeros(n)
+
+    with pytest.raises(ValueError, match=r"prior.sample\(n, rng\): expected shape \(N, d\)"):
+        SEMC(FlatPrior(), kernel, loglike, n_samples=10)
+    sampler = make()
+    for empty in (np.array([]), [], None):
+        with pytest.raises(ValueError, match="dataset: step 1"):
+            sampler.update(empty)
+    wrong = SEMC(prior, kernel, lambda t, y: np.zeros((len(t), 2)), n_samples=20)
+    with pytest.raises(ValueError, match=r"loglike: returned shape \(20, 2\)"):
+        wrong.update(DATA[0])
+    assert sampler.state.step == 0
+    with pytest.raises(ValueError, match="predict: no dataset"):
+        sampler.predict(1)
+
+
+def test_result_netcdf_round_trip(tmp_path):
+    result = make(SEMC).run(DATA)
+    path = tmp_path / "run.nc"
+    result.to_netcdf(path)
+    back = seqbayes.Result.from_netcdf(path)
+    assert back.names == ("a", "b") and len(back.steps) == 3
+    for a, b in zip(result.steps, back.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        assert a.info == b.info
+    ds = result.to_xarray()
+    assert ds["posterior"].dims == ("step", "sample", "parameter")
+    assert ds.attrs["seqbayes_result_version"] == 1
+
+
+def test_compare_bayes_factor_and_probabilities():
+    wrong_kernel = MarkovKernel([Drift(1.0, noise_std=0.05), Static()])
+    good = make(SEMC, n=400).run(DATA)
+    bad = SEMC(PROBLEM.prior, wrong_kernel, PROBLEM.loglike, n_samples=400, rng=0).run(DATA)
+    table = compare({"random walk": good, "drift +1": bad})
+    assert table.best == "random walk"
+    np.testing.assert_allclose(table.probabilities.sum(axis=1), 1.0)
+    np.testing.assert_allclose(table.log_bayes_factor("random walk", "drift +1"),
+                               good.log_evidence - bad.log_evidence)
+    assert "most probable: random walk" in table.table()
+    with pytest.raises(ValueError, match="different numbers of steps"):
+        compare({"a": np.zeros(2), "b": np.zeros(3)})
+
+
+def test_prior_support_is_the_parameter_space():
+    prior = JointPrior({"a": stats.uniform(0.0, 1.0)})
+    kernel = MarkovKernel([Drift(-0.3, noise_std=0.05)])
+    loglike = lambda t, y: stats.norm.logpdf(y, t[:, 0], 0.05)  # noqa: E731
+    sampler = SEMC(prior, kernel, loglike, n_samples=400, rng=2)
+    sampler.update(0.1)
+    info = sampler.update(0.0)  # the drift pushes mass below 0: truncated, not sampled
+    assert np.all(sampler.result.steps[-1].posterior >= 0.0)
+    assert np.isfinite(info.log_evidence)
+
+
+def test_to_arviz():
+    pytest.importorskip("arviz")
+    idata = make().run(DATA).to_arviz()
+    assert set(idata.posterior.data_vars) == {"a", "b"}
+    assert idata.posterior["a"].shape == (1, 200)
