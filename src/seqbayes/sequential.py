@@ -28,7 +28,7 @@ and call :func:`assimilate`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,7 +40,7 @@ from .parallel import evaluate_loglike
 from .priors import as_samples, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord
-from .rng import as_generator
+from .rng import as_generator, generator_from_state, generator_state
 from .weights import ess, logsumexp, normalise
 
 __all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "ZeroLikelihoodError"]
@@ -376,6 +376,23 @@ class _SequentialSampler:
     def state(self) -> SamplerState:
         return self._state
 
+    def snapshot(self) -> tuple[SamplerState, tuple, dict]:
+        """``(state, records, rng_state)``: everything needed to resume this run elsewhere."""
+        return self._state, tuple(self._records), generator_state(self._rng)
+
+    def restore(self, state: SamplerState, records, rng_state: dict) -> None:
+        """Continue from a :meth:`snapshot`: the next :meth:`update` gives the same numbers as
+        it would have in the original process."""
+        particles = as_samples(state.particles, self.problem.kernel.dim, "state.particles")
+        if particles.shape[0] != self.config.n_samples:
+            raise ValueError(f"state.particles: {particles.shape[0]} samples, the sampler has {self.config.n_samples}")
+        records = list(records)
+        if len(records) != state.step:
+            raise ValueError(f"records: {len(records)} records for a state at step {state.step}")
+        self._rng = generator_from_state(rng_state)
+        self._state = state
+        self._records = records
+
     @property
     def rng(self) -> np.random.Generator:
         return self._rng
@@ -469,5 +486,3 @@ class SMC(_SequentialSampler):
         super().__init__(prior, kernel, loglike, n_samples, rng, **settings)
 
 
-def replace_config(sampler, **changes):  # pragma: no cover - convenience
-    sampler.config = replace(sampler.config, **changes)

@@ -182,3 +182,20 @@ def test_to_arviz():
     idata = make().run(DATA).to_arviz()
     assert set(idata.posterior.data_vars) == {"a", "b"}
     assert idata.posterior["a"].shape == (1, 200)
+
+
+def test_snapshot_restore_continues_bit_for_bit():
+    full = make(SEMC, seed=9)
+    full.run(DATA)
+    first = make(SEMC, seed=9)
+    first.update(DATA[0])
+    state, records, rng_state = first.snapshot()
+    resumed = make(SEMC, seed=123)  # a different seed: restore must override it
+    resumed.restore(state, records, rng_state)
+    resumed.update(DATA[1])
+    resumed.update(DATA[2])
+    for a, b in zip(full.result.steps, resumed.result.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        assert a.info.log_evidence == b.info.log_evidence
+    with pytest.raises(ValueError, match="records"):
+        resumed.restore(state, (), rng_state)
