@@ -446,8 +446,10 @@ def format_report(ds, summary: StudySummary | None = None) -> str:
                  "choice by the raw cumulative log p(D^1:6 | M); kernels that moved every sample out of "
                  "the parameter space (zero evidence) listed with the step at which they did.")
     lines.append("")
-    lines.append("| run | selected (SEMC) | margin [nats] | selected (SMC) | margin [nats] | failed kernels |")
-    lines.append("|---:|:---|---:|:---|---:|:---|")
+    lines.append("| run | selected (SEMC) | margin [nats] | selected (SMC) | margin [nats] | failed kernels "
+                 "| wall time SEMC / SMC, all kernels [s] |")
+    lines.append("|---:|:---|---:|:---|---:|:---|---:|")
+    wall = ds["wall_time"].sum("kernel")
     failed = ds["failed_step"]
     for r in range(ds.sizes["run"]):
         row = [str(r)]
@@ -460,6 +462,7 @@ def format_report(ds, summary: StudySummary | None = None) -> str:
         bad = [f"{k}/{s}@{int(failed.sel(run=r, kernel=k, sampler=s))}" for k in ds["kernel"].values
                for s in ds["sampler"].values if int(failed.sel(run=r, kernel=k, sampler=s)) > 0]
         row.append(", ".join(bad) or "-")
+        row.append(" / ".join(f"{float(wall.sel(run=r, sampler=s)):.1f}" for s in ds["sampler"].values))
         lines.append("| " + " | ".join(row) + " |")
     lines.append("")
     chosen = summary.extra["chosen_index"]
