@@ -594,19 +594,28 @@ def make_figures(ds, out_dir, summary: StudySummary | None = None, dpi: int = 60
 
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.2 * nrows), squeeze=False,
                              constrained_layout=True)
+    samplers_here = [s for s in ("SEMC", "SMC") if s in list(ds["sampler"].values)]
+    # log p(D^{2:s} | D^1, M) relative to the best kernel at each step (step 1 is common to all kernels)
+    rel = {}
+    for s in samplers_here:
+        ev = ds["log_evidence"].sel(sampler=s).values                           # (R, K, S)
+        ev = ev - ds["log_evidence_increment"].sel(sampler=s).values[:, :, :1]
+        rel[s] = ev - np.nanmax(np.where(np.isfinite(ev), ev, np.nan), axis=1, keepdims=True)
     for r in range(runs):
         ax = axes.flat[r]
         for ki, k in enumerate(ds["kernel"].values):
             for s, style in (("SEMC", "-"), ("SMC", ":")):
-                if s in list(ds["sampler"].values):
-                    ax.plot(steps, ds["log_evidence"].sel(sampler=s).values[r, ki], style, color=f"C{ki}",
-                            lw=1, label=f"{k} ({s})" if r == 0 else None)
+                if s in rel:
+                    y = np.where(np.isfinite(rel[s][r, ki]), rel[s][r, ki], np.nan)
+                    ax.plot(steps, y, style, marker="o", ms=2, color=f"C{ki}", lw=1,
+                            label=f"{k} ({s})" if r == 0 else None)
+        ax.set_yscale("symlog", linthresh=1.0)
         ax.set_title(f"run {r}: {summary.selected.get('SEMC', summary.selected.get('SMC'))[r]}", fontsize=9)
         ax.tick_params(labelsize=7)
         ax.set_xlabel("step", fontsize=8)
     for ax in axes.flat[runs:]:
         ax.set_visible(False)
-    axes.flat[0].set_ylabel("cumulative log-evidence", fontsize=8)
+    axes.flat[0].set_ylabel("log p(D^2:s | D^1, M) - best [nats]", fontsize=7)
     axes.flat[0].legend(fontsize=5, ncol=2)
     path = out_dir / "oscillator_evidence.png"
     fig.savefig(path, dpi=dpi)
