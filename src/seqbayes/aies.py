@@ -70,8 +70,8 @@ def sample(log_prob, initial, n_steps: int, rng=None, step_size: float = 2.0, su
         raise ValueError(f"initial: the stretch move needs at least 2 d = {2 * dim} walkers, got {n_walkers}")
     if int(n_steps) < 1:
         raise ValueError(f"n_steps: must be >= 1, got {n_steps}")
-    support = np.tile([-np.inf, np.inf], (dim, 1)) if support is None else np.asarray(support, dtype=float)
-    if support.shape != (dim, 2):
+    support = None if support is None else np.asarray(support, dtype=float)
+    if support is not None and support.shape != (dim, 2):
         raise ValueError(f"support: expected shape ({dim}, 2), got {support.shape}")
 
     def component_fn(points):

@@ -16,10 +16,12 @@ One dataset ``D^s`` is assimilated by the pure function :func:`assimilate`:
 4. the posterior is propagated through the Markov kernel (Eq. A2) and the
    predictive density (Eq. A3, A9) becomes the next step's prior.
 
-The parameter space is the initial prior's support: a proposal outside it is
-rejected, and predictive draws outside it get zero weight; the predictive
-prior is thereby truncated to the parameter space and renormalised (its
-missing mass is removed from the evidence increment).
+The parameter space is the initial prior's support. The likelihood is zero
+outside it: a proposal outside is rejected, and when the kernel carries
+predictive draws outside, the step starts from fresh draws of the predictive
+density restricted to the space (rejection sampling) and the evidence increment
+includes the log of the mass left inside. A kernel that predicts impossible
+parameters is thereby penalised in model selection.
 
 The drivers :class:`SMC` and :class:`SEMC` hold the current :class:`SamplerState`
 and call :func:`assimilate`.
@@ -257,6 +259,28 @@ class _Counter:
         return np.where(nan, -np.inf, values)
 
 
+def _inside(points, support) -> np.ndarray:
+    return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
+
+
+def _truncated_draws(prior, support, n, rng, step, max_rounds=100):
+    """``n`` equal-weight draws of ``prior`` restricted to the parameter space, and the log of
+    the prior mass inside it (estimated by the acceptance fraction of the rejection sampler)."""
+    kept, n_drawn, n_kept = [], 0, 0
+    while n_kept < n and n_drawn < max_rounds * n:
+        draws = prior.sample(n, rng)
+        ok = _inside(draws, support)
+        kept.append(draws[ok])
+        n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
+    if n_kept == 0:
+        raise ZeroLikelihoodError(f"step {step}: the predictive distribution has no mass left in the parameter "
+                                  f"space (0 of {n_drawn} draws inside); the kernel drives the parameters out")
+    kept = np.concatenate(kept)
+    if n_kept < n:  # almost no mass inside: duplicate what there is
+        kept = kept[rng.integers(n_kept, size=n)]
+    return kept[:n], float(np.log(n_kept / n_drawn))
+
+
 def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
                rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
     """Assimilate one dataset: reweight, resample, move, propagate (pure; ``state`` is not modified).
@@ -276,13 +300,12 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     _check_dataset(dataset, step)
     counter = _Counter(problem, dataset, step)
     n = config.n_samples
-    particles = state.particles
-    inside = np.all((particles >= problem.support[:, 0]) & (particles <= problem.support[:, 1]), axis=1)
-    if not inside.any():
-        raise ZeroLikelihoodError(f"step {step}: every predictive sample lies outside the parameter space")
-    # truncate the predictive prior to the parameter space and renormalise it
-    log_mass_inside = logsumexp(state.log_weights[inside]) if not inside.all() else 0.0
-    log_weights = normalise(np.where(inside, state.log_weights, -np.inf))
+    particles, log_weights = state.particles, state.log_weights
+    log_mass_inside = 0.0
+    if not _inside(particles, problem.support).all():
+        particles, log_mass_inside = _truncated_draws(state.prior, problem.support, n, rng, step)
+        log_weights = np.full(n, -np.log(n))
+    inside = np.ones(n, dtype=bool)
     loglike = np.full(n, -np.inf)
     loglike[inside] = counter.loglike(particles[inside])
     if not np.isfinite(loglike).any():
@@ -318,7 +341,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         if config.move == "stretch":
             step_size = step_size_new
         stats, n_virtual = stats + stage_stats, n_virtual + virtual
-    log_increment = log_z - log_mass_inside
+    log_increment = log_z + log_mass_inside  # zero likelihood outside the parameter space
 
     density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
                                              config.shrink_static)

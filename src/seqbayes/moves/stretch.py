@@ -79,19 +79,28 @@ def stretch_sweep(walkers, components, component_fn, coefficients, move: Stretch
     """
     walkers = walkers.copy()
     components = components.copy()
+    log_target = combine(components, coefficients)
     n, k = components.shape
     order = rng.permutation(n)
     halves = (order[: n // 2], order[n // 2:])
-    stats = SweepStats()
+    n_accepted = n_identical = n_evaluations = 0
     for active, passive in (halves, halves[::-1]):
         proposals, log_hastings, identical = move.propose(walkers[active], walkers[passive], rng)
-        candidate = ~identical
-        proposal_components = np.full((active.size, k), -np.inf)
-        values, n_eval = evaluate_inside(component_fn, proposals[candidate], support, k)
-        proposal_components[candidate] = values
-        accept = metropolis_accept(combine(components[active], coefficients),
-                                   combine(proposal_components, coefficients), log_hastings, rng) & candidate
-        walkers[active[accept]] = proposals[accept]
-        components[active[accept]] = proposal_components[accept]
-        stats = stats + SweepStats(active.size, int(accept.sum()), int(identical.sum()), n_eval)
-    return walkers, components, stats
+        if identical.any():  # the proposal is the walker itself: nothing to evaluate
+            candidate = ~identical
+            proposal_components = np.full((active.size, k), -np.inf)
+            values, n_eval = evaluate_inside(component_fn, proposals[candidate], support, k)
+            proposal_components[candidate] = values
+        else:
+            candidate = True
+            proposal_components, n_eval = evaluate_inside(component_fn, proposals, support, k)
+        proposal_target = combine(proposal_components, coefficients)
+        accept = metropolis_accept(log_target[active], proposal_target, log_hastings, rng) & candidate
+        moved = active[accept]
+        walkers[moved] = proposals[accept]
+        components[moved] = proposal_components[accept]
+        log_target[moved] = proposal_target[accept]
+        n_accepted += int(np.count_nonzero(accept))
+        n_identical += int(np.count_nonzero(identical))
+        n_evaluations += n_eval
+    return walkers, components, SweepStats(n, n_accepted, n_identical, n_evaluations)
