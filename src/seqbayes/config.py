@@ -1,0 +1,565 @@
+"""Run configuration in TOML, validated with errors that name the field.
+
+A run is described by one TOML file::
+
+    [model]
+    name = "bridge-drift"              # optional, shown in reports and comparisons
+    likelihood = "mymodel:loglike"     # module:function; the module may sit next to this file
+
+    [data]
+    columns = ["t", "y"]               # columns every data file must hold, in this order
+    format = "array"                   # the likelihood gets an (n_rows, n_columns) array,
+                                       # or "columns": a dict column -> (n_rows,) array
+    rows = 50                          # optional: exact number of rows per dataset
+
+    [priors]                           # one entry per parameter, in order: scipy.stats name
+    k = { dist = "uniform", loc = 0.5, scale = 1.5 }     # and its parameters (args and/or keywords)
+    c = { dist = "lognorm", args = [0.5], scale = 0.1 }
+
+    [kernel]                           # evolution of each parameter between datasets
+    k = { type = "drift", rate = -0.05, noise_std = 0.02 }   # k_{s+1} = k_s - 0.05 + nu
+    c = { type = "static" }            # parameters not listed are static
+    # also: { type = "decay", rate = 0.1, noise_std = 0.01 }  (x_{s+1} = exp(-rate) x_s + nu)
+
+    [sampler]
+    type = "SEMC"                      # or "SMC"
+    n_samples = 500
+    seed = 2024
+    # any SamplerConfig setting: tempering, resampling, target_acceptance, step_size, ...
+
+    [parallel]                         # optional
+    executor = "serial"                # "serial", "processes" or "dask"
+    workers = 2
+    address = "tcp://scheduler:8786"   # dask only; without it a local cluster is started
+
+The likelihood is called as ``loglike(theta (N, d), data) -> (N,)``. Everything
+here is validated by :func:`load_config` / :func:`parse_config`; a mistake
+raises :class:`ConfigError` with a message such as
+``run.toml: priors.k.dist: unknown scipy.stats distribution 'unifrom'``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import importlib
+import importlib.util
+import json
+import math
+import sys
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config", "read_datafile",
+           "dataset_digest", "load_likelihood"]
+
+#: Sampler settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``.
+SEMC_SETTINGS = ("tempering", "tempering_ess", "ess_threshold", "resampling", "predictive", "shrink_static",
+                 "target_acceptance", "step_size", "max_virtual", "virtual_tolerance", "n_moves")
+SMC_SETTINGS = ("tempering", "tempering_ess", "ess_threshold", "resampling", "predictive", "shrink_static",
+                "n_moves", "proposal_scale")
+KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",)}
+EXECUTORS = ("serial", "processes", "dask")
+
+
+class ConfigError(ValueError):
+    """A run configuration is invalid; the message names the file and the field."""
+
+
+class DataError(ValueError):
+    """A data file cannot be assimilated; the message names the file, the column or the shape."""
+
+
+def _fail(source, field_name, message):
+    raise ConfigError(f"{source}: {field_name}: {message}")
+
+
+def _table(raw, key, source, required=True):
+    value = raw.get(key)
+    if value is None:
+        if required:
+            _fail(source, f"[{key}]", "missing section")
+        return {}
+    if not isinstance(value, dict):
+        _fail(source, key, f"expected a table, got {type(value).__name__}")
+    return value
+
+
+def _check_keys(table, allowed, source, prefix):
+    for key in table:
+        if key not in allowed:
+            _fail(source, f"{prefix}.{key}", f"unknown setting; expected one of {', '.join(sorted(allowed))}")
+
+
+def _number(value, source, name, *, integer=False, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        _fail(source, name, f"expected a number, got {value!r}")
+    if integer and int(value) != value:
+        _fail(source, name, f"expected an integer, got {value!r}")
+    if not math.isfinite(value):
+        _fail(source, name, f"expected a finite number, got {value!r}")
+    if positive and value <= 0:
+        _fail(source, name, f"must be positive, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A validated run configuration (see the module docstring for the TOML layout).
+
+    Attributes
+    ----------
+    name : str
+        Model name for reports and comparisons.
+    likelihood : str
+        ``"module:function"``.
+    search_path : str or None
+        Folder searched first when importing the likelihood's module (the config's folder).
+    columns : tuple of str
+        Data columns, in the order given to the likelihood.
+    data_format : {"array", "columns"}
+    rows : int or None
+        Required number of rows per dataset.
+    priors : dict
+        ``name -> {"dist": str, "args": list, "kwds": dict}`` in parameter order.
+    kernel : dict
+        ``name -> {"type": str, "rate": float, "noise_std": float}`` for every parameter.
+    sampler : {"SEMC", "SMC"}
+    n_samples : int
+    seed : int
+    settings : dict
+        Further sampler settings (fields of :class:`seqbayes.SamplerConfig`).
+    executor : {"serial", "processes", "dask"}
+    workers : int
+    address : str or None
+    """
+
+    name: str
+    likelihood: str
+    columns: tuple
+    priors: dict
+    kernel: dict
+    sampler: str = "SEMC"
+    n_samples: int = 1000
+    seed: int = 0
+    settings: dict = field(default_factory=dict)
+    data_format: str = "array"
+    rows: int | None = None
+    search_path: str | None = None
+    executor: str = "serial"
+    workers: int = 2
+    address: str | None = None
+
+    # ------------------------------------------------------------------ builders
+    @property
+    def names(self) -> tuple:
+        """Parameter names, in order."""
+        return tuple(self.priors)
+
+    def build_prior(self):
+        """The :class:`~seqbayes.priors.JointPrior`."""
+        from .priors import JointPrior
+
+        return JointPrior({name: _freeze(spec, "<config>", f"priors.{name}") for name, spec in self.priors.items()})
+
+    def build_kernel(self):
+        """The :class:`~seqbayes.kernels.MarkovKernel`, one component per parameter."""
+        from .kernels import Decay, Drift, MarkovKernel, Static
+
+        parts = []
+        for name in self.names:
+            spec = self.kernel[name]
+            if spec["type"] == "static":
+                parts.append(Static())
+            elif spec["type"] == "drift":
+                parts.append(Drift(spec["rate"], noise_std=spec["noise_std"]))
+            else:
+                parts.append(Decay(spec["rate"], noise_std=spec["noise_std"]))
+        return MarkovKernel(parts)
+
+    def load_likelihood(self):
+        """Import and return the likelihood function."""
+        return load_likelihood(self.likelihood, self.search_path)
+
+    def build_sampler(self, executor=None, loglike=None):
+        """A fresh :class:`~seqbayes.SEMC` or :class:`~seqbayes.SMC` for this configuration.
+
+        Parameters
+        ----------
+        executor : object with ``map``, optional
+            Passed to the sampler (see :mod:`seqbayes.parallel`).
+        loglike : callable, optional
+            Overrides the configured likelihood (e.g. a wrapper counting evaluations).
+        """
+        from .sequential import SEMC, SMC
+
+        cls = SEMC if self.sampler == "SEMC" else SMC
+        loglike = self.load_likelihood() if loglike is None else loglike
+        return cls(self.build_prior(), self.build_kernel(), loglike, n_samples=self.n_samples, rng=self.seed,
+                   executor=executor, **self.settings)
+
+    # ------------------------------------------------------------- persistence
+    def to_dict(self) -> dict:
+        """Plain JSON-able dict (stored in the run store)."""
+        return {"name": self.name, "likelihood": self.likelihood, "columns": list(self.columns),
+                "priors": self.priors, "kernel": self.kernel, "sampler": self.sampler,
+                "n_samples": self.n_samples, "seed": self.seed, "settings": self.settings,
+                "data_format": self.data_format, "rows": self.rows, "search_path": self.search_path,
+                "executor": self.executor, "workers": self.workers, "address": self.address}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "RunConfig":
+        """Inverse of :meth:`to_dict`."""
+        data = dict(data)
+        data["columns"] = tuple(data["columns"])
+        return cls(**data)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of everything that defines the model and the random stream.
+
+        The prior, kernel, likelihood name, data layout, sampler type and settings,
+        sample size and seed; *not* the model's display name, the executor (it
+        does not change the numbers) nor the folder the likelihood is imported from.
+        """
+        content = {k: v for k, v in self.to_dict().items()
+                   if k not in ("name", "search_path", "executor", "workers", "address")}
+        return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+    def make_executor(self):
+        """``(executor, close)`` for the ``[parallel]`` section (``(None, no-op)`` when serial)."""
+        if self.executor == "serial":
+            return None, lambda: None
+        if self.executor == "processes":
+            from concurrent.futures import ProcessPoolExecutor
+
+            pool = ProcessPoolExecutor(max_workers=self.workers)
+            return pool, pool.shutdown
+        from distributed import Client, LocalCluster  # optional extra: seqbayes[dask]
+
+        if self.address:
+            client = Client(self.address)
+            return client, client.close
+        cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+
+        def close():
+            client.close()
+            cluster.close()
+
+        return client, close
+
+
+# ---------------------------------------------------------------------- priors
+def _freeze(spec, source, prefix):
+    from scipy import stats
+
+    dist = getattr(stats, spec["dist"], None)
+    if dist is None or not isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
+        _fail(source, f"{prefix}.dist", f"unknown scipy.stats distribution {spec['dist']!r}")
+    if isinstance(dist, stats.rv_discrete):
+        _fail(source, f"{prefix}.dist", f"{spec['dist']!r} is discrete; parameters need a continuous distribution")
+    try:
+        frozen = dist(*spec["args"], **spec["kwds"])
+        frozen.logpdf(frozen.mean() if np.isfinite(frozen.mean()) else frozen.median())
+    except Exception as err:  # scipy raises TypeError / ValueError with its own wording
+        _fail(source, prefix, f"scipy.stats.{spec['dist']}(args={spec['args']}, {spec['kwds']}) failed: {err}")
+    if not np.isfinite(frozen.logpdf(frozen.median())):
+        _fail(source, prefix, f"invalid parameters for scipy.stats.{spec['dist']}: args={spec['args']}, "
+                              f"{spec['kwds']}")
+    return frozen
+
+
+def _parse_prior(name, raw, source):
+    prefix = f"priors.{name}"
+    if not isinstance(raw, dict):
+        _fail(source, prefix, f"expected a table like {{ dist = \"norm\", loc = 0, scale = 1 }}, got {raw!r}")
+    if "dist" not in raw:
+        _fail(source, f"{prefix}.dist", "missing (a scipy.stats distribution name such as \"uniform\")")
+    if not isinstance(raw["dist"], str):
+        _fail(source, f"{prefix}.dist", f"expected a string, got {raw['dist']!r}")
+    args = raw.get("args", [])
+    if not isinstance(args, list):
+        _fail(source, f"{prefix}.args", f"expected a list of numbers, got {args!r}")
+    args = [_number(a, source, f"{prefix}.args[{i}]") for i, a in enumerate(args)]
+    kwds = {k: _number(v, source, f"{prefix}.{k}") for k, v in raw.items() if k not in ("dist", "args")}
+    spec = {"dist": raw["dist"], "args": args, "kwds": kwds}
+    _freeze(spec, source, prefix)
+    return spec
+
+
+def _parse_kernel(name, raw, source):
+    prefix = f"kernel.{name}"
+    if not isinstance(raw, dict):
+        _fail(source, prefix, f"expected a table like {{ type = \"drift\", rate = -0.1, noise_std = 0.05 }}, "
+                              f"got {raw!r}")
+    kind = raw.get("type")
+    if kind not in KERNEL_TYPES:
+        _fail(source, f"{prefix}.type", f"expected one of {', '.join(KERNEL_TYPES)}, got {kind!r}")
+    allowed = {"type", "noise_std", *KERNEL_TYPES[kind]}
+    _check_keys(raw, allowed, source, prefix)
+    for key in KERNEL_TYPES[kind]:
+        if key not in raw:
+            _fail(source, f"{prefix}.{key}", f"missing (required for type = \"{kind}\")")
+    noise = _number(raw.get("noise_std", 0.0), source, f"{prefix}.noise_std")
+    if noise < 0:
+        _fail(source, f"{prefix}.noise_std", f"must be >= 0, got {noise}")
+    if kind == "static" and noise != 0:
+        _fail(source, f"{prefix}.noise_std", "a static parameter has no process noise; use type = \"drift\" "
+                                             "with rate = 0 for a random walk")
+    rate = _number(raw["rate"], source, f"{prefix}.rate") if "rate" in raw else 0.0
+    return {"type": kind, "rate": rate, "noise_std": noise}
+
+
+# ------------------------------------------------------------------ likelihood
+def load_likelihood(spec: str, search_path: str | None = None):
+    """Import ``"module:function"``; ``search_path`` (a folder) is tried first.
+
+    Raises
+    ------
+    ConfigError
+        If the string is malformed, the module cannot be imported or the
+        attribute is missing or not callable.
+    """
+    if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
+        raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
+    module_name, func_name = spec.split(":")
+    if search_path and search_path not in sys.path:
+        sys.path.insert(0, search_path)
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as err:
+        where = f" (searched {search_path} and sys.path)" if search_path else ""
+        raise ConfigError(f"model.likelihood: cannot import module {module_name!r}{where}: "
+                          f"{type(err).__name__}: {err}") from err
+    func = module
+    for part in func_name.split("."):
+        func = getattr(func, part, None)
+        if func is None:
+            raise ConfigError(f"model.likelihood: module {module_name!r} has no attribute {func_name!r}")
+    if not callable(func):
+        raise ConfigError(f"model.likelihood: {spec!r} is not callable")
+    return func
+
+
+# ---------------------------------------------------------------------- parsing
+def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | None = None,
+                 check_likelihood: bool = True) -> RunConfig:
+    """Validate a parsed TOML mapping and return a :class:`RunConfig`.
+
+    Parameters
+    ----------
+    raw : dict
+        As returned by :func:`tomllib.load`.
+    source : str
+        File name used in error messages.
+    base_dir : path, optional
+        Folder searched first for the likelihood's module.
+    check_likelihood : bool
+        Import the likelihood now (default), so that a typo fails at ``init``.
+    """
+    _check_keys(raw, {"model", "data", "priors", "kernel", "sampler", "parallel"}, source, "<top level>")
+    model = _table(raw, "model", source)
+    _check_keys(model, {"name", "likelihood"}, source, "model")
+    if "likelihood" not in model:
+        _fail(source, "model.likelihood", "missing (\"module:function\")")
+    likelihood = model["likelihood"]
+    if not isinstance(likelihood, str) or likelihood.count(":") != 1 or not all(likelihood.split(":")):
+        _fail(source, "model.likelihood", f"expected \"module:function\", got {likelihood!r}")
+    name = model.get("name", likelihood.split(":")[1])
+    if not isinstance(name, str) or not name:
+        _fail(source, "model.name", f"expected a non-empty string, got {name!r}")
+
+    data = _table(raw, "data", source)
+    _check_keys(data, {"columns", "format", "rows"}, source, "data")
+    columns = data.get("columns")
+    if (not isinstance(columns, list) or not columns or not all(isinstance(c, str) and c for c in columns)):
+        _fail(source, "data.columns", f"expected a non-empty list of column names, got {columns!r}")
+    if len(set(columns)) != len(columns):
+        _fail(source, "data.columns", f"duplicate column names in {columns}")
+    data_format = data.get("format", "array")
+    if data_format not in ("array", "columns"):
+        _fail(source, "data.format", f"expected \"array\" or \"columns\", got {data_format!r}")
+    rows = data.get("rows")
+    if rows is not None:
+        rows = _number(rows, source, "data.rows", integer=True, positive=True)
+
+    priors_raw = _table(raw, "priors", source)
+    if not priors_raw:
+        _fail(source, "[priors]", "at least one parameter is needed")
+    priors = {str(n): _parse_prior(n, spec, source) for n, spec in priors_raw.items()}
+
+    kernel_raw = _table(raw, "kernel", source, required=False)
+    for n in kernel_raw:
+        if n not in priors:
+            _fail(source, f"kernel.{n}", f"not a parameter; the priors define {', '.join(priors)}")
+    kernel = {n: _parse_kernel(n, kernel_raw[n], source) if n in kernel_raw
+              else {"type": "static", "rate": 0.0, "noise_std": 0.0} for n in priors}
+
+    sampler_raw = dict(_table(raw, "sampler", source, required=False))
+    kind = sampler_raw.pop("type", "SEMC")
+    if kind not in ("SEMC", "SMC"):
+        _fail(source, "sampler.type", f"expected \"SEMC\" or \"SMC\", got {kind!r}")
+    allowed = SEMC_SETTINGS if kind == "SEMC" else SMC_SETTINGS
+    n_samples = _number(sampler_raw.pop("n_samples", 1000), source, "sampler.n_samples", integer=True,
+                        positive=True)
+    seed = _number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)
+    if seed < 0:
+        _fail(source, "sampler.seed", f"must be >= 0, got {seed}")
+    _check_keys(sampler_raw, set(allowed), source, "sampler")
+    settings = dict(sampler_raw)
+    # let the core validate values, reporting the field
+    from .sequential import SamplerConfig
+
+    try:
+        SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
+                      **{k: v for k, v in settings.items()})
+    except (TypeError, ValueError) as err:
+        _fail(source, "sampler", str(err))
+    if kind == "SEMC" and n_samples < 2 * len(priors):
+        _fail(source, "sampler.n_samples", f"SEMC needs at least 2 d = {2 * len(priors)} samples, got {n_samples}")
+
+    parallel = _table(raw, "parallel", source, required=False)
+    _check_keys(parallel, {"executor", "workers", "address"}, source, "parallel")
+    executor = parallel.get("executor", "serial")
+    if executor not in EXECUTORS:
+        _fail(source, "parallel.executor", f"expected one of {', '.join(EXECUTORS)}, got {executor!r}")
+    workers = _number(parallel.get("workers", 2), source, "parallel.workers", integer=True, positive=True)
+    address = parallel.get("address")
+    if address is not None and not isinstance(address, str):
+        _fail(source, "parallel.address", f"expected a string, got {address!r}")
+
+    config = RunConfig(name=name, likelihood=likelihood, columns=tuple(columns), priors=priors, kernel=kernel,
+                       sampler=kind, n_samples=n_samples, seed=seed, settings=settings, data_format=data_format,
+                       rows=rows, search_path=str(Path(base_dir).resolve()) if base_dir is not None else None,
+                       executor=executor, workers=workers, address=address)
+    if check_likelihood:
+        try:
+            config.load_likelihood()
+        except ConfigError as err:
+            raise ConfigError(f"{source}: {err}") from None
+    return config
+
+
+def load_config(path, check_likelihood: bool = True) -> RunConfig:
+    """Read and validate a TOML run configuration (the likelihood's module may sit next to it)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            raw = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: invalid TOML: {err}") from None
+    return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
+
+
+# ---------------------------------------------------------------------- data files
+def read_datafile(path, config: RunConfig) -> np.ndarray:
+    """Read one dataset (CSV with a header row, or NetCDF) as an ``(n_rows, n_columns)`` float array.
+
+    Columns are taken by name in the order of ``config.columns`` (extra columns are
+    ignored). A NetCDF file holds each column as a 1-D variable.
+
+    Raises
+    ------
+    DataError
+        Naming the file and the column, row or shape at fault: missing file or
+        column, non-numeric or NaN/inf value, a column that is not 1-D, columns
+        of different lengths, the wrong number of rows, or an empty file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix in (".nc", ".nc4", ".netcdf", ".h5", ".hdf5"):
+        table = _read_netcdf(path, config.columns)
+    else:
+        table = _read_csv(path, config.columns)
+    if table.shape[0] == 0:
+        raise DataError(f"{path}: no data rows")
+    bad = ~np.isfinite(table)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        count = int(bad[:, col].sum())
+        raise DataError(f"{path}: column {config.columns[col]!r} has {count} NaN/inf value(s), "
+                        f"first at data row {row + 1}")
+    if config.rows is not None and table.shape[0] != config.rows:
+        raise DataError(f"{path}: expected {config.rows} rows (data.rows), got shape {table.shape}")
+    return table
+
+
+def _read_csv(path, columns):
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            rows = [r for r in reader if r and any(cell.strip() for cell in r)]
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text CSV file") from None
+    if header is None:
+        raise DataError(f"{path}: empty file (expected a header row with columns {', '.join(columns)})")
+    header = [h.strip() for h in header]
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise DataError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; "
+                        f"the header has {', '.join(map(repr, header))}")
+    index = [header.index(c) for c in columns]
+    out = np.empty((len(rows), len(columns)))
+    for i, row in enumerate(rows):
+        if len(row) != len(header):
+            raise DataError(f"{path}: line {i + 2} has {len(row)} fields, the header has {len(header)}")
+        for j, k in enumerate(index):
+            cell = row[k].strip()
+            try:
+                out[i, j] = float(cell) if cell else np.nan
+            except ValueError:
+                raise DataError(f"{path}: column {columns[j]!r}, line {i + 2}: not a number: {cell!r}") from None
+    return out
+
+
+def _read_netcdf(path, columns):
+    import xarray as xr
+
+    try:
+        ds = xr.open_dataset(path, engine="h5netcdf")
+    except Exception as err:
+        raise DataError(f"{path}: cannot read as NetCDF: {err}") from None
+    with ds:
+        missing = [c for c in columns if c not in ds.variables]
+        if missing:
+            raise DataError(f"{path}: missing variable(s) {', '.join(map(repr, missing))}; "
+                            f"the file has {', '.join(map(repr, map(str, ds.variables)))}")
+        arrays = []
+        for c in columns:
+            values = np.asarray(ds[c].values)
+            if values.ndim != 1:
+                raise DataError(f"{path}: variable {c!r} has shape {values.shape} (dims {ds[c].dims}); "
+                                f"expected a 1-D column")
+            if not np.issubdtype(values.dtype, np.number):
+                raise DataError(f"{path}: variable {c!r} is not numeric (dtype {values.dtype})")
+            arrays.append(values.astype(float))
+    lengths = {a.shape[0] for a in arrays}
+    if len(lengths) != 1:
+        shapes = ", ".join(f"{c}: {a.shape}" for c, a in zip(columns, arrays))
+        raise DataError(f"{path}: columns have different lengths ({shapes})")
+    return np.column_stack(arrays)
+
+
+def as_likelihood_data(table: np.ndarray, config: RunConfig):
+    """The object handed to the likelihood: the table, or a dict column -> (n,) array."""
+    if config.data_format == "columns":
+        return {c: table[:, j].copy() for j, c in enumerate(config.columns)}
+    return table
+
+
+def dataset_digest(table: np.ndarray, columns) -> str:
+    """SHA-256 of a dataset's content (column names, shape and float64 values), independent of the file format."""
+    table = np.ascontiguousarray(table, dtype="<f8")
+    h = hashlib.sha256()
+    h.update(json.dumps([list(columns), list(table.shape)]).encode())
+    h.update(table.tobytes())
+    return h.hexdigest()
