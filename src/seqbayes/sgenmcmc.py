@@ -51,14 +51,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
 from . import sparsegrid
-from .filters.enkf import perturbed_observation_update, predictive_log_likelihood
 from .filters.kalman import check_filter_inputs, measurement_covariance
 from .resampling import resample
 from .rng import as_generator
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 from .weights import normalise
+
+_LOG_2PI = float(np.log(2 * np.pi))
 
 __all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult"]
 
@@ -205,10 +207,11 @@ def weighted_quantiles(samples, weights, probs) -> np.ndarray:
     return out
 
 
-def weighted_mode(samples, weights, lower, upper, bins: int = 60) -> np.ndarray:
+def weighted_mode(samples, weights, lower, upper, bins: int = 60, limits=None) -> np.ndarray:
     """Most probable value per parameter: centre of the heaviest bin of a weighted
-    histogram over the ensemble's weighted 1st-99th percentile range (one bincount)."""
-    lo, hi = weighted_quantiles(samples, weights, [0.01, 0.99])
+    histogram over the ensemble's weighted 1st-99th percentile range (one bincount);
+    ``limits = (lo, hi)`` gives that range if already known."""
+    lo, hi = weighted_quantiles(samples, weights, [0.01, 0.99]) if limits is None else limits
     lo = np.maximum(lo, lower)
     hi = np.maximum(np.minimum(hi, upper), lo + 1e-12)
     d = samples.shape[1]
@@ -252,7 +255,8 @@ class SGEnMCMC:
                  process_noise_std: float = 0.0, n_members: int = 500, level: int | None = 6,
                  ess_threshold: float = 0.5, shrinkage: float = 0.95, conditional: bool = True,
                  resampling: str = "systematic", channels: str = "absolute_acceleration",
-                 basis: str = "modified", transition=None, centre: str = "regression"):
+                 basis: str = "modified", transition=None, centre: str = "regression",
+                 adjust_states: bool = False):
         d = building.n_storeys
         self.lower = np.broadcast_to(np.asarray(lower, float), (d,)).copy()
         self.upper = np.broadcast_to(np.asarray(upper, float), (d,)).copy()
@@ -276,7 +280,10 @@ class SGEnMCMC:
         self.conditional = bool(conditional)
         self.resampling = resampling
         self.channels = channels
+        if centre not in ("member", "regression"):
+            raise ValueError(f"centre: expected 'member' or 'regression', got {centre!r}")
         self.centre = centre
+        self.adjust_states = bool(adjust_states)
         if transition is not None:
             self.transition = transition
         elif level is None:
@@ -314,6 +321,7 @@ class SGEnMCMC:
         N, d = self.n_members, self.lower.size
         p = probe.H.shape[1]
         R = measurement_covariance(self.measurement_noise, p)
+        chol_R = np.linalg.cholesky(R)
         start = time.perf_counter()
         if initial_theta is None:
             theta = self.lower + (self.upper - self.lower) * rng.random((N, d))  # uniform prior
@@ -335,21 +343,30 @@ class SGEnMCMC:
         state_mean = np.empty((T, m))
         drift_mean = np.empty((T, n))
         drift_std = np.empty((T, n))
+        moments = _ConditionalMoments(theta if self.conditional else None, N)
+        summary = _WeightedSummary(theta, self.lower, self.upper)
+        b = model.B0 + model.B1
         iterator = range(T)
         if progress:
             from tqdm import tqdm
 
             iterator = tqdm(iterator, desc="SG-EnMCMC", unit="step")
-        for k in iterator:
+        for k in iterator:  # loop over time only
             if k > 0:  # (1) forecast with the interpolated transition (Eq. 21)
                 X = np.einsum("nij,nj->ni", model.A, X) + model.B0 * u[k - 1] + model.B1 * u[k]
                 if self.process_noise_std > 0:
-                    eta = rng.standard_normal(N) * self.process_noise_std
-                    X += (model.B0 + model.B1) * eta[:, None]
+                    X += b * (self.process_noise_std * rng.standard_normal(N))[:, None]
             Y = np.einsum("npm,nm->np", model.H, X)
-            cov = theta if self.conditional else None
-            # (2)-(3) moments and per-member EnKF likelihood (Eqs. 9, 25)
-            _, loglik = predictive_log_likelihood(y[k], Y, R, cov, self.centre)
+            # (2) forecast moments, conditional on theta (Eq. 21 / Eq. 9)
+            fitted_y, C_xy, C_yy = moments(X, Y)
+            S = C_yy + R
+            S_chol = np.linalg.cholesky(0.5 * (S + S.T))
+            S_chol_inv, _ = _lapack_trtri(S_chol, lower=1)
+            # (3) per-member EnKF predictive log-likelihood (Eq. 25)
+            centres = fitted_y if self.centre == "regression" else Y
+            z = (y[k] - centres) @ S_chol_inv.T
+            half_logdet = np.log(np.diag(S_chol)).sum()
+            loglik = -0.5 * (z * z).sum(axis=1) - half_logdet - 0.5 * p * _LOG_2PI
             lw_hat = normalise(logw)
             evid[k] = float(np.logaddexp.reduce(lw_hat + loglik))
             logw = logw + loglik
@@ -357,14 +374,15 @@ class SGEnMCMC:
             w = np.exp(lw_hat)
             ess = float(1.0 / np.sum(w * w))
             ess_hist[k] = ess
-            # (5) state update by the Kalman gain from sample moments (Eq. 22)
-            X, _ = perturbed_observation_update(X, Y, y[k], R, rng, cov)
+            # (5) state update, gain from the sample moments, perturbed observations (Eq. 22)
+            gain = C_xy @ (S_chol_inv.T @ S_chol_inv)  # K = C_xy S^-1
+            perturbed = y[k] + rng.standard_normal((N, p)) @ chol_R.T
+            X = X + (perturbed - Y) @ gain.T
             # summaries (weighted, before resampling)
             mean = w @ theta
             out["mean"][k] = mean
             out["var"][k] = w @ (theta - mean) ** 2
-            quant[k] = weighted_quantiles(theta, w, [0.025, 0.5, 0.975])
-            out["mpv"][k] = weighted_mode(theta, w, self.lower, self.upper)
+            quant[k], out["mpv"][k] = summary(w)
             state_mean[k] = w @ X
             drifts = X[:, :n] @ drift_op.T
             dm = w @ drifts
@@ -373,9 +391,16 @@ class SGEnMCMC:
             # (4) resample theta with its state (Eq. 28) and rejuvenate
             if ess < self.ess_threshold * N:
                 idx = resample(self.resampling, w, rng, N)
-                theta, X = theta[idx], X[idx]
-                theta = self._rejuvenate(theta, rng)
+                slope = moments.slope(X) if self.adjust_states else None
+                parent = theta[idx]
+                theta = self._rejuvenate(parent, rng)
+                X = X[idx]
+                if slope is not None:  # move each state along E[X | theta] to its new theta
+                    X = X + (theta - parent) @ slope
                 model = self.transition(theta)
+                b = model.B0 + model.B1
+                moments = _ConditionalMoments(theta if self.conditional else None, N)
+                summary = _WeightedSummary(theta, self.lower, self.upper)
                 logw = np.zeros(N)
                 res_hist[k] = True
         final_w = np.exp(normalise(logw))
@@ -387,3 +412,56 @@ class SGEnMCMC:
             drift_mean=drift_mean, drift_std=drift_std, final_theta=theta[idx],
             final_log_weights=np.zeros(N), elapsed=elapsed,
             names=tuple(f"theta_{j + 1}" for j in range(d)))
+
+
+class _ConditionalMoments:
+    """Sample moments of forecast members conditional on their ``theta`` (Eq. 9 with
+    the regression of :func:`seqbayes.filters.enkf.ensemble_moments`), with the
+    projection onto ``span(1, theta)`` factorised once per set of ``theta`` so a
+    step costs two small matrix products and no LAPACK call.
+    """
+
+    def __init__(self, theta, N: int):
+        if theta is None:
+            self.basis = np.full((N, 1), 1 / np.sqrt(N))
+            self.centred = None
+        else:
+            self.centred = theta - theta.mean(axis=0)
+            self.basis, _ = np.linalg.qr(np.column_stack([np.ones(N), self.centred]))
+        self.dof = N - self.basis.shape[1]  # N - 1 - q
+
+    def __call__(self, X, Y):
+        """Fitted ``Y`` ``(N, p)``, ``C_xy (m, p)`` and ``C_yy (p, p)`` of the residuals."""
+        m = X.shape[1]
+        W = np.concatenate([X, Y], axis=1)
+        fitted = self.basis @ (self.basis.T @ W)
+        E = W - fitted
+        C = E.T @ E / self.dof
+        return fitted[:, m:], C[:m, m:], C[m:, m:]
+
+    def slope(self, X):
+        """Least-squares slope ``(d, m)`` of ``X`` on ``theta``."""
+        if self.centred is None:
+            return None
+        beta, *_ = np.linalg.lstsq(self.centred, X - X.mean(axis=0), rcond=None)
+        return beta
+
+
+class _WeightedSummary:
+    """Weighted 2.5/50/97.5 % quantiles and MPV of fixed members under changing
+    weights; the sort order is computed once per set of members."""
+
+    def __init__(self, theta, lower, upper, bins: int = 60):
+        self.order = np.argsort(theta, axis=0)
+        self.sorted = np.take_along_axis(theta, self.order, axis=0)
+        self.theta, self.lower, self.upper, self.bins = theta, lower, upper, bins
+
+    def quantiles(self, w, probs):
+        ws = w[self.order]
+        cw = (np.cumsum(ws, axis=0) - 0.5 * ws) / ws.sum(axis=0)
+        return np.stack([np.interp(probs, cw[:, j], self.sorted[:, j])
+                         for j in range(self.sorted.shape[1])], axis=1)  # loop over d
+
+    def __call__(self, w):
+        q = self.quantiles(w, [0.01, 0.025, 0.5, 0.975, 0.99])
+        return q[1:4], weighted_mode(self.theta, w, self.lower, self.upper, self.bins, (q[0], q[4]))
