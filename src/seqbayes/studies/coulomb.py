@@ -144,7 +144,8 @@ def run_study(n_runs: int = 10, n_samples: int = 1000, samplers=("SEMC", "SMC"),
     samplers : sequence of {"SEMC", "SMC"}
     kernels : sequence of {"T1", "T2"}
     seed : int
-        Root seed; every run gets its own child stream (``SeedSequence.spawn``).
+        Root seed; every (sampler, run) gets its own child stream (``SeedSequence.spawn``),
+        shared by the kernels (common random numbers for the kernel comparison).
     out_dir : path, optional
         Where to write ``tables.md``, ``tables.csv``, the figures and ``runs/*.nc``.
     progress : bool
@@ -175,9 +176,12 @@ def run_study(n_runs: int = 10, n_samples: int = 1000, samplers=("SEMC", "SMC"),
     settings = {**SAMPLER_SETTINGS, **(settings or {})}
     start = time.perf_counter()
     combos = [(s, k) for s in samplers for k in kernels]
-    children = np.random.SeedSequence(seed).spawn(len(combos) * n_runs)
-    tasks = [(s, k, run, children[c * n_runs + run], n_samples, settings[s])
-             for c, (s, k) in enumerate(combos) for run in range(n_runs)]
+    # One child stream per (sampler, run), shared by the kernels: the kernel enters only
+    # after step 1, so T1 and T2 runs of the same index see the identical s = 1 posterior
+    # and their log Bayes factor measures steps 2-4 only (common random numbers).
+    children = np.random.SeedSequence(seed).spawn(len(samplers) * n_runs)
+    tasks = [(s, k, run, children[samplers.index(s) * n_runs + run], n_samples, settings[s])
+             for s, k in combos for run in range(n_runs)]
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     from tqdm.auto import tqdm
 
