@@ -1,14 +1,29 @@
-"""The ``seqbayes`` command line.
+"""The ``seqbayes`` command line: on-line monitoring of one's own model, and the papers' studies.
+
+Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
+
+    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.config)
+    seqbayes update RUN.nc DATA.csv [...]     # assimilate datasets (CSV or NetCDF), one step each
+    seqbayes status RUN.nc                    # per step: mean, sd, credible interval, acceptance, ESS, evidence
+    seqbayes predict RUN.nc --steps K         # forecast K steps ahead through the Markov kernel
+    seqbayes compare RUN1.nc RUN2.nc ...      # model-class selection by evidence
+    seqbayes report RUN.nc -o report.html     # HTML page with the figures
 
 Paper studies live in :mod:`seqbayes.studies`; each module there has a
 ``main(argv) -> int`` and is reached as ``seqbayes example NAME [options]``.
+
+Errors in user input (config, data file, likelihood, store) print one line
+``seqbayes COMMAND: error: ...`` naming the file, field or shape, and exit with
+status 2; the run store is left unchanged. ``--traceback`` shows the full trace.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
+from pathlib import Path
 
 #: name -> module with ``main(argv)``; each study module parses its own options.
 EXAMPLES = {
@@ -21,6 +36,10 @@ EXAMPLES = {
 }
 
 
+class CommandError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
 def _run_example(name: str, argv: list[str]) -> int:
     if name not in EXAMPLES:
         print(f"seqbayes example: unknown example {name!r}; choose from {', '.join(sorted(EXAMPLES))}",
@@ -30,17 +49,263 @@ def _run_example(name: str, argv: list[str]) -> int:
     return int(module.main(argv) or 0)
 
 
+def _progress_enabled() -> bool:
+    return sys.stderr.isatty()
+
+
+class _CountingLikelihood:
+    """Wraps the likelihood to advance a tqdm bar by the number of samples evaluated (serial runs only)."""
+
+    def __init__(self, func, bar):
+        self.func, self.bar = func, bar
+
+    def __call__(self, theta, data):
+        out = self.func(theta, data)
+        self.bar.update(len(theta))
+        return out
+
+
+# --------------------------------------------------------------------- commands
+def cmd_init(args) -> int:
+    from .config import load_config
+    from .store import RunStore
+
+    config = load_config(args.config)
+    store = RunStore.create(args.run, config, overwrite=args.force)
+    print(f"created run {store.path} for model {config.name!r}: {len(config.names)} parameters "
+          f"({', '.join(config.names)}), {config.sampler} with N = {config.n_samples}, seed {config.seed}")
+    return 0
+
+
+def cmd_update(args) -> int:
+    from tqdm.auto import tqdm
+
+    from .config import read_datafile
+    from .store import RunStore, store_lock
+
+    show = _progress_enabled() and not args.quiet
+    with store_lock(args.run):
+        store = RunStore.open(args.run)
+        tables = [read_datafile(path, store.config) for path in args.datafiles]  # all files checked first
+        executor, close = store.config.make_executor()
+        try:
+            for path, table in tqdm(list(zip(args.datafiles, tables)), desc="datasets", unit="dataset",
+                                    disable=not show or len(tables) < 2):
+                with tqdm(desc=f"step {store.n_steps + (0 if args.replace_last else 1)}: likelihood",
+                          unit="eval", disable=not show or executor is not None, leave=False) as bar:
+                    loglike = _CountingLikelihood(store.load_likelihood(), bar) if not bar.disable else None
+                    try:
+                        info = store.assimilate(table, Path(path).name, replace_last=args.replace_last,
+                                                executor=executor, loglike=loglike)
+                    except (KeyboardInterrupt, SystemExit):
+                        raise
+                    except Exception as err:
+                        raise CommandError(f"{path}: {_describe(err, store)}") from err
+                print(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
+                      f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
+                      f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f}, {info.n_loglike_evals} likelihood "
+                      f"evaluations in {info.wall_time:.2f} s")
+                args.replace_last = False
+        finally:
+            close()
+    return 0
+
+
+def _describe(err, store) -> str:
+    from .config import ConfigError
+    from .store import StoreError
+
+    if isinstance(err, (StoreError, ConfigError)):
+        return str(err)
+    text = str(err)
+    if isinstance(err, ValueError) and text.startswith("loglike"):
+        return f"likelihood {store.config.likelihood}: {text}; the run store is unchanged"
+    if isinstance(err, ValueError) or type(err).__name__ == "ZeroLikelihoodError":
+        return f"{text}; the run store is unchanged"
+    return (f"the likelihood {store.config.likelihood} (or the sampler) raised {type(err).__name__}: {text}; "
+            f"the run store is unchanged")
+
+
+def cmd_status(args) -> int:
+    from .report import format_status, status_rows
+    from .store import RunStore
+
+    store = RunStore.open(args.run)
+    if args.json:
+        print(json.dumps({"run": str(store.path), "model": store.config.name, "steps": status_rows(store, args.level)},
+                         indent=1))
+    else:
+        print(format_status(store, args.level))
+    return 0
+
+
+def cmd_predict(args) -> int:
+    from .report import forecast_rows, format_forecast
+    from .store import RunStore
+
+    store = RunStore.open(args.run)
+    if store.n_steps == 0:
+        raise CommandError(f"{args.run}: no dataset assimilated yet; nothing to forecast from")
+    if args.steps < 1:
+        raise CommandError(f"--steps: must be >= 1, got {args.steps}")
+    draws = store.predict(args.steps)
+    rows = forecast_rows(store, args.steps, args.level, draws)
+    if args.output:
+        _write_forecast(Path(args.output), store, draws)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        print(f"forecast from step {store.n_steps} of {args.run} ({store.config.name!r}), {draws.shape[1]} draws")
+        print(format_forecast(rows, args.level))
+    return 0
+
+
+def _write_forecast(path, store, draws):
+    import numpy as np
+    import xarray as xr
+
+    if path.suffix.lower() == ".csv":
+        steps = np.repeat(np.arange(1, draws.shape[0] + 1) + store.n_steps, draws.shape[1])
+        table = np.column_stack([steps, draws.reshape(-1, draws.shape[2])])
+        np.savetxt(path, table, delimiter=",", header=",".join(["step", *store.names]), comments="")
+    else:
+        xr.Dataset({"forecast": (("step", "sample", "parameter"), draws)},
+                   coords={"step": np.arange(1, draws.shape[0] + 1) + store.n_steps,
+                           "parameter": list(store.names)}).to_netcdf(path, engine="h5netcdf")
+
+
+def _open_for_comparison(paths):
+    from .store import RunStore
+
+    stores = [RunStore.open(p) for p in paths]
+    names = []
+    for store in stores:
+        name = store.config.name if store.config.name not in names else f"{store.config.name} ({store.path.name})"
+        names.append(name)
+    n_common = min(s.n_steps for s in stores)
+    if n_common == 0:
+        raise CommandError("compare: every run needs at least one assimilated dataset")
+    ref = stores[0]
+    for store in stores[1:]:
+        for s in range(n_common):
+            if store.digests[s] != ref.digests[s]:
+                raise CommandError(f"compare: step {s + 1} of {store.path} assimilated {store.sources[s]!r}, which "
+                                   f"differs from {ref.sources[s]!r} in {ref.path}; models can only be compared "
+                                   f"on the same datasets")
+    return stores, names, n_common
+
+
+def cmd_compare(args) -> int:
+    from .report import comparison_rows
+    from .selection import compare
+
+    stores, names, n_common = _open_for_comparison(args.runs)
+    comparison = compare({n: s.result.log_evidence[:n_common] for n, s in zip(names, stores)})
+    if args.json:
+        print(json.dumps({"steps": n_common, "best": comparison.best, "rows": comparison_rows(comparison)},
+                         indent=1))
+        return 0
+    if len({s.n_steps for s in stores}) > 1:
+        print(f"note: runs have {', '.join(str(s.n_steps) for s in stores)} steps; comparing the first {n_common}")
+    print(comparison.table())
+    best = comparison.best
+    for name in comparison.names:
+        if name != best:
+            print(f"log Bayes factor {best} vs {name}: {comparison.log_bayes_factor(best, name)[-1]:.3f}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .report import write_report
+    from .store import RunStore
+
+    store = RunStore.open(args.run)
+    others = []
+    if args.compare:
+        stores, _, _ = _open_for_comparison([args.run, *args.compare])
+        others = stores[1:]
+    output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
+    try:
+        write_report(store, output, others=others, forecast_steps=args.forecast, level=args.level,
+                     embed=not args.no_embed)
+    except ValueError as err:
+        raise CommandError(str(err)) from err
+    print(f"report written to {output}")
+    return 0
+
+
+# ----------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="seqbayes", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--traceback", action="store_true", help="show the full traceback on errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("init", help="create a run from a TOML config")
+    p.add_argument("config", help="TOML run configuration (see seqbayes.config)")
+    p.add_argument("run", help="run store to create (a .nc file)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing run store")
+    p.set_defaults(func=cmd_init)
+
+    p = sub.add_parser("update", help="assimilate one or more datasets (CSV or NetCDF), one step each")
+    p.add_argument("run")
+    p.add_argument("datafiles", nargs="+", metavar="DATAFILE")
+    p.add_argument("--replace-last", action="store_true",
+                   help="roll back the last step and assimilate the (first) dataset in its place")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_update)
+
+    p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")
+    p.add_argument("run")
+    p.add_argument("--level", type=float, default=0.95, help="credible level (default 0.95)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_status)
+
+    p = sub.add_parser("predict", help="forecast the parameters K steps ahead")
+    p.add_argument("run")
+    p.add_argument("--steps", type=int, required=True, metavar="K")
+    p.add_argument("--level", type=float, default=0.95)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--output", "-o", help="also write the forecast draws (.csv or .nc)")
+    p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("compare", help="model-class selection between runs on the same datasets")
+    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("report", help="HTML report with figures")
+    p.add_argument("run")
+    p.add_argument("--output", "-o", help="HTML file (default: RUN with suffix .html)")
+    p.add_argument("--compare", nargs="+", metavar="RUN", help="competing runs shown in the evidence figures")
+    p.add_argument("--forecast", type=int, default=3, metavar="K", help="forecast horizon (default 3, 0: none)")
+    p.add_argument("--level", type=float, default=0.95)
+    p.add_argument("--no-embed", action="store_true", help="write PNG files next to the page instead of base64")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("example", help="run one of the papers' studies", add_help=False)
+    p.add_argument("name", help=f"one of: {', '.join(sorted(EXAMPLES))}")
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="seqbayes", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    example = sub.add_parser("example", help="run one of the papers' studies", add_help=False)
-    example.add_argument("name", help=f"one of: {', '.join(sorted(EXAMPLES))}")
+    parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     if args.command == "example":
         return _run_example(args.name, rest)
-    parser.error(f"unknown command {args.command!r}")
-    return 2
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    from .config import ConfigError, DataError
+    from .store import StoreError
+
+    try:
+        return int(args.func(args) or 0)
+    except (CommandError, ConfigError, DataError, StoreError, ValueError) as err:
+        if args.traceback:
+            raise
+        print(f"seqbayes {args.command}: error: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

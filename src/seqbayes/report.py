@@ -1,0 +1,249 @@
+"""Status tables, forecasts tables and the HTML report of monitoring runs.
+
+:func:`status_rows` / :func:`format_status` give the per-step table of the
+``seqbayes status`` command, :func:`forecast_rows` the ``predict`` table and
+:func:`write_report` the self-contained HTML page of ``seqbayes report`` (the
+figures are embedded as base64 PNG, so the page is one file that opens
+anywhere without network access and without JavaScript).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from . import plotting
+
+__all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
+           "write_report", "render_report"]
+
+
+def _tails(level):
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level: must lie in (0, 1), got {level}")
+    tail = 0.5 * (1.0 - level)
+    return tail, 1.0 - tail
+
+
+def status_rows(store, level: float = 0.95) -> list[dict]:
+    """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
+
+    Keys: ``step, dataset, acceptance_rate, ess, resampled, log_evidence_increment,
+    log_evidence, step_size, n_loglike_evals, wall_time, parameters`` where
+    ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
+    ``level`` interval).
+    """
+    lo, hi = _tails(level)
+    rows = []
+    for i, record in enumerate(store.result.steps):
+        info = record.info
+        mean, sd, q = record.mean(), record.std(), record.quantile([lo, hi])
+        rows.append({
+            "step": int(info.step), "dataset": store.sources[i], "acceptance_rate": float(info.acceptance_rate),
+            "ess": float(info.ess), "resampled": bool(info.resampled),
+            "log_evidence_increment": float(info.log_evidence_increment), "log_evidence": float(info.log_evidence),
+            "step_size": float(info.step_size), "n_loglike_evals": int(info.n_loglike_evals),
+            "wall_time": float(info.wall_time),
+            "parameters": {name: {"mean": float(mean[j]), "sd": float(sd[j]), "lower": float(q[0, j]),
+                                  "upper": float(q[1, j])} for j, name in enumerate(store.names)},
+        })
+    return rows
+
+
+def _fmt(x):
+    return f"{x:.4g}" if np.isfinite(x) else "nan"
+
+
+def format_status(store, level: float = 0.95) -> str:
+    """The ``status`` command's plain-text tables."""
+    cfg = store.config
+    lines = [f"run {store.path}  model {cfg.name!r}  likelihood {cfg.likelihood}  sampler {cfg.sampler} "
+             f"N={cfg.n_samples} seed={cfg.seed}  steps: {store.n_steps}"]
+    if store.n_steps == 0:
+        lines.append("no dataset assimilated yet (use `seqbayes update RUN DATAFILE`)")
+        return "\n".join(lines)
+    rows = status_rows(store, level)
+    n = cfg.n_samples
+    lines.append("")
+    lines.append(f"{'step':>4}  {'dataset':<24} {'accept':>7} {'ESS':>8} {'ESS/N':>6} {'log Z_s':>11} {'log Z':>11}")
+    for r in rows:
+        lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {r['acceptance_rate']:7.3f} {r['ess']:8.1f} "
+                     f"{r['ess'] / n:6.3f} {r['log_evidence_increment']:11.4f} {r['log_evidence']:11.4f}")
+    pct = f"{level:.0%}"
+    lines.append("")
+    lines.append(f"{'step':>4}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}")
+    for r in rows:
+        for name, p in r["parameters"].items():
+            lines.append(f"{r['step']:>4}  {name[:14]:<14} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
+                         f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
+    return "\n".join(lines)
+
+
+def forecast_rows(store, n_steps: int, level: float = 0.95, forecast=None) -> list[dict]:
+    """Forecast summary ``K`` steps ahead: one dict per (ahead, parameter) with mean, sd, interval."""
+    lo, hi = _tails(level)
+    draws = store.predict(n_steps) if forecast is None else forecast
+    rows = []
+    for k in range(draws.shape[0]):
+        q = np.quantile(draws[k], [lo, hi], axis=0)
+        for j, name in enumerate(store.names):
+            rows.append({"step": store.n_steps + k + 1, "ahead": k + 1, "parameter": name,
+                         "mean": float(draws[k, :, j].mean()), "sd": float(draws[k, :, j].std()),
+                         "lower": float(q[0, j]), "upper": float(q[1, j])})
+    return rows
+
+
+def format_forecast(rows, level: float = 0.95) -> str:
+    pct = f"{level:.0%}"
+    lines = [f"{'step':>4} {'ahead':>5}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} "
+             f"{pct + ' upper':>11}"]
+    for r in rows:
+        lines.append(f"{r['step']:>4} {r['ahead']:>5}  {r['parameter'][:14]:<14} {_fmt(r['mean']):>11} "
+                     f"{_fmt(r['sd']):>11} {_fmt(r['lower']):>11} {_fmt(r['upper']):>11}")
+    return "\n".join(lines)
+
+
+def comparison_rows(comparison) -> list[dict]:
+    """Per step and model: cumulative log-evidence, increment, probability."""
+    rows = []
+    for s in range(comparison.log_evidence.shape[0]):
+        for j, name in enumerate(comparison.names):
+            rows.append({"step": s + 1, "model": name, "log_evidence": float(comparison.log_evidence[s, j]),
+                         "log_evidence_increment": float(comparison.log_evidence_increments[s, j]),
+                         "probability": float(comparison.probabilities[s, j])})
+    return rows
+
+
+# ------------------------------------------------------------------ HTML report
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 960px; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 2em; }
+table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0; }
+th, td { border: 1px solid #ddd; padding: 0.2em 0.5em; text-align: right; }
+th { background: #f4f4f4; } td.l, th.l { text-align: left; }
+figure { margin: 1em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figcaption { font-size: 0.85em; color: #555; } code { background: #f4f4f4; padding: 0 0.2em; }
+"""
+
+
+def _table_html(header, rows, left=(0,)):
+    out = ["<table><thead><tr>"]
+    out += [f"<th class='{'l' if i in left else ''}'>{html.escape(str(h))}</th>" for i, h in enumerate(header)]
+    out.append("</tr></thead><tbody>")
+    for row in rows:
+        out.append("<tr>" + "".join(f"<td class='{'l' if i in left else ''}'>{html.escape(str(c))}</td>"
+                                    for i, c in enumerate(row)) + "</tr>")
+    out.append("</tbody></table>")
+    return "".join(out)
+
+
+def _figure_html(fig, caption, fig_id, image_dir=None):
+    if image_dir is None:
+        src = plotting.to_data_uri(fig)
+    else:
+        image_dir.mkdir(parents=True, exist_ok=True)
+        plotting.save(fig, image_dir / f"{fig_id}.png", dpi=100)
+        src = f"{image_dir.name}/{fig_id}.png"
+    return (f"<figure id='{fig_id}'><img src='{src}' alt='{html.escape(caption)}'>"
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0.95, image_dir=None) -> str:
+    """The HTML text of the report for ``store`` (and, for model comparison, ``others``).
+
+    Parameters
+    ----------
+    store : RunStore
+    others : sequence of RunStore
+        Competing model classes on the same datasets (their evidence and probabilities are shown).
+    forecast_steps : int
+        Forecast horizon drawn after the last step (0: none).
+    level : float
+        Credible level of the bands and intervals.
+    image_dir : pathlib.Path, optional
+        Write figures as PNG files there instead of embedding them as base64.
+    """
+    from .selection import compare
+
+    if store.n_steps == 0:
+        raise ValueError(f"{store.path}: no step to report yet (run `seqbayes update` first)")
+    cfg = store.config
+    title = f"seqbayes report: {cfg.name}"
+    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+             f"<style>{_CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: likelihood <code>{html.escape(cfg.likelihood)}"
+                 f"</code>, sampler {cfg.sampler} with N = {cfg.n_samples}, seed {cfg.seed}; {store.n_steps} "
+                 f"dataset(s) assimilated. Model fingerprint <code>{cfg.fingerprint()[:12]}</code>.</p>")
+    kernel_rows = [[n, cfg.priors[n]["dist"], json.dumps(cfg.priors[n]["args"]), json.dumps(cfg.priors[n]["kwds"]),
+                    cfg.kernel[n]["type"], cfg.kernel[n]["rate"], cfg.kernel[n]["noise_std"]] for n in cfg.names]
+    parts.append("<h2>Model</h2>" + _table_html(
+        ["parameter", "prior", "args", "keywords", "kernel", "rate", "noise std"], kernel_rows, left=(0, 1, 2, 3, 4)))
+
+    forecast = store.predict(forecast_steps) if forecast_steps > 0 else None
+    parts.append("<h2>Parameter evolution</h2>")
+    fig = plotting.plot_parameter_evolution(store.result, level=level, forecast=forecast)
+    caption = (f"Posterior mean and {level:.0%} credible band per step"
+               + (f", with the {forecast_steps}-step forecast (dashed)" if forecast is not None else ""))
+    parts.append(_figure_html(fig, caption, "fig-parameters", image_dir))
+
+    rows = status_rows(store, level)
+    pct = f"{level:.0%}"
+    param_rows = [[r["step"], name, _fmt(p["mean"]), _fmt(p["sd"]), _fmt(p["lower"]), _fmt(p["upper"])]
+                  for r in rows for name, p in r["parameters"].items()]
+    parts.append(_table_html(["step", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"], param_rows,
+                             left=(1,)))
+    if forecast is not None:
+        parts.append("<h2>Forecast</h2>")
+        frows = forecast_rows(store, forecast_steps, level, forecast)
+        parts.append(_table_html(["step", "ahead", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
+                                 [[r["step"], r["ahead"], r["parameter"], _fmt(r["mean"]), _fmt(r["sd"]),
+                                   _fmt(r["lower"]), _fmt(r["upper"])] for r in frows], left=(2,)))
+
+    runs = {store.config.name: store.result}
+    for other in others:
+        name = other.config.name
+        if name in runs:
+            name = f"{name} ({other.path.name})"
+        runs[name] = other.result
+    parts.append("<h2>Sampler diagnostics</h2>")
+    target = cfg.settings.get("target_acceptance")
+    if target is None and cfg.sampler == "SEMC":
+        target = 0.21 / len(cfg.names) + 0.23  # Eq. (10), the sampler's default
+    parts.append(_figure_html(plotting.plot_sampler_diagnostics(runs, target_acceptance=target),
+                              "Acceptance rate and effective sample size (ESS / N) per step", "fig-diagnostics",
+                              image_dir))
+    parts.append(_table_html(["step", "dataset", "acceptance", "ESS", "log Z_s", "log Z"],
+                             [[r["step"], r["dataset"], f"{r['acceptance_rate']:.3f}", f"{r['ess']:.1f}",
+                               f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
+                             left=(1,)))
+    parts.append("<h2>Evidence and model probabilities</h2>")
+    parts.append(_figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
+                              "fig-evidence", image_dir))
+    n_common = min(len(r.steps) for r in runs.values())
+    comparison = compare({k: v.log_evidence[:n_common] for k, v in runs.items()})
+    parts.append(_figure_html(plotting.plot_model_probabilities(comparison),
+                              "Posterior model probabilities (equal prior probabilities)", "fig-probabilities",
+                              image_dir))
+    parts.append(_table_html(["step", "model", "log Z", "probability"],
+                             [[r["step"], r["model"], f"{r['log_evidence']:.4f}", f"{r['probability']:.4f}"]
+                              for r in comparison_rows(comparison)], left=(1,)))
+    parts.append(f"<p>Most probable model after step {n_common}: <strong>{html.escape(comparison.best)}</strong>"
+                 "</p></body></html>")
+    return "\n".join(parts)
+
+
+def write_report(store, output, **kwargs) -> Path:
+    """Write :func:`render_report` to ``output`` (an ``.html`` file); returns its path.
+
+    With ``embed=False`` the figures go to ``<output stem>_figures/`` next to the page.
+    """
+    output = Path(output)
+    embed = kwargs.pop("embed", True)
+    image_dir = None if embed else output.parent / f"{output.stem}_figures"
+    text = render_report(store, image_dir=image_dir, **kwargs)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(text, encoding="utf-8")
+    return output
