@@ -449,9 +449,9 @@ def posterior_to_arviz(result: Result, step: int = -1, rng=None):
     """A step's posterior as :class:`arviz.InferenceData` for ArviZ diagnostics and plots.
 
     ``posterior``: one chain of ``N`` equal-weight draws (systematic resampling of the
-    weighted particles); ``sample_stats``: the particles' normalised log-weights;
-    ``posterior_predictive``-like forecasts are not included (see ``predict``).
-    Attributes record the step, its log-evidence, ESS and acceptance rate.
+    weighted particles; they are not a Markov chain, so use ArviZ's summaries,
+    densities and pair plots, not R-hat). The group's attributes record the step,
+    its log-evidence, ESS and acceptance rate.
 
     Parameters
     ----------
@@ -472,8 +472,7 @@ def posterior_to_arviz(result: Result, step: int = -1, rng=None):
     record = result.steps[step]
     draws = record.equal_weight_samples(as_generator(0 if rng is None else rng))
     info = record.info
-    return az.from_dict(
-        posterior={name: draws[None, :, j] for j, name in enumerate(result.names)},
-        sample_stats={"log_weight": record.log_weights[None, :]},
-        attrs={"step": int(info.step), "log_evidence": float(info.log_evidence), "ess": float(info.ess),
-               "acceptance_rate": float(info.acceptance_rate)})
+    idata = az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(result.names)})
+    idata.posterior.attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
+                                  "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
+    return idata

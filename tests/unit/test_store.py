@@ -1,0 +1,218 @@
+"""Run store: exact round trip, bit-identical resumption, duplicate and incompatibility refusal,
+store unchanged on failure, ArviZ conversion."""
+
+from __future__ import annotations
+
+import hashlib
+import textwrap
+
+import numpy as np
+import pytest
+
+from seqbayes.config import load_config
+from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, posterior_to_arviz
+
+MODEL = """
+import numpy as np
+def loglike(theta, data):
+    t, y = data[:, 0], data[:, 1]
+    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
+    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.1 ** 2
+def wrong_shape(theta, data):
+    return np.zeros(3)
+"""
+
+CONFIG = """
+[model]
+name = "decay"
+likelihood = "storemodel:{func}"
+[data]
+columns = ["t", "y"]
+[priors]
+a = {{ dist = "uniform", loc = 0.5, scale = 2.0 }}
+b = {{ dist = "uniform", loc = 0.0, scale = 1.0 }}
+[kernel]
+a = {{ type = "drift", rate = -0.05, noise_std = 0.02 }}
+[sampler]
+type = "{sampler}"
+n_samples = 80
+seed = 11
+"""
+
+
+def datasets(n=4, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 3, 15)
+    return [np.column_stack([t, (1.5 - 0.05 * s) * np.exp(-0.4 * t) + 0.1 * rng.standard_normal(t.size)])
+            for s in range(n)]
+
+
+def config(tmp_path, sampler="SEMC", func="loglike", name="run.toml"):
+    (tmp_path / "storemodel.py").write_text(MODEL)
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(CONFIG.format(sampler=sampler, func=func)))
+    return load_config(path)
+
+
+def sha(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def assert_same_steps(steps_a, steps_b):
+    assert len(steps_a) == len(steps_b)
+    for a, b in zip(steps_a, steps_b):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        np.testing.assert_array_equal(a.log_weights, b.log_weights)
+        np.testing.assert_array_equal(a.predictive, b.predictive)
+        assert a.info == b.info or (a.info.log_evidence == b.info.log_evidence and a.info.step == b.info.step)
+
+
+@pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
+def test_reopening_after_each_step_is_bit_identical_to_an_uninterrupted_run(tmp_path, sampler):
+    cfg = config(tmp_path, sampler)
+    data = datasets()
+    reference = cfg.build_sampler()
+    for d in data:
+        reference.update(d)
+    RunStore.create(tmp_path / "run.nc", cfg)
+    for i, d in enumerate(data):
+        store = RunStore.open(tmp_path / "run.nc")      # a fresh object from disk each time
+        assert store.n_steps == i
+        store.assimilate(d, f"d{i}")
+    store = RunStore.open(tmp_path / "run.nc")
+    ref = reference.result.steps
+    for a, b in zip(ref, store.result.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        np.testing.assert_array_equal(a.log_weights, b.log_weights)
+        np.testing.assert_array_equal(a.predictive, b.predictive)
+        assert a.info.log_evidence == b.info.log_evidence
+        assert a.info.acceptance_rate == b.info.acceptance_rate
+    # the stored state is the sampler's state: the next forecast and step agree too
+    assert store.rng_states[-1] == reference.snapshot()[2]
+    np.testing.assert_array_equal(store.predict(2), reference.predict(2))
+    assert store.sources == ["d0", "d1", "d2", "d3"]
+
+
+def test_exact_round_trip_of_every_stored_array(tmp_path):
+    cfg = config(tmp_path)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    for d in datasets(2):
+        store.assimilate(d)
+    loaded = RunStore.open(tmp_path / "run.nc", config=cfg)
+    assert loaded.config == store.config
+    np.testing.assert_array_equal(loaded.initial_particles, store.initial_particles)
+    for (c1, h1, w1), (c2, h2, w2) in zip(loaded.mixtures, store.mixtures):
+        np.testing.assert_array_equal(c1, c2)
+        np.testing.assert_array_equal(h1, h2)
+        np.testing.assert_array_equal(w1, w2)
+    assert loaded.step_sizes == store.step_sizes and loaded.rng_states == store.rng_states
+    assert loaded.digests == store.digests
+    state, records, rng_state = loaded.state_at(2)
+    assert state.step == 2 and len(records) == 2
+    assert state.log_evidence == store.result.steps[-1].info.log_evidence
+    np.testing.assert_array_equal(state.prior.log_weights, store.mixtures[-1][2])
+
+
+def test_duplicate_dataset_refused_and_replace_last(tmp_path):
+    cfg = config(tmp_path)
+    data = datasets(3)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    store.assimilate(data[0], "first.csv")
+    store.assimilate(data[1], "second.csv")
+    before = sha(tmp_path / "run.nc")
+    with pytest.raises(DuplicateDatasetError, match=r"already assimilated as step 1 \(from first.csv"):
+        store.assimilate(data[0].copy(), "again.csv")
+    with pytest.raises(DuplicateDatasetError, match="step 2 .*--replace-last"):
+        store.assimilate(data[1], "again.csv")
+    with pytest.raises(DuplicateDatasetError, match="step 1"):   # only the last step may be replaced
+        store.assimilate(data[0], "again.csv", replace_last=True)
+    assert sha(tmp_path / "run.nc") == before and store.n_steps == 2
+    # replacing the last step == a run that had the replacement from the start
+    store.assimilate(data[2], "fixed.csv", replace_last=True)
+    assert store.n_steps == 2 and store.sources == ["first.csv", "fixed.csv"]
+    reference = cfg.build_sampler()
+    reference.update(data[0])
+    reference.update(data[2])
+    assert_same_steps(reference.result.steps, RunStore.open(tmp_path / "run.nc").result.steps)
+    # the same dataset may be "replaced" by itself: same numbers
+    store.assimilate(data[2], "fixed-again.csv", replace_last=True)
+    assert_same_steps(reference.result.steps, store.result.steps)
+
+
+def test_failing_likelihood_leaves_the_store_unchanged(tmp_path):
+    cfg = config(tmp_path, func="wrong_shape")
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    before = sha(tmp_path / "run.nc")
+    with pytest.raises(ValueError, match=r"loglike: returned shape \(3,\) for theta of shape \(80, 2\); "
+                                         r"expected \(80,\)"):
+        store.assimilate(datasets(1)[0])
+    assert store.n_steps == 0 and len(store.rng_states) == 1
+    assert sha(tmp_path / "run.nc") == before
+    with pytest.raises(ValueError, match=r"table: expected shape \(n_rows, 2\)"):
+        store.assimilate(np.zeros((5, 3)))
+
+
+def test_incompatible_version_model_and_damage_are_refused(tmp_path):
+    import xarray as xr
+
+    cfg = config(tmp_path)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    store.assimilate(datasets(1)[0])
+    ds = store.to_xarray()
+    ds.attrs["seqbayes_store_format"] = FORMAT_VERSION + 1
+    ds.to_netcdf(tmp_path / "future.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match=rf"future.nc: run-store format version {FORMAT_VERSION + 1}, but this "
+                                         rf"seqbayes reads version {FORMAT_VERSION}"):
+        RunStore.open(tmp_path / "future.nc")
+    other = config(tmp_path, sampler="SMC", name="other.toml")
+    with pytest.raises(StoreError, match=r"run.nc: the run was created for another model .*differing fields: "
+                                         r"sampler"):
+        RunStore.open(tmp_path / "run.nc", config=other)
+    ds = store.to_xarray()
+    ds.attrs["config"] = ds.attrs["config"].replace('"seed": 11', '"seed": 12')
+    ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match="edited.nc: model fingerprint does not match"):
+        RunStore.open(tmp_path / "edited.nc")
+    xr.Dataset({"x": ("i", np.zeros(2))}).to_netcdf(tmp_path / "plain.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match="plain.nc: not a seqbayes run store"):
+        RunStore.open(tmp_path / "plain.nc")
+    (tmp_path / "torn.nc").write_bytes((tmp_path / "run.nc").read_bytes()[:1000])
+    with pytest.raises(StoreError, match="torn.nc: cannot read the run store"):
+        RunStore.open(tmp_path / "torn.nc")
+    with pytest.raises(StoreError, match="absent.nc: no such run store"):
+        RunStore.open(tmp_path / "absent.nc")
+    with pytest.raises(StoreError, match="already exists"):
+        RunStore.create(tmp_path / "run.nc", cfg)
+
+
+def test_write_removes_stale_temporary_files(tmp_path):
+    cfg = config(tmp_path)
+    stale = tmp_path / ".run.nc.tmp-99999"
+    stale.write_bytes(b"half a file")
+    RunStore.create(tmp_path / "run.nc", cfg)
+    assert not stale.exists()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".run.nc")) == []
+
+
+def test_a_step_posterior_as_arviz_data(tmp_path):
+    az = pytest.importorskip("arviz")
+    cfg = config(tmp_path)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    for d in datasets(2):
+        store.assimilate(d)
+    idata = store.to_arviz(step=0)
+    assert "posterior" in idata.groups()
+    post = idata.posterior
+    assert post["a"].shape == (1, 80) and post["b"].shape == (1, 80)
+    assert post.attrs["step"] == 1
+    assert post.attrs["log_evidence"] == store.result.steps[0].info.log_evidence
+    # equal-weight draws (systematic resampling) keep the weighted mean up to resampling error:
+    # systematic resampling of N = 80 draws moves the mean by at most ~ (range / N); 2 sd / sqrt(N) is generous
+    rec = store.result.steps[0]
+    tolerance = 2 * rec.std() / np.sqrt(80)
+    assert np.all(np.abs(np.array([post["a"].values.mean(), post["b"].values.mean()]) - rec.mean()) < tolerance)
+    summary = az.summary(idata, kind="stats")
+    assert list(summary.index) == ["a", "b"]
+    # reproducible: same default resampling seed
+    again = posterior_to_arviz(store.result, 0)
+    np.testing.assert_array_equal(again.posterior["a"].values, post["a"].values)
