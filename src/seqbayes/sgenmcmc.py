@@ -283,7 +283,7 @@ class SGEnMCMC:
         if centre not in ("member", "regression"):
             raise ValueError(f"centre: expected 'member' or 'regression', got {centre!r}")
         self.centre = centre
-        self.adjust_states = bool(adjust_states)
+        self.adjust_states = adjust_states
         if transition is not None:
             self.transition = transition
         elif level is None:
@@ -391,12 +391,17 @@ class SGEnMCMC:
             # (4) resample theta with its state (Eq. 28) and rejuvenate
             if ess < self.ess_threshold * N:
                 idx = resample(self.resampling, w, rng, N)
-                slope = moments.slope(X) if self.adjust_states else None
                 parent = theta[idx]
-                theta = self._rejuvenate(parent, rng)
-                X = X[idx]
-                if slope is not None:  # move each state along E[X | theta] to its new theta
-                    X = X + (theta - parent) @ slope
+                new_theta = self._rejuvenate(parent, rng)
+                if self.adjust_states == "regression" and moments.centred is not None:
+                    # states from the fitted E[X | theta] at the new theta plus residuals
+                    # drawn without replacement from all members (see module docstring)
+                    X = moments.regenerate(X, new_theta, rng.permutation(N))
+                elif self.adjust_states:  # move each inherited state along E[X | theta]
+                    X = X[idx] + (new_theta - parent) @ moments.slope(X)
+                else:
+                    X = X[idx]
+                theta = new_theta
                 model = self.transition(theta)
                 b = model.B0 + model.B1
                 moments = _ConditionalMoments(theta if self.conditional else None, N)
@@ -426,7 +431,8 @@ class _ConditionalMoments:
             self.basis = np.full((N, 1), 1 / np.sqrt(N))
             self.centred = None
         else:
-            self.centred = theta - theta.mean(axis=0)
+            self.theta_mean = theta.mean(axis=0)
+            self.centred = theta - self.theta_mean
             self.basis, _ = np.linalg.qr(np.column_stack([np.ones(N), self.centred]))
         self.dof = N - self.basis.shape[1]  # N - 1 - q
 
@@ -438,6 +444,13 @@ class _ConditionalMoments:
         E = W - fitted
         C = E.T @ E / self.dof
         return fitted[:, m:], C[:m, m:], C[m:, m:]
+
+    def regenerate(self, X, new_theta, order):
+        """``mean(X) + slope^T (theta_new - mean(theta)) + residual[order]``."""
+        beta = self.slope(X)
+        residual = X - self.basis @ (self.basis.T @ X)
+        theta_mean = self.theta_mean
+        return X.mean(axis=0) + (new_theta - theta_mean) @ beta + residual[order]
 
     def slope(self, X):
         """Least-squares slope ``(d, m)`` of ``X`` on ``theta``."""

@@ -8,6 +8,7 @@ from scipy.stats import multivariate_normal
 from seqbayes.filters import (
     AugmentedModel, ekf, enkf_filter, ensemble_moments, kalman_filter, predictive_log_likelihood, ukf,
 )
+from seqbayes.filters.kalman import kalman_log_likelihood
 from seqbayes.structures import ShearBuilding, add_measurement_noise, discretise, simulate
 
 FRAME = ShearBuilding(np.array([15.51, 15.32, 14.66]) * 1e3, np.array([20.85, 9.23, 8.37]) * 1e6)
@@ -54,6 +55,25 @@ def test_kalman_batched_equals_one_at_a_time():
     np.testing.assert_allclose(batch, single, rtol=1e-12)
     assert np.argmax(kalman_filter(discretise(FRAME, np.vstack([thetas, THETA]), 0.02), u, y, std,
                                    sw).log_likelihood) == 3
+
+
+def test_fast_log_likelihood_equals_kalman_filter():
+    # 600 steps: the covariance reaches its steady state (~200 steps here) and the frozen-gain
+    # phase runs for the rest; the difference is O(T * steady_tol) relative (measured 1e-10)
+    model, u, y, std, sw = _data(600)
+    thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9], [0.7, 0.75, 0.95], THETA])
+    batch = discretise(FRAME, thetas, 0.02)
+    exact = kalman_filter(batch, u, y, std, sw).log_likelihood
+    fast, steady = kalman_log_likelihood(batch, u, y, std, sw, return_steady_step=True)
+    assert 0 < steady < 600
+    np.testing.assert_allclose(fast, exact, rtol=1e-9, atol=1e-6)  # far-off theta: |ll| ~ 5e4
+    # sequential processing alone (no steady state) is exact to round-off
+    no_steady = kalman_log_likelihood(batch, u, y, std, sw, steady_tol=0)
+    np.testing.assert_allclose(no_steady, exact, rtol=0, atol=1e-8)
+    # a full (non-diagonal) R is whitened first
+    R = np.diag(std**2) + 0.3 * np.sqrt(np.outer(std**2, std**2)) * (1 - np.eye(3))
+    np.testing.assert_allclose(kalman_log_likelihood(batch, u, y, R, sw),
+                               kalman_filter(batch, u, y, R, sw).log_likelihood, rtol=1e-9, atol=1e-6)
 
 
 def test_enkf_reproduces_kalman_filter_with_large_ensemble():
