@@ -53,6 +53,15 @@ class StepInfo:
     n_proposed, n_accepted, n_identical_partner : int
         Move counts; ``n_identical_partner`` are stretch proposals whose partner
         was an identical copy of the walker.
+    log_evidence_increment_path : float
+        The tempering path's estimate of the increment (Eq. 1); equals
+        ``log_evidence_increment`` when ``evidence="path"``.
+    evidence_ess : float
+        Effective sample size of the importance-sampling evidence (NaN for ``"path"``);
+        small values (say below N / 10) flag an unreliable increment.
+    n_independent_accepted : int
+        Particles moved by the independence-MH sweep that reuses the importance draws
+        (not counted in ``acceptance_rate``, which is the sampler's own move).
     wall_time : float
         Seconds spent in the step.
     """
@@ -73,6 +82,9 @@ class StepInfo:
     n_proposed: int
     n_accepted: int
     n_identical_partner: int
+    log_evidence_increment_path: float
+    evidence_ess: float
+    n_independent_accepted: int
     wall_time: float
 
 

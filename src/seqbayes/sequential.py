@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .density import PREDICTIVE_METHODS, predictive_density
+from .evidence import importance_step
 from .kernels import MarkovKernel
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
@@ -43,6 +44,7 @@ from .priors import as_samples, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator, generator_from_state, generator_state
+from .transforms import BoxTransform
 from .weights import ess, logsumexp, normalise
 
 __all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "ZeroLikelihoodError"]
@@ -78,14 +80,34 @@ class SamplerConfig:
     step_size : float
         SEMC's initial stretch step size ``u``.
     max_virtual : int
-        Cap on SEMC virtual iterations per stage.
+        Cap on SEMC virtual iterations (sweeps) per stage (30).
     virtual_tolerance : float
         Stop virtual iterations when ``|alpha - alpha_old| < virtual_tolerance * alpha_tr``.
     n_moves : int
-        SMC: MH steps per stage; SEMC: minimum sweeps per stage (3, as the authors' ``thinchain``).
+        Minimum MH steps (SMC) or sweeps (SEMC) per stage (3, as the authors' ``thinchain``).
+    moved_fraction : float
+        Keep moving until this fraction of the particles has moved at least once in the
+        stage (0.9; 0 disables), up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
+    max_moves : int
+        Cap on SMC's MH steps per stage.
         With 1 (the paper's SMC) the error of a static parameter after 5 steps grows ~1.5x.
     proposal_scale : float
         SMC's ``gamma`` of Eq. (A7).
+    transform : bool
+        Move in unconstrained coordinates (log / logit of bounded parameters; see
+        :mod:`seqbayes.transforms`). ``False`` moves in the parameters' own
+        coordinates, as the paper does.
+    min_valid_fraction : float
+        When fewer particles than this fraction have a non-zero likelihood, the step
+        starts from draws of the prior restricted to the non-zero region (rejection
+        sampling, at most 100 N likelihood evaluations; its mass enters the evidence).
+        0 disables it (the paper's behaviour; advisable for very expensive likelihoods).
+    evidence : {"importance", "path"}
+        Estimator of the evidence increment: defensive importance sampling from the
+        final posterior (:mod:`seqbayes.evidence`, N extra likelihood evaluations, whose
+        draws also drive one independence-MH sweep of the particles), or the tempering
+        path's product of mean weights alone (Eq. 1, the paper's). Both estimates are
+        recorded in :class:`StepInfo`.
     """
 
     move: str
@@ -98,16 +120,25 @@ class SamplerConfig:
     shrink_static: bool = True
     target_acceptance: float = 0.25
     step_size: float = 2.0
-    max_virtual: int = 20
+    max_virtual: int = 30
     virtual_tolerance: float = 0.1
     n_moves: int = 3
     proposal_scale: float = 1.0
+    transform: bool = True
+    min_valid_fraction: float = 0.5
+    evidence: str = "importance"
+    moved_fraction: float = 0.9
+    max_moves: int = 30
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
             raise ValueError(f"move: expected 'stretch' or 'gaussian', got {self.move!r}")
         if int(self.n_samples) != self.n_samples or self.n_samples < 2:
             raise ValueError(f"n_samples: must be an integer >= 2, got {self.n_samples}")
+        if self.evidence not in ("importance", "path"):
+            raise ValueError(f"evidence: expected 'importance' or 'path', got {self.evidence!r}")
+        if not 0.0 <= self.min_valid_fraction <= 1.0:
+            raise ValueError(f"min_valid_fraction: must lie in [0, 1], got {self.min_valid_fraction}")
         for name in ("tempering_ess", "ess_threshold"):
             value = getattr(self, name)
             if not 0.0 < value <= 1.0:
@@ -120,8 +151,12 @@ class SamplerConfig:
             raise ValueError(f"target_acceptance: must lie in (0, 1], got {self.target_acceptance}")
         if not self.step_size > 1.0:
             raise ValueError(f"step_size: must be > 1, got {self.step_size}")
-        if self.max_virtual < 1 or self.n_moves < 1:
-            raise ValueError("max_virtual and n_moves: must be >= 1")
+        if self.max_virtual < 1 or self.n_moves < 1 or self.max_moves < 1:
+            raise ValueError("max_virtual, max_moves and n_moves: must be >= 1")
+        if self.move == "gaussian" and self.n_moves > self.max_moves:
+            raise ValueError(f"n_moves: {self.n_moves} exceeds max_moves {self.max_moves}")
+        if not 0.0 <= self.moved_fraction <= 1.0:
+            raise ValueError(f"moved_fraction: must lie in [0, 1], got {self.moved_fraction}")
         if self.move == "stretch" and self.n_moves > self.max_virtual:
             raise ValueError(f"n_moves: {self.n_moves} exceeds max_virtual {self.max_virtual}")
         if not self.proposal_scale > 0:
@@ -202,38 +237,76 @@ def _next_increment(log_weights, loglike, remaining, target_fraction):
     return lo if lo > 0 else hi
 
 
-def _mutate(problem, config, state_step_size, walkers, components, coefficients, prior_logpdf, rng,
-            counter):
-    """The sampler's MCMC move at one tempering stage; returns walkers, components, stats, u, n_virtual."""
+def _mutate(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, counter):
+    """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s``.
 
-    def component_fn(points):
-        return np.column_stack([counter.loglike(points), prior_logpdf(points)])
+    With ``config.transform`` the move works in unconstrained coordinates
+    (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
+    target component); walkers that do not move keep their exact coordinates.
+    Returns walkers, components, stats, step size and virtual-iteration count.
+    """
+    transform = BoxTransform(problem.support) if config.transform else None
+    if transform is not None and transform.is_identity:
+        transform = None
+    if transform is None:
+        position, support = walkers, problem.support
+        coefficients = np.array([beta, 1.0])
+
+        def component_fn(points):
+            return np.column_stack([counter.loglike(points), prior_logpdf(points)])
+    else:
+        position, support = transform.forward(walkers), None
+        components = np.column_stack([components, transform.log_jacobian(position)])
+        coefficients = np.array([beta, 1.0, 1.0])
+
+        def component_fn(points):
+            theta = transform.inverse(points)
+            inside = _inside(theta, problem.support)  # round-off can land on a bound
+            out = np.full((points.shape[0], 3), -np.inf)
+            out[inside] = np.column_stack([counter.loglike(theta[inside]), prior_logpdf(theta[inside]),
+                                           transform.log_jacobian(points[inside])])
+            return out
+
+    start = position
+
+    def enough(n_done):  # every particle should have had a fair chance to move (cf. PyMC's SMC)
+        if n_done < config.n_moves:
+            return False
+        return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
 
     if config.move == "gaussian":
         stats = SweepStats()
-        for _ in range(config.n_moves):
-            cov = weighted_covariance(walkers, np.zeros(walkers.shape[0]))
-            move = GaussianMove(cov, config.proposal_scale)
-            walkers, components, sweep = gaussian_sweep(walkers, components, component_fn, coefficients, move,
-                                                        rng, problem.support)
+        n_done = 0
+        while not enough(n_done) and n_done < config.max_moves:
+            move = GaussianMove(weighted_covariance(position, np.zeros(position.shape[0])), config.proposal_scale)
+            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, move,
+                                                         rng, support)
             stats = stats + sweep
-        return walkers, components, stats, float("nan"), 0
-    # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
-    step_size = state_step_size
-    alpha_old = config.target_acceptance
-    stats = SweepStats()
-    n_virtual = 0
-    while True:
-        walkers, components, sweep = stretch_sweep(walkers, components, component_fn, coefficients,
-                                                   StretchMove(step_size), rng, problem.support)
-        n_virtual += 1
-        stats = stats + sweep
-        alpha = sweep.acceptance_rate
-        step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-        converged = abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance
-        if (converged and n_virtual >= config.n_moves) or n_virtual >= config.max_virtual:
-            break
-        alpha_old = alpha
+            n_done += 1
+        step_size, n_virtual = float("nan"), 0
+    else:  # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
+        step_size = state_step_size
+        alpha_old = config.target_acceptance
+        stats = SweepStats()
+        n_virtual = 0
+        while True:
+            position, components, sweep = stretch_sweep(position, components, component_fn, coefficients,
+                                                        StretchMove(step_size), rng, support)
+            n_virtual += 1
+            stats = stats + sweep
+            alpha = sweep.acceptance_rate
+            step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
+            converged = abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance
+            if (converged and enough(n_virtual)) or n_virtual >= config.max_virtual:
+                break
+            alpha_old = alpha
+    if transform is not None:
+        moved = np.any(position != start, axis=1)
+        walkers = walkers.copy()
+        walkers[moved] = transform.inverse(position[moved])
+        components = components[:, :2]
+    else:
+        walkers = position
     return walkers, components, stats, step_size, n_virtual
 
 
@@ -263,22 +336,31 @@ def _inside(points, support) -> np.ndarray:
     return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
 
 
-def _truncated_draws(prior, support, n, rng, step, max_rounds=100):
-    """``n`` equal-weight draws of ``prior`` restricted to the parameter space, and the log of
-    the prior mass inside it (estimated by the acceptance fraction of the rejection sampler)."""
-    kept, n_drawn, n_kept = [], 0, 0
+def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
+    """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
+    by rejection, their log-likelihoods, and the log of the restricted prior mass (the acceptance
+    fraction of the rejection sampler)."""
+    kept, kept_ll, n_drawn, n_kept = [], [], 0, 0
     while n_kept < n and n_drawn < max_rounds * n:
         draws = prior.sample(n, rng)
-        ok = _inside(draws, support)
+        loglike = np.full(n, -np.inf)
+        inside = _inside(draws, support)
+        loglike[inside] = counter.loglike(draws[inside])
+        ok = np.isfinite(loglike)
         kept.append(draws[ok])
+        kept_ll.append(loglike[ok])
         n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
     if n_kept == 0:
-        raise ZeroLikelihoodError(f"step {step}: the predictive distribution has no mass left in the parameter "
-                                  f"space (0 of {n_drawn} draws inside); the kernel drives the parameters out")
-    kept = np.concatenate(kept)
-    if n_kept < n:  # almost no mass inside: duplicate what there is
-        kept = kept[rng.integers(n_kept, size=n)]
-    return kept[:n], float(np.log(n_kept / n_drawn))
+        raise ZeroLikelihoodError(
+            f"step {step}: every sample has zero likelihood (0 of {n_drawn} draws of the "
+            f"{'prior' if step == 1 else 'predictive distribution'} are inside the parameter space with a "
+            f"non-zero likelihood); the {'prior' if step == 1 else 'predictive distribution'} is too far "
+            f"from the data")
+    kept, kept_ll = np.concatenate(kept), np.concatenate(kept_ll)
+    if n_kept < n:  # almost no mass: duplicate what there is
+        index = rng.integers(n_kept, size=n)
+        kept, kept_ll = kept[index], kept_ll[index]
+    return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn))
 
 
 def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
@@ -301,17 +383,22 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     counter = _Counter(problem, dataset, step)
     n = config.n_samples
     particles, log_weights = state.particles, state.log_weights
-    log_mass_inside = 0.0
-    if not _inside(particles, problem.support).all():
-        particles, log_mass_inside = _truncated_draws(state.prior, problem.support, n, rng, step)
-        log_weights = np.full(n, -np.log(n))
-    inside = np.ones(n, dtype=bool)
+    inside = _inside(particles, problem.support)
     loglike = np.full(n, -np.inf)
     loglike[inside] = counter.loglike(particles[inside])
-    if not np.isfinite(loglike).any():
+    valid = np.isfinite(loglike)
+    log_restricted_mass = 0.0
+    if not valid.any() and inside.all():
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood; the "
             f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
+    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+        # Few particles can carry the step (predictive mass outside the parameter space, or a zero-likelihood
+        # region such as stick-slip): start from the prior restricted to {inside, L > 0} instead.
+        particles, loglike, log_restricted_mass = _restricted_draws(state.prior, problem.support, n, rng, step,
+                                                                    counter)
+        log_weights = np.full(n, -np.log(n))
+    inside = np.ones(n, dtype=bool)
     prior_component = np.where(inside, state.prior.logpdf(particles), -np.inf)
     components = np.column_stack([loglike, prior_component])
 
@@ -336,12 +423,15 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
             particles, components = particles[index], components[index]
             log_weights = np.full(n, -np.log(n))
         particles, components, stage_stats, step_size_new, virtual = _mutate(
-            problem, config, step_size, particles, components, np.array([beta, 1.0]), state.prior.logpdf,
-            rng, counter)
+            problem, config, step_size, particles, components, beta, state.prior.logpdf, rng, counter)
         if config.move == "stretch":
             step_size = step_size_new
         stats, n_virtual = stats + stage_stats, n_virtual + virtual
-    log_increment = log_z + log_mass_inside  # zero likelihood outside the parameter space
+    log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
+    log_increment, evidence_ess, n_independent = log_increment_path, float("nan"), 0
+    if config.evidence == "importance":
+        log_increment, evidence_ess, particles, components, n_independent = importance_step(
+            particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng, n)
 
     density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
                                              config.shrink_static)
@@ -352,6 +442,8 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         n_virtual=n_virtual, n_stages=len(temperatures), temperatures=tuple(temperatures),
         n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=int(np.unique(particles, axis=0).shape[0]),
         n_proposed=stats.n_proposed, n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
+        log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
+        n_independent_accepted=n_independent,
         wall_time=time.perf_counter() - start)
     record = StepRecord(info, particles, log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=log_weights, prior=density,

@@ -205,14 +205,17 @@ def test_snapshot_restore_continues_bit_for_bit():
 def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
     # a ~ U(0, 1), a' = a - 0.5 + N(0, 0.05^2), flat likelihood: the evidence increments are the
     # probabilities that the predictive stays in [0, 1]: log 0.5 at step 2 and, by a 2e7-draw
-    # Monte Carlo computation, -2.876 at step 3. Tolerance: the rejection estimate's binomial error
-    # (~0.03) plus the N = 1000 sampling error of the step-2 posterior (~0.1 observed over seeds).
+    # Monte Carlo computation, -2.876 at step 3. The step-3 value depends on the ~6 % tail of the
+    # step-2 posterior near 0.5, so its run-to-run sd at N = 1000 is 0.10 (SMC) and 0.17 (SEMC),
+    # measured over 5 seeds each; the step-2 sd is 0.02. Tolerances are about 3 of those sds.
     prior = JointPrior({"a": stats.uniform(0, 1)})
     kernel = MarkovKernel([Drift(-0.5, noise_std=0.05)])
     sampler = cls(prior, kernel, lambda th, d: np.zeros(th.shape[0]), n_samples=1000, rng=0)
-    increments = [sampler.update(1.0).log_evidence_increment for _ in range(3)]
-    assert increments[0] == 0.0
+    infos = [sampler.update(1.0) for _ in range(3)]
+    increments = [info.log_evidence_increment for info in infos]
+    assert infos[0].log_evidence_increment_path == 0.0  # flat likelihood, prior inside: exact
+    assert increments[0] == pytest.approx(0.0, abs=0.03)  # importance estimate: ESS ~ 900 of 1000
     assert increments[1] == pytest.approx(np.log(0.5), abs=0.08)
-    assert increments[2] == pytest.approx(-2.876, abs=0.2)
+    assert increments[2] == pytest.approx(-2.876, abs=0.5)
     assert np.all(sampler.result.steps[-1].posterior >= 0.0)
     assert sampler.result.steps[-1].info.n_distinct > 500  # fresh draws, no collapse
