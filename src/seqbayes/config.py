@@ -56,11 +56,9 @@ import numpy as np
 __all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config", "read_datafile",
            "dataset_digest", "load_likelihood"]
 
-#: Sampler settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``.
-SEMC_SETTINGS = ("tempering", "tempering_ess", "ess_threshold", "resampling", "predictive", "shrink_static",
-                 "target_acceptance", "step_size", "max_virtual", "virtual_tolerance", "n_moves")
-SMC_SETTINGS = ("tempering", "tempering_ess", "ess_threshold", "resampling", "predictive", "shrink_static",
-                "n_moves", "proposal_scale")
+#: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
+SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
+SMC_ONLY = ("proposal_scale", "max_moves")
 KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",)}
 EXECUTORS = ("serial", "processes", "dask")
 
@@ -291,6 +289,17 @@ def _parse_prior(name, raw, source):
     return spec
 
 
+def _sampler_settings(kind):
+    """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
+    import dataclasses
+
+    from .sequential import SamplerConfig
+
+    names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
+    excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
+    return tuple(n for n in names if n not in excluded)
+
+
 def _parse_kernel(name, raw, source):
     prefix = f"kernel.{name}"
     if not isinstance(raw, dict):
@@ -403,7 +412,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     kind = sampler_raw.pop("type", "SEMC")
     if kind not in ("SEMC", "SMC"):
         _fail(source, "sampler.type", f"expected \"SEMC\" or \"SMC\", got {kind!r}")
-    allowed = SEMC_SETTINGS if kind == "SEMC" else SMC_SETTINGS
+    allowed = _sampler_settings(kind)
     n_samples = _number(sampler_raw.pop("n_samples", 1000), source, "sampler.n_samples", integer=True,
                         positive=True)
     seed = _number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)

@@ -25,6 +25,15 @@ a mixture; a leftover temporary file is removed by the next write. Concurrent
 ``update`` commands on one run are serialised by an advisory lock on
 ``RUN.lock``.
 
+Layout: ``posterior``, ``predictive`` ``(step, sample, parameter)``, ``log_weights``
+``(step, sample)``, ``mixture_centres``/``_bandwidth``/``_log_weights``,
+``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
+any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
+as JSON), ``dataset_sha256``, ``dataset_source``, ``state_step_size``,
+``initial_particles``, ``rng_state (rng_index)``; attributes ``config``,
+``model_fingerprint``, ``seqbayes_store_format``. Few variables keep a write
+fast (HDF5 pays per variable).
+
 Why NetCDF (HDF5 underneath, through xarray and h5netcdf): the content is a set
 of labelled float64 arrays ``(step, sample, parameter)`` plus small metadata,
 which is exactly NetCDF's model; float64 values round-trip bit for bit (needed
@@ -40,6 +49,7 @@ these sizes: N = 1000, d = 4, 100 steps is about 10 MB).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime as _dt
 import glob
 import json
@@ -53,7 +63,7 @@ import numpy as np
 from .config import (ConfigError, RunConfig, as_likelihood_data, dataset_digest, load_likelihood,
                      read_datafile)
 from .density import GaussianMixture
-from .results import Result, StepRecord
+from .results import Result, StepInfo, StepRecord
 from .sequential import SamplerState
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "FORMAT_VERSION", "store_lock"]
@@ -230,7 +240,13 @@ class RunStore:
                              f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]}); differing fields: {fields}")
         n_steps = int(ds.attrs["n_steps"])
         if n_steps:
-            result = Result.from_xarray(ds)
+            records = []
+            for i in range(n_steps):
+                info = json.loads(str(ds["step_info"].values[i]))
+                info["temperatures"] = tuple(info.get("temperatures", ()))
+                records.append(StepRecord(StepInfo(**info), ds["posterior"].values[i], ds["log_weights"].values[i],
+                                          ds["predictive"].values[i]))
+            result = Result(stored.names, tuple(records), json.loads(ds.attrs.get("result_meta", "{}")))
             mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
                          ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
             step_sizes = [float(v) for v in ds["state_step_size"].values]
@@ -264,17 +280,30 @@ class RunStore:
 
         from . import __version__
 
+        coords = {"sample": np.arange(self.initial_particles.shape[0]), "parameter": list(self.names)}
         if self.n_steps:
-            ds = self.result.to_xarray()
-            ds["mixture_centres"] = (("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures]))
-            ds["mixture_bandwidth"] = (("step", "parameter"), np.stack([m[1] for m in self.mixtures]))
-            ds["mixture_log_weights"] = (("step", "sample"), np.stack([m[2] for m in self.mixtures]))
-            ds["state_step_size"] = (("step",), np.array(self.step_sizes, dtype=float))
-            ds["dataset_sha256"] = (("step",), np.array(self.digests, dtype=object))
-            ds["dataset_source"] = (("step",), np.array(self.sources, dtype=object))
+            steps = self.result.steps
+            infos = [dataclasses.asdict(r.info) for r in steps]
+            numeric = [k for k, v in infos[0].items() if isinstance(v, (int, float)) and k != "step"]
+            coords.update(step=np.array([r.info.step for r in steps]), diagnostic=numeric)
+            data = {
+                "posterior": (("step", "sample", "parameter"), np.stack([r.posterior for r in steps])),
+                "log_weights": (("step", "sample"), np.stack([r.log_weights for r in steps])),
+                "predictive": (("step", "sample", "parameter"), np.stack([r.predictive for r in steps])),
+                # for readers without seqbayes; step_info holds the exact records
+                "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
+                "step_info": (("step",), np.array([json.dumps(i) for i in infos], dtype=object)),
+                "mixture_centres": (("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
+                "mixture_bandwidth": (("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
+                "mixture_log_weights": (("step", "sample"), np.stack([m[2] for m in self.mixtures])),
+                "state_step_size": (("step",), np.array(self.step_sizes, dtype=float)),
+                "dataset_sha256": (("step",), np.array(self.digests, dtype=object)),
+                "dataset_source": (("step",), np.array(self.sources, dtype=object)),
+            }
         else:
-            ds = xr.Dataset(coords={"sample": np.arange(self.initial_particles.shape[0]),
-                                    "parameter": list(self.names)})
+            data = {}
+        ds = xr.Dataset(data, coords=coords)
+        ds.attrs["result_meta"] = json.dumps(self.result.meta, default=str)
         ds["initial_particles"] = (("sample", "parameter"), self.initial_particles)
         ds["initial_log_weights"] = (("sample",), self.initial_log_weights)
         ds["rng_state"] = (("rng_index",), np.array([json.dumps(s) for s in self.rng_states], dtype=object))
