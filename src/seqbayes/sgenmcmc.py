@@ -369,152 +369,194 @@ class SGEnMCMC:
             theta = np.array(initial_theta, float)
             if theta.shape != (N, d):
                 raise ValueError(f"initial_theta: expected shape ({N}, {d}), got {theta.shape}")
-        model = self.transition(theta)
-        m = model.A.shape[1]
+        m = probe.A.shape[1]
         X = np.zeros((N, m))
         logw = np.zeros(N)
         n = self.building.n_storeys
         drift_op = np.eye(n) - np.eye(n, k=-1)
-        out = {name: np.empty((T, d)) for name in ("mean", "var", "mpv")}
-        quant = np.empty((T, 3, d))
-        ess_hist = np.empty(T)
-        res_hist = np.zeros(T, bool)
+        stats = _Histories(T, d, m, n, self.lower, self.upper)
         evid = np.empty(T)
-        state_mean = np.empty((T, m))
-        drift_mean = np.empty((T, n))
-        drift_std = np.empty((T, n))
-        moments = _ConditionalMoments(theta if self.conditional else None, N)
-        summary = _WeightedSummary(theta, self.lower, self.upper)
-        b = model.B0 + model.B1
+        res_hist = np.zeros(T, bool)
+        noise_scale = np.concatenate([[self.process_noise_std], np.ones(p)])
+        half_log_2pi_p = 0.5 * p * _LOG_2PI
         iterator = range(T)
         if progress:
             from tqdm import tqdm
 
             iterator = tqdm(iterator, desc="SG-EnMCMC", unit="step")
+        stage = _Stage(self.transition(theta), theta, self.conditional)
         for k in iterator:  # loop over time only
-            if k > 0:  # (1) forecast with the interpolated transition (Eq. 21)
-                X = np.einsum("nij,nj->ni", model.A, X) + model.B0 * u[k - 1] + model.B1 * u[k]
-                if self.process_noise_std > 0:
-                    X += b * (self.process_noise_std * rng.standard_normal(N))[:, None]
-            Y = np.einsum("npm,nm->np", model.H, X)
+            noise = rng.standard_normal((N, 1 + p)) * noise_scale  # process noise | observation perturbation
+            if k > 0:  # (1) forecast with the interpolated transition (Eq. 21), states and predictions at once
+                W = stage.forecast(X, u[k - 1], u[k], noise[:, 0])
+            else:
+                W = np.concatenate([X, np.einsum("npm,nm->np", stage.model.H, X)], axis=1)
+            X, Y = W[:, :m], W[:, m:]
             # (2) forecast moments, conditional on theta (Eq. 21 / Eq. 9)
-            fitted_y, C_xy, C_yy = moments(X, Y)
+            fitted_y, C_xy, C_yy = stage.moments(W, m)
             S = C_yy + R
             S_chol = np.linalg.cholesky(0.5 * (S + S.T))
             S_chol_inv, _ = _lapack_trtri(S_chol, lower=1)
             # (3) per-member EnKF predictive log-likelihood (Eq. 25)
             centres = fitted_y if self.centre == "regression" else Y
             z = (y[k] - centres) @ S_chol_inv.T
-            half_logdet = np.log(np.diag(S_chol)).sum()
-            loglik = -0.5 * (z * z).sum(axis=1) - half_logdet - 0.5 * p * _LOG_2PI
-            lw_hat = normalise(logw)
-            evid[k] = float(np.logaddexp.reduce(lw_hat + loglik))
+            loglik = -0.5 * (z * z).sum(axis=1) - (np.log(np.diag(S_chol)).sum() + half_log_2pi_p)
+            # weights (log domain) and the evidence increment log sum_i w_hat_i exp(l_i)
+            shift = logw.max()
+            w_prev = np.exp(logw - shift)
+            w_prev /= w_prev.sum()
+            top = loglik.max()
+            evid[k] = float(np.log(w_prev @ np.exp(loglik - top)) + top)
             logw = logw + loglik
-            lw_hat = normalise(logw)
-            w = np.exp(lw_hat)
-            ess = float(1.0 / np.sum(w * w))
-            ess_hist[k] = ess
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
+            ess = float(1.0 / (w @ w))
             # (5) state update, gain from the sample moments, perturbed observations (Eq. 22)
             gain = C_xy @ (S_chol_inv.T @ S_chol_inv)  # K = C_xy S^-1
-            perturbed = y[k] + rng.standard_normal((N, p)) @ chol_R.T
+            perturbed = y[k] + noise[:, 1:] @ chol_R.T
             X = X + (perturbed - Y) @ gain.T
-            # summaries (weighted, before resampling)
-            mean = w @ theta
-            out["mean"][k] = mean
-            out["var"][k] = w @ (theta - mean) ** 2
-            quant[k], out["mpv"][k] = summary(w)
-            state_mean[k] = w @ X
             drifts = X[:, :n] @ drift_op.T
-            dm = w @ drifts
-            drift_mean[k] = dm
-            drift_std[k] = np.sqrt(np.maximum(w @ (drifts - dm) ** 2, 0))
+            stats.record(k, w, ess, w @ X, w @ drifts, w @ drifts**2)
             # (4) resample theta with its state (Eq. 28) and rejuvenate
             if ess < self.ess_threshold * N:
+                stats.flush(stage.theta)
                 idx = resample(self.resampling, w, rng, N)
                 parent = theta[idx]
                 new_theta = self._rejuvenate(parent, rng)
                 if self.state_move == "regression":
                     # states from the fitted E[X | theta] at the new theta plus residuals
                     # drawn without replacement from all members (see module docstring)
-                    X = moments.regenerate(X, new_theta, rng.permutation(N))
+                    X = stage.regenerate(X, new_theta, rng.permutation(N))
                 elif self.state_move == "shift":  # move each inherited state along E[X | theta]
-                    X = X[idx] + (new_theta - parent) @ moments.slope(X)
+                    X = X[idx] + (new_theta - parent) @ stage.slope(X)
                 else:
                     X = X[idx]
                 theta = new_theta
-                model = self.transition(theta)
-                b = model.B0 + model.B1
-                moments = _ConditionalMoments(theta if self.conditional else None, N)
-                summary = _WeightedSummary(theta, self.lower, self.upper)
+                stage = _Stage(self.transition(theta), theta, self.conditional)
                 logw = np.zeros(N)
                 res_hist[k] = True
+        stats.flush(stage.theta)
         final_w = np.exp(normalise(logw))
         idx = resample(self.resampling, final_w, rng, N)
         elapsed = time.perf_counter() - start
         return SGEnMCMCResult(
-            theta_mean=out["mean"], theta_var=out["var"], theta_mpv=out["mpv"], theta_quantiles=quant,
-            ess=ess_hist, resampled=res_hist, log_evidence_increments=evid, state_mean=state_mean,
-            drift_mean=drift_mean, drift_std=drift_std, final_theta=theta[idx],
+            theta_mean=stats.mean, theta_var=stats.var, theta_mpv=stats.mpv, theta_quantiles=stats.quantiles,
+            ess=stats.ess, resampled=res_hist, log_evidence_increments=evid, state_mean=stats.state_mean,
+            drift_mean=stats.drift_mean, drift_std=stats.drift_std, final_theta=theta[idx],
             final_log_weights=np.zeros(N), elapsed=elapsed,
             names=tuple(f"theta_{j + 1}" for j in range(d)))
 
 
-class _ConditionalMoments:
-    """Sample moments of forecast members conditional on their ``theta`` (Eq. 9 with
-    the regression of :func:`seqbayes.filters.enkf.ensemble_moments`), with the
-    projection onto ``span(1, theta)`` factorised once per set of ``theta`` so a
-    step costs two small matrix products and no LAPACK call.
-    """
+class _Stage:
+    """Everything fixed between two resamplings: the members' ``theta``, their
+    transition and observation matrices stacked so one product gives the forecast
+    states and predictions ``[X, Y]``, and the projection onto ``span(1, theta)``
+    (factorised once, so a step needs no LAPACK call)."""
 
-    def __init__(self, theta, N: int):
-        if theta is None:
-            self.basis = np.full((N, 1), 1 / np.sqrt(N))
-            self.centred = None
-        else:
+    def __init__(self, model: DiscreteModel, theta, conditional: bool):
+        self.model, self.theta = model, theta
+        H = model.H
+        self.stacked_A = np.concatenate([model.A, H @ model.A], axis=1)  # (N, m + p, m)
+        self.stacked_B0 = np.concatenate([model.B0, np.einsum("npm,nm->np", H, model.B0)], axis=1)
+        self.stacked_B1 = np.concatenate([model.B1, np.einsum("npm,nm->np", H, model.B1)], axis=1)
+        self.stacked_b = self.stacked_B0 + self.stacked_B1  # noise input b = B0 + B1
+        N = theta.shape[0]
+        if conditional:
             self.theta_mean = theta.mean(axis=0)
             self.centred = theta - self.theta_mean
             self.basis, _ = np.linalg.qr(np.column_stack([np.ones(N), self.centred]))
+        else:
+            self.centred = None
+            self.basis = np.full((N, 1), 1 / np.sqrt(N))
         self.dof = N - self.basis.shape[1]  # N - 1 - q
 
-    def __call__(self, X, Y):
-        """Fitted ``Y`` ``(N, p)``, ``C_xy (m, p)`` and ``C_yy (p, p)`` of the residuals."""
-        m = X.shape[1]
-        W = np.concatenate([X, Y], axis=1)
+    def forecast(self, X, u_now, u_next, eta):
+        """``[X', H X']`` with ``X' = A X + B0 u_now + B1 u_next + b eta`` (Eq. 21)."""
+        return (np.einsum("nij,nj->ni", self.stacked_A, X) + self.stacked_B0 * u_now
+                + self.stacked_B1 * u_next + self.stacked_b * eta[:, None])
+
+    def moments(self, W, m: int):
+        """Fitted ``Y (N, p)``, ``C_xy (m, p)``, ``C_yy (p, p)`` of ``W = [X, Y]`` given theta (Eq. 9)."""
         fitted = self.basis @ (self.basis.T @ W)
         E = W - fitted
         C = E.T @ E / self.dof
         return fitted[:, m:], C[:m, m:], C[m:, m:]
 
-    def regenerate(self, X, new_theta, order):
-        """``mean(X) + slope^T (theta_new - mean(theta)) + residual[order]``."""
-        beta = self.slope(X)
-        residual = X - self.basis @ (self.basis.T @ X)
-        theta_mean = self.theta_mean
-        return X.mean(axis=0) + (new_theta - theta_mean) @ beta + residual[order]
-
     def slope(self, X):
         """Least-squares slope ``(d, m)`` of ``X`` on ``theta``."""
-        if self.centred is None:
-            return None
         beta, *_ = np.linalg.lstsq(self.centred, X - X.mean(axis=0), rcond=None)
         return beta
 
+    def regenerate(self, X, new_theta, order):
+        """``mean(X) + slope^T (theta_new - mean(theta)) + residual[order]``."""
+        residual = X - self.basis @ (self.basis.T @ X)
+        return X.mean(axis=0) + (new_theta - self.theta_mean) @ self.slope(X) + residual[order]
 
-class _WeightedSummary:
-    """Weighted 2.5/50/97.5 % quantiles and MPV of fixed members under changing
-    weights; the sort order is computed once per set of members."""
 
-    def __init__(self, theta, lower, upper, bins: int = 60):
-        self.order = np.argsort(theta, axis=0)
-        self.sorted = np.take_along_axis(theta, self.order, axis=0)
-        self.theta, self.lower, self.upper, self.bins = theta, lower, upper, bins
+class _Histories:
+    """Per-step summaries. Weights are buffered over a stage (fixed members) and
+    the weighted mean, variance, quantiles and MPV of all its steps are computed
+    at once when the stage ends (one sort per stage)."""
 
-    def quantiles(self, w, probs):
-        ws = w[self.order]
-        cw = (np.cumsum(ws, axis=0) - 0.5 * ws) / ws.sum(axis=0)
-        return np.stack([np.interp(probs, cw[:, j], self.sorted[:, j])
-                         for j in range(self.sorted.shape[1])], axis=1)  # loop over d
+    def __init__(self, T, d, m, n, lower, upper, bins: int = 60):
+        self.mean, self.var, self.mpv = np.empty((T, d)), np.empty((T, d)), np.empty((T, d))
+        self.quantiles = np.empty((T, 3, d))
+        self.ess = np.empty(T)
+        self.state_mean, self.drift_mean, self.drift_std = np.empty((T, m)), np.empty((T, n)), np.empty((T, n))
+        self.lower, self.upper, self.bins = lower, upper, bins
+        self.steps, self.weights = [], []
 
-    def __call__(self, w):
-        q = self.quantiles(w, [0.01, 0.025, 0.5, 0.975, 0.99])
-        return q[1:4], weighted_mode(self.theta, w, self.lower, self.upper, self.bins, (q[0], q[4]))
+    def record(self, k, w, ess, state_mean, drift_mean, drift_second_moment):
+        self.steps.append(k)
+        self.weights.append(w)
+        self.ess[k], self.state_mean[k], self.drift_mean[k] = ess, state_mean, drift_mean
+        self.drift_std[k] = np.sqrt(np.maximum(drift_second_moment - drift_mean**2, 0))
+
+    def flush(self, theta):
+        if not self.steps:
+            return
+        steps, W = np.array(self.steps), np.array(self.weights)  # (L,), (L, N)
+        mean = W @ theta
+        self.mean[steps] = mean
+        self.var[steps] = np.maximum(W @ theta**2 - mean**2, 0)
+        q = stage_quantiles(theta, W, [0.01, 0.025, 0.5, 0.975, 0.99])  # (L, 5, d)
+        self.quantiles[steps] = q[:, 1:4]
+        self.mpv[steps] = stage_modes(theta, W, self.lower, self.upper, q[:, 0], q[:, 4], self.bins)
+        self.steps, self.weights = [], []
+
+
+def stage_quantiles(samples, weights, probs) -> np.ndarray:
+    """Weighted quantiles of fixed ``samples (N, d)`` under many weight vectors
+    ``(L, N)``: ``(L, len(probs), d)``, the same midpoint rule as
+    :func:`weighted_quantiles` (linear interpolation of the sorted values at the
+    mid-cumulative weights, clamped at the ends)."""
+    probs = np.asarray(probs, float)
+    L, N = weights.shape
+    out = np.empty((L, probs.size, samples.shape[1]))
+    rows = np.arange(L)[:, None]
+    for j in range(samples.shape[1]):  # loop over parameters (d)
+        order = np.argsort(samples[:, j])
+        xs = samples[order, j]
+        ws = weights[:, order]
+        cw = np.cumsum(ws, axis=1)
+        cw = (cw - 0.5 * ws) / cw[:, -1:]
+        hi = np.clip((cw[:, None, :] < probs[None, :, None]).sum(axis=2), 1, N - 1)  # (L, P)
+        c0, c1 = cw[rows, hi - 1], cw[rows, hi]
+        frac = np.clip((probs[None, :] - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.0, 1.0)
+        out[:, :, j] = xs[hi - 1] + frac * (xs[hi] - xs[hi - 1])
+    return out
+
+
+def stage_modes(samples, weights, lower, upper, lo, hi, bins: int = 60) -> np.ndarray:
+    """MPV of fixed ``samples (N, d)`` under weights ``(L, N)``: :func:`weighted_mode`
+    for every row at once, with per-row histogram ranges ``lo, hi (L, d)``."""
+    L, N = weights.shape
+    d = samples.shape[1]
+    lo = np.maximum(lo, lower)
+    hi = np.maximum(np.minimum(hi, upper), lo + 1e-12)
+    b = np.clip(((samples[None] - lo[:, None]) / (hi - lo)[:, None] * bins).astype(np.int64), 0, bins - 1)
+    flat = b + bins * (np.arange(d) + d * np.arange(L)[:, None])[:, None, :]  # (L, N, d)
+    counts = np.bincount(flat.ravel(), weights=np.repeat(weights.ravel(), d),
+                         minlength=L * d * bins).reshape(L, d, bins)
+    i = np.argmax(counts, axis=2)
+    return lo + (i + 0.5) * (hi - lo) / bins
