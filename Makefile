@@ -12,8 +12,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e ".[test,bench,arviz,docs]"
 	touch $(STAMP)
 
-run: $(STAMP)        ## the main job: the on-line example
-	$(VENV)/bin/seqbayes example quickstart
+run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled real data (quick variant)
+	$(VENV)/bin/seqbayes example coulomb --quick --out coulomb_results
 
 test: $(STAMP)       ## the whole test suite
 	$(PY) -m pytest -q
