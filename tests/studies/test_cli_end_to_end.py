@@ -1,0 +1,254 @@
+"""The monitoring CLI end to end on a small user model written here:
+init -> three updates -> status -> predict -> compare -> report, checking the outputs'
+content, and bad input giving one clear message with the store unchanged."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import re
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from seqbayes import cli
+
+# A user's model: free decay of a structure, amplitude A and decay rate b, y(t) = A exp(-b t) + noise.
+# The amplitude degrades by ~0.15 per campaign; the decay rate is constant.
+MODEL = """
+import numpy as np
+
+NOISE = 0.05
+
+def loglike(theta, data):
+    t, y = data["t"], data["y"]
+    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
+    return -0.5 * np.sum((y - pred) ** 2, axis=1) / NOISE ** 2
+
+def bad_shape(theta, data):
+    return np.zeros((theta.shape[0], 2))
+"""
+
+CONFIG = """
+[model]
+name = "{name}"
+likelihood = "e2emodel:{func}"
+[data]
+columns = ["t", "y"]
+format = "columns"
+[priors]
+A = {{ dist = "uniform", loc = 0.5, scale = 2.0 }}
+b = {{ dist = "uniform", loc = 0.0, scale = 1.0 }}
+[kernel]
+{kernel}
+[sampler]
+type = "SEMC"
+n_samples = 200
+seed = 7
+"""
+
+DRIFT_RATE, DRIFT_NOISE = -0.15, 0.02
+TRUTH_A = [1.8, 1.65, 1.5]
+TRUTH_B = 0.4
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    import xarray as xr
+
+    root = tmp_path_factory.mktemp("e2e")
+    (root / "e2emodel.py").write_text(MODEL)
+    kernels = {"drift": f'A = {{ type = "drift", rate = {DRIFT_RATE}, noise_std = {DRIFT_NOISE} }}',
+               "static": "# every parameter static"}
+    for name, kernel in kernels.items():
+        (root / f"{name}.toml").write_text(textwrap.dedent(CONFIG.format(name=name, func="loglike", kernel=kernel)))
+    (root / "badshape.toml").write_text(textwrap.dedent(CONFIG.format(name="bad", func="bad_shape", kernel="")))
+    rng = np.random.default_rng(12)
+    t = np.linspace(0.0, 4.0, 25)
+    for s, a in enumerate(TRUTH_A):
+        y = a * np.exp(-TRUTH_B * t) + 0.05 * rng.standard_normal(t.size)
+        if s == 1:   # the second campaign arrives as NetCDF
+            xr.Dataset({"t": ("row", t), "y": ("row", y)}).to_netcdf(root / "month2.nc", engine="h5netcdf")
+        else:
+            np.savetxt(root / f"month{s + 1}.csv", np.column_stack([t, y]), delimiter=",", header="t,y",
+                       comments="")
+    return root
+
+
+def run(capsys, *args):
+    code = cli.main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def sha(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_full_monitoring_session(work, capsys):
+    files = [work / "month1.csv", work / "month2.nc", work / "month3.csv"]
+    for name in ("drift", "static"):
+        code, out, _ = run(capsys, "init", work / f"{name}.toml", work / f"{name}.nc")
+        assert code == 0
+        assert f"model {name!r}: 2 parameters (A, b), SEMC with N = 200, seed 7" in out
+        for s, path in enumerate(files, start=1):
+            code, out, err = run(capsys, "update", work / f"{name}.nc", path)
+            assert code == 0, err
+            match = re.search(rf"step {s} from {path.name}: log-evidence increment (-?[\d.]+), cumulative (-?[\d.]+)",
+                              out)
+            assert match, out
+            assert err == ""   # no progress bar when stderr is not a terminal
+
+    # ---- status: the table's content
+    code, out, _ = run(capsys, "status", work / "drift.nc")
+    assert code == 0
+    lines = out.splitlines()
+    assert "model 'drift'" in lines[0] and "steps: 3" in lines[0]
+    for s, path in enumerate(files, start=1):
+        assert any(re.match(rf"\s+{s}\s+{re.escape(path.name)}\s+0\.\d+\s+[\d.]+", line) for line in lines), s
+        assert any(re.match(rf"\s+{s}\s+A\s", line) for line in lines)
+    code, out, _ = run(capsys, "status", work / "drift.nc", "--json", "--level", "0.9")
+    status = json.loads(out)
+    assert [r["step"] for r in status["steps"]] == [1, 2, 3]
+    assert [r["dataset"] for r in status["steps"]] == [p.name for p in files]
+    for r, a_true in zip(status["steps"], TRUTH_A):
+        p = r["parameters"]
+        # posterior consistent with the truth: within 4 posterior sd (the data are simulated from it)
+        assert abs(p["A"]["mean"] - a_true) < 4 * p["A"]["sd"]
+        assert abs(p["b"]["mean"] - TRUTH_B) < 4 * p["b"]["sd"]
+        assert p["A"]["lower"] < p["A"]["mean"] < p["A"]["upper"]
+        assert 0.0 < r["acceptance_rate"] < 1.0 and 0.0 < r["ess"] <= 200.0
+    increments = [r["log_evidence_increment"] for r in status["steps"]]
+    assert status["steps"][-1]["log_evidence"] == pytest.approx(sum(increments), rel=1e-12)
+    # the 0.9 interval is narrower than the 0.95 one of the text table
+    code, out95, _ = run(capsys, "status", work / "drift.nc", "--json")
+    p90, p95 = status["steps"][0]["parameters"]["A"], json.loads(out95)["steps"][0]["parameters"]["A"]
+    assert p95["lower"] < p90["lower"] and p90["upper"] < p95["upper"]
+
+    # ---- predict: the drift kernel moves the mean by rate per step
+    code, out, _ = run(capsys, "predict", work / "drift.nc", "--steps", "2", "--json",
+                       "--output", work / "forecast.csv")
+    assert code == 0
+    forecast = json.loads(out)
+    assert [(r["step"], r["ahead"], r["parameter"]) for r in forecast] == [
+        (4, 1, "A"), (4, 1, "b"), (5, 2, "A"), (5, 2, "b")]
+    last = status["steps"][-1]["parameters"]
+    for r in forecast:
+        k = r["ahead"]
+        if r["parameter"] == "A":
+            # mean of N = 200 equal-weight draws propagated k steps: E = mean + k rate, MC sd
+            # sqrt(sd^2 + k q^2) / sqrt(N); 5 MC sd as tolerance
+            tol = 5 * np.sqrt(last["A"]["sd"] ** 2 + k * DRIFT_NOISE ** 2) / np.sqrt(200)
+            assert abs(r["mean"] - (last["A"]["mean"] + k * DRIFT_RATE)) < tol
+            assert r["sd"] > last["A"]["sd"]          # the process noise widens the forecast
+        else:
+            assert abs(r["mean"] - last["b"]["mean"]) < 5 * last["b"]["sd"] / np.sqrt(200)
+    draws = np.loadtxt(work / "forecast.csv", delimiter=",", skiprows=1)
+    assert draws.shape == (2 * 200, 3) and set(draws[:, 0]) == {4.0, 5.0}
+    code, again, _ = run(capsys, "predict", work / "drift.nc", "--steps", "2", "--json")
+    assert again == out                             # a forecast is reproducible and does not change the store
+    code, text, _ = run(capsys, "predict", work / "drift.nc", "--steps", "1")
+    assert "forecast from step 3" in text and re.search(r"\n\s+4\s+1\s+A\s", text)
+
+    # ---- compare: the drifting model explains the degrading amplitude
+    code, out, _ = run(capsys, "compare", work / "drift.nc", work / "static.nc", "--json")
+    assert code == 0
+    comparison = json.loads(out)
+    assert comparison["steps"] == 3 and comparison["best"] == "drift"
+    rows = comparison["rows"]
+    for s in (1, 2, 3):
+        assert sum(r["probability"] for r in rows if r["step"] == s) == pytest.approx(1.0, abs=1e-12)
+    drift3 = next(r for r in rows if r["step"] == 3 and r["model"] == "drift")
+    assert drift3["log_evidence"] == status["steps"][-1]["log_evidence"]
+    assert drift3["probability"] > 0.9
+    code, out, _ = run(capsys, "compare", work / "drift.nc", work / "static.nc")
+    assert "most probable: drift" in out and "log Bayes factor drift vs static" in out
+
+    # ---- report: an HTML page with every figure embedded
+    code, out, _ = run(capsys, "report", work / "drift.nc", "--compare", work / "static.nc",
+                       "-o", work / "report.html")
+    assert code == 0 and "report written" in out
+    page = (work / "report.html").read_text()
+    images = re.findall(r"<img src='data:image/png;base64,([A-Za-z0-9+/=]+)' alt='([^']*)'>", page)
+    assert len(images) == 4
+    for data, _alt in images:
+        png = base64.b64decode(data)
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+        width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+        assert width >= 400 and height >= 200
+    for fig_id in ("fig-parameters", "fig-diagnostics", "fig-evidence", "fig-probabilities"):
+        assert f"id='{fig_id}'" in page
+    assert "3-step forecast" in page and "Most probable model after step 3: <strong>drift</strong>" in page
+    for path in files:
+        assert f"<td class='l'>{path.name}</td>" in page
+    mean_a3 = f"{status['steps'][-1]['parameters']['A']['mean']:.4g}"
+    assert mean_a3 in page
+    # figures as separate files
+    code, _, _ = run(capsys, "report", work / "drift.nc", "-o", work / "files" / "r.html", "--no-embed")
+    assert code == 0
+    assert sorted(p.name for p in (work / "files" / "r_figures").iterdir()) == [
+        "fig-diagnostics.png", "fig-evidence.png", "fig-parameters.png", "fig-probabilities.png"]
+    assert "src='r_figures/fig-parameters.png'" in (work / "files" / "r.html").read_text()
+
+    # ---- the installed entry point answers the same
+    proc = subprocess.run([sys.executable, "-m", "seqbayes.cli", "status", str(work / "drift.nc"), "--json"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and json.loads(proc.stdout) == json.loads(out95)
+
+
+def test_bad_input_gives_one_clear_message_and_leaves_the_store_unchanged(work, capsys):
+    import xarray as xr
+
+    store = work / "guarded.nc"
+    assert run(capsys, "init", work / "drift.toml", store)[0] == 0
+    assert run(capsys, "update", store, work / "month1.csv")[0] == 0
+    before = sha(store)
+    t = np.linspace(0, 4, 25)
+    (work / "nocol.csv").write_text("t,z\n" + "".join(f"{x},1.0\n" for x in t))
+    (work / "nan.csv").write_text("t,y\n" + "".join(f"{x},{'nan' if i == 3 else 1.0}\n" for i, x in enumerate(t)))
+    xr.Dataset({"t": ("row", t), "y": (("row", "ch"), np.ones((25, 2)))}).to_netcdf(work / "dim.nc",
+                                                                                   engine="h5netcdf")
+    cases = [
+        (("update", store, work / "nocol.csv"), r"nocol.csv: missing column\(s\) 'y'"),
+        (("update", store, work / "nan.csv"), r"nan.csv: column 'y' has 1 NaN/inf value\(s\), first at data row 4"),
+        (("update", store, work / "dim.nc"), r"dim.nc: variable 'y' has shape \(25, 2\)"),
+        (("update", store, work / "month1.csv"), r"already assimilated as step 1"),
+        (("update", store, work / "absent.csv"), r"absent.csv: no such file"),
+        (("update", work / "absent.nc", work / "month1.csv"), r"absent.nc: no such run store"),
+        (("status", work / "month1.csv"), r"month1.csv: cannot read the run store"),
+    ]
+    for args, message in cases:
+        code, out, err = run(capsys, *args)
+        assert code == 2, args
+        assert len(err.strip().splitlines()) == 1, err        # one line, no traceback
+        assert re.search(message, err), err
+        assert err.startswith(f"seqbayes {args[0]}: error: ")
+        assert sha(store) == before
+    # a multi-file update checks every file before assimilating any
+    code, _, err = run(capsys, "update", store, work / "month3.csv", work / "nan.csv")
+    assert code == 2 and "nan.csv" in err and sha(store) == before
+
+    # config errors at init: unknown distribution, likelihood that cannot be imported
+    text = (work / "drift.toml").read_text()
+    (work / "unknown_dist.toml").write_text(text.replace('dist = "uniform", loc = 0.0', 'dist = "unifrom", loc = 0.0'))
+    (work / "no_module.toml").write_text(text.replace("e2emodel:loglike", "nosuchpackage.model:loglike"))
+    for name, message in [("unknown_dist", r"unknown_dist.toml: priors.b.dist: unknown scipy.stats distribution "
+                                           r"'unifrom'"),
+                          ("no_module", r"no_module.toml: model.likelihood: cannot import module "
+                                        r"'nosuchpackage.model'")]:
+        code, _, err = run(capsys, "init", work / f"{name}.toml", work / f"{name}.nc")
+        assert code == 2 and len(err.strip().splitlines()) == 1 and re.search(message, err), err
+        assert not (work / f"{name}.nc").exists()
+
+    # a likelihood returning the wrong shape
+    assert run(capsys, "init", work / "badshape.toml", work / "badshape.nc")[0] == 0
+    before = sha(work / "badshape.nc")
+    code, _, err = run(capsys, "update", work / "badshape.nc", work / "month1.csv")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert re.search(r"month1.csv: likelihood e2emodel:bad_shape: loglike: returned shape \(\d+, 2\) for theta of "
+                     r"shape \(\d+, 2\); expected \(\d+,\); the run store is unchanged", err), err
+    assert sha(work / "badshape.nc") == before
