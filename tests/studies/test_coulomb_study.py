@@ -56,21 +56,20 @@ def test_t1_is_the_most_probable_kernel_with_semc(study):
     assert np.all(lnb > 0), lnb
 
 
-@pytest.mark.xfail(strict=False, reason="core samplers lose ~1 nat of evidence at s = 1 on this problem "
-                                         "(see docs/coulomb_friction.md, 'Known gap')")
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
 def test_s1_log_evidence_within_0p3_nats(study, sampler):
     z = np.array([r.log_evidence[0] for r in study.results[(sampler, "T1")]])
     assert abs(z.mean() - study.reference.log_evidence) < 0.3, z
 
 
-def test_s1_log_evidence_is_close_to_exact(study):
-    # What the samplers achieve today (full study: SEMC -1.1, SMC -0.5 nats mean error, std < 1.2):
-    # never above the exact value by more than MC noise, and within 3 nats.
+def test_s4_log_evidence_spread_is_small(study):
+    # Full 10-run study (docs/coulomb_friction.md): std at s = 4 is 0.17/0.12 (SMC),
+    # 0.46/0.62 (SEMC T1/T2) nats. The sample std of 3 runs has a chi(2) sampling error
+    # (97.5 % point 1.92 sigma), so 1.25 nats bounds a true std of 0.62 with ~2.5 % risk.
     for sampler in ("SEMC", "SMC"):
-        z = np.array([r.log_evidence[0] for r in study.results[(sampler, "T1")]])
-        assert np.all(z < study.reference.log_evidence + 0.5), z
-        assert abs(z.mean() - study.reference.log_evidence) < 3.0, z
+        for kernel in ("T1", "T2"):
+            z4 = np.array([r.log_evidence[-1] for r in study.results[(sampler, kernel)]])
+            assert z4.std(ddof=1) < 1.25, (sampler, kernel, z4)
 
 
 def test_outputs_written(study):
