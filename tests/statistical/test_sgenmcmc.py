@@ -1,13 +1,14 @@
-"""SG-EnMCMC against the exact Kalman-filter posterior on a reduced WC1 replica
-(10 s = 500 steps, 300 members, level 5), and reproducibility."""
+"""SG-EnMCMC against the exact posterior on reduced replicas of the three cases
+(10 s = 500 steps, the paper's 500 members and level 6), summary helpers,
+state regeneration, reproducibility and bad input."""
 
 import numpy as np
 import pytest
 
-from seqbayes.filters import kalman_filter
-from seqbayes.sgenmcmc import SGEnMCMC
-from seqbayes.studies.shake_table import CASES, make_data
-from seqbayes.structures import discretise
+from seqbayes.sgenmcmc import (
+    SGEnMCMC, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
+)
+from seqbayes.studies.shake_table import CASES, laplace_posterior, make_data
 
 
 @pytest.fixture(scope="module")
@@ -15,54 +16,74 @@ def wc1():
     return make_data(CASES["wc1"], duration=10.0, rng=0)
 
 
-@pytest.fixture(scope="module")
-def run(wc1):
-    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
-                  n_members=300, level=5)
-    return sg.run(wc1["u"], wc1["y"], rng=1)
-
-
-def _reference_moments(data):
-    """Posterior mean/sd of each theta_j on a 1-D grid through the truth (exact KF likelihood);
-    a cheap stand-in for the AIES reference of the CLI (the posterior is near Gaussian and
-    nearly uncorrelated here, so conditional and marginal sds agree within ~30 %)."""
+@pytest.mark.parametrize("case", ["wc1", "wc2", "nest"])
+def test_acceptance_on_reduced_replicas(case):
+    data = make_data(CASES[case], duration=10.0, rng=0)
     truth = data["theta"]
-    means, sds = [], []
-    for j in range(3):
-        grid = np.tile(truth, (121, 1))
-        grid[:, j] = truth[j] + np.linspace(-0.015, 0.015, 121)
-        ll = kalman_filter(discretise(data["building"], grid, 0.02), data["u"], data["y"],
-                           data["noise_std"], data["process_noise_std"]).log_likelihood
-        w = np.exp(ll - ll.max())
-        w /= w.sum()
-        mu = w @ grid[:, j]
-        means.append(mu)
-        sds.append(np.sqrt(w @ (grid[:, j] - mu) ** 2))
-    return np.array(means), np.array(sds)
-
-
-def test_final_mean_and_interval_against_truth_and_reference(run, wc1):
-    truth = wc1["theta"]
-    ref_mean, ref_sd = _reference_moments(wc1)
+    # exact posterior: Laplace approximation of the exact Kalman-filter marginal likelihood
+    # (agrees with the AIES reference of the CLI: means within 0.1 sd, sds within ~15 % on WC1 40 s)
+    ref_mean, ref_cov = laplace_posterior(data, truth)
+    ref_sd = np.sqrt(np.diag(ref_cov))
+    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
+                  n_members=500, level=6)
+    run = sg.run(data["u"], data["y"], rng=0)
     mean, sd = run.theta_mean[-1], np.sqrt(run.theta_var[-1])
-    # tolerance is the acceptance criterion itself (0.01); with this seed the error is a few 1e-3
-    assert np.all(np.abs(mean - truth) < 0.01)
-    # spread vs the exact conditional sd: acceptance asks for a factor 3 against the AIES marginal;
-    # against the conditional sd (smaller than the marginal) we allow a factor 4. One seed measured.
+    # Measured over 8 seeds per case (24 runs): |mean - exact mean| / exact sd <= 1.5 and
+    # sd / exact sd in [0.64, 1.19]. Bounds: 2.5 sds (margin over the measured maximum) and the
+    # acceptance bullet's factor 3.
+    assert np.all(np.abs(mean - ref_mean) / ref_sd < 2.5), (mean, ref_mean, ref_sd)
     ratio = sd / ref_sd
-    assert np.all((ratio > 0.25) & (ratio < 4)), ratio
-    # the ensemble has moved far from the prior (sd of U(0.7, 1) is 0.087)
-    assert np.all(sd < 0.01)
+    assert np.all((ratio > 1 / 3) & (ratio < 3)), ratio
+    if case != "nest":
+        # the literal bullet: the exact posterior of NEST's theta_2 (the stiff middle storey) has
+        # sd 0.02 at 10 s (0.014 at 40 s), so no estimator's mean is within 0.01 of the truth there.
+        # WC1/WC2: max error over 16 seeds 0.0053.
+        assert np.all(np.abs(mean - truth) < 0.01)
 
 
-def test_outputs_have_consistent_shapes_and_values(run):
+def test_outputs_have_consistent_shapes_and_values(wc1):
+    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
+                  n_members=200, level=4)
+    run = sg.run(wc1["u"][:250], wc1["y"][:250], rng=1)
     T = run.theta_mean.shape[0]
     assert run.theta_quantiles.shape == (T, 3, 3)
     assert np.all(run.theta_quantiles[:, 0] <= run.theta_quantiles[:, 2])
     assert np.all((run.final_theta >= 0.7) & (run.final_theta <= 1.0))
-    assert np.all((run.ess > 0) & (run.ess <= 300 + 1e-9))
+    assert np.all((run.ess > 0) & (run.ess <= 200 + 1e-9))
     assert run.resampled.any()
     assert np.isfinite(run.log_evidence)
+    assert np.all(run.theta_var >= 0) and np.all(run.drift_std >= 0)
+
+
+def test_stage_summaries_equal_the_one_step_helpers():
+    rng = np.random.default_rng(0)
+    theta = rng.random((200, 3))
+    W = rng.random((7, 200)) ** 8
+    W /= W.sum(axis=1, keepdims=True)
+    probs = [0.01, 0.025, 0.5, 0.975, 0.99]
+    q = stage_quantiles(theta, W, probs)
+    modes = stage_modes(theta, W, 0.0, 1.0, q[:, 0], q[:, 4])
+    for row in range(7):
+        np.testing.assert_allclose(q[row], weighted_quantiles(theta, W[row], probs), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(modes[row], weighted_mode(theta, W[row], 0.0, 1.0), rtol=0, atol=1e-12)
+
+
+def test_state_regeneration_is_exact_for_a_linear_conditional_model():
+    from seqbayes.sgenmcmc import _Stage
+    from seqbayes.structures import discretise
+
+    data = make_data(CASES["wc1"], duration=1.0, rng=0)
+    rng = np.random.default_rng(3)
+    theta = 0.9 + 0.01 * rng.standard_normal((50, 3))
+    stage = _Stage(discretise(data["building"], theta, 0.02), theta, conditional=True)
+    alpha, beta = rng.standard_normal(6), rng.standard_normal((3, 6))
+    residual = rng.standard_normal((50, 6))
+    residual -= stage.basis @ (stage.basis.T @ residual)  # orthogonal to span(1, theta)
+    X = alpha + theta @ beta + residual
+    new_theta = 0.9 + 0.01 * rng.standard_normal((50, 3))
+    order = rng.permutation(50)
+    expected = alpha + new_theta @ beta + residual[order]
+    np.testing.assert_allclose(stage.regenerate(X, new_theta, order), expected, rtol=0, atol=1e-10)
 
 
 def test_reproducible(wc1):
@@ -81,6 +102,10 @@ def test_bad_arguments(wc1):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=3, level=3)
     with pytest.raises(ValueError, match="lower, upper"):
         SGEnMCMC(wc1["building"], 0.02, 1.0, 0.7, wc1["noise_std"], level=3)
+    with pytest.raises(ValueError, match="state_move"):
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], level=3, state_move="teleport")
+    with pytest.raises(ValueError, match="centre"):
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], level=3, centre="middle")
     sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"][:2], n_members=60, level=3)
     with pytest.raises(ValueError, match="channels"):
         sg.run(wc1["u"], wc1["y"][:, :2])
