@@ -7,11 +7,13 @@
    error against the exact discretisation and speed-up over one matrix
    exponential per member (scipy.linalg.expm) and over the batched exponential.
 
-Run: ``PYTHONPATH=src .venv/bin/python benchmarks/bench_sgenmcmc.py``
+Run: ``.venv/bin/python benchmarks/bench_sgenmcmc.py`` (the first benchmark also times the
+SG-EnMCMC of git commit b2352ed, before profiling, interleaved with the current one).
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -32,17 +34,47 @@ def best_of(fn, repeat=5):
     return min(times)
 
 
-def bench_sgenmcmc():
+def _load_previous(commit: str):
+    """The SG-EnMCMC module as of ``commit`` (for a side-by-side timing), or None."""
+    import importlib.util
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        source = subprocess.run(["git", "show", f"{commit}:src/seqbayes/sgenmcmc.py"], cwd=root, check=True,
+                                capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    name = f"seqbayes._sgenmcmc_{commit[:7]}"
+    spec = importlib.util.spec_from_loader(name, loader=None)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = "seqbayes"
+    exec(compile(source, f"{commit[:7]}:sgenmcmc.py", "exec"), module.__dict__)
+    return module
+
+
+def bench_sgenmcmc(previous: str | None = "b2352ed"):
     data = make_data(CASES["wc1"], duration=40.0, rng=0)
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}")
+    kwargs = dict(n_members=500, level=6)
     t0 = time.perf_counter()
-    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                  n_members=500, level=6)
+    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"], **kwargs)
     build = time.perf_counter() - t0
-    runs = [sg.run(data["u"], data["y"], rng=s) for s in range(2)]
-    r = min(runs, key=lambda r: r.elapsed)
-    print(f"SG-EnMCMC 500 members x {data['u'].size} steps: run {r.elapsed:.2f} s (best of 2), "
-          f"grid build {build:.2f} s, resampled at {int(r.resampled.sum())} steps; "
-          f"final mean {np.round(r.theta_mean[-1], 4)}, truth {data['theta']}")
+    variants = [("current", sg)]
+    old = _load_previous(previous) if previous else None
+    if old is not None:
+        variants.append((f"commit {previous} (before profiling)",
+                         old.SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"],
+                                      data["process_noise_std"], **kwargs)))
+    times = {label: [] for label, _ in variants}
+    for seed in range(2):  # interleaved, so both see the same load
+        for label, identifier in variants:
+            times[label].append(identifier.run(data["u"], data["y"], rng=seed).elapsed)
+    for label, t in times.items():
+        print(f"SG-EnMCMC 500 members x {data['u'].size} steps, {label}: best {min(t):.2f} s, "
+              f"runs {np.round(t, 2).tolist()}")
+    print(f"level-6 grid build {build:.2f} s; load average after: {os.getloadavg()}")
     return data
 
 
