@@ -102,7 +102,8 @@ _LOG_2PI = float(np.log(2 * np.pi))
 
 STATE_MOVES = ("regression", "shift", "inherit")
 
-__all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult"]
+__all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult",
+           "STATE_MOVES", "weighted_quantiles", "weighted_mode", "stage_quantiles", "stage_modes"]
 
 
 class ExactTransition:

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..filters import AugmentedModel, ekf, kalman_filter, ukf
+from ..filters import AugmentedModel, ekf, ukf
 from ..rng import as_generator
 from ..sgenmcmc import SGEnMCMC
 from ..structures import (
@@ -181,7 +181,6 @@ def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng
     its sd), so a short burn-in (default a third of the steps) suffices; the
     acceptance rate and integrated autocorrelation time are returned.
     """
-    import time
 
     from .. import aies
     from ..filters.kalman import kalman_log_likelihood
