@@ -418,8 +418,9 @@ class SGEnMCMC:
             loglik = -0.5 * (z * z).sum(axis=1) - (np.log(np.diag(S_chol)).sum() + half_log_2pi_p)
             if self.leverage_correction and self.centre == "regression" and stage.centred is not None:
                 # remove the expected extra misfit of an estimated fit (see module docstring):
-                # E|noise_i|^2_{S^-1} = h_i tr(S^-1 C_yy), h_i the leverage of member i
-                loglik += 0.5 * stage.leverage * np.sum((S_chol_inv @ C_yy) * S_chol_inv)
+                # E|noise_i|^2_{S^-1} = h_i tr(S^-1 C_yy), h_i the leverage of member i; centred
+                # over members (a constant changes no weight and would bias the evidence)
+                loglik += 0.5 * stage.leverage_centred * np.sum((S_chol_inv @ C_yy) * S_chol_inv)
             # weights (log domain) and the evidence increment log sum_i w_hat_i exp(l_i)
             shift = logw.max()
             w_prev = np.exp(logw - shift)
@@ -488,7 +489,8 @@ class _Stage:
             self.centred = None
             self.basis = np.full((N, 1), 1 / np.sqrt(N))
         self.dof = N - self.basis.shape[1]  # N - 1 - q
-        self.leverage = np.einsum("nq,nq->n", self.basis, self.basis)  # diagonal of the hat matrix
+        leverage = np.einsum("nq,nq->n", self.basis, self.basis)  # diagonal of the hat matrix
+        self.leverage_centred = leverage - leverage.mean()
 
     def forecast(self, X, u_now, u_next, eta):
         """``[X', H X']`` with ``X' = A X + B0 u_now + B1 u_next + b eta`` (Eq. 21)."""
