@@ -30,7 +30,7 @@ def test_every_run_reports_a_selected_kernel_with_margin(reduced):
 def test_coverage_agreement_and_acceptance(reduced):
     # Issue 4 acceptance bullets on the reduced study. 24 (run, step, parameter) cases:
     # >= 90% allows 2 misses. Measured at seed 0: coverage 100% (SEMC and SMC), agreement 100%,
-    # SEMC acceptance 0.29-0.39 (target 0.335).
+    # SEMC acceptance 0.324-0.343 (target 0.335).
     ds, summary = reduced
     assert summary.coverage >= 0.90
     assert summary.agreement >= 0.90
@@ -39,19 +39,51 @@ def test_coverage_agreement_and_acceptance(reduced):
     assert np.all((acc >= 0.15) & (acc <= 0.50))
 
 
-def test_evidence_is_zero_likelihood_outside_the_parameter_space(reduced):
-    # Reported increment = core increment + (1 - c) log m, c the core's convention (probed);
-    # the cumulative evidence is the sum of the reported increments.
+def test_evidence_is_the_cores_and_step_one_matches_quadrature(reduced):
+    # The study reports the core's increments as they are; the cumulative evidence is their sum.
     ds, _ = reduced
-    c = study.core_truncation_convention()
-    assert c in (-1, 0, 1)
     inc = ds["log_evidence_increment"].values
-    expected = ds["core_log_evidence_increment"].values + (1 - c) * ds["log_mass_inside"].values
-    np.testing.assert_allclose(inc, expected)
     np.testing.assert_allclose(ds["log_evidence"].values, np.cumsum(inc, axis=-1))
     assert np.all(ds["log_mass_inside"].values <= 0)
-    # p(D^1 | M) does not depend on the kernel: identical data and prior at step 1
     assert np.all(ds["log_mass_inside"].isel(step=0).values == 0)
+    # p(D^1 | M) does not depend on the kernel; the importance-sampling estimate is within
+    # 0.3 nats of the quadrature value (measured at N = 1000 over 10 seeds: error -0.005 +- 0.006
+    # for SEMC, 0.000 +- 0.006 for SMC; at N = 300 the 8 estimates here are within 0.04)
+    for r in range(ds.sizes["run"]):
+        exact = study.osc.exact_log_evidence(study.osc.make_problem(
+            np.random.default_rng(study._problem_seed(0, r))).datasets[0])
+        np.testing.assert_allclose(inc[r, :, :, 0], exact, atol=0.3)
+    # selection on log p(D^1:6) and on log p(D^2:6 | D^1) agree when step 1 is this precise
+    summary = study.summarise(ds)
+    for s in ("SEMC", "SMC"):
+        np.testing.assert_array_equal(summary.selected[s], summary.extra["selected_conditional"][s])
+
+
+def test_kernel_pushing_mass_out_of_the_space_loses_evidence():
+    # Flat likelihood (L = 1) on the oscillator prior box; the kernel drifts c by -3 (noise 0.5),
+    # so part of the predictive mixture leaves the box. With zero likelihood outside, the step-2
+    # increment is log m, m = the predictive mixture's mass inside the box (exact: normal CDFs of
+    # the core's GaussianMixture). Measured over 10 seeds at N = 500: core error +0.003 +- 0.031
+    # (SEMC), +0.006 +- 0.023 (SMC), path estimate within 0.03 sd; tolerance 0.15 (5 sd).
+    from scipy import stats
+
+    from seqbayes.kernels import Drift, MarkovKernel
+    from seqbayes.sequential import SEMC, SMC
+
+    kernel = MarkovKernel([Drift(0.0, noise_std=1.0), Drift(-3.0, noise_std=0.5)])
+    support = study.osc.prior().support
+    for cls in (SEMC, SMC):
+        sampler = cls(study.osc.prior(), kernel, lambda theta, data: np.zeros(theta.shape[0]), n_samples=500, rng=3)
+        first = sampler.update(1.0)
+        assert first.log_evidence_increment == pytest.approx(0.0, abs=0.15)
+        density = sampler.state.prior
+        inside = (stats.norm.cdf((support[:, 1] - density.centres) / density.bandwidth)
+                  - stats.norm.cdf((support[:, 0] - density.centres) / density.bandwidth))
+        log_m = np.log(np.exp(density.log_weights) @ np.prod(inside, axis=1))
+        assert log_m < -0.25                       # about 30% of the mass leaves
+        info = sampler.update(1.0)
+        assert info.log_evidence_increment == pytest.approx(log_m, abs=0.15), cls.__name__
+        assert info.log_evidence_increment_path == pytest.approx(log_m, abs=0.15), cls.__name__
 
 
 def test_dataset_layout_and_truth(reduced):

@@ -28,6 +28,18 @@ emulations of the authors' counter, for ``N`` in ``{500, 1000, 4000}``, with and
 without adaptive tempering, and on a 2-D problem (the damped oscillator of
 Sec. 5, run 0, kernel T1).
 
+Sampler settings. The question is what the paper's adaptive step size does, so
+SEMC runs with the paper's Algorithm 2 (:data:`PAPER_SETTINGS`): stretch moves in
+the parameters' own coordinates (a proposal outside the prior box is rejected;
+with the library's default log/logit coordinates no proposal ever leaves the box
+and ``u`` means something else), virtual iterations of one sweep until
+``|alpha - alpha_old| < 0.1 alpha_tr`` with no minimum number of sweeps and no
+"90% of the particles moved" rule (which at target 0.1 alone adds some 20 sweeps
+per stage and would dominate the step-size loop), the tempering path's evidence
+(no importance-sampling draws, whose independence-MH sweep would refresh
+identical copies) and no restricted restart when few particles have a non-zero
+likelihood. One configuration runs with the library defaults for comparison.
+
 ``seqbayes example acceptance [--seeds 5] [--out DIR] [--quick]``
 """
 
@@ -42,15 +54,21 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TARGETS", "START_STEP_SIZES", "identical_partner_acceptance", "authors_rate",
+__all__ = ["TARGETS", "START_STEP_SIZES", "PAPER_SETTINGS", "SETTINGS", "identical_partner_acceptance", "authors_rate",
            "run_config", "run_study", "bounds_table", "plot", "main"]
 
 TARGETS = (0.100, 0.283, 0.440, 0.800, 0.900, 1.000)
 START_STEP_SIZES = (40.0, 40.0, 8.0, 2.0, 2.0, 2.0)
-#: (problem, N, tempering) configurations of the full study
-CONFIGS = (("coulomb", 500, True), ("coulomb", 1000, True), ("coulomb", 4000, True),
-           ("coulomb", 1000, False), ("oscillator", 1000, True))
-QUICK_CONFIGS = (("coulomb", 500, True), ("oscillator", 500, True))
+#: SEMC settings that make the library's sampler the paper's Algorithm 2 (see the module doc)
+PAPER_SETTINGS = {"transform": False, "moved_fraction": 0.0, "n_moves": 1, "evidence": "path",
+                  "min_valid_fraction": 0.0}
+#: named sampler settings a configuration can use ("defaults": the library's SamplerConfig defaults)
+SETTINGS = {"paper": PAPER_SETTINGS, "defaults": {}}
+#: (problem, N, tempering, settings) configurations of the full study
+CONFIGS = (("coulomb", 500, True, "paper"), ("coulomb", 1000, True, "paper"), ("coulomb", 4000, True, "paper"),
+           ("coulomb", 1000, False, "paper"), ("oscillator", 1000, True, "paper"),
+           ("coulomb", 1000, True, "defaults"))
+QUICK_CONFIGS = (("coulomb", 500, True, "paper"), ("oscillator", 500, True, "paper"))
 
 
 def identical_partner_acceptance(step_size, dim: int) -> np.ndarray:
@@ -109,35 +127,66 @@ def _problem(name):
     raise ValueError(f"problem: expected 'coulomb' or 'oscillator', got {name!r}")
 
 
-def run_config(problem: str, n_samples: int, tempering: bool, target: float, step_size: float, seed: int) -> dict:
-    """One SEMC run; returns per-step counts and rates (arrays of length S)."""
+class _MoveEvaluations:
+    """The problem's log-likelihood, counting the evaluations made by the stretch sweeps.
+
+    ``StepInfo.n_loglike_evals`` also counts the evaluations of the step's starting
+    particles, of a restricted restart and of the importance-sampling draws; the
+    proposals that left the prior box (rejected without evaluation) are the
+    proposals made minus identical-partner proposals minus those evaluated by the
+    sweeps, so the sweeps' own count is needed. The core does not report it per
+    step (its ``SweepStats.n_evaluations`` stays inside the step), so this wrapper
+    counts a call as a sweep's when ``stretch_sweep`` is on the call stack.
+    """
+
+    def __init__(self, loglike):
+        self.loglike = loglike
+        self.count = 0
+
+    def __call__(self, theta, dataset):
+        frame = sys._getframe(1)
+        for _ in range(12):
+            if frame is None:
+                break
+            if frame.f_code.co_name == "stretch_sweep":
+                self.count += theta.shape[0]
+                break
+            frame = frame.f_back
+        return self.loglike(theta, dataset)
+
+
+def run_config(problem: str, n_samples: int, tempering: bool, target: float, step_size: float, seed: int,
+               settings: str = "paper") -> dict:
+    """One SEMC run; returns per-step counts and rates (arrays of length S).
+
+    ``settings`` names an entry of :data:`SETTINGS` (``"paper"``: Algorithm 2 as
+    printed, the study's default; ``"defaults"``: the library's defaults).
+    """
     from ..sequential import SEMC, ZeroLikelihoodError
 
+    if settings not in SETTINGS:
+        raise ValueError(f"settings: expected one of {sorted(SETTINGS)}, got {settings!r}")
     prior, kernel, loglike, datasets = _problem(problem)
-    support = prior.support
-    dim = support.shape[0]
+    dim = prior.support.shape[0]
+    counted = _MoveEvaluations(loglike)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(int(1000 * target), n_samples)))
-    sampler = SEMC(prior, kernel, loglike, n_samples=n_samples, rng=rng, target_acceptance=target,
-                   step_size=step_size, tempering=tempering)
+    sampler = SEMC(prior, kernel, counted, n_samples=n_samples, rng=rng, target_acceptance=target,
+                   step_size=step_size, tempering=tempering, **SETTINGS[settings])
     rows = []
-    n_inside = n_samples
     failed_step = 0
     for s, dataset in enumerate(datasets):
+        before = counted.count
         try:
             info = sampler.update(dataset)
         except ZeroLikelihoodError:
-            # every predictive sample left the parameter space (seen untempered, when step 1
-            # missed the posterior); the remaining steps are NaN and the failure is counted
+            # every particle has zero likelihood (seen untempered, when step 1 missed the
+            # posterior); the remaining steps are NaN and the failure is counted
             failed_step = s + 1
             rows += [(np.nan,) * 9] * (len(datasets) - s)
             break
-        # proposals evaluated = likelihood evaluations minus the initial evaluation of the inside particles
-        evaluated = info.n_loglike_evals - n_inside
-        n_outside = info.n_proposed - info.n_identical_partner - evaluated
+        n_outside = info.n_proposed - info.n_identical_partner - (counted.count - before)
         rows.append((info.acceptance_rate, info.n_accepted, info.n_identical_partner, info.n_proposed, n_outside,
                      info.step_size, info.n_virtual, info.n_stages, info.n_distinct))
-        pred = sampler.result.steps[-1].predictive
-        n_inside = int(np.all((pred >= support[:, 0]) & (pred <= support[:, 1]), axis=1).sum())
     arr = np.array(rows, dtype=float)
     true, n_acc, n_id, n_prop, n_out, u = arr[:, :6].T
     return {"true": true, "authors": authors_rate(n_acc, n_id, n_prop, u, dim),
@@ -165,7 +214,8 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
         raise ValueError(f"seeds: must be at least 1, got {seeds}")
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     progress = sys.stderr.isatty() if progress is None else progress
-    tasks = [(p, n, t, target, u, seed) for (p, n, t) in configs
+    configs = tuple(tuple(c) + (("paper",) if len(c) == 3 else ()) for c in configs)
+    tasks = [(p, n, t, target, u, seed, st) for (p, n, t, st) in configs
              for target, u in zip(TARGETS, START_STEP_SIZES) for seed in range(seeds)]
     # longest first so that the two workers finish together
     tasks.sort(key=lambda task: -task[1])
@@ -182,13 +232,14 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
                 results[task] = res
                 bar.update()
     bar.close()
-    names = [f"{p} N={n}" + ("" if t else " untempered") for (p, n, t) in configs]
+    names = [f"{p} N={n}" + ("" if t else " untempered") + ("" if st == "paper" else f" ({st})")
+             for (p, n, t, st) in configs]
     n_steps = {p: len(_problem(p)[3]) for p in {c[0] for c in configs}}
     S = max(n_steps.values())
     variables = next(iter(results.values())).keys()
     data = {v: np.full((len(configs), len(TARGETS), seeds, S), np.nan) for v in variables}
-    for (p, n, t, target, u, seed), res in results.items():
-        c = configs.index((p, n, t))
+    for (p, n, t, target, u, seed, st), res in results.items():
+        c = configs.index((p, n, t, st))
         i = TARGETS.index(target)
         for v in variables:
             data[v][c, i, seed, : len(res[v])] = res[v]
@@ -196,7 +247,8 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
                     coords={"config": names, "target": list(TARGETS), "seed": np.arange(seeds),
                             "step": np.arange(1, S + 1),
                             "start_step_size": ("target", list(START_STEP_SIZES)),
-                            "dim": ("config", [4 if p == "coulomb" else 2 for p, _, _ in configs])})
+                            "dim": ("config", [4 if c[0] == "coulomb" else 2 for c in configs]),
+                            "settings": ("config", [c[3] for c in configs])})
     ds.attrs["wall_time"] = time.perf_counter() - start
     ds.attrs["workers"] = workers
     return ds
