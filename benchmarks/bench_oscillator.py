@@ -6,8 +6,15 @@
    best of ``--repeat`` timings each, and their largest relative difference.
 2. The whole study (10 runs x 6 kernels x {SEMC, SMC}, N = 1000) end to end, as
    ``seqbayes example oscillator`` runs it, with the wall time of each sampler.
+3. ``--compare-settings``: SEMC against SMC on kernel T1 of every run, in one
+   process (no competition between workers), with the library defaults and with
+   the paper's settings (one move per tempering stage or virtual iteration, no
+   "90% moved" rule, moves in the parameters' own coordinates, the tempering
+   path's evidence): wall time, likelihood evaluations, and the posterior error
+   against the truth in posterior stds, so that speed is compared at known accuracy.
 
-Run: ``.venv/bin/python benchmarks/bench_oscillator.py [--runs 10] [--samples 1000] [--workers 2]``
+Run: ``.venv/bin/python benchmarks/bench_oscillator.py [--runs 10] [--samples 1000] [--workers 2]
+[--compare-settings] [--skip-study]``
 """
 
 from __future__ import annotations
@@ -45,13 +52,51 @@ def bench_likelihood(n: int = 1000, repeat: int = 20) -> dict:
     return {"timings": timings, "max_rel_diff": float(diff)}
 
 
+PAPER_LIKE = {"SEMC": {"step_size": 10.0, "transform": False, "moved_fraction": 0.0, "n_moves": 1,
+                       "evidence": "path"},
+              "SMC": {"transform": False, "moved_fraction": 0.0, "n_moves": 1, "evidence": "path"}}
+
+
+def compare_settings(runs: int = 10, n_samples: int = 1000, kernel: str = "T1") -> list[dict]:
+    """SEMC vs SMC per settings: mean wall time and evaluations per run, error of the posterior mean."""
+    rows = []
+    for label, options in (("library defaults", study.DEFAULT_OPTIONS), ("paper-like", PAPER_LIKE)):
+        for sampler in study.SAMPLERS:
+            times, evals, z, cover = [], [], [], []
+            for run in range(runs):
+                res = study.run_task(0, run, kernel, sampler, n_samples, options[sampler])
+                truth = osc.make_problem(np.random.default_rng(study._problem_seed(0, run))).truth
+                times.append(res["wall_time"])
+                evals.append(np.nansum(res["n_loglike_evals"]))
+                z.append(np.abs(res["mean"] - truth) / res["std"])
+                q = list(study.QUANTILES)
+                lo, hi = res["quantile"][:, q.index(0.025)], res["quantile"][:, q.index(0.975)]
+                cover.append((truth >= lo) & (truth <= hi))
+            rows.append({"settings": label, "sampler": sampler, "time": float(np.mean(times)),
+                         "evals": float(np.mean(evals)), "median_z": float(np.nanmedian(z)),
+                         "coverage": float(np.mean(cover))})
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--samples", type=int, default=1000)
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--repeat", type=int, default=20)
+    parser.add_argument("--compare-settings", action="store_true")
+    parser.add_argument("--skip-study", action="store_true")
     args = parser.parse_args(argv)
+    if args.compare_settings:
+        print(f"SEMC vs SMC, kernel T1, {args.runs} runs, N = {args.samples}, one process")
+        print("| settings | sampler | wall time per run [s] | likelihood evaluations per run "
+              "| median abs(mean - truth) / std | truth in 95% interval |")
+        print("|:---|:---|---:|---:|---:|---:|")
+        for row in compare_settings(args.runs, args.samples):
+            print(f"| {row['settings']} | {row['sampler']} | {row['time']:.2f} | {row['evals']:.0f} "
+                  f"| {row['median_z']:.2f} | {100 * row['coverage']:.0f}% |")
+        if args.skip_study:
+            return 0
 
     lik = bench_likelihood(args.samples, args.repeat)
     print(f"likelihood at N = {args.samples}, 501 points (best of {args.repeat}):")

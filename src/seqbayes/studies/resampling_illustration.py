@@ -114,8 +114,10 @@ def run(n_samples: int = 10_000, rng=0) -> Illustration:
     dataset = np.zeros(1)                     # the likelihood ignores it; one "dataset" = one step
     posteriors, evidence, acceptance = {}, {}, {}
     for name, cls, seed in (("smc", SMC, seeds[1]), ("semc", SEMC, seeds[2])):
+        # the paper's single reweighting and one move (n_moves=1, no "90% moved" rule); the
+        # rest (log/logit coordinates, importance-sampling evidence) are the library's defaults
         sampler = cls(the_prior, kernel, log_likelihood, n_samples=n_samples, rng=np.random.default_rng(seed),
-                      tempering=False)
+                      tempering=False, n_moves=1, moved_fraction=0.0)
         info = sampler.update(dataset)
         posteriors[name] = sampler.result.steps[-1].posterior
         evidence[name] = float(info.log_evidence)
