@@ -241,7 +241,7 @@ class RunConfig:
             client = Client(self.address)
             return client, client.close
         cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=":0")
         client = Client(cluster)
 
         def close():

@@ -375,9 +375,42 @@ class RunStore:
         except ConfigError:
             return load_likelihood(self.config.likelihood, str(self.path.resolve().parent))
 
+    def share_likelihood(self, executor) -> None:
+        """Make the user's likelihood module importable on a Dask cluster's workers.
+
+        A module that lives next to the config (or the store) is not installed on the
+        workers, which then cannot unpickle the likelihood. For a
+        :class:`dask.distributed.Client` the module file (or, for a dotted name, its
+        top-level package as a zip) is sent with ``Client.upload_file``, which also
+        reaches workers that join later. Installed modules and other executors
+        (``concurrent.futures`` inherit the parent's ``sys.path``) need nothing.
+        """
+        if executor is None or not hasattr(executor, "upload_file"):
+            return
+        module_name = self.config.likelihood.split(":")[0]
+        top = module_name.split(".")[0]
+        roots = [Path(p).resolve() for p in (self.config.search_path, self.path.resolve().parent) if p]
+        for root in roots:
+            if (root / f"{top}.py").is_file() and top == module_name:
+                executor.upload_file(str(root / f"{top}.py"))
+                return
+            if (root / top / "__init__.py").is_file():
+                import shutil
+                import tempfile
+
+                with tempfile.TemporaryDirectory() as tmp:
+                    archive = shutil.make_archive(str(Path(tmp) / top), "zip", root_dir=root, base_dir=top)
+                    executor.upload_file(archive)
+                return
+
     def sampler(self, step: int | None = None, executor=None, loglike=None):
-        """A sampler restored to the state after ``step`` datasets (default: the last)."""
+        """A sampler restored to the state after ``step`` datasets (default: the last).
+
+        With a Dask client as ``executor`` the likelihood's module is first sent to the
+        workers (:meth:`share_likelihood`).
+        """
         step = self.n_steps if step is None else int(step)
+        self.share_likelihood(executor)
         sampler = self.config.build_sampler(executor=executor,
                                             loglike=self.load_likelihood() if loglike is None else loglike)
         sampler.restore(*self.state_at(step))
