@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,bench,arviz,docs]"
+	$(PY) -m pip install --quiet -e ".[test,arviz,docs]"
 	touch $(STAMP)
 
 run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled real data (quick variant)
@@ -18,8 +18,9 @@ run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled 
 test: $(STAMP)       ## the whole test suite
 	$(PY) -m pytest -q
 
-bench: $(STAMP)
-	$(PY) benchmarks/run_all.py
+bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy (installs the bench extra)
+	$(PY) -m pip install --quiet -e ".[bench]"
+	for script in benchmarks/bench_*.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
 clean:
 	rm -rf $(VENV) build *.egg-info

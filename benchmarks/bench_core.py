@@ -190,7 +190,7 @@ def bench_mixture(seeds=20):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=["stretch", "particles", "exact", "wide", "mixture", "all"])
+    parser.add_argument("what", nargs="?", default="all", choices=["stretch", "particles", "exact", "wide", "mixture", "all"])
     parser.add_argument("--seeds", type=int, default=20)
     args = parser.parse_args()
     print(f"<!-- python benchmarks/bench_core.py {args.what}; load average {os.getloadavg()[0]:.1f} -->")
