@@ -1,10 +1,12 @@
 """seqbayes: on-line Bayesian model updating of engineering structures.
 
 The public API: priors, Markov kernels, the on-line samplers SMC and SEMC, the
-standalone ensemble sampler, model-class comparison and run results.
+standalone ensemble sampler, model-class comparison and run results; and the
+structural side of Lin et al. (2024): shear buildings, ground motions, filters,
+sparse grids and the SG-EnMCMC identifier.
 """
 
-from . import aies
+from . import aies, filters, sparsegrid, structures
 from .density import GaussianMixture, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, MarkovKernel, Static
 from .priors import JointPrior
@@ -12,9 +14,10 @@ from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
 from .selection import ModelComparison, compare
 from .sequential import SEMC, SMC, SamplerConfig, SamplerState, ZeroLikelihoodError, assimilate
+from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
 
 __version__ = "0.1.0"
-__all__ = ["aies", "GaussianMixture", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+__all__ = ["aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "assimilate"]
