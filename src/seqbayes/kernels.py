@@ -10,7 +10,7 @@ with a coupled evolution model passes ``nominal=callable((N, d)) -> (N, d)``.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -27,78 +27,76 @@ def _check_noise(noise_std):
 
 
 @dataclass(frozen=True)
-class Static:
-    """Time-invariant parameter: ``theta_{s+1} = theta_s`` (no noise)."""
+class _Component:
+    """One parameter's evolution ``Gamma`` and noise std; fields are validated on construction."""
 
-    noise_std: float = 0.0
+    noise_std: float = field(default=0.0, kw_only=True)
 
     def __post_init__(self):
-        object.__setattr__(self, "noise_std", _check_noise(self.noise_std))
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "noise_std":
+                value = _check_noise(value)
+            elif f.type in ("float", float):
+                value = float(value)
+                if not np.isfinite(value):
+                    raise ValueError(f"{f.name}: must be finite, got {value}")
+            object.__setattr__(self, f.name, value)
+
+    def describe(self) -> dict:
+        out = {"type": type(self).__name__.lower()}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = getattr(value, "__qualname__", repr(value)) if callable(value) else value
+        return out
+
+
+@dataclass(frozen=True)
+class Static(_Component):
+    """Time-invariant parameter: ``theta_{s+1} = theta_s`` (no noise)."""
+
+    noise_std: float = field(default=0.0, init=False)
 
     def nominal(self, x: np.ndarray) -> np.ndarray:
         return x
 
-    def describe(self) -> dict:
-        return {"type": "static", "noise_std": self.noise_std}
-
 
 @dataclass(frozen=True)
-class Drift:
+class Drift(_Component):
     """Additive drift: ``theta_{s+1} = theta_s + rate + nu`` (e.g. Eq. 21, ``rate = -0.375``)."""
 
     rate: float
-    noise_std: float = 0.0
-
-    def __post_init__(self):
-        object.__setattr__(self, "rate", float(self.rate))
-        object.__setattr__(self, "noise_std", _check_noise(self.noise_std))
 
     def nominal(self, x: np.ndarray) -> np.ndarray:
         return x + self.rate
 
-    def describe(self) -> dict:
-        return {"type": "drift", "rate": self.rate, "noise_std": self.noise_std}
-
 
 @dataclass(frozen=True)
-class Decay:
+class Decay(_Component):
     """Multiplicative decay: ``theta_{s+1} = exp(-rate) theta_s + nu`` (e.g. Eq. 22, ``rate = 0.470``)."""
 
     rate: float
-    noise_std: float = 0.0
-
-    def __post_init__(self):
-        object.__setattr__(self, "rate", float(self.rate))
-        object.__setattr__(self, "noise_std", _check_noise(self.noise_std))
 
     def nominal(self, x: np.ndarray) -> np.ndarray:
         return np.exp(-self.rate) * x
 
-    def describe(self) -> dict:
-        return {"type": "decay", "rate": self.rate, "noise_std": self.noise_std}
-
 
 @dataclass(frozen=True)
-class Custom:
+class Custom(_Component):
     """A user function of one parameter, ``theta_{s+1} = func(theta_s) + nu``; ``func`` maps ``(N,) -> (N,)``."""
 
     func: Callable[[np.ndarray], np.ndarray]
-    noise_std: float = 0.0
 
     def __post_init__(self):
         if not callable(self.func):
             raise TypeError("func: expected a callable mapping (N,) -> (N,)")
-        object.__setattr__(self, "noise_std", _check_noise(self.noise_std))
+        super().__post_init__()
 
     def nominal(self, x: np.ndarray) -> np.ndarray:
         out = np.asarray(self.func(x), dtype=float)
         if out.shape != x.shape:
             raise ValueError(f"Custom.func: returned shape {out.shape} for input {x.shape}")
         return out
-
-    def describe(self) -> dict:
-        return {"type": "custom", "func": getattr(self.func, "__qualname__", repr(self.func)),
-                "noise_std": self.noise_std}
 
 
 @dataclass(frozen=True, eq=False)
