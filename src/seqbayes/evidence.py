@@ -16,8 +16,8 @@ the distinct particles (follows several modes), half a multivariate Student t
 finite variance). The effective sample size of the importance weights is
 returned as a diagnostic.
 
-The same draws then serve as proposals of one independence Metropolis-Hastings
-sweep over the particles (particle ``i`` proposes draw ``i``; accept with
+The same draws then serve as proposals of an independence Metropolis-Hastings
+sweep over the particles (further sweeps draw afresh from the same ``q``) (particle ``i`` proposes draw ``i``; accept with
 ``min(1, w(new) / w(old))``, ``w = pi / q``). The draws are independent of the
 particles, so the sweep leaves the posterior invariant; it costs no extra
 likelihood evaluation and moves particles across a funnel that the local moves
@@ -56,8 +56,8 @@ def _proposal(u, log_weights):
     return kde, t
 
 
-def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_draws):
-    """Evidence by defensive importance sampling, then one independence-MH sweep with the same draws.
+def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_sweeps: int = 1):
+    """Evidence by defensive importance sampling, then independence-MH sweeps with the same proposal.
 
     Parameters
     ----------
@@ -73,18 +73,19 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     support : (d, 2) array
         Parameter space; the likelihood is zero outside.
     rng : numpy.random.Generator
-    n_draws : int
-        Importance draws; the independence sweep needs ``n_draws == N``.
+    n_sweeps : int
+        Independence sweeps, each with N fresh draws; the first sweep's draws give the evidence.
 
     Returns
     -------
     log_evidence : float
     ess : float
-        Effective sample size of the importance weights (out of ``n_draws``).
-    posterior, components : arrays after the independence sweep
+        Effective sample size of the first sweep's importance weights (out of N).
+    posterior, components : arrays after the sweeps
     n_accepted : int
-        Particles moved by the sweep.
+        Particle moves accepted over all sweeps.
     """
+    n = posterior.shape[0]
     transform = BoxTransform(support)
     u = transform.forward(posterior)
     kde, t = _proposal(u, log_weights)
@@ -92,30 +93,34 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     def log_q(points):
         return np.logaddexp(np.log(0.5) + kde.logpdf(points), np.log(0.5) + t.logpdf(points))
 
-    n_kde = int(rng.binomial(n_draws, 0.5))
-    draws = np.concatenate([kde.sample(n_kde, rng),
-                            np.atleast_2d(t.rvs(size=n_draws - n_kde, random_state=rng)).reshape(-1, u.shape[1])])
-    draws = draws[rng.permutation(n_draws)]  # the two halves in random order: pairing below is random
-    theta = transform.inverse(draws)
-    inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1) & np.isfinite(theta).all(axis=1)
-    new_components = np.full((n_draws, 2), -np.inf)
-    log_target = np.full(n_draws, -np.inf)
-    if inside.any():
-        ti = theta[inside]
-        new_components[inside] = np.column_stack([loglike(ti), prior_logpdf(ti)])
-        log_target[inside] = new_components[inside].sum(axis=1) + transform.log_jacobian(draws[inside])
-    log_target[np.isnan(log_target)] = -np.inf
-    log_terms = log_target - log_q(draws)
-    total = logsumexp(log_terms)
-    if not np.isfinite(total):
-        return -np.inf, 0.0, posterior, components, 0
-    ess = float(np.exp(2.0 * total - logsumexp(2.0 * log_terms)))
-    log_evidence = float(total - np.log(n_draws))
-    # independence Metropolis-Hastings: w = target / q at the particles and at the draws
-    current = components.sum(axis=1) + transform.log_jacobian(u) - log_q(u)
-    accept = metropolis_accept(current, log_terms, np.zeros(n_draws), rng) & inside
-    posterior = posterior.copy()
-    components = components.copy()
-    posterior[accept] = theta[accept]
-    components[accept] = new_components[accept]
-    return log_evidence, ess, posterior, components, int(accept.sum())
+    posterior, components = posterior.copy(), components.copy()
+    current = components.sum(axis=1) + transform.log_jacobian(u) - log_q(u)  # log(target / q) at the particles
+    log_evidence, ess, n_accepted = -np.inf, 0.0, 0
+    for sweep in range(n_sweeps):
+        n_kde = int(rng.binomial(n, 0.5))
+        draws = np.concatenate([kde.sample(n_kde, rng),
+                                np.atleast_2d(t.rvs(size=n - n_kde, random_state=rng)).reshape(-1, u.shape[1])])
+        draws = draws[rng.permutation(n)]  # the two halves in random order: the pairing below is random
+        theta = transform.inverse(draws)
+        inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1) & np.isfinite(theta).all(axis=1)
+        new_components = np.full((n, 2), -np.inf)
+        log_target = np.full(n, -np.inf)
+        if inside.any():
+            ti = theta[inside]
+            new_components[inside] = np.column_stack([loglike(ti), prior_logpdf(ti)])
+            log_target[inside] = new_components[inside].sum(axis=1) + transform.log_jacobian(draws[inside])
+        log_target[np.isnan(log_target)] = -np.inf
+        log_terms = log_target - log_q(draws)
+        if sweep == 0:
+            total = logsumexp(log_terms)
+            if not np.isfinite(total):
+                return -np.inf, 0.0, posterior, components, 0
+            ess = float(np.exp(2.0 * total - logsumexp(2.0 * log_terms)))
+            log_evidence = float(total - np.log(n))
+        # independence Metropolis-Hastings with w = target / q (the draws are independent of the particles)
+        accept = metropolis_accept(current, log_terms, np.zeros(n), rng) & inside
+        posterior[accept] = theta[accept]
+        components[accept] = new_components[accept]
+        current[accept] = log_terms[accept]
+        n_accepted += int(accept.sum())
+    return log_evidence, ess, posterior, components, n_accepted

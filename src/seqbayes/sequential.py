@@ -437,14 +437,9 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
     log_increment, evidence_ess, n_independent = log_increment_path, float("nan"), 0
     if config.evidence == "importance":
-        for sweep in range(config.n_independent):
-            # the first draws estimate the evidence; every sweep is an independence-MH move
-            estimate, sweep_ess, particles, components, accepted = importance_step(
-                particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng, n)
-            if sweep == 0:
-                log_increment, evidence_ess = estimate, sweep_ess
-            n_independent += accepted
-
+        log_increment, evidence_ess, particles, components, n_independent = importance_step(
+            particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng,
+            config.n_independent)
     density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
                                              config.shrink_static)
     info = StepInfo(
