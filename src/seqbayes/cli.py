@@ -101,10 +101,10 @@ def cmd_update(args) -> int:
                         raise
                     except Exception as err:
                         raise CommandError(f"{path}: {_describe(err, store)}") from err
-                print(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
-                      f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
-                      f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f}, {info.n_loglike_evals} likelihood "
-                      f"evaluations in {info.wall_time:.2f} s")
+                tqdm.write(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
+                           f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
+                           f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f}, {info.n_loglike_evals} likelihood "
+                           f"evaluations in {info.wall_time:.2f} s", file=sys.stdout)
                 args.replace_last = False
         finally:
             close()

@@ -250,3 +250,41 @@ def test_bad_input_gives_one_clear_message_and_leaves_the_store_unchanged(work, 
     assert re.search(r"month1.csv: likelihood e2emodel:bad_shape: loglike: returned shape \(\d+, 2\) for theta of "
                      r"shape \(\d+, 2\); expected \(\d+,\); the run store is unchanged", err), err
     assert sha(work / "badshape.nc") == before
+
+
+def test_progress_bars_in_a_terminal(work):
+    """In a terminal (a pseudo-terminal here) update shows tqdm bars; elsewhere it is silent
+    (checked above: stderr is empty when captured)."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import sys
+    import termios
+
+    store = work / "tty.nc"
+    assert cli.main(["init", str(work / "drift.toml"), str(store)]) == 0
+    pid, fd = pty.fork()
+    if pid == 0:  # pragma: no cover - the child, whose stdout/stderr are the terminal
+        code = 70
+        try:
+            fcntl.ioctl(0, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 120, 0, 0))
+            sys.stdout = open(1, "w", closefd=False, buffering=1)   # past pytest's capture
+            sys.stderr = open(2, "w", closefd=False, buffering=1)
+            code = cli.main(["update", str(store), str(work / "month1.csv"), str(work / "month2.nc")])
+        finally:
+            os._exit(code)
+    output = b""
+    while True:
+        try:
+            chunk = os.read(fd, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        output += chunk
+    assert os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
+    text = output.decode(errors="replace")
+    assert re.search(r"datasets: +\d+%\|", text)                # the bar over files
+    assert re.search(r"step 1: likelihood: \d+eval", text)       # the likelihood-evaluation counter
+    assert "step 2 from month2.nc" in text
