@@ -229,6 +229,11 @@ def test_bad_input_gives_one_clear_message_and_leaves_the_store_unchanged(work, 
     # a multi-file update checks every file before assimilating any
     code, _, err = run(capsys, "update", store, work / "month3.csv", work / "nan.csv")
     assert code == 2 and "nan.csv" in err and sha(store) == before
+    # corrected data for the last campaign replace it on request
+    code, out, _ = run(capsys, "update", store, work / "month3.csv", "--replace-last")
+    assert code == 0 and "step 1 from month3.csv" in out
+    code, out, _ = run(capsys, "status", store, "--json")
+    assert [r["dataset"] for r in json.loads(out)["steps"]] == ["month3.csv"]
 
     # config errors at init: unknown distribution, likelihood that cannot be imported
     text = (work / "drift.toml").read_text()
