@@ -242,9 +242,8 @@ class RunStore:
         if n_steps:
             records = []
             for i in range(n_steps):
-                info = json.loads(str(ds["step_info"].values[i]))
-                info["temperatures"] = tuple(info.get("temperatures", ()))
-                records.append(StepRecord(StepInfo(**info), ds["posterior"].values[i], ds["log_weights"].values[i],
+                info = _step_info(json.loads(str(ds["step_info"].values[i])))
+                records.append(StepRecord(info, ds["posterior"].values[i], ds["log_weights"].values[i],
                                           ds["predictive"].values[i]))
             result = Result(stored.names, tuple(records), json.loads(ds.attrs.get("result_meta", "{}")))
             mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
@@ -498,6 +497,18 @@ class RunStore:
     def to_arviz(self, step: int = -1, rng=None):
         """One step's posterior as :class:`arviz.InferenceData` (see :func:`posterior_to_arviz`)."""
         return posterior_to_arviz(self.result, step, rng)
+
+
+def _step_info(values: dict) -> StepInfo:
+    """A :class:`StepInfo` from its stored dict, tolerant of diagnostics added or removed since
+    the store was written (a missing field becomes NaN, 0, False or ``()``; an unknown one is dropped)."""
+    defaults = {"float": float("nan"), "int": 0, "bool": False, "tuple": ()}
+    kwargs = {}
+    for f in dataclasses.fields(StepInfo):
+        type_name = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "float")
+        kwargs[f.name] = values.get(f.name, defaults.get(type_name, float("nan")))
+    kwargs["temperatures"] = tuple(kwargs["temperatures"])
+    return StepInfo(**kwargs)
 
 
 def _check_state(state: SamplerState, record: StepRecord) -> None:

@@ -216,3 +216,22 @@ def test_a_step_posterior_as_arviz_data(tmp_path):
     # reproducible: same default resampling seed
     again = posterior_to_arviz(store.result, 0)
     np.testing.assert_array_equal(again.posterior["a"].values, post["a"].values)
+
+
+def test_a_store_with_older_or_newer_diagnostics_still_opens(tmp_path):
+    import dataclasses
+    import json
+
+    cfg = config(tmp_path)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    store.assimilate(datasets(1)[0])
+    ds = store.to_xarray()
+    info = json.loads(str(ds["step_info"].values[0]))
+    info.pop("n_nan")                        # a diagnostic the writer did not have yet
+    info["from_the_future"] = 1.5            # one this reader does not know
+    ds["step_info"] = (("step",), np.array([json.dumps(info)], dtype=object))
+    ds.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
+    loaded = RunStore.open(tmp_path / "other.nc")
+    assert loaded.result.steps[0].info.n_nan == 0
+    assert loaded.result.steps[0].info.log_evidence == store.result.steps[0].info.log_evidence
+    assert {f.name for f in dataclasses.fields(loaded.result.steps[0].info)} >= {"n_nan", "ess"}
