@@ -149,16 +149,21 @@ def bench_exact(seeds=20):
                   _spread(problem, data, seeds))
 
 
+PAPER_SETTINGS = dict(tempering=False, evidence="path", n_moves=1, moved_fraction=0.0, transform=False,
+                      min_valid_fraction=0.0, predictive="kde", resampling="multinomial")
+
+
 def bench_wide(seeds=20):
     base = LinearGaussianProblem()
     data, _ = base.simulate(5, rng=2024)
     first = kalman_filter(base, data)[0]
     sd = np.sqrt(np.diag(first.cov))
-    problem = LinearGaussianProblem(prior_mean=first.mean + 3 * sd, prior_std=10 * sd)
-    _print_spread(f"Prior 10x wider than the first posterior: tempered default, {seeds} seeds",
-                  _spread(problem, data, seeds))
-    _print_spread(f"Prior 10x wider than the first posterior: tempering=False (the paper's), {seeds} seeds",
-                  _spread(problem, data, seeds, tempering=False))
+    for scale in (10, 100):
+        problem = LinearGaussianProblem(prior_mean=first.mean + 3 * sd, prior_std=scale * sd)
+        for label, settings in (("defaults (tempered)", {}), ("tempering=False, other defaults", {"tempering": False}),
+                                ("the paper's configuration", PAPER_SETTINGS)):
+            _print_spread(f"Prior {scale}x wider than the first posterior: {label}, {seeds} seeds",
+                          _spread(problem, data, seeds, **settings))
 
 
 def bench_mixture(seeds=20):

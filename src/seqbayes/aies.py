@@ -78,7 +78,9 @@ def sample(log_prob, initial, n_steps: int, rng=None, step_size: float = 2.0, su
         values = np.asarray(log_prob(points), dtype=float)
         if values.shape != (points.shape[0],):
             raise ValueError(f"log_prob: returned shape {values.shape} for {points.shape[0]} points")
-        return np.where(np.isnan(values), -np.inf, values)[:, None]
+        if np.isnan(values).any():
+            values = np.where(np.isnan(values), -np.inf, values)
+        return values[:, None]
 
     components = component_fn(walkers)
     if not np.all(np.isfinite(components)):

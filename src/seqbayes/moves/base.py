@@ -52,6 +52,8 @@ def combine(components, coefficients) -> np.ndarray:
     Components are never ``+inf`` (the samplers reject it), so a NaN can only come
     from ``0 x -inf`` and is mapped to ``-inf``.
     """
+    if components.shape[1] == 1 and coefficients[0] == 1.0:  # a plain log-density (AIES)
+        return components[:, 0].copy()
     total = components @ np.asarray(coefficients, dtype=float)
     total[np.isnan(total)] = -np.inf
     return total
