@@ -158,21 +158,6 @@ def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir
     assert_prefix_of_reference(final, reference)
 
 
-def test_sigkill_mid_write_then_rerun_gives_the_uninterrupted_result(workdir):
-    run = workdir / "torn.nc"
-    reference = RunStore.open(workdir / "reference.nc")
-    assert cli.main(["init", str(workdir / "run.toml"), str(run)]) == 0
-    for s in range(1, 5):
-        update = ["update", str(run), str(workdir / f"d{s}.csv")]
-        assert wait(fork_cli(update, fault="mid-write")) == -signal.SIGKILL
-        assert RunStore.open(run).n_steps == s - 1
-        assert cli.main(update) == 0                       # the rerun
-    final = RunStore.open(run)
-    assert final.n_steps == 4
-    assert_prefix_of_reference(final, reference)
-    assert not any(p.name.startswith(f".{run.name}.tmp-") for p in workdir.iterdir())  # cleaned by the reruns
-
-
 def test_sigkill_at_random_times(workdir):
     run = workdir / "random.nc"
     reference = RunStore.open(workdir / "reference.nc")

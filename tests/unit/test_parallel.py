@@ -35,7 +35,9 @@ def datasets(pid_dir=None):
 def make(cls, executor=None, n_chunks=None):
     prior = JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)})
     kernel = MarkovKernel([Drift(-0.1, noise_std=0.05), Static()])
-    return cls(prior, kernel, loglike, n_samples=40, rng=17, executor=executor, n_chunks=n_chunks)
+    # few sweeps per stage: each sweep is a round trip to the cluster, and identity needs no more
+    limits = dict(moved_fraction=0.0) | (dict(max_virtual=4) if cls is SEMC else dict(max_moves=4))
+    return cls(prior, kernel, loglike, n_samples=40, rng=17, executor=executor, n_chunks=n_chunks, **limits)
 
 
 def assert_identical(a, b):
