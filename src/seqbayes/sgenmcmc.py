@@ -94,6 +94,7 @@ from scipy.linalg.lapack import dtrtri as _lapack_trtri
 from . import sparsegrid
 from .filters.kalman import check_filter_inputs, measurement_covariance
 from .resampling import resample
+from .results import weighted_quantile
 from .rng import as_generator
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 from .weights import normalise
@@ -237,15 +238,10 @@ def _convergence_step(history, truth, tol):
 
 
 def weighted_quantiles(samples, weights, probs) -> np.ndarray:
-    """Per-column weighted quantiles: ``samples (N, d)``, ``weights (N,)`` -> ``(len(probs), d)``."""
-    order = np.argsort(samples, axis=0)
-    sorted_x = np.take_along_axis(samples, order, axis=0)
-    cw = np.cumsum(weights[order], axis=0)
-    cw = (cw - 0.5 * weights[order]) / cw[-1:]
-    out = np.empty((len(probs), samples.shape[1]))
-    for j in range(samples.shape[1]):  # loop over parameters (d), not members
-        out[:, j] = np.interp(probs, cw[:, j], sorted_x[:, j])
-    return out
+    """Per-column weighted quantiles: ``samples (N, d)``, ``weights (N,)`` -> ``(len(probs), d)``
+    (:func:`seqbayes.results.weighted_quantile` with plain weights)."""
+    with np.errstate(divide="ignore"):
+        return weighted_quantile(samples, np.log(weights), probs)
 
 
 def weighted_mode(samples, weights, lower, upper, bins: int = 60, limits=None) -> np.ndarray:
