@@ -22,5 +22,8 @@ bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy (installs
 	$(PY) -m pip install --quiet -e ".[bench]"
 	for script in benchmarks/bench_*.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
+docs: $(STAMP)        ## the documentation site (API reference from docstrings), strict
+	$(VENV)/bin/mkdocs build --strict --site-dir site
+
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -241,10 +241,20 @@ class Result:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             return cls.from_xarray(ds.load())
 
-    def to_arviz(self, step: int = -1, rng: np.random.Generator | None = None):
-        """One step's posterior as :class:`arviz.InferenceData` (one chain of equal-weight draws).
+    def to_arviz(self, step: int = -1, rng=None):
+        """A step's posterior as :class:`arviz.InferenceData` for ArviZ diagnostics and plots.
 
-        Requires the optional ``arviz`` extra.
+        ``posterior`` holds one chain of ``N`` equal-weight draws (systematic resampling of
+        the weighted particles; they are not a Markov chain, so use ArviZ's summaries,
+        densities and pair plots, not R-hat). The group's attributes record the step, its
+        log-evidence, ESS and acceptance rate. Requires the optional ``arviz`` extra.
+
+        Parameters
+        ----------
+        step : int
+            Index into :attr:`steps` (``-1``: the last).
+        rng : int or numpy.random.Generator, optional
+            For the resampling (default seed 0, so the conversion is reproducible).
         """
         try:
             import arviz as az
@@ -252,6 +262,12 @@ class Result:
             raise ImportError("to_arviz: install the optional extra, pip install 'seqbayes[arviz]'") from err
         from .rng import as_generator
 
+        if not self.steps:
+            raise ValueError("result: no steps to convert")
         record = self.steps[step]
         draws = record.equal_weight_samples(as_generator(0 if rng is None else rng))
-        return az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(self.names)})
+        info = record.info
+        idata = az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(self.names)})
+        idata.posterior.attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
+                                      "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
+        return idata

@@ -519,33 +519,5 @@ def _check_state(state: SamplerState, record: StepRecord) -> None:
 
 
 def posterior_to_arviz(result: Result, step: int = -1, rng=None):
-    """A step's posterior as :class:`arviz.InferenceData` for ArviZ diagnostics and plots.
-
-    ``posterior``: one chain of ``N`` equal-weight draws (systematic resampling of the
-    weighted particles; they are not a Markov chain, so use ArviZ's summaries,
-    densities and pair plots, not R-hat). The group's attributes record the step,
-    its log-evidence, ESS and acceptance rate.
-
-    Parameters
-    ----------
-    result : Result
-    step : int
-        Index into ``result.steps`` (``-1``: the last).
-    rng : int or Generator, optional
-        For the resampling (default seed 0, so the conversion is reproducible).
-    """
-    try:
-        import arviz as az
-    except ImportError as err:  # pragma: no cover - depends on the environment
-        raise ImportError("posterior_to_arviz: install the optional extra, pip install 'seqbayes[arviz]'") from err
-    from .rng import as_generator
-
-    if not result.steps:
-        raise ValueError("result: no steps to convert")
-    record = result.steps[step]
-    draws = record.equal_weight_samples(as_generator(0 if rng is None else rng))
-    info = record.info
-    idata = az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(result.names)})
-    idata.posterior.attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
-                                  "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
-    return idata
+    """A step's posterior as :class:`arviz.InferenceData`: :meth:`seqbayes.Result.to_arviz`."""
+    return result.to_arviz(step, rng)

@@ -13,7 +13,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy import signal
 
 from ..rng import as_generator
 
@@ -165,6 +164,8 @@ def resample(motion: GroundMotion, dt: float) -> GroundMotion:
         raise ValueError(f"dt: {dt} is not a rational multiple of the record step {motion.dt}")
     if ratio == 1:
         return motion
+    from scipy import signal  # imported here: scipy.signal alone doubles `import seqbayes`
+
     a = signal.resample_poly(motion.acceleration, ratio.numerator, ratio.denominator)
     return GroundMotion(a, dt, motion.name)
 
@@ -196,6 +197,8 @@ def kanai_tajimi(duration: float, dt: float, pga_g: float = 0.07, ground_frequen
     n = int(round(duration / dt)) + 1
     wg = 2 * np.pi * ground_frequency_hz
     zg = ground_damping
+    from scipy import signal
+
     b, a = signal.bilinear([2 * zg * wg, wg**2], [1, 2 * zg * wg, wg**2], fs=1 / dt)
     a_g = signal.lfilter(b, a, rng.standard_normal(n))
     if envelope:
@@ -221,6 +224,8 @@ def band_limited_white_noise(duration: float, dt: float, band=(0.5, 50.0), rms_g
         raise ValueError(f"band: need 0 < low < high (after clipping to Nyquist), got {band}")
     rng = as_generator(rng)
     n = int(round(duration / dt)) + 1
+    from scipy import signal
+
     sos = signal.butter(4, [low, high], btype="bandpass", fs=1 / dt, output="sos")
     a_g = signal.sosfiltfilt(sos, rng.standard_normal(n))
     a_g *= rms_g * G / np.sqrt(np.mean(a_g**2))
