@@ -62,6 +62,9 @@ class StepInfo:
     n_independent_accepted : int
         Particles moved by the independence-MH sweep that reuses the importance draws
         (not counted in ``acceptance_rate``, which is the sampler's own move).
+    n_move_evaluations : int
+        Likelihood evaluations made by the sampler's own moves (part of ``n_loglike_evals``,
+        which also counts the initial, restart and importance evaluations).
     wall_time : float
         Seconds spent in the step.
     """
@@ -85,6 +88,7 @@ class StepInfo:
     log_evidence_increment_path: float
     evidence_ess: float
     n_independent_accepted: int
+    n_move_evaluations: int
     wall_time: float
 
 

@@ -30,6 +30,7 @@ and call :func:`assimilate`.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -440,6 +441,11 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         log_increment, evidence_ess, particles, components, n_independent = importance_step(
             particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng,
             config.n_independent)
+        if not evidence_ess >= max(10.0, 0.01 * n):  # a collapsed or degenerate posterior: q cannot be fitted
+            warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
+                          f"{int(np.unique(particles, axis=0).shape[0])} distinct particles); using the tempering "
+                          f"path's estimate", RuntimeWarning, stacklevel=3)
+            log_increment = log_increment_path
     density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
                                              config.shrink_static)
     info = StepInfo(
@@ -450,7 +456,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=int(np.unique(particles, axis=0).shape[0]),
         n_proposed=stats.n_proposed, n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
-        n_independent_accepted=n_independent,
+        n_independent_accepted=n_independent, n_move_evaluations=stats.n_evaluations,
         wall_time=time.perf_counter() - start)
     record = StepRecord(info, particles, log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=log_weights, prior=density,

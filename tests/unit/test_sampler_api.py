@@ -219,3 +219,21 @@ def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
     assert increments[2] == pytest.approx(-2.876, abs=0.5)
     assert np.all(sampler.result.steps[-1].posterior >= 0.0)
     assert sampler.result.steps[-1].info.n_distinct > 500  # fresh draws, no collapse
+
+
+def test_unreliable_importance_evidence_falls_back_to_the_path(monkeypatch):
+    import seqbayes.sequential as sequential
+
+    real = sequential.importance_step
+
+    def degenerate(*args, **kwargs):  # as when a collapsed posterior leaves q nothing to fit
+        log_z, _, posterior, components, accepted = real(*args, **kwargs)
+        return log_z - 20.0, 2.0, posterior, components, accepted
+
+    monkeypatch.setattr(sequential, "importance_step", degenerate)
+    sampler = make(SMC)
+    with pytest.warns(RuntimeWarning, match="step 1: importance-sampling evidence unreliable"):
+        info = sampler.update(DATA[0])
+    assert info.log_evidence_increment == info.log_evidence_increment_path
+    assert info.evidence_ess == 2.0
+    assert 0 < info.n_move_evaluations <= info.n_loglike_evals
