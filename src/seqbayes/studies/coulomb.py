@@ -16,6 +16,7 @@ Command line::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
@@ -27,7 +28,7 @@ import numpy as np
 
 from ..models import coulomb as model
 
-__all__ = ["SAMPLER_SETTINGS", "CoulombStudy", "run_study", "summary", "main"]
+__all__ = ["SAMPLER_SETTINGS", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
 
 #: Settings passed to the samplers (fields of ``seqbayes.SamplerConfig``); empty = the core's
 #: defaults (adaptive tempering, and the evidence increment re-estimated by importance
@@ -65,17 +66,43 @@ PAPER = {
 _QUANTITIES = ("log_evidence",) + model.PARAMETER_NAMES
 
 
+def single_blas_thread():
+    """Context manager limiting BLAS to one thread (``threadpoolctl``; a no-op without it).
+
+    The samplers' predictive-mixture density is a single-precision matrix product with an
+    inner dimension of 4 (the parameters), which gains nothing from BLAS threads; with two
+    OpenBLAS threads per process on the shared 2-core machine one SMC run took 2.8-3.2 s
+    instead of 1.4 s (load ~9, ``benchmarks/bench_coulomb.py --blas-threads``), and the study's
+    two worker processes would oversubscribe the cores further.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _run_file(runs_dir, sampler: str, kernel: str, run: int) -> Path:
+    return Path(runs_dir) / f"{sampler}_{kernel}_run{run:02d}.nc"
+
+
 def _one_run(task):
-    """Worker: one sampler run over the 4 datasets. ``task = (sampler, kernel, run, seed, n_samples, settings)``."""
+    """Worker: one sampler run over the 4 datasets, written to NetCDF in the worker when
+    ``runs_dir`` is given (so the two processes share the ~0.2 s per file of h5netcdf).
+    ``task = (sampler, kernel, run, seed, n_samples, settings, runs_dir)``."""
     import seqbayes
 
-    sampler_name, kernel_name, run, seed, n_samples, settings = task
+    sampler_name, kernel_name, run, seed, n_samples, settings, runs_dir = task
     cls = {"SEMC": seqbayes.SEMC, "SMC": seqbayes.SMC}[sampler_name]
-    start = time.perf_counter()
-    sampler = cls(model.prior(), model.kernel(kernel_name), model.loglike, n_samples=n_samples,
-                  rng=np.random.default_rng(seed), **settings)
-    result = sampler.run(model.load_experiment())
-    return sampler_name, kernel_name, run, result, time.perf_counter() - start
+    with single_blas_thread():
+        start = time.perf_counter()
+        sampler = cls(model.prior(), model.kernel(kernel_name), model.loglike, n_samples=n_samples,
+                      rng=np.random.default_rng(seed), **settings)
+        result = sampler.run(model.load_experiment())
+        elapsed = time.perf_counter() - start
+    if runs_dir is not None:
+        result.to_netcdf(_run_file(runs_dir, sampler_name, kernel_name, run))
+    return sampler_name, kernel_name, run, result, elapsed
 
 
 @dataclass(frozen=True)
@@ -95,7 +122,7 @@ class CoulombStudy:
     reference : seqbayes.models.coulomb.ReferencePosterior
         Exact posterior at s = 1 (Table 3 prior).
     wall_time : float
-        Seconds for the whole study.
+        Seconds for the runs and the exact reference (not the writing of the outputs).
     out_dir : Path or None
     """
 
@@ -178,7 +205,11 @@ def run_study(n_runs: int = 10, n_samples: int = 1000, samplers=("SEMC", "SMC"),
     # after step 1, so T1 and T2 runs of the same index see the identical s = 1 posterior
     # and their log Bayes factor measures steps 2-4 only (common random numbers).
     children = np.random.SeedSequence(seed).spawn(len(samplers) * n_runs)
-    tasks = [(s, k, run, children[samplers.index(s) * n_runs + run], n_samples, settings[s])
+    runs_dir = None
+    if out_dir is not None:
+        runs_dir = Path(out_dir) / "runs"
+        runs_dir.mkdir(parents=True, exist_ok=True)
+    tasks = [(s, k, run, children[samplers.index(s) * n_runs + run], n_samples, settings[s], runs_dir)
              for s, k in combos for run in range(n_runs)]
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     from tqdm.auto import tqdm
@@ -207,7 +238,7 @@ def run_study(n_runs: int = 10, n_samples: int = 1000, samplers=("SEMC", "SMC"),
     study = CoulombStudy(results, run_times, tables, acceptance, reference, time.perf_counter() - start,
                          Path(out_dir) if out_dir is not None else None, settings)
     if out_dir is not None:
-        write_outputs(study, figures=figures)
+        write_outputs(study, figures=figures, runs=False)   # the workers wrote the runs
     return study
 
 
@@ -265,18 +296,19 @@ def _write_csv(study, path):
                 fh.write(f"{q},{s},{k},{step + 1},{arr[0, step]:.6g},{arr[1, step]:.6g},{p}\n")
 
 
-def write_outputs(study: CoulombStudy, figures: bool = True) -> None:
-    """Write tables (markdown, csv), figures (PNG) and runs (NetCDF) into ``study.out_dir``."""
+def write_outputs(study: CoulombStudy, figures: bool = True, runs: bool = True) -> None:
+    """Write tables (markdown, csv), figures (PNG) and runs (NetCDF, ``runs/``; skipped with
+    ``runs=False``) into ``study.out_dir``."""
     out = study.out_dir
     out.mkdir(parents=True, exist_ok=True)
     (out / "tables.md").write_text(tables_markdown(study))
     _write_csv(study, out / "tables.csv")
     (out / "summary.txt").write_text(summary(study))
-    runs_dir = out / "runs"
-    runs_dir.mkdir(exist_ok=True)
-    for (s, k), runs in study.results.items():
-        for i, result in enumerate(runs):
-            result.to_netcdf(runs_dir / f"{s}_{k}_run{i:02d}.nc")
+    if runs:
+        (out / "runs").mkdir(exist_ok=True)
+        for (s, k), results in study.results.items():
+            for i, result in enumerate(results):
+                result.to_netcdf(_run_file(out / "runs", s, k, i))
     if figures:
         write_figures(study, out)
 
@@ -424,9 +456,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     args = parser.parse_args(argv)
     n_runs = 2 if args.quick else args.runs
+    start = time.perf_counter()
     study = run_study(n_runs=n_runs, n_samples=args.samples, seed=args.seed, out_dir=args.out,
                       workers=args.workers, figures=not args.no_figures)
     print(summary(study))
+    print(f"Wall time with tables, figures and NetCDF: {time.perf_counter() - start:.1f} s")
     return 0
 
 
