@@ -1,7 +1,8 @@
 """The Coulomb-friction study of Sec. 6.4 against the acceptance bullets of issue 3.
 
 One reduced study (3 runs instead of 10, everything else as the paper: N = 1000,
-4 steps, SEMC and SMC, T1 and T2) is run once for the module (~20 s on 2 cores).
+4 steps, SEMC and SMC, T1 and T2) is run once for the module (~20 s on the shared
+2-core machine at load ~5-7; the whole file ~23 s).
 Tolerances on means over runs: with 3 runs the standard error of a run-mean is the
 run-to-run std / sqrt(3); the run-to-run stds measured in the full 10-run study
 (docs/coulomb_friction.md) are <= 0.005 N for F_mu and <= 0.01 rad/s for omega_n, so the
@@ -28,6 +29,9 @@ def study(tmp_path_factory):
 
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
 def test_s1_posterior_means_match_exact_reference(study, sampler):
+    # 10-run study: mean errors <= 0.06 posterior std (SEMC) and 0.02 (SMC); the largest
+    # run-to-run std of a run's error is 0.14 std (SEMC, sigma_phi), so a 3-run mean has a
+    # standard error of 0.08 std and the issue's 0.25 is > 2.3 standard errors away.
     ref = study.reference
     for kernel in ("T1", "T2"):
         means = np.array([r.steps[0].mean() for r in study.results[(sampler, kernel)]])
@@ -58,18 +62,34 @@ def test_t1_is_the_most_probable_kernel_with_semc(study):
 
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
 def test_s1_log_evidence_within_0p3_nats(study, sampler):
+    # 10-run study: SEMC -14.594 +- 0.050, SMC -14.559 +- 0.017 (exact -14.556): the 3-run
+    # mean's error is ~0.04 +- 0.03 nats, far inside the issue's 0.3.
     z = np.array([r.log_evidence[0] for r in study.results[(sampler, "T1")]])
     assert abs(z.mean() - study.reference.log_evidence) < 0.3, z
 
 
-def test_s4_log_evidence_spread_is_small(study):
-    # Full 10-run study (docs/coulomb_friction.md): std at s = 4 is 0.17/0.12 (SMC),
-    # 0.46/0.62 (SEMC T1/T2) nats. The sample std of 3 runs has a chi(2) sampling error
-    # (97.5 % point 1.92 sigma), so 1.25 nats bounds a true std of 0.62 with ~2.5 % risk.
+def test_s4_log_evidence_spread_is_below_half_a_nat(study):
+    # Issue 3: run-to-run std of the cumulative log-evidence at s = 4 below 0.5 nats.
+    # Measured in the 10-run study (docs/coulomb_friction.md): 0.21 / 0.24 (SEMC T1 / T2),
+    # 0.19 / 0.16 (SMC) nats. With 3 runs a single sample std has only 2 degrees of freedom,
+    # so the bullet is asserted on the std pooled over the four (sampler, kernel) cells
+    # (8 degrees of freedom): if every true std is <= 0.24, P(pooled > 0.5) =
+    # P(chi2_8 > 8 (0.5/0.24)^2 = 34.7) ~ 3e-5. Each cell alone must stay below 0.75
+    # (P(chi2_2 > 2 (0.75/0.24)^2) = exp(-9.8) ~ 6e-5 per cell); the paper's are 5-31 nats.
+    variances = []
     for sampler in ("SEMC", "SMC"):
         for kernel in ("T1", "T2"):
             z4 = np.array([r.log_evidence[-1] for r in study.results[(sampler, kernel)]])
-            assert z4.std(ddof=1) < 1.25, (sampler, kernel, z4)
+            assert z4.std(ddof=1) < 0.75, (sampler, kernel, z4)
+            variances.append(z4.var(ddof=1))
+    assert math.sqrt(np.mean(variances)) < 0.5, variances
+
+
+def test_single_blas_thread_limits_blas():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    with study_mod.single_blas_thread():
+        blas = [p for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
+        assert blas and all(p["num_threads"] == 1 for p in blas)
 
 
 def test_outputs_written(study):
