@@ -67,7 +67,12 @@ class SamplerConfig:
     tempering : bool
         Adaptive tempering inside a step (default); ``False`` is the paper's single reweighting.
     tempering_ess : float
-        Target ESS fraction of each tempering stage.
+        Target ESS fraction of each tempering stage (0.5).
+    tempering_threshold : float
+        Tempering starts only when assimilating the rest of the dataset at once would leave
+        less than this ESS fraction (0.1): a milder reweighting is done in one stage, whose
+        resampled duplicates the moves then spread (fewer resamplings, less Monte Carlo
+        error on static parameters).
     ess_threshold : float
         Resample at the last stage when ESS < ``ess_threshold * N`` (authors' code: 0.5).
     resampling : str
@@ -119,6 +124,7 @@ class SamplerConfig:
     n_samples: int = 1000
     tempering: bool = True
     tempering_ess: float = 0.5
+    tempering_threshold: float = 0.1
     ess_threshold: float = 0.5
     resampling: str = "systematic"
     predictive: str = "transition"
@@ -145,6 +151,8 @@ class SamplerConfig:
             raise ValueError(f"evidence: expected 'importance' or 'path', got {self.evidence!r}")
         if not 0.0 <= self.min_valid_fraction <= 1.0:
             raise ValueError(f"min_valid_fraction: must lie in [0, 1], got {self.min_valid_fraction}")
+        if not 0.0 < self.tempering_threshold <= self.tempering_ess:
+            raise ValueError(f"tempering_threshold: must lie in (0, tempering_ess], got {self.tempering_threshold}")
         for name in ("tempering_ess", "ess_threshold"):
             value = getattr(self, name)
             if not 0.0 < value <= 1.0:
@@ -225,16 +233,20 @@ def _check_dataset(dataset, step):
         raise ValueError(f"dataset: step {step} got an empty dataset")
 
 
-def _next_increment(log_weights, loglike, remaining, target_fraction):
-    """Largest ``dbeta <= remaining`` whose reweighting keeps ESS >= target x ESS(0+) (bisection)."""
+def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_fraction):
+    """The next tempering increment (relative to ESS(0+), the ESS once zero-likelihood particles drop).
+
+    The whole ``remaining`` exponent is taken when it keeps ESS >= ``threshold_fraction``;
+    otherwise the largest increment keeping ESS >= ``target_fraction``, found by bisection."""
     finite = np.isfinite(loglike)
 
     def ess_at(delta):
         return ess(np.where(finite, log_weights + delta * np.where(finite, loglike, 0.0), -np.inf))
 
-    target = target_fraction * ess(np.where(finite, log_weights, -np.inf))
-    if ess_at(remaining) >= target:
+    ess_0 = ess(np.where(finite, log_weights, -np.inf))
+    if ess_at(remaining) >= threshold_fraction * ess_0:
         return remaining
+    target = target_fraction * ess_0
     lo, hi = 0.0, remaining
     for _ in range(60):
         mid = 0.5 * (lo + hi)
@@ -414,8 +426,8 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     step_size, n_virtual, temperatures, resampled = state.step_size, 0, [], False
     while beta < 1.0:
         remaining = 1.0 - beta
-        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess)
-                 if config.tempering else remaining)
+        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
+                                 config.tempering_threshold) if config.tempering else remaining)
         if remaining - delta < 1e-12:
             delta = remaining
         finite = np.isfinite(components[:, 0])

@@ -136,7 +136,7 @@ def test_csv_and_netcdf_give_the_same_table_and_digest(tmp_path):
     cfg = load_config(write(tmp_path))
     t = np.linspace(0, 1, 7)
     y = np.cos(t)
-    (tmp_path / "d.csv").write_text("y,extra,t\n" + "".join(f"{b!r},0,{a!r}\n" for a, b in zip(t, y)))
+    (tmp_path / "d.csv").write_text("y,extra,t\n" + "".join(f"{float(b)!r},0,{float(a)!r}\n" for a, b in zip(t, y)))
     xr.Dataset({"t": ("row", t), "y": ("row", y)}).to_netcdf(tmp_path / "d.nc", engine="h5netcdf")
     a = read_datafile(tmp_path / "d.csv", cfg)
     b = read_datafile(tmp_path / "d.nc", cfg)
