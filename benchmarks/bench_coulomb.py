@@ -1,27 +1,113 @@
 """Wall time of the Coulomb-friction study (issue 3) and of one sampler run.
 
-    .venv/bin/python benchmarks/bench_coulomb.py [--runs 10] [--workers 2]
+    .venv/bin/python benchmarks/bench_coulomb.py [--runs 10] [--workers 2] [--single 4]
+                                                 [--blas-threads] [--skip-study] [--profile]
 
-Prints: full-study wall time (runs x {SEMC, SMC} x {T1, T2}, N = 1000, 4 steps), the
-per-sampler-run times, the likelihood cost per call at N = 1000, and the s = 1 accuracy
-against the exact reference. Targets of issue 3: study < 60 s, one run < 1.5 s.
+Prints the load average, then:
+
+- the likelihood (Eq. 23) per call at N = 1000 and the phase model (closed form / FFT);
+- ``--single K``: K sampler runs per sampler (4 steps, N = 1000, kernel T1) in this
+  process, one BLAS thread (as the study runs them), wall and CPU time; with
+  ``--blas-threads`` also with the BLAS library's default thread count;
+- ``--profile``: where the time of one SEMC and one SMC run goes (cProfile, grouped into
+  the likelihood, the core's mixture density, the prior, the rest);
+- the full study (runs x {SEMC, SMC} x {T1, T2}, N = 1000, 4 steps, ``--workers``
+  processes) with the per-run times and the s = 1 accuracy against the exact reference.
+
+Targets of issue 3: study < 60 s, one run < 1.5 s.
 """
 
 import argparse
+import cProfile
+import os
+import pstats
+import resource
 import time
 import timeit
 
 import numpy as np
 
+import seqbayes
 from seqbayes.models import coulomb as cf
 from seqbayes.studies import coulomb as study_mod
+
+
+def _cpu():
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def _one(name, seed, data):
+    cls = getattr(seqbayes, name)
+    return cls(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000, rng=np.random.default_rng(seed)).run(data)
+
+
+def single_runs(k, data, limit):
+    for name in ("SEMC", "SMC"):
+        walls, cpus = [], []
+        for seed in range(k):
+            ctx = study_mod.single_blas_thread() if limit else _Null()
+            with ctx:
+                w, c = time.perf_counter(), _cpu()
+                _one(name, 100 + seed, data)
+                walls.append(time.perf_counter() - w)
+                cpus.append(_cpu() - c)
+        label = "1 BLAS thread" if limit else "default BLAS threads"
+        print(f"  {name:4s} one run (4 steps, N = 1000, T1), {label}: wall {np.median(walls):.2f} s median "
+              f"({min(walls):.2f}-{max(walls):.2f}), CPU {np.median(cpus):.2f} s median; "
+              f"load {os.getloadavg()[0]:.1f}")
+
+
+class _Null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+# Disjoint leaves of the call tree (none calls another), by cumulative time.
+_LEAVES = {
+    "likelihood": ("models/coulomb.py", "loglike"),
+    "mixture density (core)": ("density.py", "logpdf"),
+    "prior logpdf (core + scipy.stats)": ("priors.py", "logpdf"),
+}
+_SWEEPS = (("moves/stretch.py", "stretch_sweep"), ("moves/gaussian.py", "gaussian_sweep"))
+
+
+def profile(data):
+    for name in ("SEMC", "SMC"):
+        with study_mod.single_blas_thread():
+            _one(name, 7, data)
+            pr = cProfile.Profile()
+            pr.enable()
+            _one(name, 8, data)
+            pr.disable()
+        stats = pstats.Stats(pr).stats
+
+        def cum(file_part, func):
+            return sum(v[3] for (f, _, fn), v in stats.items() if file_part in f and fn == func)
+
+        total = cum("sequential.py", "run")
+        leaves = {label: cum(*key) for label, key in _LEAVES.items()}
+        sweeps = sum(cum(*key) for key in _SWEEPS)
+        print(f"  {name} one run under cProfile {total:.2f} s: "
+              + ", ".join(f"{label} {t:.2f} s ({t / total:.0%})" for label, t in leaves.items())
+              + f", rest (move, tempering, evidence and resampling code) {total - sum(leaves.values()):.2f} s"
+              f" ({(total - sum(leaves.values())) / total:.0%}); the MCMC sweeps including their density and"
+              f" likelihood calls {sweeps:.2f} s ({sweeps / total:.0%})")
 
 
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--single", type=int, default=4, help="single sampler runs per sampler (0: skip)")
+    parser.add_argument("--blas-threads", action="store_true", help="also time single runs with default BLAS threads")
+    parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--skip-study", action="store_true")
     args = parser.parse_args()
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     data = cf.load_experiment()
     rng = np.random.default_rng(0)
     theta = np.column_stack([rng.uniform(0.01, 1.5, 1000), rng.uniform(19, 20, 1000),
@@ -33,11 +119,20 @@ def main():
     t_exact = min(timeit.repeat(lambda: cf.phase_model(theta[:, 0], data[0].r_exp), number=50, repeat=5)) / 50
     print(f"loglike, N = 1000 x 9 ratios: {t_ll * 1e3:.2f} ms per call")
     print(f"phase model N = 1000 x 9: exact coefficient {t_exact * 1e3:.2f} ms, FFT (1024 points) {t_fft * 1e3:.0f} ms")
+    if args.single > 0:
+        single_runs(args.single, data, limit=True)
+        if args.blas_threads:
+            single_runs(args.single, data, limit=False)
+    if args.profile:
+        profile(data)
+    if args.skip_study:
+        return
+    load0 = os.getloadavg()[0]
     start = time.perf_counter()
     study = study_mod.run_study(n_runs=args.runs, out_dir=None, progress=True, workers=args.workers)
     wall = time.perf_counter() - start
     print(f"full study ({args.runs} runs x 2 samplers x 2 kernels, N = 1000, 4 steps, "
-          f"{args.workers} processes): {wall:.1f} s")
+          f"{args.workers} processes, no output files): {wall:.1f} s; load {load0:.1f} -> {os.getloadavg()[0]:.1f}")
     for key, times in study.run_times.items():
         evals = np.mean([sum(i.n_loglike_evals for i in r.infos) for r in study.results[key]])
         print(f"  {key[0]:4s} {key[1]}: per run {times.mean():.2f} s mean, {times.min():.2f}-{times.max():.2f} s; "
