@@ -28,7 +28,7 @@ import numpy as np
 
 from ..models import coulomb as model
 
-__all__ = ["SAMPLER_SETTINGS", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
+__all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
 
 #: Settings passed to the samplers (fields of ``seqbayes.SamplerConfig``); empty = the core's
 #: defaults (adaptive tempering, and the evidence increment re-estimated by importance
@@ -61,6 +61,30 @@ PAPER = {
     ("sigma_r", "SEMC", "T2"): (0.383, 0.357, 0.357, 0.356),
     ("sigma_r", "SMC", "T1"): (0.393, 0.248, 0.170, 0.156),
     ("sigma_r", "SMC", "T2"): (0.408, 0.311, 0.203, 0.161),
+}
+
+#: The "Stdev." columns of the paper's Tables 4-13, same keys as :data:`PAPER`.
+PAPER_STD = {
+    ("log_evidence", "SEMC", "T1"): (5.210, 9.020, 13.738, 18.829),
+    ("log_evidence", "SEMC", "T2"): (5.212, 13.052, 19.356, 25.783),
+    ("log_evidence", "SMC", "T1"): (5.212, 8.399, 15.436, 30.674),
+    ("log_evidence", "SMC", "T2"): (5.209, 10.501, 18.207, 26.252),
+    ("F_mu", "SEMC", "T1"): (0.019, 0.012, 0.007, 0.004),
+    ("F_mu", "SEMC", "T2"): (0.024, 0.007, 0.003, 0.003),
+    ("F_mu", "SMC", "T1"): (0.070, 0.094, 0.108, 0.095),
+    ("F_mu", "SMC", "T2"): (0.108, 0.026, 0.056, 0.083),
+    ("omega_n", "SEMC", "T1"): (1.198, 1.220, 1.202, 1.198),
+    ("omega_n", "SEMC", "T2"): (1.590, 1.583, 1.504, 1.531),
+    ("omega_n", "SMC", "T1"): (1.844, 1.750, 1.540, 1.025),
+    ("omega_n", "SMC", "T2"): (1.908, 1.741, 1.237, 1.978),
+    ("sigma_phi", "SEMC", "T1"): (0.199, 0.183, 0.190, 0.196),
+    ("sigma_phi", "SEMC", "T2"): (0.275, 0.296, 0.295, 0.294),
+    ("sigma_phi", "SMC", "T1"): (0.686, 0.686, 0.638, 0.660),
+    ("sigma_phi", "SMC", "T2"): (0.683, 0.658, 0.665, 0.682),
+    ("sigma_r", "SEMC", "T1"): (0.053, 0.052, 0.054, 0.052),
+    ("sigma_r", "SEMC", "T2"): (0.108, 0.111, 0.119, 0.118),
+    ("sigma_r", "SMC", "T1"): (0.144, 0.140, 0.149, 0.140),
+    ("sigma_r", "SMC", "T2"): (0.252, 0.246, 0.267, 0.226),
 }
 
 _QUANTITIES = ("log_evidence",) + model.PARAMETER_NAMES
@@ -255,7 +279,7 @@ _TRUE = {"F_mu": model.MEASURED_FORCES, "omega_n": (model.OMEGA_N,) * 4}
 
 
 def tables_markdown(study: CoulombStudy) -> str:
-    """The analogues of Tables 4-13 (mean +- std over runs), with the paper's means beside."""
+    """The analogues of Tables 4-13 (mean +- std over runs), with the paper's mean +- Stdev. beside."""
     combos = list(study.results)
     n_runs = len(next(iter(study.results.values())))
     lines = [f"Runs per (sampler, kernel): {n_runs}; samples per run: "
@@ -274,9 +298,10 @@ def tables_markdown(study: CoulombStudy) -> str:
             row = f"| {step + 1} |" + (f" {_TRUE[q][step]:.4g} |" if q in _TRUE else "")
             for s, k in combos:
                 m, sd = study.tables[(q, s, k)][:, step]
-                paper = PAPER.get((q, s, k))
+                paper, paper_sd = PAPER.get((q, s, k)), PAPER_STD.get((q, s, k))
                 fmt = ".4f" if q == "sigma_r" else ".3f"
-                row += f" {m:{fmt}} +- {sd:{fmt}} | {paper[step]:{fmt}} |" if paper else f" {m:{fmt}} +- {sd:{fmt}} | - |"
+                cell = f"{paper[step]:{fmt}} +- {paper_sd[step]:{fmt}}" if paper else "-"
+                row += f" {m:{fmt}} +- {sd:{fmt}} | {cell} |"
             lines.append(row)
         lines.append("")
     ref = study.reference
@@ -288,11 +313,11 @@ def tables_markdown(study: CoulombStudy) -> str:
 
 def _write_csv(study, path):
     with open(path, "w") as fh:
-        fh.write("quantity,sampler,kernel,step,mean,std,paper_mean\n")
+        fh.write("quantity,sampler,kernel,step,mean,std,paper_mean,paper_std\n")
         for (q, s, k), arr in study.tables.items():
-            paper = PAPER.get((q, s, k))
+            paper, paper_sd = PAPER.get((q, s, k)), PAPER_STD.get((q, s, k))
             for step in range(arr.shape[1]):
-                p = "" if paper is None else f"{paper[step]}"
+                p = "," if paper is None else f"{paper[step]},{paper_sd[step]}"
                 fh.write(f"{q},{s},{k},{step + 1},{arr[0, step]:.6g},{arr[1, step]:.6g},{p}\n")
 
 
