@@ -6,8 +6,9 @@
 Prints the load average, then:
 
 - the likelihood (Eq. 23) per call at N = 1000 and the phase model (closed form / FFT);
-- ``--single K``: K sampler runs per sampler (4 steps, N = 1000, kernel T1) in this
-  process, one BLAS thread (as the study runs them), wall and CPU time; with
+- ``--single K``: K sampler runs per sampler (4 steps, N = 1000, kernel T1, the study's
+  sampler settings) in this process, one BLAS thread (as the study runs them), wall and
+  CPU time; with
   ``--blas-threads`` also with the BLAS library's default thread count;
 - ``--profile``: where the time of one SEMC and one SMC run goes (cProfile, grouped into
   the likelihood, the core's mixture density, the prior, the rest);
@@ -38,8 +39,10 @@ def _cpu():
 
 
 def _one(name, seed, data):
+    """One run with the study's settings (``study_mod.SAMPLER_SETTINGS``)."""
     cls = getattr(seqbayes, name)
-    return cls(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000, rng=np.random.default_rng(seed)).run(data)
+    return cls(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000, rng=np.random.default_rng(seed),
+               **study_mod.SAMPLER_SETTINGS[name]).run(data)
 
 
 def single_runs(k, data, limit):

@@ -101,10 +101,11 @@ def single_blas_thread():
     """Context manager limiting BLAS to one thread (``threadpoolctl``; a no-op without it).
 
     The samplers' predictive-mixture density is a single-precision matrix product with an
-    inner dimension of 4 (the parameters), which gains nothing from BLAS threads; with two
-    OpenBLAS threads per process on the shared 2-core machine one SMC run took 2.8-3.2 s
-    instead of 1.4 s (load ~9, ``benchmarks/bench_coulomb.py --blas-threads``), and the study's
-    two worker processes would oversubscribe the cores further.
+    inner dimension of 4 (the parameters). On the shared 2-core machine at load ~9, one SMC
+    run with OpenBLAS's default two threads took 2.8-3.2 s (CPU 1.9-2.1 s) against 1.4 s
+    (CPU 0.9 s) with one; at load ~3.5 the two were equal within noise
+    (``benchmarks/bench_coulomb.py --blas-threads``). The study's two worker processes with
+    two BLAS threads each would oversubscribe the two cores whatever the load.
     """
     try:
         from threadpoolctl import threadpool_limits
