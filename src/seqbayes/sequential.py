@@ -1,27 +1,30 @@
 """The on-line engine shared by :class:`SMC` and :class:`SEMC`.
 
-One dataset ``D^s`` is assimilated by the pure function :func:`assimilate`:
+One dataset ``D^s`` is assimilated by the pure function :func:`assimilate`
+(docs/core.md explains each choice with its measurements):
 
-1. the prior particles (prior draws at ``s = 1``, predictive draws of Eq. A3
-   after) are reweighted by the likelihood (Eq. A4-A5), in adaptive tempering
-   stages ``beta_0 = 0 < beta_1 < ... < 1`` when the data are sharp, each
-   exponent chosen by bisection so that the ESS falls to a target fraction;
-2. after each stage the particles are resampled (always at an intermediate
-   stage, when the ESS is below the threshold at the last) and moved by an MCMC
-   kernel that leaves ``L(theta)^beta p_s(theta)`` invariant: one Gaussian
-   random-walk MH step for SMC (Eq. A6-A8), stretch-move sweeps with the adaptive
-   step size and "virtual iterations" of Algorithm 2 for SEMC;
-3. the log-evidence increment is the sum of the stages' ``log sum W_i L_i^dbeta``
-   (Eq. 1 in the log domain);
-4. the posterior is propagated through the Markov kernel (Eq. A2) and the
-   predictive density (Eq. A3, A9) becomes the next step's prior.
+1. The prior particles (prior draws at ``s = 1``, predictive draws of Eq. A3
+   after) are weighted by the likelihood (Eq. A4-A5). If few of them have a
+   non-zero likelihood, or the kernel carried some out of the parameter space,
+   the step restarts from the prior restricted to ``{inside, L > 0}``.
+2. The likelihood enters in one stage, or, when that would leave less than 10 %
+   of the ESS, in adaptive tempering stages ``0 < beta_1 < ... < 1`` chosen by
+   bisection on the ESS.
+3. After each stage the particles are resampled (always at an intermediate
+   stage; at the last when the ESS is below the threshold) and moved by an MCMC
+   kernel that leaves ``L^beta p_s`` invariant, in log/logit coordinates of
+   bounded parameters: Gaussian random-walk MH for SMC (Eq. A6-A8), stretch-move
+   sweeps with the adaptive step size and "virtual iterations" of Algorithm 2
+   for SEMC.
+4. The evidence increment is estimated by defensive importance sampling from
+   the final posterior (:mod:`seqbayes.evidence`), whose proposal also drives
+   independence-MH sweeps; the stages' product of mean weights (Eq. 1) is kept
+   as the "path" estimate.
+5. The posterior is propagated through the Markov kernel (Eq. A2), and the
+   predictive density (Eq. A3) becomes the next step's prior.
 
-The parameter space is the initial prior's support. The likelihood is zero
-outside it: a proposal outside is rejected, and when the kernel carries
-predictive draws outside, the step starts from fresh draws of the predictive
-density restricted to the space (rejection sampling) and the evidence increment
-includes the log of the mass left inside. A kernel that predicts impossible
-parameters is thereby penalised in model selection.
+The parameter space is the initial prior's support and the likelihood is zero
+outside it, so a kernel that predicts impossible parameters loses evidence.
 
 The drivers :class:`SMC` and :class:`SEMC` hold the current :class:`SamplerState`
 and call :func:`assimilate`.
@@ -418,9 +421,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         particles, loglike, log_restricted_mass = _restricted_draws(state.prior, problem.support, n, rng, step,
                                                                     counter)
         log_weights = np.full(n, -np.log(n))
-    inside = np.ones(n, dtype=bool)
-    prior_component = np.where(inside, state.prior.logpdf(particles), -np.inf)
-    components = np.column_stack([loglike, prior_component])
+    components = np.column_stack([loglike, state.prior.logpdf(particles)])  # every particle is inside now
 
     beta, log_z, stats = 0.0, 0.0, SweepStats()
     step_size, n_virtual, temperatures, resampled = state.step_size, 0, [], False
