@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_coulomb.py [--runs 10] [--workers 2] [--single 4]
                                                  [--blas-threads] [--skip-study] [--profile]
+                                                 [--threshold-scan 40]
 
 Prints the load average, then:
 
@@ -12,6 +13,9 @@ Prints the load average, then:
   ``--blas-threads`` also with the BLAS library's default thread count;
 - ``--profile``: where the time of one SEMC and one SMC run goes (cProfile, grouped into
   the likelihood, the core's mixture density, the prior, the rest);
+- ``--threshold-scan K``: step 1 only, K seeds per sampler, with the core's default
+  ``tempering_threshold`` (0.1) and the study's 0.5: log-evidence and the largest error of
+  the posterior means (in exact posterior stds) against the exact reference;
 - the full study (runs x {SEMC, SMC} x {T1, T2}, N = 1000, 4 steps, ``--workers``
   processes) with the per-run times and the s = 1 accuracy against the exact reference.
 
@@ -101,6 +105,32 @@ def profile(data):
               f" likelihood calls {sweeps:.2f} s ({sweeps / total:.0%})")
 
 
+def threshold_scan(k, data):
+    import warnings
+
+    d = data[0]
+    ref = cf.reference_posterior(d, n_grid=20001)
+    seeds = np.random.SeedSequence(2023).spawn(k)
+    with warnings.catch_warnings(), study_mod.single_blas_thread():
+        warnings.simplefilter("ignore", RuntimeWarning)   # the core's path-evidence fallback warning
+        for threshold in (0.1, 0.5):
+            for name in ("SEMC", "SMC"):
+                z, err, ess = [], [], []
+                for seed in seeds:
+                    smp = getattr(seqbayes, name)(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000,
+                                                  rng=np.random.default_rng(seed), tempering_threshold=threshold)
+                    info = smp.update(d)
+                    z.append(info.log_evidence)
+                    ess.append(info.evidence_ess)
+                    err.append(np.max(np.abs(smp.result.steps[-1].mean() - ref.mean) / ref.std))
+                z, err, ess = map(np.array, (z, err, ess))
+                low = np.flatnonzero(ess < 100)
+                print(f"  tempering_threshold {threshold}, {name:4s}, {k} seeds at s = 1: log-evidence "
+                      f"{z.mean():.3f} +- {z.std(ddof=1):.3f} (exact {ref.log_evidence:.3f}, largest error "
+                      f"{np.max(np.abs(z - ref.log_evidence)):.2f}); largest mean error {err.max():.2f} sd "
+                      f"(median {np.median(err):.2f}); importance ESS < 100 in seeds {low.tolist()}")
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--runs", type=int, default=10)
@@ -109,6 +139,7 @@ def main():
     parser.add_argument("--blas-threads", action="store_true", help="also time single runs with default BLAS threads")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--skip-study", action="store_true")
+    parser.add_argument("--threshold-scan", type=int, default=0, help="seeds for the tempering_threshold scan (0: skip)")
     args = parser.parse_args()
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     data = cf.load_experiment()
@@ -128,6 +159,8 @@ def main():
             single_runs(args.single, data, limit=False)
     if args.profile:
         profile(data)
+    if args.threshold_scan > 0:
+        threshold_scan(args.threshold_scan, data)
     if args.skip_study:
         return
     load0 = os.getloadavg()[0]
