@@ -58,9 +58,9 @@ first Fourier coefficient is ``c1 = (1/pi) int_0^pi x(tau) exp(-i tau) dtau``, w
 integrand is a sum of exponentials (Eq. 18), so it has a closed form
 (:func:`_first_harmonic`). ``method="exact"`` (default) uses it; ``method="fft"``
 follows Algorithm 3 with ``n_fft`` points. They agree within 1e-3 degree for
-``n_fft = 1024`` over the continuous regime (tested); the closed form is about
-50 times faster and is the default. Eq. (27) as printed gives the argument of
-the response minus that of the excitation, a negative number for a lag; we
+``n_fft = 1024`` over the continuous regime (tested); the closed form is over
+1000 times faster (0.36 ms against 640-700 ms for 1000 x 9 values) and is the
+default. Eq. (27) as printed gives the argument of the response minus that of the excitation, a negative number for a lag; we
 return the lag, ``phi = arg Y(1) - arg X(1)``, in degrees in ``[-90, 270)``, which is the
 sign and range of the measured ``phi`` (0-180 degrees).
 """
