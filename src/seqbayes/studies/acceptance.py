@@ -38,7 +38,14 @@ and ``u`` means something else), virtual iterations of one sweep until
 per stage and would dominate the step-size loop), the tempering path's evidence
 (no importance-sampling draws, whose independence-MH sweep would refresh
 identical copies) and no restricted restart when few particles have a non-zero
-likelihood. One configuration runs with the library defaults for comparison.
+likelihood. Tempering (when on) starts as soon as a one-stage reweighting would
+leave less than 50% of the ESS (``tempering_threshold=0.5``, as the Coulomb
+study): the core's default of 10% is relative to the particles with a non-zero
+likelihood, and without the restricted restart only ~1.5% of the Coulomb prior
+draws have one, so at N = 500 the default takes step 1 in one stage in most
+runs and the ensemble collapses onto 1-10 points, as untempered (measured:
+docs/acceptance_rates.md). One configuration runs with the library defaults
+for comparison.
 
 ``seqbayes example acceptance [--seeds 5] [--out DIR] [--quick]``
 """
@@ -61,7 +68,7 @@ TARGETS = (0.100, 0.283, 0.440, 0.800, 0.900, 1.000)
 START_STEP_SIZES = (40.0, 40.0, 8.0, 2.0, 2.0, 2.0)
 #: SEMC settings that make the library's sampler the paper's Algorithm 2 (see the module doc)
 PAPER_SETTINGS = {"transform": False, "moved_fraction": 0.0, "n_moves": 1, "evidence": "path",
-                  "min_valid_fraction": 0.0}
+                  "min_valid_fraction": 0.0, "tempering_threshold": 0.5}
 #: named sampler settings a configuration can use ("defaults": the library's SamplerConfig defaults)
 SETTINGS = {"paper": PAPER_SETTINGS, "defaults": {}}
 #: (problem, N, tempering, settings) configurations of the full study
@@ -127,34 +134,6 @@ def _problem(name):
     raise ValueError(f"problem: expected 'coulomb' or 'oscillator', got {name!r}")
 
 
-class _MoveEvaluations:
-    """The problem's log-likelihood, counting the evaluations made by the stretch sweeps.
-
-    ``StepInfo.n_loglike_evals`` also counts the evaluations of the step's starting
-    particles, of a restricted restart and of the importance-sampling draws; the
-    proposals that left the prior box (rejected without evaluation) are the
-    proposals made minus identical-partner proposals minus those evaluated by the
-    sweeps, so the sweeps' own count is needed. The core does not report it per
-    step (its ``SweepStats.n_evaluations`` stays inside the step), so this wrapper
-    counts a call as a sweep's when ``stretch_sweep`` is on the call stack.
-    """
-
-    def __init__(self, loglike):
-        self.loglike = loglike
-        self.count = 0
-
-    def __call__(self, theta, dataset):
-        frame = sys._getframe(1)
-        for _ in range(12):
-            if frame is None:
-                break
-            if frame.f_code.co_name == "stretch_sweep":
-                self.count += theta.shape[0]
-                break
-            frame = frame.f_back
-        return self.loglike(theta, dataset)
-
-
 def run_config(problem: str, n_samples: int, tempering: bool, target: float, step_size: float, seed: int,
                settings: str = "paper") -> dict:
     """One SEMC run; returns per-step counts and rates (arrays of length S).
@@ -168,14 +147,12 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
         raise ValueError(f"settings: expected one of {sorted(SETTINGS)}, got {settings!r}")
     prior, kernel, loglike, datasets = _problem(problem)
     dim = prior.support.shape[0]
-    counted = _MoveEvaluations(loglike)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(int(1000 * target), n_samples)))
-    sampler = SEMC(prior, kernel, counted, n_samples=n_samples, rng=rng, target_acceptance=target,
+    sampler = SEMC(prior, kernel, loglike, n_samples=n_samples, rng=rng, target_acceptance=target,
                    step_size=step_size, tempering=tempering, **SETTINGS[settings])
     rows = []
     failed_step = 0
     for s, dataset in enumerate(datasets):
-        before = counted.count
         try:
             info = sampler.update(dataset)
         except ZeroLikelihoodError:
@@ -184,7 +161,11 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
             failed_step = s + 1
             rows += [(np.nan,) * 9] * (len(datasets) - s)
             break
-        n_outside = info.n_proposed - info.n_identical_partner - (counted.count - before)
+        # a proposal outside the prior box is rejected without a likelihood evaluation, so the
+        # out-of-box proposals are those made minus identical-partner ones (not evaluated either)
+        # minus those the stretch sweeps evaluated (StepInfo.n_move_evaluations, which excludes
+        # the starting, restart and importance-sampling evaluations)
+        n_outside = info.n_proposed - info.n_identical_partner - info.n_move_evaluations
         rows.append((info.acceptance_rate, info.n_accepted, info.n_identical_partner, info.n_proposed, n_outside,
                      info.step_size, info.n_virtual, info.n_stages, info.n_distinct))
     arr = np.array(rows, dtype=float)
