@@ -103,6 +103,10 @@ class SamplerConfig:
         Independence-MH sweeps (3) at the end of a step with ``evidence="importance"``
         (proposals from the posterior-fitted importance density; each sweep after the
         first costs N likelihood evaluations).
+    min_evidence_ess, max_refits : float, int
+        When the importance ESS is below ``min_evidence_ess * N`` (0.3), the importance
+        density is refitted to the swept particles and the estimate repeated, up to
+        ``max_refits`` (5) times.
         With 1 (the paper's SMC) the error of a static parameter after 5 steps grows ~1.5x.
     proposal_scale : float
         SMC's ``gamma`` of Eq. (A7).
@@ -144,6 +148,8 @@ class SamplerConfig:
     moved_fraction: float = 0.9
     max_moves: int = 30
     n_independent: int = 3
+    min_evidence_ess: float = 0.3
+    max_refits: int = 5
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -172,6 +178,8 @@ class SamplerConfig:
             raise ValueError("max_virtual, max_moves and n_moves: must be >= 1")
         if self.move == "gaussian" and self.n_moves > self.max_moves:
             raise ValueError(f"n_moves: {self.n_moves} exceeds max_moves {self.max_moves}")
+        if not 0.0 <= self.min_evidence_ess <= 1.0 or self.max_refits < 0:
+            raise ValueError("min_evidence_ess must lie in [0, 1] and max_refits be >= 0")
         if self.n_independent < 1:
             raise ValueError(f"n_independent: must be >= 1, got {self.n_independent}")
         if not 0.0 <= self.moved_fraction <= 1.0:
@@ -451,9 +459,15 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
     log_increment, evidence_ess, n_independent = log_increment_path, float("nan"), 0
     if config.evidence == "importance":
-        log_increment, evidence_ess, particles, components, n_independent = importance_step(
-            particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng,
-            config.n_independent)
+        for _ in range(1 + config.max_refits):
+            # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
+            # them and estimate again (each q is independent of its own draws, so every estimate is valid)
+            log_increment, evidence_ess, particles, components, accepted = importance_step(
+                particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng,
+                config.n_independent)
+            n_independent += accepted
+            if evidence_ess >= config.min_evidence_ess * n:
+                break
         if not evidence_ess >= max(10.0, 0.01 * n):  # a collapsed or degenerate posterior: q cannot be fitted
             warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
                           f"{int(np.unique(particles, axis=0).shape[0])} distinct particles); using the tempering "
