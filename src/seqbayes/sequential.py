@@ -369,8 +369,8 @@ def _inside(points, support) -> np.ndarray:
 
 def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
     """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
-    by rejection, their log-likelihoods, and the log of the restricted prior mass (the acceptance
-    fraction of the rejection sampler)."""
+    by rejection, their log-likelihoods, the log of the restricted prior mass (the acceptance
+    fraction of the rejection sampler) and the number of distinct draws found."""
     kept, kept_ll, n_drawn, n_kept = [], [], 0, 0
     while n_kept < n and n_drawn < max_rounds * n:
         draws = prior.sample(n, rng)
@@ -388,10 +388,10 @@ def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
             f"non-zero likelihood); the {'prior' if step == 1 else 'predictive distribution'} is too far "
             f"from the data")
     kept, kept_ll = np.concatenate(kept), np.concatenate(kept_ll)
-    if n_kept < n:  # almost no mass: duplicate what there is
+    if n_kept < n:  # almost no mass: duplicate what there is (the caller is told through n_kept)
         index = rng.integers(n_kept, size=n)
         kept, kept_ll = kept[index], kept_ll[index]
-    return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn))
+    return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn)), n_kept
 
 
 def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
@@ -418,7 +418,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     loglike = np.full(n, -np.inf)
     loglike[inside] = counter.loglike(particles[inside])
     valid = np.isfinite(loglike)
-    log_restricted_mass = 0.0
+    log_restricted_mass, n_found = 0.0, n
     if not valid.any() and inside.all():
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood; the "
@@ -426,8 +426,8 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # Few particles can carry the step (predictive mass outside the parameter space, or a zero-likelihood
         # region such as stick-slip): start from the prior restricted to {inside, L > 0} instead.
-        particles, loglike, log_restricted_mass = _restricted_draws(state.prior, problem.support, n, rng, step,
-                                                                    counter)
+        particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
+                                                                             rng, step, counter)
         log_weights = np.full(n, -np.log(n))
     components = np.column_stack([loglike, state.prior.logpdf(particles)])  # every particle is inside now
 
@@ -468,10 +468,12 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
             n_independent += accepted
             if evidence_ess >= config.min_evidence_ess * n:
                 break
-        if not evidence_ess >= max(10.0, 0.01 * n):  # a collapsed or degenerate posterior: q cannot be fitted
+        # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
+        # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
+        if not evidence_ess >= max(10.0, 0.01 * n) or n_found < 0.1 * n:
             warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
-                          f"{int(np.unique(particles, axis=0).shape[0])} distinct particles); using the tempering "
-                          f"path's estimate", RuntimeWarning, stacklevel=3)
+                          f"{n_found} distinct restart draws); using the tempering path's estimate and the "
+                          f"posterior may be degenerate", RuntimeWarning, stacklevel=3)
             log_increment = log_increment_path
     density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
                                              config.shrink_static)
