@@ -245,17 +245,18 @@ def _check_dataset(dataset, step):
 
 
 def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_fraction):
-    """The next tempering increment (relative to ESS(0+), the ESS once zero-likelihood particles drop).
+    """The next tempering increment.
 
-    The whole ``remaining`` exponent is taken when it keeps ESS >= ``threshold_fraction``;
-    otherwise the largest increment keeping ESS >= ``target_fraction``, found by bisection."""
+    The whole ``remaining`` exponent is taken when it keeps ESS >= ``threshold_fraction * N``;
+    otherwise the largest increment keeping ESS >= ``target_fraction`` of ESS(0+) (the ESS once
+    zero-likelihood particles drop out), found by bisection."""
     finite = np.isfinite(loglike)
 
     def ess_at(delta):
         return ess(np.where(finite, log_weights + delta * np.where(finite, loglike, 0.0), -np.inf))
 
     ess_0 = ess(np.where(finite, log_weights, -np.inf))
-    if ess_at(remaining) >= threshold_fraction * ess_0:
+    if ess_at(remaining) >= threshold_fraction * loglike.size:  # of N: a few survivors never qualify
         return remaining
     target = target_fraction * ess_0
     lo, hi = 0.0, remaining
