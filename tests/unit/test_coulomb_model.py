@@ -237,7 +237,6 @@ def _adaptive_importance_sampling(dataset, n=100_000, rng=0):
     # finite-difference Hessian for the proposal covariance
     h = np.array([1e-3, 1e-3, 1e-3, 1e-3])
     hess = np.empty((4, 4))
-    f0 = log_target(mean)[0]
     for i in range(4):
         for j in range(4):
             ei, ej = np.eye(4)[i] * h[i], np.eye(4)[j] * h[j]

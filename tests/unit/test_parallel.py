@@ -118,7 +118,7 @@ def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     cfg = load_config(tmp_path / "run.toml")
     tables = [np.column_stack(d[:2]) for d in datasets()]
     local = RunStore.create(tmp_path / "serial.nc", cfg)
-    remote = RunStore.create(tmp_path / "dask.nc", cfg)
+    RunStore.create(tmp_path / "dask.nc", cfg)  # the store the parallel updates continue
     pool, close = cfg.make_executor()   # [parallel] executor = "processes"
     try:
         for i, table in enumerate(tables):

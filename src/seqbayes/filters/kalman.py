@@ -202,6 +202,7 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
     loglik = np.full(N, -0.5 * T * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum()))
     k = 0
     steady = T
+    P_prior = None  # the previous step's predicted covariance (steady-state test)
     while k < T:  # (1) transient: time-varying covariance, channels one at a time
         for j in range(p):
             h = H[:, j, :]
@@ -225,8 +226,6 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
                 steady = k
                 break
         P = P_prior = P_new
-        if k == 1:
-            P_prior = P_new
     if steady < T:  # (2) steady state from step k: frozen gain, one product per step
         S = H @ P @ np.swapaxes(H, 1, 2) + np.eye(p)
         S = 0.5 * (S + np.swapaxes(S, 1, 2))

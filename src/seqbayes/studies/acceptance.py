@@ -56,10 +56,11 @@ import argparse
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from ._runner import map_tasks
 
 __all__ = ["TARGETS", "START_STEP_SIZES", "PAPER_SETTINGS", "SETTINGS", "identical_partner_acceptance", "authors_rate",
            "run_config", "run_study", "bounds_table", "plot", "main"]
@@ -189,7 +190,6 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
     ``step_size``, ``n_virtual``, ``n_stages``, ``n_distinct``.
     """
     import xarray as xr
-    from tqdm.auto import tqdm
 
     if int(seeds) < 1:
         raise ValueError(f"seeds: must be at least 1, got {seeds}")
@@ -201,18 +201,7 @@ def run_study(configs=CONFIGS, seeds: int = 5, workers: int | None = None, progr
     # longest first so that the two workers finish together
     tasks.sort(key=lambda task: -task[1])
     start = time.perf_counter()
-    results = {}
-    bar = tqdm(total=len(tasks), desc="acceptance study", unit="run", disable=not progress)
-    if workers <= 1:
-        for task in tasks:
-            results[task] = run_config(*task)
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for task, res in pool.map(_star, tasks, chunksize=1):
-                results[task] = res
-                bar.update()
-    bar.close()
+    results = dict(map_tasks(_star, tasks, workers, "acceptance study", "run", progress))
     names = [f"{p} N={n}" + ("" if t else " untempered") + ("" if st == "paper" else f" ({st})")
              for (p, n, t, st) in configs]
     n_steps = {p: len(_problem(p)[3]) for p in {c[0] for c in configs}}

@@ -20,12 +20,12 @@ import contextlib
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._runner import map_tasks
 from ..models import coulomb as model
 
 __all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
@@ -238,25 +238,8 @@ def run_study(n_runs: int = 10, n_samples: int = 1000, samplers=("SEMC", "SMC"),
     tasks = [(s, k, run, children[samplers.index(s) * n_runs + run], n_samples, settings[s], runs_dir)
              for s, k in combos for run in range(n_runs)]
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
-    from tqdm.auto import tqdm
-
-    bar = tqdm(total=len(tasks), desc="coulomb runs", unit="run",
-               disable=not (progress and sys.stderr.isatty()))
-    collected = {}
-    if workers <= 1:
-        outputs = map(_one_run, tasks)
-        pool = None
-    else:
-        pool = ProcessPoolExecutor(max_workers=workers)
-        outputs = pool.map(_one_run, tasks)
-    try:
-        for s, k, run, result, dt in outputs:
-            collected[(s, k, run)] = (result, dt)
-            bar.update()
-    finally:
-        bar.close()
-        if pool is not None:
-            pool.shutdown()
+    collected = {(s, k, run): (result, dt)
+                 for s, k, run, result, dt in map_tasks(_one_run, tasks, workers, "coulomb runs", "run", progress)}
     results = {(s, k): tuple(collected[(s, k, r)][0] for r in range(n_runs)) for s, k in combos}
     run_times = {(s, k): np.array([collected[(s, k, r)][1] for r in range(n_runs)]) for s, k in combos}
     tables, acceptance = _tables(results)

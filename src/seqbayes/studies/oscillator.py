@@ -24,12 +24,12 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._runner import map_tasks
 from ..models import oscillator as osc
 
 __all__ = ["SAMPLERS", "KERNELS", "QUANTILES", "DEFAULT_OPTIONS", "run_task", "run_study",
@@ -175,7 +175,6 @@ def run_study(runs: int = 10, n_samples: int = 1000, seed: int = 0, *, kernels=K
         attrs carry the settings and the total wall time.
     """
     import xarray as xr
-    from tqdm.auto import tqdm
 
     if int(runs) < 1:
         raise ValueError(f"runs: must be at least 1, got {runs}")
@@ -196,18 +195,7 @@ def run_study(runs: int = 10, n_samples: int = 1000, seed: int = 0, *, kernels=K
 
     tasks = [(seed, r, k, s, n_samples, opts[s]) for r in range(runs) for k in kernels for s in samplers]
     start = time.perf_counter()
-    results = []
-    bar = tqdm(total=len(tasks), desc="oscillator study", unit="task", disable=not progress)
-    if workers <= 1:
-        for task in tasks:
-            results.append(run_task(*task))
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for res in pool.map(_task_star, tasks, chunksize=1):
-                results.append(res)
-                bar.update()
-    bar.close()
+    results = map_tasks(_task_star, tasks, workers, "oscillator study", "task", progress)
     total = time.perf_counter() - start
 
     S, H, Q = len(osc.INSPECTION_TIMES), len(osc.FORECAST_TIMES), len(QUANTILES)
@@ -604,8 +592,6 @@ def evidence_check(run: int = 0, kernel: str = "T1", replicates: int = 10, n_sam
     (``log_evidence_increment_path``) and the importance-sampling ESS; ``exact_step1`` is
     ``log p(D^1)`` by quadrature (:func:`seqbayes.models.oscillator.exact_log_evidence`).
     """
-    from tqdm.auto import tqdm
-
     if int(replicates) < 2:
         raise ValueError(f"replicates: must be at least 2, got {replicates}")
     if kernel not in KERNELS:
@@ -615,18 +601,7 @@ def evidence_check(run: int = 0, kernel: str = "T1", replicates: int = 10, n_sam
     problem = osc.make_problem(np.random.default_rng(_problem_seed(seed, run)))
     tasks = [(seed, run, kernel, s, n_samples, DEFAULT_OPTIONS[s], rep) for s in SAMPLERS
              for rep in range(1, int(replicates) + 1)]
-    bar = tqdm(total=len(tasks), desc="evidence check", unit="run", disable=not progress)
-    results = []
-    if workers <= 1:
-        for task in tasks:
-            results.append(_replicate_star(task))
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for res in pool.map(_replicate_star, tasks, chunksize=1):
-                results.append(res)
-                bar.update()
-    bar.close()
+    results = map_tasks(_replicate_star, tasks, workers, "evidence check", "run", progress)
     out = {"exact_step1": osc.exact_log_evidence(problem.datasets[0]), "run": run, "kernel": kernel,
            "n_samples": n_samples}
     for s in SAMPLERS:
