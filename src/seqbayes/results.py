@@ -91,6 +91,19 @@ class StepInfo:
     n_move_evaluations: int
     wall_time: float
 
+    @classmethod
+    def from_dict(cls, values: dict) -> "StepInfo":
+        """A record from stored values, tolerant of diagnostics added or removed since it was
+        written: a missing field becomes NaN, 0, False or ``()``; an unknown one is dropped."""
+        defaults = {"float": float("nan"), "int": 0, "bool": False, "tuple": ()}
+        kwargs = {}
+        for f in dataclasses.fields(cls):
+            type_name = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "float")
+            value = values.get(f.name, defaults.get(type_name, float("nan")))
+            kwargs[f.name] = (tuple(value) if type_name == "tuple" else bool(value) if type_name == "bool"
+                              else int(value) if type_name == "int" else float(value))
+        return cls(**kwargs)
+
 
 def weighted_quantile(samples, log_weights, q) -> np.ndarray:
     """Weighted quantiles ``(len(q), d)`` of ``samples (N, d)``."""
@@ -220,17 +233,9 @@ class Result:
         temperatures = json.loads(ds.attrs["temperatures"])
         records = []
         for i, step in enumerate(ds["step"].values):
-            kwargs = {}
-            for f in dataclasses.fields(StepInfo):
-                if f.name == "step":
-                    kwargs[f.name] = int(step)
-                elif f.name == "temperatures":
-                    kwargs[f.name] = tuple(temperatures[i])
-                else:
-                    value = ds[f.name].values[i]
-                    kwargs[f.name] = (bool(value) if f.type in ("bool", bool) else
-                                      int(value) if f.type in ("int", int) else float(value))
-            records.append(StepRecord(StepInfo(**kwargs), ds["posterior"].values[i],
+            values = {name: ds[name].values[i] for name in ds.data_vars if ds[name].dims == ("step",)}
+            values.update(step=int(step), temperatures=temperatures[i])
+            records.append(StepRecord(StepInfo.from_dict(values), ds["posterior"].values[i],
                                       ds["log_weights"].values[i], ds["predictive"].values[i]))
         return cls(tuple(str(n) for n in ds["parameter"].values), tuple(records), json.loads(ds.attrs["meta"]))
 

@@ -500,15 +500,8 @@ class RunStore:
 
 
 def _step_info(values: dict) -> StepInfo:
-    """A :class:`StepInfo` from its stored dict, tolerant of diagnostics added or removed since
-    the store was written (a missing field becomes NaN, 0, False or ``()``; an unknown one is dropped)."""
-    defaults = {"float": float("nan"), "int": 0, "bool": False, "tuple": ()}
-    kwargs = {}
-    for f in dataclasses.fields(StepInfo):
-        type_name = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "float")
-        kwargs[f.name] = values.get(f.name, defaults.get(type_name, float("nan")))
-    kwargs["temperatures"] = tuple(kwargs["temperatures"])
-    return StepInfo(**kwargs)
+    """A :class:`StepInfo` from its stored dict (see :meth:`StepInfo.from_dict`)."""
+    return StepInfo.from_dict(values)
 
 
 def _check_state(state: SamplerState, record: StepRecord) -> None:

@@ -252,3 +252,12 @@ def test_a_starved_restart_uses_the_rejection_mass_for_the_evidence():
         info = sampler.update(1.0)
     assert info.log_evidence_increment == info.log_evidence_increment_path
     assert -13.0 < info.log_evidence_increment < -9.0  # one draw in 20,000: log(1/20000) = -9.9
+
+
+def test_result_from_an_older_file_without_newer_diagnostics(tmp_path):
+    result = make(SEMC).run(DATA)
+    ds = result.to_xarray().drop_vars(["evidence_ess", "n_move_evaluations"])  # as written before they existed
+    back = seqbayes.Result.from_xarray(ds)
+    assert np.isnan(back.steps[0].info.evidence_ess) and back.steps[0].info.n_move_evaluations == 0
+    assert back.steps[-1].info.log_evidence == result.steps[-1].info.log_evidence
+    np.testing.assert_array_equal(back.steps[-1].posterior, result.steps[-1].posterior)
