@@ -43,6 +43,15 @@ def integer_steps(axes) -> None:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
+def _finish_step_column(axes) -> None:
+    """A column of step-indexed axes: integer ticks, x label at the bottom, grids, legend on top."""
+    integer_steps(axes)
+    axes[-1, 0].set_xlabel("step (dataset)")
+    for ax in axes[:, 0]:
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="small")
+
+
 def to_png(fig, dpi: int = 100) -> bytes:
     """PNG bytes of a figure."""
     buffer = io.BytesIO()
@@ -130,11 +139,7 @@ def plot_sampler_diagnostics(results: dict, *, target_acceptance=None):
     axes[0, 0].set_ylabel("acceptance rate")
     axes[1, 0].set_ylabel("ESS / N")
     axes[1, 0].set_ylim(0, 1.05)
-    integer_steps(axes)
-    axes[1, 0].set_xlabel("step (dataset)")
-    for ax in axes[:, 0]:
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(loc="best", fontsize="small")
+    _finish_step_column(axes)
     return fig
 
 
@@ -148,11 +153,7 @@ def plot_evidence(results: dict):
         axes[1, 0].plot(steps, result.log_evidence_increments, "o-", color=color, label=name)
     axes[0, 0].set_ylabel(r"$\log p(D^{1:s})$")
     axes[1, 0].set_ylabel(r"$\log p(D^s \mid D^{1:s-1})$")
-    integer_steps(axes)
-    axes[1, 0].set_xlabel("step (dataset)")
-    for ax in axes[:, 0]:
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(loc="best", fontsize="small")
+    _finish_step_column(axes)
     return fig
 
 
