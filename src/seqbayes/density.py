@@ -7,13 +7,20 @@ Two constructions are offered (see :func:`predictive_density`):
     Centres are the propagated samples ``Gamma(theta_i) + nu_i``; bandwidth by
     Silverman's rule on every dimension. Adds ``h^2`` of spurious variance to
     the drifting parameters on top of the process noise.
-``"transition"`` (exact on noisy dimensions; the default)
+``"transition"`` (exact on noisy dimensions; the default with process noise)
     The transition mixture ``sum_i W_i T(theta | theta_i)`` of Eq. (A3) itself:
     centres ``Gamma(theta_i)``, width = process-noise std on noisy dimensions.
     Static dimensions have a delta transition, so they get a Silverman kernel,
     with Liu-West shrinkage of the centres towards the mean so that the
     mixture keeps the posterior's mean and variance instead of inflating it
     by ``(1 + h^2)`` per step.
+
+``"history"`` (exact; the default when every parameter is static)
+    With an identity kernel the prior of step ``s`` is the last posterior,
+    ``p_0(theta) prod_{k<s} L_k(theta) / Z_{1:s-1}``, evaluated exactly by
+    :class:`HistoryPrior` from the past datasets (as IBIS does, Chopin 2002):
+    no kernel density, no ``O(N^2)`` evaluation, but every evaluation costs one
+    likelihood call per past dataset.
 
 Why by hand: scipy's ``gaussian_kde`` has no per-dimension diagonal bandwidth
 with per-point weights *and* chunked evaluation; evaluating it at N = 10,000
@@ -30,9 +37,10 @@ import numpy as np
 from .priors import as_samples
 from .weights import normalise
 
-__all__ = ["GaussianMixture", "silverman_bandwidth", "predictive_density", "PREDICTIVE_METHODS"]
+__all__ = ["GaussianMixture", "HistoryPrior", "silverman_bandwidth", "predictive_density", "PREDICTIVE_METHODS"]
 
-PREDICTIVE_METHODS = ("transition", "kde")
+#: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, else ``"transition"``.
+PREDICTIVE_METHODS = ("auto", "transition", "kde", "history")
 
 #: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
 _BLOCK_FLOATS = 8_000_000
@@ -141,6 +149,43 @@ class GaussianMixture:
     def draw_one_per_component(self, rng: np.random.Generator) -> np.ndarray:
         """One draw from each component, ``(N, d)``: a stratified draw of the mixture."""
         return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
+
+
+@dataclass(frozen=True, eq=False)
+class HistoryPrior:
+    """The exact prior of step ``s`` for static parameters: ``p_0(theta) prod_{k<s} L_k(theta) / Z_{1:s-1}``.
+
+    Parameters
+    ----------
+    initial : object with ``logpdf``
+        The initial prior ``p_0``.
+    datasets : tuple
+        The datasets ``D^1 .. D^{s-1}`` already assimilated.
+    log_normaliser : float
+        ``log Z_{1:s-1}``, the running log-evidence estimate, so that the density is
+        normalised up to that estimate's error (an importance estimate of the next
+        increment then estimates the whole ``log Z_{1:s}`` afresh).
+    """
+
+    initial: object
+    datasets: tuple
+    log_normaliser: float
+
+    def logpdf(self, theta, loglike) -> np.ndarray:
+        """Log density at ``theta (m, d)`` given ``loglike(theta (k, d), dataset) -> (k,)``; returns ``(m,)``.
+
+        Rows that reach ``-inf`` are not evaluated on later datasets.
+        """
+        out = np.asarray(self.initial.logpdf(theta), dtype=float) - self.log_normaliser
+        for dataset in self.datasets:
+            alive = np.isfinite(out)
+            if alive.all():
+                out = out + loglike(theta, dataset)
+            elif alive.any():
+                out[alive] += loglike(theta[alive], dataset)
+            else:
+                break
+        return out
 
 
 def predictive_density(posterior, log_weights, kernel, rng: np.random.Generator,

@@ -159,6 +159,11 @@ class MarkovKernel:
         """``(d,)`` bool: parameters without process noise."""
         return self.noise_std == 0
 
+    @property
+    def is_static(self) -> bool:
+        """Every parameter is :class:`Static`: the kernel is the identity (no evolution, no noise)."""
+        return bool(self.components) and all(isinstance(c, Static) for c in self.components)
+
     def nominal(self, theta) -> np.ndarray:
         """``Gamma(theta)``: the noise-free evolution, ``(N, d) -> (N, d)``."""
         theta = as_samples(theta, self.dim)

@@ -33,7 +33,8 @@ class StepInfo:
     ess : float
         Effective sample size after the last reweighting, before resampling.
     resampled : bool
-        Whether the last stage resampled.
+        Whether the last stage resampled (with the IBIS schedule, ``move_every_stage=False`` and
+        a static kernel: whether the step began with the deferred resample-move).
     acceptance_rate : float
         True rate over the step's moves: accepted proposals / proposals made.
     step_size : float

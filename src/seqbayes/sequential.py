@@ -32,13 +32,14 @@ and call :func:`assimilate`.
 
 from __future__ import annotations
 
+import copy
 import time
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from .density import PREDICTIVE_METHODS, predictive_density
+from .density import PREDICTIVE_METHODS, HistoryPrior, predictive_density
 from .evidence import importance_step
 from .kernels import MarkovKernel
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
@@ -51,7 +52,7 @@ from .rng import as_generator, generator_from_state, generator_state
 from .transforms import BoxTransform
 from .weights import ess, logsumexp, normalise
 
-__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "ZeroLikelihoodError"]
+__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError"]
 
 
 class ZeroLikelihoodError(RuntimeError):
@@ -80,8 +81,11 @@ class SamplerConfig:
         Resample at the last stage when ESS < ``ess_threshold * N`` (authors' code: 0.5).
     resampling : str
         ``"systematic"``, ``"multinomial"`` (the paper's), ``"stratified"`` or ``"residual"``.
-    predictive : {"transition", "kde"}
-        Predictive prior construction (see :mod:`seqbayes.density`).
+    predictive : {"auto", "transition", "kde", "history"}
+        Predictive prior construction (see :mod:`seqbayes.density`). ``"auto"`` (default):
+        ``"history"`` when every parameter is static (the exact prior, re-evaluating the past
+        datasets as IBIS does; each evaluation costs one likelihood call per past dataset),
+        ``"transition"`` otherwise.
     shrink_static : bool
         Liu-West shrinkage of the static dimensions' kernel density.
     target_acceptance : float
@@ -99,6 +103,11 @@ class SamplerConfig:
         stage (0.9; 0 disables), up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
     max_moves : int
         Cap on SMC's MH steps per stage.
+    move_every_stage : bool
+        Move the particles after every stage (default; the paper's Algorithm 4). ``False``
+        moves only after a resampling, to rejuvenate its duplicates, as IBIS (Chopin 2002)
+        and ``particles`` do: cheaper (no likelihood evaluation in a step that keeps its ESS),
+        but duplicates from earlier resamplings are then moved less often.
     n_independent : int
         Independence-MH sweeps (3) at the end of a step with ``evidence="importance"``
         (proposals from the posterior-fitted importance density; each sweep after the
@@ -134,7 +143,7 @@ class SamplerConfig:
     tempering_threshold: float = 0.1
     ess_threshold: float = 0.5
     resampling: str = "systematic"
-    predictive: str = "transition"
+    predictive: str = "auto"
     shrink_static: bool = True
     target_acceptance: float = 0.25
     step_size: float = 2.0
@@ -147,6 +156,7 @@ class SamplerConfig:
     evidence: str = "importance"
     moved_fraction: float = 0.9
     max_moves: int = 30
+    move_every_stage: bool = True
     n_independent: int = 3
     min_evidence_ess: float = 0.3
     max_refits: int = 5
@@ -203,13 +213,17 @@ class SamplerState:
     log_weights : (N,) array
         Their normalised log-weights.
     prior : object with ``logpdf``
-        The current prior density (the initial prior, then a :class:`~seqbayes.density.GaussianMixture`).
+        The current prior density: the initial prior, then a :class:`~seqbayes.density.GaussianMixture`
+        or, for static parameters, a :class:`~seqbayes.density.HistoryPrior`.
     log_evidence : float
         Cumulative log-evidence.
     step_size : float
         Current stretch step size (SEMC).
     posterior, posterior_log_weights : arrays or None
         The last step's posterior (for forecasts).
+    log_prior : (N,) array or None
+        ``prior.logpdf(particles)`` when known (a :class:`~seqbayes.density.HistoryPrior` at
+        the last posterior: its target values, so the past datasets are not re-evaluated).
     """
 
     step: int
@@ -220,6 +234,7 @@ class SamplerState:
     step_size: float
     posterior: np.ndarray | None = None
     posterior_log_weights: np.ndarray | None = None
+    log_prior: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,6 +247,11 @@ class Problem:
     support: np.ndarray
     executor: object = None
     n_chunks: int | None = None
+
+    def __post_init__(self):
+        transform = BoxTransform(self.support)
+        object.__setattr__(self, "transform", None if transform.is_identity else transform)
+        object.__setattr__(self, "bounded", bool(np.isfinite(self.support).any()))
 
 
 def _check_dataset(dataset, step):
@@ -249,18 +269,20 @@ def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_
 
     The whole ``remaining`` exponent is taken when it keeps ESS >= ``threshold_fraction * N``;
     otherwise the largest increment keeping ESS >= ``target_fraction`` of ESS(0+) (the ESS once
-    zero-likelihood particles drop out), found by bisection."""
-    finite = np.isfinite(loglike)
+    zero-likelihood particles drop out), found by bisection to ``1e-9`` of ``remaining``."""
+    finite = np.isfinite(loglike) & np.isfinite(log_weights)
+    base, slope = log_weights[finite], loglike[finite]
 
-    def ess_at(delta):
-        return ess(np.where(finite, log_weights + delta * np.where(finite, loglike, 0.0), -np.inf))
+    def ess_at(delta):  # (sum w)^2 / sum w^2, with the peak taken out
+        w = base + delta * slope
+        w = np.exp(w - w.max())
+        return w.sum() ** 2 / np.dot(w, w)
 
-    ess_0 = ess(np.where(finite, log_weights, -np.inf))
     if ess_at(remaining) >= threshold_fraction * loglike.size:  # of N: a few survivors never qualify
         return remaining
-    target = target_fraction * ess_0
+    target = target_fraction * ess_at(0.0)
     lo, hi = 0.0, remaining
-    for _ in range(60):
+    while hi - lo > 1e-9 * remaining:
         mid = 0.5 * (lo + hi)
         if ess_at(mid) >= target:
             lo = mid
@@ -269,23 +291,21 @@ def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_
     return lo if lo > 0 else hi
 
 
-def _mutate(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, counter):
-    """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s``.
+def _mutate(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike):
+    """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
     (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
     Returns walkers, components, stats, step size and virtual-iteration count.
     """
-    transform = BoxTransform(problem.support) if config.transform else None
-    if transform is not None and transform.is_identity:
-        transform = None
+    transform = problem.transform if config.transform else None
     if transform is None:
-        position, support = walkers, problem.support
+        position, support = walkers, problem.support if problem.bounded else None
         coefficients = np.array([beta, 1.0])
 
         def component_fn(points):
-            return np.column_stack([counter.loglike(points), prior_logpdf(points)])
+            return np.column_stack([loglike(points), prior_logpdf(points)])
     else:
         position, support = transform.forward(walkers), None
         components = np.column_stack([components, transform.log_jacobian(position)])
@@ -295,7 +315,7 @@ def _mutate(problem, config, state_step_size, walkers, components, beta, prior_l
             theta = transform.inverse(points)
             inside = _inside(theta, problem.support)  # round-off can land on a bound
             out = np.full((points.shape[0], 3), -np.inf)
-            out[inside] = np.column_stack([counter.loglike(theta[inside]), prior_logpdf(theta[inside]),
+            out[inside] = np.column_stack([loglike(theta[inside]), prior_logpdf(theta[inside]),
                                            transform.log_jacobian(points[inside])])
             return out
 
@@ -310,7 +330,7 @@ def _mutate(problem, config, state_step_size, walkers, components, beta, prior_l
         stats = SweepStats()
         n_done = 0
         while not enough(n_done) and n_done < config.max_moves:
-            move = GaussianMove(weighted_covariance(position, np.zeros(position.shape[0])), config.proposal_scale)
+            move = GaussianMove(weighted_covariance(position), config.proposal_scale)
             position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, move,
                                                          rng, support)
             stats = stats + sweep
@@ -351,20 +371,65 @@ class _Counter:
         self.n_nan = 0
 
     def loglike(self, theta):
-        values = evaluate_loglike(self.problem.loglike, theta, self.dataset, self.problem.executor,
+        return self.loglike_on(theta, self.dataset)
+
+    def loglike_on(self, theta, dataset):
+        """The log-likelihood of any dataset (past ones for :class:`~seqbayes.density.HistoryPrior`)."""
+        values = evaluate_loglike(self.problem.loglike, theta, dataset, self.problem.executor,
                                   self.problem.n_chunks)
         if values.shape != (theta.shape[0],):
             raise ValueError(f"loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
                              f"expected ({theta.shape[0]},)")
+        self.n_evals += theta.shape[0]
+        if (values < np.inf).all():  # the usual case: no NaN, no +inf
+            return values
         if np.isposinf(values).any():
             raise ValueError(f"loglike: returned +inf at step {self.step}")
         nan = np.isnan(values)
         self.n_nan += int(nan.sum())
-        self.n_evals += theta.shape[0]
         return np.where(nan, -np.inf, values)
 
 
+def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
+    """The predictive construction to use: ``"auto"`` is ``"history"`` for a static kernel, else ``"transition"``."""
+    if method == "auto":
+        return "history" if kernel.is_static else "transition"
+    if method == "history" and not kernel.is_static:
+        raise ValueError("predictive: 'history' (the exact prior p_0 x past likelihoods) needs a kernel whose "
+                         "every parameter is Static; with process noise use 'transition' or 'kde'")
+    return method
+
+
+def _prior_logpdf(prior, counter):
+    """The step's prior log-density as a function of ``theta (M, d)`` alone."""
+    if isinstance(prior, HistoryPrior):
+        return lambda theta: prior.logpdf(theta, counter.loglike_on)
+    return prior.logpdf
+
+
+#: Odd 64-bit multipliers of the row hash in :func:`count_distinct`.
+_HASH_MULTIPLIERS = np.random.default_rng(20231).integers(0, 2**63, size=64, dtype=np.uint64) * 2 + 1
+
+
+def count_distinct(samples) -> int:
+    """Number of distinct rows of ``samples (N, d)``, by a 64-bit hash of their bit patterns.
+
+    8x faster than ``np.unique(samples, axis=0)``: rows that differ in one coordinate never
+    collide (odd multipliers), others with probability ~``N^2 / 2^65``.
+    """
+    samples = np.asarray(samples, dtype=float)
+    d = samples.shape[1]
+    if d > _HASH_MULTIPLIERS.size:
+        return int(np.unique(samples, axis=0).shape[0])
+    bits = np.ascontiguousarray(samples + 0.0).view(np.uint64)  # + 0.0 maps -0.0 to 0.0
+    hashes = bits @ _HASH_MULTIPLIERS[:d]  # wraps modulo 2^64, silently for integer arrays
+    hashes.sort()
+    return 1 + int(np.count_nonzero(hashes[1:] != hashes[:-1]))
+
+
 def _inside(points, support) -> np.ndarray:
+    if np.isneginf(support[:, 0]).all() and np.isposinf(support[:, 1]).all():
+        return np.ones(points.shape[0], dtype=bool)
     return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
 
 
@@ -415,25 +480,48 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     counter = _Counter(problem, dataset, step)
     n = config.n_samples
     particles, log_weights = state.particles, state.log_weights
+    exact_prior = isinstance(state.prior, HistoryPrior)  # static parameters: the particles are the last posterior
+    prior_logpdf = _prior_logpdf(state.prior, counter)
+    method = resolve_predictive(config.predictive, problem.kernel)
+    deferred = method == "history" and not config.move_every_stage  # IBIS's schedule (see SamplerConfig)
+    step_size, stats, n_virtual, rejuvenated = state.step_size, SweepStats(), 0, False
+    log_prior = state.log_prior if exact_prior else None
+    if exact_prior and deferred and ess(log_weights) < config.ess_threshold * n:
+        # the last step's resample-move, deferred to this dataset's arrival: its target is this step's prior
+        index = resample(config.resampling, np.exp(log_weights), rng, n)
+        log_weights = np.full(n, -np.log(n))
+        values = prior_logpdf(particles) if log_prior is None else log_prior
+        particles, components, stats, step_size, n_virtual = _mutate(
+            problem, config, step_size, particles[index], np.column_stack([np.zeros(n), values[index]]), 0.0,
+            prior_logpdf, rng, lambda theta: np.zeros(theta.shape[0]))
+        step_size = step_size if config.move == "stretch" else state.step_size
+        log_prior, rejuvenated = components[:, 1], True
     inside = _inside(particles, problem.support)
-    loglike = np.full(n, -np.inf)
-    loglike[inside] = counter.loglike(particles[inside])
+    if inside.all():
+        loglike = counter.loglike(particles)
+    else:
+        loglike = np.full(n, -np.inf)
+        loglike[inside] = counter.loglike(particles[inside])
     valid = np.isfinite(loglike)
     log_restricted_mass, n_found = 0.0, n
-    if not valid.any() and inside.all():
+    if not valid.any() and (inside.all() or exact_prior):
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood; the "
             f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
-    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+    if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # Few particles can carry the step (predictive mass outside the parameter space, or a zero-likelihood
         # region such as stick-slip): start from the prior restricted to {inside, L > 0} instead.
         particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
                                                                              rng, step, counter)
         log_weights = np.full(n, -np.log(n))
-    components = np.column_stack([loglike, state.prior.logpdf(particles)])  # every particle is inside now
+    if log_prior is not None:
+        components = np.column_stack([loglike, log_prior])
+    else:  # every particle is inside now; the prior is only needed where the likelihood is non-zero
+        components = np.column_stack([loglike, np.full(n, -np.inf)])
+        carried = np.isfinite(loglike)
+        components[carried, 1] = prior_logpdf(particles[carried])
 
-    beta, log_z, stats = 0.0, 0.0, SweepStats()
-    step_size, n_virtual, temperatures, resampled = state.step_size, 0, [], False
+    beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
         remaining = 1.0 - beta
         delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
@@ -442,21 +530,27 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
             delta = remaining
         finite = np.isfinite(components[:, 0])
         increment = np.where(finite, delta * np.where(finite, components[:, 0], 0.0), -np.inf)
-        log_z += logsumexp(log_weights + increment)  # Eq. (1), one stage
+        stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
+        if not np.isfinite(stage_log_z):  # the particles with a non-zero likelihood all have zero weight
+            raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
+                                      f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
+        log_z += stage_log_z
         beta = 1.0 if delta == remaining else beta + delta
         temperatures.append(beta)
-        log_weights = normalise(log_weights + increment)
-        stage_ess = ess(log_weights)
-        resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
+        log_weights = log_weights + increment - stage_log_z  # normalised: the carried weights sum to one
+        weights = np.exp(log_weights)
+        stage_ess = float(1.0 / np.dot(weights, weights))
+        resampled = beta < 1.0 or (stage_ess < config.ess_threshold * n and not deferred)
         if resampled:
-            index = resample(config.resampling, np.exp(log_weights), rng, n)
+            index = resample(config.resampling, weights, rng, n)
             particles, components = particles[index], components[index]
             log_weights = np.full(n, -np.log(n))
-        particles, components, stage_stats, step_size_new, virtual = _mutate(
-            problem, config, step_size, particles, components, beta, state.prior.logpdf, rng, counter)
-        if config.move == "stretch":
-            step_size = step_size_new
-        stats, n_virtual = stats + stage_stats, n_virtual + virtual
+        if resampled or config.move_every_stage:
+            particles, components, stage_stats, step_size_new, virtual = _mutate(
+                problem, config, step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
+            if config.move == "stretch":
+                step_size = step_size_new
+            stats, n_virtual = stats + stage_stats, n_virtual + virtual
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
     log_increment, evidence_ess, n_independent = log_increment_path, float("nan"), 0
     if config.evidence == "importance":
@@ -464,7 +558,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
             # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
             # them and estimate again (each q is independent of its own draws, so every estimate is valid)
             log_increment, evidence_ess, particles, components, accepted = importance_step(
-                particles, log_weights, components, state.prior.logpdf, counter.loglike, problem.support, rng,
+                particles, log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
                 config.n_independent)
             n_independent += accepted
             if evidence_ess >= config.min_evidence_ess * n:
@@ -476,14 +570,22 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
                           f"{n_found} distinct restart draws); using the tempering path's estimate and the "
                           f"posterior may be degenerate", RuntimeWarning, stacklevel=3)
             log_increment = log_increment_path
-    density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, config.predictive,
-                                             config.shrink_static)
+    log_evidence = float(state.log_evidence + log_increment)
+    next_log_prior = None
+    if method == "history":  # the next prior is this posterior, exactly: keep the particles and their weights
+        past = state.prior.datasets if exact_prior else ()
+        density = HistoryPrior(problem.prior, past + (copy.deepcopy(dataset),), log_evidence)
+        predictive = particles
+        next_log_prior = components[:, 0] + components[:, 1] - float(log_increment)  # no +inf: no NaN
+    else:
+        density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, method,
+                                                 config.shrink_static)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
-        log_evidence=float(state.log_evidence + log_increment), ess=float(stage_ess), resampled=bool(resampled),
+        log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
         acceptance_rate=stats.acceptance_rate, step_size=float(step_size) if config.move == "stretch" else float("nan"),
         n_virtual=n_virtual, n_stages=len(temperatures), temperatures=tuple(temperatures),
-        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=int(np.unique(particles, axis=0).shape[0]),
+        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(particles),
         n_proposed=stats.n_proposed, n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
         n_independent_accepted=n_independent, n_move_evaluations=stats.n_evaluations,
@@ -491,7 +593,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     record = StepRecord(info, particles, log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=log_weights, prior=density,
                              log_evidence=info.log_evidence, step_size=float(step_size),
-                             posterior=particles, posterior_log_weights=log_weights)
+                             posterior=particles, posterior_log_weights=log_weights, log_prior=next_log_prior)
     return new_state, record
 
 
@@ -524,6 +626,7 @@ class _SequentialSampler:
         if "target_acceptance" not in settings or settings["target_acceptance"] is None:
             settings["target_acceptance"] = paper_target_acceptance(dim)  # Eq. (10)
         self.config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
+        resolve_predictive(self.config.predictive, kernel)  # a 'history' prior needs a static kernel
         self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks)
         self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
         self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),

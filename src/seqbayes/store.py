@@ -3,7 +3,9 @@
 One run is one NetCDF-4 file. After every completed step it holds the whole
 sampler state: the posterior and predictive samples of every step with their
 weights and diagnostics (the :class:`~seqbayes.results.Result` layout), the
-Gaussian-mixture density that is the next step's prior (Eq. A3), the
+next step's prior (the Gaussian-mixture density of Eq. A3 or, for static
+parameters, the exact history prior's values at the particles and the
+assimilated datasets themselves, which it re-evaluates), the
 stretch-move step size, the cumulative log-evidence, the random generator's
 state after each step, the initial prior draws, the validated configuration
 (prior, kernel, likelihood ``module:function``, sampler settings), a format
@@ -13,8 +15,8 @@ bit-for-bit the numbers of an uninterrupted run with the same seed, because the
 sampler is rebuilt from the stored configuration and then
 :meth:`~seqbayes.sequential.SEMC.restore`-d to the stored state and generator.
 
-Keeping every step's state (not only the last) costs one ``(N, d)`` mixture per
-step and allows :meth:`RunStore.assimilate` with ``replace_last=True``: the run
+Keeping every step's state (not only the last) costs one ``(N, d)`` mixture (or
+one ``(N,)`` vector and the dataset) per step and allows :meth:`RunStore.assimilate` with ``replace_last=True``: the run
 is rolled back to the step before and the new dataset assimilated in its place.
 
 Writes are atomic: the new file is written to a temporary file in the same
@@ -26,7 +28,9 @@ a mixture; a leftover temporary file is removed by the next write. Concurrent
 ``RUN.lock``.
 
 Layout: ``posterior``, ``predictive`` ``(step, sample, parameter)``, ``log_weights``
-``(step, sample)``, ``mixture_centres``/``_bandwidth``/``_log_weights``,
+``(step, sample)``, ``mixture_centres``/``_bandwidth``/``_log_weights`` or
+``state_log_prior (step, sample)`` with ``dataset_values (dataset_row, column)``
+and ``dataset_rows (step)``,
 ``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
 any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
 as JSON), ``dataset_sha256``, ``dataset_source``, ``state_step_size``,
@@ -62,14 +66,16 @@ import numpy as np
 
 from .config import (ConfigError, RunConfig, as_likelihood_data, dataset_digest, load_likelihood,
                      read_datafile)
-from .density import GaussianMixture
+from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
-from .sequential import SamplerState
+from .sequential import SamplerState, resolve_predictive
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "FORMAT_VERSION", "store_lock"]
 
-#: Version of the on-disk layout; a store of another version is refused.
-FORMAT_VERSION = 1
+#: Version of the on-disk layout; a store of another version is refused. Version 2 added the
+#: history prior of static kernels; version-1 stores (kernel-density priors only) are still read.
+FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
 
 #: Environment variable naming a fault-injection point (tests only): the process
 #: SIGKILLs itself there. One of ``before-write``, ``mid-write``, ``before-replace``,
@@ -159,7 +165,8 @@ class RunStore:
     """
 
     def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
-                 rng_states, result: Result, mixtures, step_sizes, digests, sources, created=None):
+                 rng_states, result: Result, mixtures, step_sizes, digests, sources, log_priors=(), tables=(),
+                 created=None):
         self.path = Path(path)
         self.config = config
         self.initial_particles = initial_particles
@@ -167,7 +174,9 @@ class RunStore:
         self.initial_step_size = float(initial_step_size)
         self.rng_states = list(rng_states)          # S + 1 generator states (after step 0, 1, ..., S)
         self.result = result
-        self.mixtures = list(mixtures)              # S tuples (centres, bandwidth, log_weights)
+        self.mixtures = list(mixtures)              # S tuples (centres, bandwidth, log_weights), or none
+        self.log_priors = list(log_priors)          # or, with a history prior, S (N,) prior values
+        self.tables = list(tables)                  # and the S datasets it re-evaluates
         self.step_sizes = list(step_sizes)          # S state step sizes
         self.digests = list(digests)
         self.sources = list(sources)
@@ -226,7 +235,7 @@ class RunStore:
         version = ds.attrs.get("seqbayes_store_format")
         if version is None:
             raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
-        if int(version) != FORMAT_VERSION:
+        if int(version) not in _READABLE_VERSIONS:
             raise StoreError(f"{path}: run-store format version {int(version)}, but this seqbayes reads version "
                              f"{FORMAT_VERSION}; use the seqbayes version that wrote it (it says "
                              f"{ds.attrs.get('seqbayes_version', '?')})")
@@ -246,13 +255,25 @@ class RunStore:
                 records.append(StepRecord(info, ds["posterior"].values[i], ds["log_weights"].values[i],
                                           ds["predictive"].values[i]))
             result = Result(stored.names, tuple(records), json.loads(ds.attrs.get("result_meta", "{}")))
-            mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
-                         ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
+            mixtures, log_priors, tables = [], [], []
+            if "state_log_prior" in ds:
+                log_priors = list(ds["state_log_prior"].values)
+                ends = np.cumsum(ds["dataset_rows"].values)
+                tables = np.split(ds["dataset_values"].values, ends[:-1])
+            else:
+                mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
+                             ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
+                if _uses_history(stored):
+                    raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
+                                     f"kernel-density prior; this version uses their exact history prior. Re-create "
+                                     f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
+                                     f"the seqbayes version that wrote it ({ds.attrs.get('seqbayes_version', '?')})")
             step_sizes = [float(v) for v in ds["state_step_size"].values]
             digests = [str(v) for v in ds["dataset_sha256"].values]
             sources = [str(v) for v in ds["dataset_source"].values]
         else:
             result, mixtures, step_sizes, digests, sources = Result(stored.names, (), {}), [], [], [], []
+            log_priors, tables = [], []
         rng_states = [json.loads(str(v)) for v in ds["rng_state"].values]
         if len(rng_states) != n_steps + 1 or len(result.steps) != n_steps:
             raise StoreError(f"{path}: inconsistent store ({len(result.steps)} steps, {len(rng_states)} generator "
@@ -261,7 +282,7 @@ class RunStore:
                    initial_log_weights=ds["initial_log_weights"].values,
                    initial_step_size=float(ds.attrs["initial_step_size"]), rng_states=rng_states, result=result,
                    mixtures=mixtures, step_sizes=step_sizes, digests=digests, sources=sources,
-                   created=ds.attrs.get("created"))
+                   log_priors=log_priors, tables=tables, created=ds.attrs.get("created"))
 
     @property
     def n_steps(self) -> int:
@@ -292,13 +313,20 @@ class RunStore:
                 # for readers without seqbayes; step_info holds the exact records
                 "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
                 "step_info": (("step",), np.array([json.dumps(i) for i in infos], dtype=object)),
-                "mixture_centres": (("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
-                "mixture_bandwidth": (("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
-                "mixture_log_weights": (("step", "sample"), np.stack([m[2] for m in self.mixtures])),
                 "state_step_size": (("step",), np.array(self.step_sizes, dtype=float)),
                 "dataset_sha256": (("step",), np.array(self.digests, dtype=object)),
                 "dataset_source": (("step",), np.array(self.sources, dtype=object)),
             }
+            if self.log_priors:  # the history prior: its values at the particles and the datasets it re-evaluates
+                coords["column"] = list(self.config.columns)
+                data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)),
+                            dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
+                            dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables])))
+            else:
+                data.update(
+                    mixture_centres=(("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
+                    mixture_bandwidth=(("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
+                    mixture_log_weights=(("step", "sample"), np.stack([m[2] for m in self.mixtures])))
         else:
             data = {}
         ds = xr.Dataset(data, coords=coords)
@@ -361,10 +389,16 @@ class RunStore:
             rec = self.result.steps[step - 1]
             # the sampler's state after a step is built from the step's record (sequential.assimilate);
             # _check_state verifies this identity whenever a state is stored
+            if self.log_priors:
+                datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
+                prior, log_prior = (HistoryPrior(self.config.build_prior(), datasets, rec.info.log_evidence),
+                                    self.log_priors[step - 1])
+            else:
+                prior, log_prior = self._mixture(step - 1), None
             state = SamplerState(step=step, particles=rec.predictive, log_weights=rec.log_weights,
-                                 prior=self._mixture(step - 1), log_evidence=rec.info.log_evidence,
+                                 prior=prior, log_evidence=rec.info.log_evidence,
                                  step_size=self.step_sizes[step - 1], posterior=rec.posterior,
-                                 posterior_log_weights=rec.log_weights)
+                                 posterior_log_weights=rec.log_weights, log_prior=log_prior)
         return state, tuple(self.result.steps[:step]), self.rng_states[step]
 
     def load_likelihood(self):
@@ -469,12 +503,16 @@ class RunStore:
         info = sampler.update(as_likelihood_data(table, self.config))
         state, records, rng_state = sampler.snapshot()
         _check_state(state, records[-1])
-        if not isinstance(state.prior, GaussianMixture):  # pragma: no cover - a core change
+        if not isinstance(state.prior, (GaussianMixture, HistoryPrior)):  # pragma: no cover - a core change
             raise StoreError(f"cannot store a predictive prior of type {type(state.prior).__name__}")
-        mixture = (np.array(state.prior.centres), np.array(state.prior.bandwidth), np.array(state.prior.log_weights))
         # commit to memory only now that the step succeeded
         self.result = _replace(sampler.result, steps=tuple(records))
-        self.mixtures = self.mixtures[:base] + [mixture]
+        if isinstance(state.prior, HistoryPrior):
+            self.log_priors = self.log_priors[:base] + [np.array(state.log_prior)]
+            self.tables = self.tables[:base] + [table]
+        else:
+            self.mixtures = self.mixtures[:base] + [(np.array(state.prior.centres), np.array(state.prior.bandwidth),
+                                                     np.array(state.prior.log_weights))]
         self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
         self.digests = self.digests[:base] + [digest]
         self.sources = self.sources[:base] + [str(source)]
@@ -497,6 +535,11 @@ class RunStore:
     def to_arviz(self, step: int = -1, rng=None):
         """One step's posterior as :class:`arviz.InferenceData` (see :func:`posterior_to_arviz`)."""
         return posterior_to_arviz(self.result, step, rng)
+
+
+def _uses_history(config: RunConfig) -> bool:
+    """Whether the run's sampler gives its (static) parameters the exact history prior."""
+    return resolve_predictive(config.settings.get("predictive", "auto"), config.build_kernel()) == "history"
 
 
 def _step_info(values: dict) -> StepInfo:

@@ -21,11 +21,22 @@ def logsumexp(values, axis=None):
     1.3862943611198906
     """
     values = np.asarray(values, dtype=float)
+    if axis is None:
+        peak = values.max()
+        if np.isfinite(peak):  # the usual case: the peak term is exp(0) = 1, so the sum is >= 1
+            return float(np.log(np.exp(values - peak).sum()) + peak)
     peak = np.max(values, axis=axis, keepdims=True)
     peak = np.where(np.isfinite(peak), peak, 0.0)
     with np.errstate(divide="ignore"):
         out = np.log(np.sum(np.exp(values - peak), axis=axis, keepdims=True)) + peak
     return out.item() if axis is None else np.squeeze(out, axis=axis)
+
+
+def _check(log_weights: np.ndarray) -> np.ndarray:
+    log_weights = np.asarray(log_weights, dtype=float)
+    if not (log_weights < np.inf).all():  # one pass: False for NaN and +inf
+        raise ValueError("log_weights: NaN or +inf log-weight")
+    return log_weights
 
 
 def normalise(log_weights: np.ndarray) -> np.ndarray:
@@ -36,9 +47,7 @@ def normalise(log_weights: np.ndarray) -> np.ndarray:
     ValueError
         If every weight is zero (all ``-inf``) or any is NaN / ``+inf``.
     """
-    log_weights = np.asarray(log_weights, dtype=float)
-    if np.isnan(log_weights).any() or np.isposinf(log_weights).any():
-        raise ValueError("log_weights: NaN or +inf log-weight")
+    log_weights = _check(log_weights)
     total = logsumexp(log_weights)
     if not np.isfinite(total):
         raise ValueError("log_weights: every weight is zero")
@@ -46,15 +55,19 @@ def normalise(log_weights: np.ndarray) -> np.ndarray:
 
 
 def ess(log_weights: np.ndarray) -> float:
-    """Effective sample size ``1 / sum(w_hat^2)`` of (unnormalised) log-weights.
+    """Effective sample size ``1 / sum(w_hat^2) = (sum w)^2 / sum w^2`` of (unnormalised) log-weights.
 
     Examples
     --------
     >>> float(ess(np.zeros(10)))
     10.0
     """
-    log_w_hat = normalise(log_weights)
-    return float(np.exp(-logsumexp(2.0 * log_w_hat)))
+    log_weights = _check(log_weights)
+    peak = log_weights.max()
+    if not np.isfinite(peak):
+        raise ValueError("log_weights: every weight is zero")
+    w = np.exp(log_weights - peak)
+    return float(w.sum() ** 2 / np.dot(w, w))
 
 
 def log_mean_exp(values: np.ndarray) -> float:

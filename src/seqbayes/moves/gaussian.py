@@ -14,12 +14,19 @@ from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 __all__ = ["GaussianMove", "weighted_covariance", "gaussian_sweep"]
 
 
-def weighted_covariance(samples, log_weights) -> np.ndarray:
-    """``sum_i w_i (theta_i - mean)(theta_i - mean)^T`` (Eq. A6-A7 with gamma = 1), ``(d, d)``."""
-    w = np.exp(normalise(log_weights))
+def weighted_covariance(samples, log_weights=None) -> np.ndarray:
+    """``sum_i w_i (theta_i - mean)(theta_i - mean)^T`` (Eq. A6-A7 with gamma = 1), ``(d, d)``.
+
+    Equal weights when ``log_weights`` is omitted."""
+    if log_weights is None:
+        centred = samples - samples.mean(axis=0)
+        return centred.T @ centred / samples.shape[0]
+    log_weights = normalise(log_weights)
+    w = np.exp(log_weights - log_weights.max())
+    w /= w.sum()
     mean = w @ samples  # Eq. (A6)
     centred = samples - mean
-    return (centred * w[:, None]).T @ centred  # Eq. (A7)
+    return (centred.T * w) @ centred  # Eq. (A7)
 
 
 @dataclass(frozen=True, eq=False)
