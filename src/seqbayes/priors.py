@@ -67,6 +67,10 @@ class JointPrior:
         self.names = tuple(str(n) for n in names)
         self.distributions = tuple(distributions)
         self._logpdfs = tuple(_fast_logpdf(dist) for dist in self.distributions)
+        self._samplers = tuple(_fast_sampler(dist) for dist in self.distributions)
+        support = np.array([dist.support() for dist in self.distributions], dtype=float)
+        support.setflags(write=False)
+        self._support = support
 
     @property
     def dim(self) -> int:
@@ -74,8 +78,8 @@ class JointPrior:
 
     @property
     def support(self) -> np.ndarray:
-        """``(d, 2)`` array of lower and upper bounds of each marginal."""
-        return np.array([dist.support() for dist in self.distributions], dtype=float)
+        """``(d, 2)`` array of lower and upper bounds of each marginal (read-only)."""
+        return self._support
 
     def logpdf(self, theta) -> np.ndarray:
         """Log density at ``theta (N, d)``; ``-inf`` outside the support. Returns ``(N,)``."""
@@ -91,7 +95,7 @@ class JointPrior:
         if int(n) < 1:
             raise ValueError(f"n: must be at least 1, got {n}")
         rng = as_generator(rng)
-        return np.column_stack([dist.rvs(size=int(n), random_state=rng) for dist in self.distributions])
+        return np.column_stack([draw(int(n), rng) for draw in self._samplers])
 
     def describe(self) -> list[dict]:
         """Name, scipy.stats name and parameters of each marginal (for records)."""
@@ -106,15 +110,27 @@ class JointPrior:
         return f"JointPrior({parts})"
 
 
+def _location_scale(dist):
+    """``(name, loc, scale)`` of a frozen ``norm`` or ``uniform`` (no shape parameters), else ``(None, 0, 1)``."""
+    name = getattr(getattr(dist, "dist", None), "name", None)
+    if name not in ("norm", "uniform") or len(dist.args) > 2 or set(dist.kwds) - {"loc", "scale"}:
+        return None, 0.0, 1.0
+    args = list(dist.args) + [None, None]
+    loc = dist.kwds.get("loc", 0.0 if args[0] is None else args[0])
+    scale = dist.kwds.get("scale", 1.0 if args[1] is None else args[1])
+    if np.ndim(loc) or np.ndim(scale):
+        return None, 0.0, 1.0
+    return name, float(loc), float(scale)
+
+
 def _fast_logpdf(dist):
     """``dist.logpdf`` for a frozen distribution; plain numpy for ``norm`` and ``uniform``.
 
     scipy's frozen ``logpdf`` spends ~0.1 ms per call on argument checks, as much as the
     whole step of a cheap model; the two commonest priors are evaluated directly (same
     values to rounding, checked against scipy in the tests)."""
-    name = getattr(getattr(dist, "dist", None), "name", None)
+    name, loc, scale = _location_scale(dist)
     if name == "norm":
-        loc, scale = float(dist.mean()), float(dist.std())
         const = -np.log(scale) - 0.5 * np.log(2.0 * np.pi)
 
         def norm_logpdf(x):
@@ -123,12 +139,23 @@ def _fast_logpdf(dist):
         return norm_logpdf
     if name == "uniform":
         lower, upper = map(float, dist.support())
-        log_density = -np.log(upper - lower)
+        log_density = -np.log(scale)
 
         def uniform_logpdf(x):
             return np.where((x >= lower) & (x <= upper), log_density, -np.inf)
         return uniform_logpdf
     return dist.logpdf
+
+
+def _fast_sampler(dist):
+    """``dist.rvs(size=n, random_state=rng)`` as a function of ``(n, rng)``; for ``norm`` and
+    ``uniform`` the same draws without scipy's per-call checks (bit-identical, tested)."""
+    name, loc, scale = _location_scale(dist)
+    if name == "norm":
+        return lambda n, rng: rng.standard_normal(n) * scale + loc
+    if name == "uniform":
+        return lambda n, rng: rng.uniform(0.0, 1.0, n) * scale + loc
+    return lambda n, rng: dist.rvs(size=n, random_state=rng)
 
 
 def support_of(prior, dim: int) -> np.ndarray:

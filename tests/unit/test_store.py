@@ -47,10 +47,13 @@ def datasets(n=4, seed=0):
             for s in range(n)]
 
 
-def config(tmp_path, sampler="SEMC", func="loglike", name="run.toml"):
+def config(tmp_path, sampler="SEMC", func="loglike", name="run.toml", static=False):
     (tmp_path / "storemodel.py").write_text(MODEL)
     path = tmp_path / name
-    path.write_text(textwrap.dedent(CONFIG.format(sampler=sampler, func=func)))
+    text = CONFIG.format(sampler=sampler, func=func)
+    if static:  # every parameter static: the sampler uses the exact history prior
+        text = text.replace('a = {{ type = "drift", rate = -0.05, noise_std = 0.02 }}'.format(), "")
+    path.write_text(textwrap.dedent(text))
     return load_config(path)
 
 
@@ -91,6 +94,56 @@ def test_reopening_after_each_step_is_bit_identical_to_an_uninterrupted_run(tmp_
     assert store.rng_states[-1] == reference.snapshot()[2]
     np.testing.assert_array_equal(store.predict(2), reference.predict(2))
     assert store.sources == ["d0", "d1", "d2", "d3"]
+
+
+@pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
+def test_history_prior_run_resumes_bit_for_bit_and_replaces_last(tmp_path, sampler):
+    """Static parameters: the store keeps the datasets the history prior re-evaluates and its
+    values at the particles, so a run reopened after every step is the uninterrupted run."""
+    import xarray as xr
+
+    from seqbayes.density import HistoryPrior
+
+    cfg = config(tmp_path, sampler, static=True)
+    data = datasets(4)
+    reference = cfg.build_sampler()
+    for d in data:
+        reference.update(d)
+    assert isinstance(reference.state.prior, HistoryPrior)
+    RunStore.create(tmp_path / "run.nc", cfg)
+    for i, d in enumerate(data):
+        RunStore.open(tmp_path / "run.nc").assimilate(d, f"d{i}")
+    store = RunStore.open(tmp_path / "run.nc")
+    assert_same_steps(reference.result.steps, store.result.steps)
+    assert store.mixtures == [] and len(store.log_priors) == 4
+    for stored, d in zip(store.tables, data):
+        np.testing.assert_array_equal(stored, d)
+    np.testing.assert_array_equal(store.log_priors[-1], reference.state.log_prior)
+    state = store.state_at(4)[0]
+    assert isinstance(state.prior, HistoryPrior) and state.prior.log_normaliser == reference.state.log_evidence
+    # one more dataset from the reopened store == one more in the uninterrupted run
+    extra = datasets(5, seed=1)[4]
+    store.assimilate(extra, "d4")
+    reference.update(extra)
+    assert_same_steps(reference.result.steps, RunStore.open(tmp_path / "run.nc").result.steps)
+    # replacing the last step rolls the history back too
+    store.assimilate(data[0] * 1.01, "fixed", replace_last=True)
+    rolled = cfg.build_sampler()
+    for d in data + [data[0] * 1.01]:
+        rolled.update(d)
+    assert_same_steps(rolled.result.steps, RunStore.open(tmp_path / "run.nc").result.steps)
+    assert len(store.tables) == 5
+    # a version-1 store of a static model (kernel-density prior) cannot be continued by the history prior
+    ds = store.to_xarray().drop_vars(["state_log_prior", "dataset_values", "dataset_rows"])
+    ds["mixture_centres"] = ds["posterior"]
+    ds["mixture_bandwidth"] = ds["posterior"].isel(sample=0)
+    ds["mixture_log_weights"] = ds["log_weights"]
+    ds.attrs["seqbayes_store_format"] = 1
+    ds.to_netcdf(tmp_path / "old.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match="old.nc: written by an earlier seqbayes, which gave static parameters a "
+                                         "kernel-density prior"):
+        RunStore.open(tmp_path / "old.nc")
+    assert xr.open_dataset(tmp_path / "run.nc", engine="h5netcdf").attrs["seqbayes_store_format"] == FORMAT_VERSION
 
 
 def test_exact_round_trip_of_every_stored_array(tmp_path):

@@ -54,7 +54,8 @@ def combine(components, coefficients) -> np.ndarray:
     """
     if components.shape[1] == 1 and coefficients[0] == 1.0:  # a plain log-density (AIES)
         return components[:, 0].copy()
-    total = components @ np.asarray(coefficients, dtype=float)
+    with np.errstate(invalid="ignore"):  # 0 x -inf (a zero tempering exponent at a rejected row)
+        total = components @ np.asarray(coefficients, dtype=float)
     total[np.isnan(total)] = -np.inf
     return total
 
