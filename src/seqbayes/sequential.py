@@ -574,7 +574,8 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     next_log_prior = None
     if method == "history":  # the next prior is this posterior, exactly: keep the particles and their weights
         past = state.prior.datasets if exact_prior else ()
-        density = HistoryPrior(problem.prior, past + (copy.deepcopy(dataset),), log_evidence)
+        kept = dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)  # callers reuse buffers
+        density = HistoryPrior(problem.prior, past + (kept,), log_evidence)
         predictive = particles
         next_log_prior = components[:, 0] + components[:, 1] - float(log_increment)  # no +inf: no NaN
     else:
