@@ -113,6 +113,9 @@ def bench_particles(n=1000, seeds=20):
         "seqbayes SMC, the paper's configuration (`PAPER_SETTINGS`)": ours(seqbayes.SMC, **PAPER_SETTINGS),
         "seqbayes SMC, defaults": ours(seqbayes.SMC),
         "seqbayes SEMC, defaults": ours(seqbayes.SEMC),
+        # last, so that their large arrays do not disturb the timing of the pairs above
+        f"particles IBIS, N = {10 * n}": lambda s: _particles_ibis(problem, data, 10 * n, s),
+        f"particles IBIS, N = {100 * n}": lambda s: _particles_ibis(problem, data, 100 * n, s),
     }
     times = {name: [] for name in variants}
     errors = {name: [] for name in variants}

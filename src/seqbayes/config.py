@@ -445,6 +445,12 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
                        sampler=kind, n_samples=n_samples, seed=seed, settings=settings, data_format=data_format,
                        rows=rows, search_path=str(Path(base_dir).resolve()) if base_dir is not None else None,
                        executor=executor, workers=workers, address=address)
+    from .sequential import resolve_predictive
+
+    try:  # a history prior needs every parameter static
+        resolve_predictive(settings.get("predictive", "auto"), config.build_kernel())
+    except ValueError as err:
+        _fail(source, "sampler.predictive", str(err))
     if check_likelihood:
         try:
             config.load_likelihood()
