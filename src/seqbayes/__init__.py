@@ -13,7 +13,7 @@ from .priors import JointPrior
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
 from .selection import ModelComparison, compare
-from .sequential import SEMC, SMC, SamplerConfig, SamplerState, ZeroLikelihoodError, assimilate
+from .sequential import SEMC, SMC, SamplerConfig, SamplerState, TemperingLimitError, ZeroLikelihoodError, assimilate
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
 from .config import load_config
 from .store import RunStore, posterior_to_arviz
@@ -22,4 +22,5 @@ __version__ = "0.1.0"
 __all__ = ["load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
+           "TemperingLimitError",
            "assimilate"]

@@ -120,7 +120,7 @@ def _describe(err, store) -> str:
     text = str(err)
     if isinstance(err, ValueError) and text.startswith("loglike"):
         return f"likelihood {store.config.likelihood}: {text}; the run store is unchanged"
-    if isinstance(err, ValueError) or type(err).__name__ == "ZeroLikelihoodError":
+    if isinstance(err, ValueError) or type(err).__name__ in ("ZeroLikelihoodError", "TemperingLimitError"):
         return f"{text}; the run store is unchanged"
     return (f"the likelihood {store.config.likelihood} (or the sampler) raised {type(err).__name__}: {text}; "
             f"the run store is unchanged")

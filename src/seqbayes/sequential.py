@@ -52,11 +52,16 @@ from .rng import as_generator, generator_from_state, generator_state
 from .transforms import BoxTransform
 from .weights import ess, logsumexp, normalise
 
-__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError"]
+__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError",
+           "TemperingLimitError"]
 
 
 class ZeroLikelihoodError(RuntimeError):
     """Every sample has zero likelihood for a dataset."""
+
+
+class TemperingLimitError(RuntimeError):
+    """Bridging to a dataset took more tempering stages than allowed (``max_stages``)."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,12 @@ class SamplerConfig:
         Adaptive tempering inside a step (default); ``False`` is the paper's single reweighting.
     tempering_ess : float
         Target ESS fraction of each tempering stage (0.5).
+    max_stages : int
+        Cap on tempering stages per step (1000). The stages grow about linearly with how far
+        the data lie from the current samples (a dataset offset by 100 noise sds from the
+        prediction takes ~200); beyond the cap the step stops with
+        :class:`TemperingLimitError` (usually wrong units or a broken sensor) and the
+        sampler's state is unchanged.
     tempering_threshold : float
         Tempering starts only when assimilating the rest of the dataset at once would leave
         less than this ESS fraction (0.1): a milder reweighting is done in one stage, whose
@@ -141,6 +152,7 @@ class SamplerConfig:
     tempering: bool = True
     tempering_ess: float = 0.5
     tempering_threshold: float = 0.1
+    max_stages: int = 1000
     ess_threshold: float = 0.5
     resampling: str = "systematic"
     predictive: str = "auto"
@@ -184,6 +196,8 @@ class SamplerConfig:
             raise ValueError(f"target_acceptance: must lie in (0, 1], got {self.target_acceptance}")
         if not self.step_size > 1.0:
             raise ValueError(f"step_size: must be > 1, got {self.step_size}")
+        if int(self.max_stages) != self.max_stages or self.max_stages < 1:
+            raise ValueError(f"max_stages: must be an integer >= 1, got {self.max_stages}")
         if self.max_virtual < 1 or self.n_moves < 1 or self.max_moves < 1:
             raise ValueError("max_virtual, max_moves and n_moves: must be >= 1")
         if self.move == "gaussian" and self.n_moves > self.max_moves:
@@ -523,6 +537,11 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
 
     beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
+        if len(temperatures) >= config.max_stages:
+            raise TemperingLimitError(
+                f"step {step}: tempering reached exponent {beta:.3g} after max_stages = {config.max_stages} "
+                f"stages; the dataset lies very far from the {'prior' if step == 1 else 'predictive distribution'}"
+                f" (check its units and the model), or raise max_stages")
         remaining = 1.0 - beta
         delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
                                  config.tempering_threshold) if config.tempering else remaining)

@@ -89,6 +89,21 @@ def test_zero_likelihood_everywhere_names_the_step():
         fresh.update("far")
 
 
+def test_data_far_from_the_samples_stop_at_max_stages_and_leave_the_state():
+    from seqbayes import TemperingLimitError
+
+    sampler = SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, n_samples=100, rng=0, max_stages=5)
+    sampler.update(DATA[0])
+    before = sampler.state
+    with pytest.raises(TemperingLimitError, match=r"step 2: tempering reached exponent .* after max_stages = 5 "
+                                                  r"stages; the dataset lies very far from the predictive"):
+        sampler.update(DATA[1] + 100.0)  # 200 noise sds off: ~400 stages would be needed
+    assert sampler.state is before and len(sampler.result.steps) == 1
+    assert sampler.update(DATA[1]).n_stages <= 5
+    with pytest.raises(ValueError, match="max_stages: must be an integer >= 1"):
+        SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, max_stages=0)
+
+
 def test_bad_input_messages_name_the_argument():
     prior, kernel, loglike = PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike
     with pytest.raises(ValueError, match="kernel: has 1 parameters but the prior has 2"):
