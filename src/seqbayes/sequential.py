@@ -35,7 +35,7 @@ from __future__ import annotations
 import copy
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -645,8 +645,9 @@ class _SequentialSampler:
             raise ValueError(f"n_samples: the stretch move needs at least 2 d = {2 * dim} walkers, got {n_samples}")
         if "target_acceptance" not in settings or settings["target_acceptance"] is None:
             settings["target_acceptance"] = paper_target_acceptance(dim)  # Eq. (10)
-        self.config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
-        resolve_predictive(self.config.predictive, kernel)  # a 'history' prior needs a static kernel
+        config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
+        # record what "auto" chose; a 'history' prior needs a static kernel
+        self.config = replace(config, predictive=resolve_predictive(config.predictive, kernel))
         self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks)
         self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
         self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
