@@ -1,4 +1,4 @@
-"""The monitoring CLI end to end on a small user model written here:
+"""The monitoring CLI end to end on a small user model (tests/_user_model.py) written to a folder:
 init -> three updates -> status -> predict -> compare -> report, checking the outputs'
 content, and bad input giving one clear message with the store unchanged."""
 
@@ -8,50 +8,25 @@ import base64
 import hashlib
 import json
 import re
-import textwrap
 
 import numpy as np
 import pytest
 
 from seqbayes import cli
 
-# A user's model: free decay of a structure, amplitude A and decay rate b, y(t) = A exp(-b t) + noise.
+from _user_model import decay_tables, write_config, write_model
+
+# The user's model: free decay of a structure, amplitude A and decay rate b,
+# y(t) = A exp(-b t) + noise, its likelihood taking the data as a dict of columns.
 # The amplitude degrades by ~0.15 per campaign; the decay rate is constant.
-MODEL = """
-import numpy as np
-
-NOISE = 0.05
-
-def loglike(theta, data):
-    t, y = data["t"], data["y"]
-    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
-    return -0.5 * np.sum((y - pred) ** 2, axis=1) / NOISE ** 2
-
-def bad_shape(theta, data):
-    return np.zeros((theta.shape[0], 2))
-"""
-
-CONFIG = """
-[model]
-name = "{name}"
-likelihood = "e2emodel:{func}"
-[data]
-columns = ["t", "y"]
-format = "columns"
-[priors]
-A = {{ dist = "uniform", loc = 0.5, scale = 2.0 }}
-b = {{ dist = "uniform", loc = 0.0, scale = 1.0 }}
-[kernel]
-{kernel}
-[sampler]
-type = "SEMC"
-n_samples = 120
-seed = 7
-"""
-
 DRIFT_RATE, DRIFT_NOISE = -0.15, 0.02
 TRUTH_A = [1.8, 1.65, 1.5]
 TRUTH_B = 0.4
+
+BAD_SHAPE = """
+def bad_shape(theta, data):
+    return np.zeros((theta.shape[0], 2))
+"""
 
 
 @pytest.fixture(scope="module")
@@ -59,21 +34,20 @@ def work(tmp_path_factory):
     import xarray as xr
 
     root = tmp_path_factory.mktemp("e2e")
-    (root / "e2emodel.py").write_text(MODEL)
+    write_model(root, "e2emodel", noise=0.05, by_name=True, extra=BAD_SHAPE)
     kernels = {"drift": f'A = {{ type = "drift", rate = {DRIFT_RATE}, noise_std = {DRIFT_NOISE} }}',
                "static": "# every parameter static"}
+    common = dict(amplitude="A", data='format = "columns"', n_samples=120, seed=7)
     for name, kernel in kernels.items():
-        (root / f"{name}.toml").write_text(textwrap.dedent(CONFIG.format(name=name, func="loglike", kernel=kernel)))
-    (root / "badshape.toml").write_text(textwrap.dedent(CONFIG.format(name="bad", func="bad_shape", kernel="")))
-    rng = np.random.default_rng(12)
-    t = np.linspace(0.0, 4.0, 25)
-    for s, a in enumerate(TRUTH_A):
-        y = a * np.exp(-TRUTH_B * t) + 0.05 * rng.standard_normal(t.size)
+        write_config(root / f"{name}.toml", "e2emodel", name=name, kernel=kernel, **common)
+    write_config(root / "badshape.toml", "e2emodel", name="bad", func="bad_shape", **common)
+    tables = decay_tables(TRUTH_A, np.linspace(0.0, 4.0, 25), 0.05, seed=12, rate=TRUTH_B)
+    for s, table in enumerate(tables):
         if s == 1:   # the second campaign arrives as NetCDF
+            t, y = table.T
             xr.Dataset({"t": ("row", t), "y": ("row", y)}).to_netcdf(root / "month2.nc", engine="h5netcdf")
         else:
-            np.savetxt(root / f"month{s + 1}.csv", np.column_stack([t, y]), delimiter=",", header="t,y",
-                       comments="")
+            np.savetxt(root / f"month{s + 1}.csv", table, delimiter=",", header="t,y", comments="")
     return root
 
 

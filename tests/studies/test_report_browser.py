@@ -10,38 +10,15 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
-import textwrap
 
 import numpy as np
 import pytest
 
+from _user_model import decay_tables, write_config, write_model
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium not found (Debian: apt-get install -y "
                                                          "chromium); the report browser test needs it")
-
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    t, y = data[:, 0], data[:, 1]
-    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
-    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.05 ** 2
-"""
-
-CONFIG = """
-[model]
-name = "{name}"
-likelihood = "browsermodel:loglike"
-[data]
-columns = ["t", "y"]
-[priors]
-A = {{ dist = "uniform", loc = 0.5, scale = 2.0 }}
-b = {{ dist = "uniform", loc = 0.0, scale = 1.0 }}
-[kernel]
-{kernel}
-[sampler]
-n_samples = 60
-seed = 3
-"""
 
 # Chromium logs every console message (console.error, uncaught exceptions, ...) as "...:CONSOLE..."
 CONSOLE = re.compile(r":CONSOLE[:(]")
@@ -67,15 +44,13 @@ def report(tmp_path_factory):
     from seqbayes.store import RunStore
 
     root = tmp_path_factory.mktemp("browser")
-    (root / "browsermodel.py").write_text(MODEL)
-    rng = np.random.default_rng(1)
-    t = np.linspace(0, 4, 20)
-    tables = [np.column_stack([t, a * np.exp(-0.4 * t) + 0.05 * rng.standard_normal(t.size)])
-              for a in (1.8, 1.65, 1.5)]
+    write_model(root, "browsermodel", noise=0.05)
+    tables = decay_tables((1.8, 1.65, 1.5), np.linspace(0, 4, 20), 0.05, seed=1)
     stores = []
     for name, kernel in [("drift", 'A = { type = "drift", rate = -0.15, noise_std = 0.02 }'), ("static", "")]:
-        (root / f"{name}.toml").write_text(textwrap.dedent(CONFIG.format(name=name, kernel=kernel)))
-        store = RunStore.create(root / f"{name}.nc", load_config(root / f"{name}.toml"))
+        config = write_config(root / f"{name}.toml", "browsermodel", name=name, amplitude="A", kernel=kernel,
+                              n_samples=60, seed=3)
+        store = RunStore.create(root / f"{name}.nc", load_config(config))
         for i, table in enumerate(tables):
             store.assimilate(table, f"campaign{i + 1}.csv")
         stores.append(store)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import textwrap
-
 import numpy as np
 import pytest
 from scipy import stats
@@ -11,14 +9,7 @@ from scipy import stats
 from seqbayes import Decay, Drift, Static
 from seqbayes.config import ConfigError, DataError, load_config, parse_config, read_datafile, dataset_digest
 
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    t, y = data[:, 0], data[:, 1]
-    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
-    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.1 ** 2
-not_callable = 3
-"""
+from _user_model import write_model
 
 CONFIG = """
 [model]
@@ -42,9 +33,9 @@ tempering = false
 
 
 def write(tmp_path, config=CONFIG, name="run.toml"):
-    (tmp_path / "cfgmodel.py").write_text(MODEL)
+    write_model(tmp_path, "cfgmodel", extra="not_callable = 3\n")
     path = tmp_path / name
-    path.write_text(textwrap.dedent(config))
+    path.write_text(config)
     return path
 
 

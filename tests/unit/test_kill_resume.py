@@ -20,7 +20,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 
 import numpy as np
@@ -30,42 +29,18 @@ from seqbayes import cli
 from seqbayes.config import load_config
 from seqbayes.store import FAULT_ENV, RunStore
 
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    t, y = data[:, 0], data[:, 1]
-    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
-    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.1 ** 2
-"""
-
-CONFIG = """
-[model]
-name = "decay"
-likelihood = "killmodel:loglike"
-[data]
-columns = ["t", "y"]
-[priors]
-a = { dist = "uniform", loc = 0.5, scale = 2.0 }
-b = { dist = "uniform", loc = 0.0, scale = 1.0 }
-[kernel]
-a = { type = "drift", rate = -0.05, noise_std = 0.02 }
-[sampler]
-type = "SEMC"
-n_samples = 120
-seed = 21
-"""
+from _user_model import decay_tables, write_config, write_model
 
 
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     root = tmp_path_factory.mktemp("killresume")
-    (root / "killmodel.py").write_text(MODEL)
-    (root / "run.toml").write_text(textwrap.dedent(CONFIG))
-    rng = np.random.default_rng(4)
-    t = np.linspace(0, 3, 15)
-    for s in range(4):
-        y = (1.5 - 0.05 * s) * np.exp(-0.4 * t) + 0.1 * rng.standard_normal(t.size)
-        np.savetxt(root / f"d{s + 1}.csv", np.column_stack([t, y]), delimiter=",", header="t,y", comments="")
+    write_model(root, "killmodel")
+    write_config(root / "run.toml", "killmodel", kernel='a = { type = "drift", rate = -0.05, noise_std = 0.02 }',
+                 n_samples=120, seed=21)
+    tables = decay_tables([1.5 - 0.05 * s for s in range(4)], np.linspace(0, 3, 15), 0.1, seed=4)
+    for s, table in enumerate(tables):
+        np.savetxt(root / f"d{s + 1}.csv", table, delimiter=",", header="t,y", comments="")
     # the uninterrupted run: 4 updates in this one process
     store = RunStore.create(root / "reference.nc", load_config(root / "run.toml"))
     for s in range(4):

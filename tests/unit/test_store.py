@@ -4,7 +4,6 @@ store unchanged on failure, ArviZ conversion."""
 from __future__ import annotations
 
 import hashlib
-import textwrap
 
 import numpy as np
 import pytest
@@ -12,49 +11,24 @@ import pytest
 from seqbayes.config import load_config
 from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, posterior_to_arviz
 
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    t, y = data[:, 0], data[:, 1]
-    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :])
-    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.1 ** 2
+from _user_model import decay_tables, write_config, write_model
+
+WRONG_SHAPE = """
 def wrong_shape(theta, data):
     return np.zeros(3)
 """
 
-CONFIG = """
-[model]
-name = "decay"
-likelihood = "storemodel:{func}"
-[data]
-columns = ["t", "y"]
-[priors]
-a = {{ dist = "uniform", loc = 0.5, scale = 2.0 }}
-b = {{ dist = "uniform", loc = 0.0, scale = 1.0 }}
-[kernel]
-a = {{ type = "drift", rate = -0.05, noise_std = 0.02 }}
-[sampler]
-type = "{sampler}"
-n_samples = 80
-seed = 11
-"""
-
 
 def datasets(n=4, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 3, 15)
-    return [np.column_stack([t, (1.5 - 0.05 * s) * np.exp(-0.4 * t) + 0.1 * rng.standard_normal(t.size)])
-            for s in range(n)]
+    return decay_tables([1.5 - 0.05 * s for s in range(n)], np.linspace(0, 3, 15), 0.1, seed)
 
 
 def config(tmp_path, sampler="SEMC", func="loglike", name="run.toml", static=False):
-    (tmp_path / "storemodel.py").write_text(MODEL)
-    path = tmp_path / name
-    text = CONFIG.format(sampler=sampler, func=func)
-    if static:  # every parameter static: the sampler uses the exact history prior
-        text = text.replace('a = {{ type = "drift", rate = -0.05, noise_std = 0.02 }}'.format(), "")
-    path.write_text(textwrap.dedent(text))
-    return load_config(path)
+    write_model(tmp_path, "storemodel", extra=WRONG_SHAPE)
+    # static: every parameter static, so the sampler uses the exact history prior
+    kernel = "" if static else 'a = { type = "drift", rate = -0.05, noise_std = 0.02 }'
+    return load_config(write_config(tmp_path / name, "storemodel", func=func, kernel=kernel, sampler=sampler,
+                                    n_samples=80, seed=11))
 
 
 def sha(path):
