@@ -142,7 +142,6 @@ def test_sigkill_at_random_times(workdir):
     assert wait(fork_cli(["update", str(run), str(workdir / "d1.csv")])) == 0
     duration = time.perf_counter() - start
     rng = np.random.default_rng(20240611)
-    kills = 0
     for s in (2, 3, 4):
         for _ in range(2):                                 # two random kills per step
             before = RunStore.open(run).n_steps
@@ -153,9 +152,9 @@ def test_sigkill_at_random_times(workdir):
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
             code = wait(pid)
-            kills += code == -signal.SIGKILL
             store = RunStore.open(run)                     # loads whatever the kill hit
-            assert store.n_steps == (before + 1 if code == 0 else store.n_steps)
+            if code == 0:                                  # the kill came too late: the step is stored
+                assert store.n_steps == before + 1
             assert store.n_steps in (before, before + 1)
             assert_prefix_of_reference(store, reference)
         if RunStore.open(run).n_steps < s:
