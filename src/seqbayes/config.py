@@ -336,8 +336,10 @@ def load_likelihood(spec: str, search_path: str | None = None):
     if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
         raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
     module_name, func_name = spec.split(":")
-    if search_path and search_path not in sys.path:
-        sys.path.insert(0, search_path)
+    if search_path:
+        if search_path not in sys.path:
+            sys.path.insert(0, search_path)
+        _forget_module_from_elsewhere(module_name, search_path)
     try:
         module = importlib.import_module(module_name)
     except Exception as err:
@@ -352,6 +354,32 @@ def load_likelihood(spec: str, search_path: str | None = None):
     if not callable(func):
         raise ConfigError(f"model.likelihood: {spec!r} is not callable")
     return func
+
+
+def _forget_module_from_elsewhere(module_name: str, search_path: str) -> None:
+    """Drop a cached module of that name imported from another folder than ``search_path``.
+
+    Two configs in two folders may both name ``model:loglike``; Python's module cache would
+    hand the second run the first folder's likelihood, silently. When ``search_path`` holds
+    the module's file and the cached module came from elsewhere, the cached package is
+    removed and ``search_path`` put first, so the import below finds the right file.
+    (Functions already loaded from the other folder keep working in this process.)
+    """
+    parts = module_name.split(".")
+    candidates = [Path(search_path, *parts).with_suffix(".py"), Path(search_path, *parts, "__init__.py")]
+    local = next((c.resolve() for c in candidates if c.is_file()), None)
+    cached = sys.modules.get(module_name)
+    if local is None or cached is None:
+        return
+    origin = getattr(cached, "__file__", None)
+    if origin is not None and Path(origin).resolve() == local:
+        return
+    top = parts[0]
+    for name in [m for m in sys.modules if m == top or m.startswith(top + ".")]:
+        del sys.modules[name]
+    sys.path.remove(search_path)
+    sys.path.insert(0, search_path)
+    importlib.invalidate_caches()
 
 
 # ---------------------------------------------------------------------- parsing

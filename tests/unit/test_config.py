@@ -170,3 +170,21 @@ def test_bad_data_files_name_file_column_and_shape(tmp_path):
         read_datafile(tmp_path / "garbage.nc", cfg)
     with pytest.raises(DataError, match="absent.csv: no such file"):
         read_datafile(tmp_path / "absent.csv", cfg)
+
+
+def test_same_module_name_in_two_folders_loads_each_folders_likelihood(tmp_path):
+    """Two runs whose configs both say ``clashmodel:loglike``, in two folders, in one process:
+    each gets its own folder's function, not the first one imported (Python's module cache)."""
+    from seqbayes.config import load_likelihood
+
+    functions = []
+    for value in (1.0, 2.0):
+        folder = tmp_path / f"run{int(value)}"
+        folder.mkdir()
+        (folder / "clashmodel.py").write_text(f"def loglike(theta, data):\n    return {value}\n")
+        functions.append(load_likelihood("clashmodel:loglike", str(folder)))
+    assert [f(None, None) for f in functions] == [1.0, 2.0]
+    # and the first folder's again, now that the second one is cached
+    assert load_likelihood("clashmodel:loglike", str(tmp_path / "run1"))(None, None) == 1.0
+    assert load_likelihood("clashmodel:loglike", str(tmp_path / "run1")) is \
+        load_likelihood("clashmodel:loglike", str(tmp_path / "run1"))  # same file: the cached module
