@@ -285,6 +285,8 @@ def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_
     otherwise the largest increment keeping ESS >= ``target_fraction`` of ESS(0+) (the ESS once
     zero-likelihood particles drop out), found by bisection to ``1e-9`` of ``remaining``."""
     finite = np.isfinite(loglike) & np.isfinite(log_weights)
+    if not finite.any():  # no weighted particle has a non-zero likelihood: the caller reports it
+        return remaining
     base, slope = log_weights[finite], loglike[finite]
 
     def ess_at(delta):  # (sum w)^2 / sum w^2, with the peak taken out

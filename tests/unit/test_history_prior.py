@@ -143,3 +143,20 @@ def test_count_distinct_matches_numpy_unique():
     assert count_distinct(x) == np.unique(x, axis=0).shape[0]
     one_column_apart = np.array([[1.0, 2.0], [1.0, np.nextafter(2.0, 3.0)], [1.0, 2.0]])
     assert count_distinct(one_column_apart) == 2
+
+
+def test_only_zero_weight_particles_with_a_likelihood_is_a_zero_likelihood_error():
+    """The IBIS schedule carries weights, some of them zero; a dataset whose likelihood is non-zero
+    only at those particles has no weighted support: a clear error, not a crash in the bisection."""
+    prior = JointPrior([stats.uniform(0, 1)])
+
+    def loglike(theta, data):  # "low" rules out theta >= 0.5, "high" rules out theta < 0.5
+        low = theta[:, 0] < 0.5
+        return np.where(low if data == "low" else ~low, 0.0, -np.inf)
+
+    sampler = SMC(prior, MarkovKernel([Static()]), loglike, n_samples=200, rng=0, min_valid_fraction=0.0,
+                  ess_threshold=0.3, **{k: v for k, v in IBIS.items() if k != "tempering"})
+    info = sampler.update("low")
+    assert not info.resampled and np.isinf(sampler.state.log_weights).any()
+    with pytest.raises(ZeroLikelihoodError, match="step 2: every sample with a non-zero weight has zero likelihood"):
+        sampler.update("high")
