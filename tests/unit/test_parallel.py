@@ -128,3 +128,21 @@ def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     finally:
         close()
     assert_identical(local.result, RunStore.open(tmp_path / "dask.nc").result)
+
+
+def test_history_prior_evaluates_past_datasets_on_the_executor_with_the_serial_numbers(client, tmp_path):
+    """Static parameters: the exact history prior re-evaluates past datasets, on the workers too."""
+    prior = JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)})
+
+    def run(executor=None, pid_dir=None):
+        data = datasets(pid_dir) + [d for d in datasets(pid_dir)[:1]]  # three steps: two past datasets at s = 3
+        return SMC(prior, MarkovKernel([Static(), Static()]), loglike, n_samples=40, rng=5, executor=executor,
+                   max_moves=4, moved_fraction=0.0).run(data)
+
+    serial = run()
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        assert_identical(serial, run(pool))
+    result = run(client, str(tmp_path))
+    assert_identical(serial, result)
+    evaluated = sum(int(n) for p in tmp_path.glob("*.pid") for n in p.read_text().split())
+    assert evaluated == sum(r.info.n_loglike_evals for r in result.steps)
