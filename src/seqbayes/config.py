@@ -178,6 +178,19 @@ class RunConfig:
                 parts.append(Decay(spec["rate"], noise_std=spec["noise_std"]))
         return MarkovKernel(parts)
 
+    @property
+    def predictive_method(self) -> str:
+        """The sampler's predictive prior, ``"auto"`` resolved (``"history"`` for static kernels).
+
+        Raises
+        ------
+        ValueError
+            ``predictive = "history"`` with a kernel that is not static.
+        """
+        from .sequential import resolve_predictive
+
+        return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
+
     def load_likelihood(self):
         """Import and return the likelihood function."""
         return load_likelihood(self.likelihood, self.search_path)
@@ -473,10 +486,8 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
                        sampler=kind, n_samples=n_samples, seed=seed, settings=settings, data_format=data_format,
                        rows=rows, search_path=str(Path(base_dir).resolve()) if base_dir is not None else None,
                        executor=executor, workers=workers, address=address)
-    from .sequential import resolve_predictive
-
     try:  # a history prior needs every parameter static
-        resolve_predictive(settings.get("predictive", "auto"), config.build_kernel())
+        config.predictive_method
     except ValueError as err:
         _fail(source, "sampler.predictive", str(err))
     if check_likelihood:

@@ -50,7 +50,7 @@ from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator, generator_from_state, generator_state
 from .transforms import BoxTransform
-from .weights import ess, logsumexp, normalise
+from .weights import ess, logsumexp
 
 __all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError",
            "TemperingLimitError"]
@@ -263,9 +263,9 @@ class Problem:
     n_chunks: int | None = None
 
     def __post_init__(self):
-        transform = BoxTransform(self.support)
-        object.__setattr__(self, "transform", None if transform.is_identity else transform)
-        object.__setattr__(self, "bounded", bool(np.isfinite(self.support).any()))
+        bounded = bool(np.isfinite(self.support).any())  # else the move transform is the identity
+        object.__setattr__(self, "bounded", bounded)
+        object.__setattr__(self, "transform", BoxTransform(self.support) if bounded else None)
 
 
 def _check_dataset(dataset, step):
@@ -443,6 +443,11 @@ def count_distinct(samples) -> int:
     return 1 + int(np.count_nonzero(hashes[1:] != hashes[:-1]))
 
 
+def _prior_name(step: int) -> str:
+    """What the particles of ``step`` were drawn from, for error messages."""
+    return "prior" if step == 1 else "predictive distribution"
+
+
 def _inside(points, support) -> np.ndarray:
     if np.isneginf(support[:, 0]).all() and np.isposinf(support[:, 1]).all():
         return np.ones(points.shape[0], dtype=bool)
@@ -466,8 +471,8 @@ def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
     if n_kept == 0:
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood (0 of {n_drawn} draws of the "
-            f"{'prior' if step == 1 else 'predictive distribution'} are inside the parameter space with a "
-            f"non-zero likelihood); the {'prior' if step == 1 else 'predictive distribution'} is too far "
+            f"{_prior_name(step)} are inside the parameter space with a "
+            f"non-zero likelihood); the {_prior_name(step)} is too far "
             f"from the data")
     kept, kept_ll = np.concatenate(kept), np.concatenate(kept_ll)
     if n_kept < n:  # almost no mass: duplicate what there is (the caller is told through n_kept)
@@ -523,7 +528,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     if not valid.any() and (inside.all() or exact_prior):
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood; the "
-            f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
+            f"{_prior_name(step)} is too far from the data")
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # Few particles can carry the step (predictive mass outside the parameter space, or a zero-likelihood
         # region such as stick-slip): start from the prior restricted to {inside, L > 0} instead.
@@ -542,7 +547,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         if len(temperatures) >= config.max_stages:
             raise TemperingLimitError(
                 f"step {step}: tempering reached exponent {beta:.3g} after max_stages = {config.max_stages} "
-                f"stages; the dataset lies very far from the {'prior' if step == 1 else 'predictive distribution'}"
+                f"stages; the dataset lies very far from the {_prior_name(step)}"
                 f" (check its units and the model), or raise max_stages")
         remaining = 1.0 - beta
         delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
@@ -554,7 +559,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
         if not np.isfinite(stage_log_z):  # the particles with a non-zero likelihood all have zero weight
             raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
-                                      f"{'prior' if step == 1 else 'predictive distribution'} is too far from the data")
+                                      f"{_prior_name(step)} is too far from the data")
         log_z += stage_log_z
         beta = 1.0 if delta == remaining else beta + delta
         temperatures.append(beta)

@@ -68,7 +68,7 @@ from .config import (ConfigError, RunConfig, as_likelihood_data, dataset_digest,
                      read_datafile)
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
-from .sequential import SamplerState, resolve_predictive
+from .sequential import SamplerState
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "FORMAT_VERSION", "store_lock"]
 
@@ -263,7 +263,7 @@ class RunStore:
             else:
                 mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
                              ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
-                if _uses_history(stored):
+                if stored.predictive_method == "history":
                     raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
                                      f"kernel-density prior; this version uses their exact history prior. Re-create "
                                      f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
@@ -535,11 +535,6 @@ class RunStore:
     def to_arviz(self, step: int = -1, rng=None):
         """One step's posterior as :class:`arviz.InferenceData` (see :func:`posterior_to_arviz`)."""
         return posterior_to_arviz(self.result, step, rng)
-
-
-def _uses_history(config: RunConfig) -> bool:
-    """Whether the run's sampler gives its (static) parameters the exact history prior."""
-    return resolve_predictive(config.settings.get("predictive", "auto"), config.build_kernel()) == "history"
 
 
 def _step_info(values: dict) -> StepInfo:

@@ -41,10 +41,6 @@ class BoxTransform:
         object.__setattr__(self, "_width", np.where(self._both, hi - lo, 1.0))
         object.__setattr__(self, "_log_width", np.log(self._width))
 
-    @property
-    def is_identity(self) -> bool:
-        return not (self._both.any() or self._lower.any() or self._upper.any())
-
     def forward(self, theta) -> np.ndarray:
         """``u = T(theta)`` for ``theta (N, d)`` inside the box; points on the boundary are nudged in."""
         lo, hi = self.support[:, 0], self.support[:, 1]

@@ -22,9 +22,7 @@ def weighted_covariance(samples, log_weights=None) -> np.ndarray:
         n = samples.shape[0]
         centred = samples - np.full(n, 1.0 / n) @ samples  # a matrix-vector product: 5x faster than mean(axis=0)
         return centred.T @ centred / n
-    log_weights = normalise(log_weights)
-    w = np.exp(log_weights - log_weights.max())
-    w /= w.sum()
+    w = np.exp(normalise(log_weights))
     mean = w @ samples  # Eq. (A6)
     centred = samples - mean
     return (centred.T * w) @ centred  # Eq. (A7)
