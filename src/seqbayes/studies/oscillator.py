@@ -483,6 +483,13 @@ def make_figures(ds, out_dir, summary: StudySummary | None = None, dpi: int = 60
     colours = {"SEMC": "tab:red", "SMC": "tab:blue"}
     paths = []
 
+    def save(fig, axes, file_name):  # one panel per run; the grid's spare panels are hidden
+        for ax in axes.flat[runs:]:
+            ax.set_visible(False)
+        paths.append(out_dir / file_name)
+        fig.savefig(paths[-1], dpi=dpi)
+        plt.close(fig)
+
     for j, name in enumerate(ds["parameter"].values):
         fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.4 * nrows), squeeze=False,
                                  constrained_layout=True)
@@ -513,13 +520,8 @@ def make_figures(ds, out_dir, summary: StudySummary | None = None, dpi: int = 60
             ax.tick_params(labelsize=7)
             ax.set_xlabel("t [months]", fontsize=8)
             ax.set_ylabel(f"{name} [{'N/m' if name == 'k' else 'Ns/m'}]", fontsize=8)
-        for ax in axes.flat[runs:]:
-            ax.set_visible(False)
         axes.flat[0].legend(fontsize=6, loc="upper right")
-        path = out_dir / f"oscillator_{name}_estimates.png"
-        fig.savefig(path, dpi=dpi)
-        plt.close(fig)
-        paths.append(path)
+        save(fig, axes, f"oscillator_{name}_estimates.png")
 
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.2 * nrows), squeeze=False,
                              sharey=True, constrained_layout=True)
@@ -536,14 +538,9 @@ def make_figures(ds, out_dir, summary: StudySummary | None = None, dpi: int = 60
         ax.set_title(f"run {r}", fontsize=9)
         ax.tick_params(labelsize=7)
         ax.set_xlabel("step", fontsize=8)
-    for ax in axes.flat[runs:]:
-        ax.set_visible(False)
     axes.flat[0].set_ylabel("true acceptance rate", fontsize=8)
     axes.flat[0].legend(fontsize=6)
-    path = out_dir / "oscillator_acceptance.png"
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    paths.append(path)
+    save(fig, axes, "oscillator_acceptance.png")
 
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.2 * nrows), squeeze=False,
                              constrained_layout=True)
@@ -565,14 +562,9 @@ def make_figures(ds, out_dir, summary: StudySummary | None = None, dpi: int = 60
         ax.set_title(f"run {r}: {summary.selected.get('SEMC', summary.selected.get('SMC'))[r]}", fontsize=9)
         ax.tick_params(labelsize=7)
         ax.set_xlabel("step", fontsize=8)
-    for ax in axes.flat[runs:]:
-        ax.set_visible(False)
     axes.flat[0].set_ylabel("log p(D^1:s | M) - best [nats]", fontsize=7)
     axes.flat[0].legend(fontsize=5, ncol=2)
-    path = out_dir / "oscillator_evidence.png"
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    paths.append(path)
+    save(fig, axes, "oscillator_evidence.png")
     return paths
 
 
