@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test bench docs clean
+.PHONY: run test bench docs check-install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,9 @@ bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy (installs
 
 docs: $(STAMP)        ## the documentation site (API reference from docstrings), strict
 	$(VENV)/bin/mkdocs build --strict --site-dir site
+
+check-install:       ## a clean venv with only the built wheel (no extras) runs examples and a run-store cycle
+	bash .ci/clean_install
 
 clean:
 	rm -rf $(VENV) build *.egg-info
