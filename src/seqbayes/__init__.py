@@ -7,7 +7,7 @@ sparse grids and the SG-EnMCMC identifier.
 """
 
 from . import aies, filters, sparsegrid, structures
-from .density import GaussianMixture, predictive_density, silverman_bandwidth
+from .density import GaussianMixture, RunningStatistics, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, MarkovKernel, Static
 from .priors import JointPrior
 from .results import Result, StepInfo, StepRecord
@@ -19,7 +19,7 @@ from .config import load_config
 from .store import RunStore, posterior_to_arviz
 
 __version__ = "0.1.0"
-__all__ = ["load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+__all__ = ["load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",

@@ -32,16 +32,16 @@ and call :func:`assimilate`.
 
 from __future__ import annotations
 
-import copy
 import time
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .density import PREDICTIVE_METHODS, HistoryPrior, predictive_density
+from .density import PREDICTIVE_METHODS, HistoryPrior, RunningStatistics, predictive_density
 from .evidence import importance_step
 from .kernels import MarkovKernel
+from .nested import NestedState, ParticleInnerFilter, assimilate_nested, nested_split, start_nested
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
 from .parallel import evaluate_loglike
@@ -92,11 +92,13 @@ class SamplerConfig:
         Resample at the last stage when ESS < ``ess_threshold * N`` (authors' code: 0.5).
     resampling : str
         ``"systematic"``, ``"multinomial"`` (the paper's), ``"stratified"`` or ``"residual"``.
-    predictive : {"auto", "transition", "kde", "history"}
+    predictive : {"auto", "transition", "kde", "history", "smc2"}
         Predictive prior construction (see :mod:`seqbayes.density`). ``"auto"`` (default):
         ``"history"`` when every parameter is static (the exact prior, re-evaluating the past
         datasets as IBIS does; each evaluation costs one likelihood call per past dataset),
-        ``"transition"`` otherwise.
+        ``"smc2"`` when the kernel has both static and drifting components (outer particles
+        over the static parameters, each with an inner filter over the drifting ones:
+        :mod:`seqbayes.nested`), ``"transition"`` otherwise (every parameter drifts).
     shrink_static : bool
         Liu-West shrinkage of the static dimensions' kernel density.
     target_acceptance : float
@@ -114,11 +116,17 @@ class SamplerConfig:
         stage (0.9; 0 disables), up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
     max_moves : int
         Cap on SMC's MH steps per stage.
-    move_every_stage : bool
-        Move the particles after every stage (default; the paper's Algorithm 4). ``False``
+    move_every_stage : bool or None
+        ``True`` moves the particles after every stage (the paper's Algorithm 4). ``False``
         moves only after a resampling, to rejuvenate its duplicates, as IBIS (Chopin 2002)
         and ``particles`` do: cheaper (no likelihood evaluation in a step that keeps its ESS),
-        but duplicates from earlier resamplings are then moved less often.
+        but duplicates from earlier resamplings are then moved less often. ``None`` (default):
+        ``True``, except with the history prior, where the particles are resampled and moved
+        only when the ESS falls below ``ess_threshold`` (every move re-evaluates the past
+        datasets; moving only then spaces the moves out as the posterior concentrates and
+        bounds the amortised cost of an update), and a step that did not move takes its
+        evidence from the weights, not from the importance sampler. ``False`` also defers
+        that resample-move to the next dataset's arrival, as ``particles`` does.
     n_independent : int
         Independence-MH sweeps (3) at the end of a step with ``evidence="importance"``
         (proposals from the posterior-fitted importance density; each sweep after the
@@ -168,7 +176,7 @@ class SamplerConfig:
     evidence: str = "importance"
     moved_fraction: float = 0.9
     max_moves: int = 30
-    move_every_stage: bool = True
+    move_every_stage: bool | None = None
     n_independent: int = 3
     min_evidence_ess: float = 0.3
     max_refits: int = 5
@@ -261,6 +269,8 @@ class Problem:
     support: np.ndarray
     executor: object = None
     n_chunks: int | None = None
+    history: object = None
+    inner_filter: object = None
 
     def __post_init__(self):
         bounded = bool(np.isfinite(self.support).any())  # else the move transform is the identity
@@ -405,11 +415,26 @@ class _Counter:
         self.n_nan += int(nan.sum())
         return np.where(nan, -np.inf, values)
 
+    def summary_loglike(self, theta, summary):
+        """``log prod_k L_k(theta)`` over past datasets from their summed statistics (one call; see
+        :class:`~seqbayes.density.RunningStatistics`), counted as one evaluation per row."""
+        values = np.asarray(self.problem.history.loglike(theta, summary), dtype=float)
+        if values.shape != (theta.shape[0],):
+            raise ValueError(f"history.loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
+                             f"expected ({theta.shape[0]},)")
+        self.n_evals += theta.shape[0]
+        if np.isposinf(values).any():
+            raise ValueError(f"history.loglike: returned +inf at step {self.step}")
+        return np.where(np.isnan(values), -np.inf, values)
+
 
 def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
-    """The predictive construction to use: ``"auto"`` is ``"history"`` for a static kernel, else ``"transition"``."""
+    """The predictive construction to use: ``"auto"`` is ``"history"`` for a static kernel, ``"smc2"`` for
+    one with both static and drifting components, else ``"transition"``."""
     if method == "auto":
-        return "history" if kernel.is_static else "transition"
+        return "history" if kernel.is_static else "smc2" if nested_split(kernel) is not None else "transition"
+    if method == "smc2" and nested_split(kernel) is None:
+        raise ValueError("predictive: 'smc2' needs a kernel of components with both Static and drifting ones")
     if method == "history" and not kernel.is_static:
         raise ValueError("predictive: 'history' (the exact prior p_0 x past likelihoods) needs a kernel whose "
                          "every parameter is Static; with process noise use 'transition' or 'kde'")
@@ -419,7 +444,7 @@ def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
 def _prior_logpdf(prior, counter):
     """The step's prior log-density as a function of ``theta (M, d)`` alone."""
     if isinstance(prior, HistoryPrior):
-        return lambda theta: prior.logpdf(theta, counter.loglike_on)
+        return lambda theta: prior.logpdf(theta, counter.loglike_on, counter.summary_loglike)
     return prior.logpdf
 
 
@@ -481,42 +506,53 @@ def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
     return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn)), n_kept
 
 
-def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
-               rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
-    """Assimilate one dataset: reweight, resample, move, propagate (pure; ``state`` is not modified).
+@dataclass(frozen=True, eq=False)
+class _Cloud:
+    """The weighted particles of one step between stages, with their ``(log L, log p_s)`` components."""
 
-    Returns
-    -------
-    new_state : SamplerState
-    record : StepRecord
+    particles: np.ndarray
+    log_weights: np.ndarray
+    components: np.ndarray
 
-    Raises
-    ------
-    ZeroLikelihoodError
-        If every sample has zero likelihood.
-    """
-    start = time.perf_counter()
-    step = state.step + 1
-    _check_dataset(dataset, step)
-    counter = _Counter(problem, dataset, step)
+
+@dataclass(frozen=True)
+class _Moves:
+    """What the moves of one step did: counts, SEMC's step size, virtual iterations."""
+
+    stats: SweepStats = SweepStats()
+    step_size: float = float("nan")
+    n_virtual: int = 0
+
+    def then(self, stats, step_size, n_virtual, move) -> "_Moves":
+        return _Moves(self.stats + stats, step_size if move == "stretch" else self.step_size,
+                      self.n_virtual + n_virtual)
+
+
+def _rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
+    """IBIS's schedule: the last step's resample-move, deferred to this dataset's arrival (its target
+    is this step's prior, the last posterior). Returns the particles, their log-weights, their prior
+    values (or None), the moves and whether it ran."""
     n = config.n_samples
     particles, log_weights = state.particles, state.log_weights
-    exact_prior = isinstance(state.prior, HistoryPrior)  # static parameters: the particles are the last posterior
-    prior_logpdf = _prior_logpdf(state.prior, counter)
-    method = resolve_predictive(config.predictive, problem.kernel)
-    deferred = method == "history" and not config.move_every_stage  # IBIS's schedule (see SamplerConfig)
-    step_size, stats, n_virtual, rejuvenated = state.step_size, SweepStats(), 0, False
-    log_prior = state.log_prior if exact_prior else None
-    if exact_prior and deferred and ess(log_weights) < config.ess_threshold * n:
-        # the last step's resample-move, deferred to this dataset's arrival: its target is this step's prior
-        index = resample(config.resampling, np.exp(log_weights), rng, n)
-        log_weights = np.full(n, -np.log(n))
-        values = prior_logpdf(particles) if log_prior is None else log_prior
-        particles, components, stats, step_size, n_virtual = _mutate(
-            problem, config, step_size, particles[index], np.column_stack([np.zeros(n), values[index]]), 0.0,
-            prior_logpdf, rng, lambda theta: np.zeros(theta.shape[0]))
-        step_size = step_size if config.move == "stretch" else state.step_size
-        log_prior, rejuvenated = components[:, 1], True
+    if ess(log_weights) >= config.ess_threshold * n:
+        return particles, log_weights, state.log_prior, moves, False
+    index = resample(config.resampling, np.exp(log_weights), rng, n)
+    values = prior_logpdf(particles) if state.log_prior is None else state.log_prior
+    particles, components, stats, step_size, n_virtual = _mutate(
+        problem, config, moves.step_size, particles[index], np.column_stack([np.zeros(n), values[index]]), 0.0,
+        prior_logpdf, rng, lambda theta: np.zeros(theta.shape[0]))
+    return particles, np.full(n, -np.log(n)), components[:, 1], moves.then(stats, step_size, n_virtual, config.move), True
+
+
+def _weigh(state, particles, log_weights, log_prior, problem, config, counter, prior_logpdf, rng):
+    """Stage 1: the likelihood at the prior particles (Eq. A4). When few of them can carry the step
+    (predictive mass outside the parameter space, or a zero-likelihood region such as stick-slip)
+    the step restarts from the prior restricted to ``{inside, L > 0}``.
+
+    Returns the cloud, the log of the restricted prior mass (0 without restart) and the number of
+    distinct restart draws (N without restart)."""
+    n, step = config.n_samples, counter.step
+    exact_prior = isinstance(state.prior, HistoryPrior)
     inside = _inside(particles, problem.support)
     if inside.all():
         loglike = counter.loglike(particles)
@@ -526,12 +562,9 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     valid = np.isfinite(loglike)
     log_restricted_mass, n_found = 0.0, n
     if not valid.any() and (inside.all() or exact_prior):
-        raise ZeroLikelihoodError(
-            f"step {step}: every sample has zero likelihood; the "
-            f"{_prior_name(step)} is too far from the data")
+        raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
+                                  f"{_prior_name(step)} is too far from the data")
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
-        # Few particles can carry the step (predictive mass outside the parameter space, or a zero-likelihood
-        # region such as stick-slip): start from the prior restricted to {inside, L > 0} instead.
         particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
                                                                              rng, step, counter)
         log_weights = np.full(n, -np.log(n))
@@ -541,7 +574,16 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         components = np.column_stack([loglike, np.full(n, -np.inf)])
         carried = np.isfinite(loglike)
         components[carried, 1] = prior_logpdf(particles[carried])
+    return _Cloud(particles, log_weights, components), log_restricted_mass, n_found
 
+
+def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng):
+    """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move.
+
+    Returns the cloud, the path's log-evidence (Eq. 1), the temperatures, the moves, whether the last
+    stage resampled and the last stage's ESS (before resampling)."""
+    n, step = config.n_samples, counter.step
+    particles, log_weights, components = cloud.particles, cloud.log_weights, cloud.components
     beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
         if len(temperatures) >= config.max_stages:
@@ -571,56 +613,129 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
             index = resample(config.resampling, weights, rng, n)
             particles, components = particles[index], components[index]
             log_weights = np.full(n, -np.log(n))
-        if resampled or config.move_every_stage:
-            particles, components, stage_stats, step_size_new, virtual = _mutate(
-                problem, config, step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
-            if config.move == "stretch":
-                step_size = step_size_new
-            stats, n_virtual = stats + stage_stats, n_virtual + virtual
-    log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
-    log_increment, evidence_ess, n_independent = log_increment_path, float("nan"), 0
-    if config.evidence == "importance":
-        for _ in range(1 + config.max_refits):
-            # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
-            # them and estimate again (each q is independent of its own draws, so every estimate is valid)
-            log_increment, evidence_ess, particles, components, accepted = importance_step(
-                particles, log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
-                config.n_independent)
-            n_independent += accepted
-            if evidence_ess >= config.min_evidence_ess * n:
-                break
-        # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
-        # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
-        if not evidence_ess >= max(10.0, 0.01 * n) or n_found < 0.1 * n:
-            warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
-                          f"{n_found} distinct restart draws); using the tempering path's estimate and the "
-                          f"posterior may be degenerate", RuntimeWarning, stacklevel=3)
-            log_increment = log_increment_path
-    log_evidence = float(state.log_evidence + log_increment)
-    next_log_prior = None
+        if resampled or move_every_stage:
+            particles, components, stats, step_size, n_virtual = _mutate(
+                problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
+            moves = moves.then(stats, step_size, n_virtual, config.move)
+    return _Cloud(particles, log_weights, components), log_z, tuple(temperatures), moves, resampled, stage_ess
+
+
+def _moves_every_stage(config, method) -> bool:
+    """``move_every_stage``, where ``None`` (auto) is False for the exact history prior (IBIS's schedule:
+    a move re-evaluates every past dataset, so moving only after a resampling, when the ESS has fallen,
+    spaces the moves out as the posterior concentrates and bounds the amortised cost per update)."""
+    if config.move_every_stage is not None:
+        return config.move_every_stage
+    return method != "history"
+
+
+def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng):
+    """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
+    (:mod:`seqbayes.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
+
+    Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
+    n, step = config.n_samples, counter.step
+    if not use_importance:
+        return cloud, log_increment_path, float("nan"), 0
+    particles, components = cloud.particles, cloud.components
+    n_independent = 0
+    for _ in range(1 + config.max_refits):
+        # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
+        # them and estimate again (each q is independent of its own draws, so every estimate is valid)
+        log_increment, evidence_ess, particles, components, accepted = importance_step(
+            particles, cloud.log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
+            config.n_independent)
+        n_independent += accepted
+        if evidence_ess >= config.min_evidence_ess * n:
+            break
+    # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
+    # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
+    if not evidence_ess >= max(10.0, 0.01 * n) or n_found < 0.1 * n:
+        warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
+                      f"{n_found} distinct restart draws); using the tempering path's estimate and the "
+                      f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
+        log_increment = log_increment_path
+    return _Cloud(particles, cloud.log_weights, components), log_increment, evidence_ess, n_independent
+
+
+def _propagate(state, cloud, dataset, log_increment, log_evidence, method, problem, config, rng):
+    """Stage 6: the next step's prior (Eq. A2-A3). Returns the density, its particles and their prior
+    values (known for the history prior: the particles are the posterior itself)."""
     if method == "history":  # the next prior is this posterior, exactly: keep the particles and their weights
-        past = state.prior.datasets if exact_prior else ()
-        kept = dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)  # callers reuse buffers
-        density = HistoryPrior(problem.prior, past + (kept,), log_evidence)
-        predictive = particles
-        next_log_prior = components[:, 0] + components[:, 1] - float(log_increment)  # no +inf: no NaN
-    else:
-        density, predictive = predictive_density(particles, log_weights, problem.kernel, rng, method,
-                                                 config.shrink_static)
+        density = state.prior.extended(dataset, log_evidence) if isinstance(state.prior, HistoryPrior) else \
+            HistoryPrior.start(problem.prior, problem.history, dataset, log_evidence)
+        next_log_prior = cloud.components[:, 0] + cloud.components[:, 1] - float(log_increment)  # no +inf: no NaN
+        return density, cloud.particles, next_log_prior
+    density, predictive = predictive_density(cloud.particles, cloud.log_weights, problem.kernel, rng, method,
+                                             config.shrink_static)
+    return density, predictive, None
+
+
+def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
+               rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
+    """Assimilate one dataset (pure; ``state`` is not modified): weigh the prior particles, temper,
+    resample and move, estimate the evidence, propagate through the kernel.
+
+    Returns
+    -------
+    new_state : SamplerState
+    record : StepRecord
+
+    Raises
+    ------
+    ZeroLikelihoodError
+        If every sample has zero likelihood.
+    """
+    start = time.perf_counter()
+    step = state.step + 1
+    _check_dataset(dataset, step)
+    counter = _Counter(problem, dataset, step)
+    if isinstance(state, NestedState):
+        return assimilate_nested(state, dataset, problem, config, counter, rng)
+    method = resolve_predictive(config.predictive, problem.kernel)
+    prior_logpdf = _prior_logpdf(state.prior, counter)
+    history = isinstance(state.prior, HistoryPrior)  # static parameters: the particles are the last posterior
+    move_every_stage = _moves_every_stage(config, method)
+    # IBIS's schedule exactly (particles'): the last stage's resample-move waits for the next dataset
+    deferred = method == "history" and config.move_every_stage is False
+    moves = _Moves(step_size=state.step_size)
+    particles, log_weights, log_prior, rejuvenated = state.particles, state.log_weights, None, False
+    if history:
+        log_prior = state.log_prior
+        if deferred:
+            particles, log_weights, log_prior, moves, rejuvenated = _rejuvenate_deferred(
+                state, problem, config, prior_logpdf, moves, rng)
+    cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config,
+                                                 counter, prior_logpdf, rng)
+    cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
+        cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng)
+    log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
+    # with the history prior a step that kept its particles needs no fitted proposal: its weights are the
+    # importance weights of the exact prior (and a proposal would re-evaluate the past, at O(s) cost)
+    use_importance = config.evidence == "importance" and not (method == "history" and moves.stats.n_proposed == 0)
+    cloud, log_increment, evidence_ess, n_independent = _evidence(
+        cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng)
+    log_evidence = float(state.log_evidence + log_increment)
+    density, predictive, next_log_prior = _propagate(state, cloud, dataset, log_increment, log_evidence, method,
+                                                     problem, config, rng)
+    step_size = moves.step_size if config.move == "stretch" else float("nan")
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
-        acceptance_rate=stats.acceptance_rate, step_size=float(step_size) if config.move == "stretch" else float("nan"),
-        n_virtual=n_virtual, n_stages=len(temperatures), temperatures=tuple(temperatures),
-        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(particles),
-        n_proposed=stats.n_proposed, n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
+        acceptance_rate=moves.stats.acceptance_rate, step_size=float(step_size),
+        n_virtual=moves.n_virtual, n_stages=len(temperatures), temperatures=temperatures,
+        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(cloud.particles),
+        n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
+        n_identical_partner=moves.stats.n_identical_partner,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
-        n_independent_accepted=n_independent, n_move_evaluations=stats.n_evaluations,
+        n_independent_accepted=n_independent, n_move_evaluations=moves.stats.n_evaluations,
         wall_time=time.perf_counter() - start)
-    record = StepRecord(info, particles, log_weights, predictive)
-    new_state = SamplerState(step=step, particles=predictive, log_weights=log_weights, prior=density,
-                             log_evidence=info.log_evidence, step_size=float(step_size),
-                             posterior=particles, posterior_log_weights=log_weights, log_prior=next_log_prior)
+    record = StepRecord(info, cloud.particles, cloud.log_weights, predictive)
+    new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
+                             log_evidence=log_evidence,
+                             step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                             posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
+                             log_prior=next_log_prior)
     return new_state, record
 
 
@@ -630,7 +745,7 @@ class _SequentialSampler:
     _move = ""
 
     def __init__(self, prior, kernel, loglike, n_samples: int = 1000, rng=None, *, executor=None,
-                 n_chunks: int | None = None, **settings):
+                 n_chunks: int | None = None, history=None, inner_filter=None, **settings):
         if not (hasattr(prior, "logpdf") and hasattr(prior, "sample")):
             raise TypeError("prior: expected an object with logpdf(theta) and sample(n, rng)")
         if not isinstance(kernel, MarkovKernel):
@@ -655,10 +770,25 @@ class _SequentialSampler:
         config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
         # record what "auto" chose; a 'history' prior needs a static kernel
         self.config = replace(config, predictive=resolve_predictive(config.predictive, kernel))
-        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks)
+        if history is not None and not isinstance(history, RunningStatistics):
+            raise TypeError("history: expected a seqbayes.RunningStatistics(summarise, loglike)")
+        if self.config.predictive == "smc2":
+            inner_filter = ParticleInnerFilter() if inner_filter is None else inner_filter
+            if not (hasattr(inner_filter, "advance") and hasattr(inner_filter, "draws")):
+                raise TypeError("inner_filter: expected a seqbayes.ParticleInnerFilter or KalmanInnerFilter")
+        elif inner_filter is not None:
+            raise ValueError(f"inner_filter: only used with predictive='smc2' (static and drifting parameters), "
+                             f"this run uses {self.config.predictive!r}")
+        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks, history,
+                               inner_filter)
         self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
-        self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
-                                   prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))
+        if self.config.predictive == "smc2":
+            split = nested_split(kernel)
+            inner_filter.check(self.problem, split)
+            self._state = start_nested(prior, split, initial, float(self.config.step_size))
+        else:
+            self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
+                                       prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))
         self._records: list[StepRecord] = []
 
     @property

@@ -18,7 +18,7 @@ from ..kernels import Drift, MarkovKernel, Static
 from ..priors import JointPrior
 from ..rng import as_generator
 
-__all__ = ["LinearGaussianProblem", "kalman_filter", "KalmanStep"]
+__all__ = ["LinearGaussianProblem", "LinearGaussianStateSpace", "kalman_filter", "KalmanStep"]
 
 
 @dataclass(frozen=True)
@@ -105,3 +105,125 @@ def kalman_filter(problem: LinearGaussianProblem, datasets) -> list[KalmanStep]:
         total += increment
         out.append(KalmanStep(mean.copy(), cov.copy(), float(increment), float(total)))
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class LinearGaussianStateSpace:
+    """A linear-Gaussian on-line problem with any mix of static and drifting parameters.
+
+    Dataset ``s`` holds ``y_s = X theta_s + eps``, ``eps ~ N(0, r^2 I)``, with a fixed design
+    ``X (m, d)``; each parameter evolves as ``theta_{s+1, j} = g_j theta_{s, j} + c_j + nu_j``,
+    ``nu_j ~ N(0, q_j^2)`` (``g = 1, c = 0, q = 0``: static; ``g = 1, q > 0``: a random walk,
+    :class:`~seqbayes.Drift`; ``g = exp(-rate)``: AR(1) decay, :class:`~seqbayes.Decay`). With
+    independent Gaussian priors the Kalman filter gives the exact filtering posterior and evidence
+    (:meth:`exact`) at every step, however long the stream.
+
+    Attributes
+    ----------
+    design : (m, d) array
+    kinds : tuple of str
+        Per parameter: ``"static"``, ``"drift"`` or ``"decay"``.
+    rates : (d,) array
+        Drift rate ``c_j`` or decay rate (``g_j = exp(-rate)``); ignored for static parameters.
+    process_std : (d,) array
+        ``q_j`` (0 for static parameters).
+    prior_mean, prior_std : (d,) arrays
+    noise_std : float
+    """
+
+    design: np.ndarray
+    kinds: tuple
+    rates: np.ndarray
+    process_std: np.ndarray
+    prior_mean: np.ndarray
+    prior_std: np.ndarray
+    noise_std: float = 0.5
+
+    def __post_init__(self):
+        for name in ("design", "rates", "process_std", "prior_mean", "prior_std"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=float))
+        d = self.design.shape[1]
+        if len(self.kinds) != d or any(k not in ("static", "drift", "decay") for k in self.kinds):
+            raise ValueError(f"kinds: expected {d} of 'static', 'drift', 'decay', got {self.kinds}")
+
+    @classmethod
+    def mixed(cls, m: int = 10, seed: int = 7) -> "LinearGaussianStateSpace":
+        """The long-stream benchmark of issue 10: one AR(1)-decaying, one drifting and two static
+        parameters, ``m`` observations per dataset."""
+        rng = np.random.default_rng(seed)
+        design = np.column_stack([rng.normal(size=(m, 3)), np.ones(m)])
+        return cls(design, ("decay", "drift", "static", "static"), rates=(0.1, 0.0, 0.0, 0.0),
+                   process_std=(0.1, 0.05, 0.0, 0.0), prior_mean=(0.0, 0.0, 0.0, 0.0),
+                   prior_std=(1.0, 1.0, 1.0, 1.0), noise_std=0.5)
+
+    @property
+    def gains(self) -> np.ndarray:
+        return np.array([np.exp(-r) if k == "decay" else 1.0 for k, r in zip(self.kinds, self.rates)])
+
+    @property
+    def shifts(self) -> np.ndarray:
+        return np.array([r if k == "drift" else 0.0 for k, r in zip(self.kinds, self.rates)])
+
+    @property
+    def names(self) -> tuple:
+        return tuple(f"theta_{j}" for j in range(self.design.shape[1]))
+
+    @property
+    def prior(self) -> JointPrior:
+        return JointPrior({n: stats.norm(m, s) for n, m, s in zip(self.names, self.prior_mean, self.prior_std)})
+
+    @property
+    def kernel(self) -> MarkovKernel:
+        from ..kernels import Decay
+
+        parts = []
+        for kind, rate, q in zip(self.kinds, self.rates, self.process_std):
+            parts.append(Static() if kind == "static" else Drift(rate, noise_std=q) if kind == "drift"
+                         else Decay(rate, noise_std=q))
+        return MarkovKernel(parts)
+
+    def loglike(self, theta, y) -> np.ndarray:
+        """``log p(y | theta)`` for ``theta (N, d)`` and one dataset ``y (m,)``; returns ``(N,)``."""
+        residual = np.asarray(y, dtype=float)[None, :] - theta @ self.design.T
+        return (-0.5 * np.einsum("ij,ij->i", residual, residual) / self.noise_std**2
+                - y.size * (np.log(self.noise_std) + 0.5 * np.log(2.0 * np.pi)))
+
+    def observe(self, static, y):
+        """The declaration for :class:`~seqbayes.nested.KalmanInnerFilter`: ``(H, b, r, y)`` given the
+        static parameters ``static (K, d_s)``."""
+        is_static = np.array([k == "static" for k in self.kinds])
+        offset = static @ self.design[:, is_static].T
+        noise = np.full(offset.shape, self.noise_std**2)
+        return self.design[None, :, ~is_static], offset, noise, np.asarray(y, dtype=float)
+
+    def simulate(self, n_steps: int, rng=None):
+        """Datasets ``(n_steps, m)`` and the true ``(n_steps, d)`` parameter path."""
+        rng = as_generator(rng)
+        theta = rng.normal(self.prior_mean, self.prior_std)
+        path, data = [], []
+        for s in range(n_steps):
+            if s > 0:
+                theta = self.gains * theta + self.shifts + self.process_std * rng.standard_normal(theta.size)
+            path.append(theta.copy())
+            data.append(self.design @ theta + self.noise_std * rng.standard_normal(self.design.shape[0]))
+        return np.array(data), np.array(path)
+
+    def exact(self, datasets) -> list[KalmanStep]:
+        """The Kalman filter: exact filtering moments and cumulative log-evidence at every step."""
+        mean, cov = self.prior_mean.copy(), np.diag(self.prior_std**2)
+        gains, process = self.gains, np.diag(self.process_std**2)
+        noise = self.noise_std**2 * np.eye(self.design.shape[0])
+        out, total = [], 0.0
+        for s, y in enumerate(np.asarray(datasets, dtype=float)):
+            if s > 0:
+                mean = gains * mean + self.shifts
+                cov = cov * np.outer(gains, gains) + process
+            innovation_cov = self.design @ cov @ self.design.T + noise
+            increment = stats.multivariate_normal.logpdf(y, self.design @ mean, innovation_cov)
+            gain = np.linalg.solve(innovation_cov, self.design @ cov).T
+            mean = mean + gain @ (y - self.design @ mean)
+            cov = cov - gain @ self.design @ cov
+            cov = 0.5 * (cov + cov.T)
+            total += increment
+            out.append(KalmanStep(mean.copy(), cov.copy(), float(increment), float(total)))
+        return out

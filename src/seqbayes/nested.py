@@ -1,0 +1,494 @@
+"""SMC^2: exact on-line inference when static and drifting parameters are tracked together.
+
+The transition mixture of :mod:`seqbayes.density` carries the posterior of a static
+parameter through a kernel density every step; over hundreds of steps that
+re-summarisation collapses the static posterior (``docs/core.md`` measures it). SMC^2
+(Chopin, Jacob and Papaspiliopoulos 2013) avoids it by never propagating a static
+parameter through a density at all:
+
+- outer particles ``phi_i`` carry the static parameters (the kernel's :class:`~seqbayes.Static`
+  components) with weights ``W_i``;
+- each carries an inner filter over the drifting parameters ``x`` built from the user's
+  :class:`~seqbayes.MarkovKernel` and likelihood: a bootstrap particle filter of ``M`` particles
+  (:class:`ParticleInnerFilter`, any model), or a Kalman filter when the user declares the
+  observation linear-Gaussian in ``x`` (:class:`KalmanInnerFilter`, exact);
+- the inner filter's likelihood estimate ``p^(D^s | D^{1:s-1}, phi_i)`` reweights ``phi_i``
+  (unbiased, so the outer target is exact whatever ``M``), with adaptive tempering of that
+  estimate when one step would leave ESS < ``tempering_threshold * N`` (density tempering,
+  Duan and Fulop 2015);
+- when the ESS falls the outer particles are resampled and moved by particle-marginal
+  Metropolis-Hastings: a proposal ``phi'`` (the sampler's own move: SMC's Gaussian random walk
+  or SEMC's stretch move with its adaptive step size, in log/logit coordinates of bounded
+  parameters) re-runs its inner filter over every dataset so far, and is accepted with the
+  ratio of ``p_0(phi) p^(D^{1:s-1} | phi) p^(D^s | D^{1:s-1}, phi)^beta``. As the posterior
+  concentrates the ESS falls ever more slowly, so these O(s) re-runs space out and the
+  amortised cost of an update stays bounded (``docs/benchmarks.md``, long streams);
+- the evidence increment is the weighted mean of the likelihood estimates (Eq. 1 over the
+  tempering stages).
+
+Per step the record holds one draw of ``(phi_i, x_i)`` per outer particle (``x_i`` from its
+inner filter), so the drifting parameters' filtering posterior, forecasts through the kernel
+and the cumulative log-evidence come out as from the other samplers.
+
+Why by hand: ``particles`` has SMC^2, but its inner filters are Python objects, one per outer
+particle, and its models are per-particle classes; here every inner filter of every outer
+particle advances in one vectorised ``(N, M, d)`` call of the user's ``loglike(theta, data)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kernels import Decay, Drift, MarkovKernel, Static
+from .moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from .priors import JointPrior
+from .resampling import resample
+from .results import StepInfo, StepRecord
+from .transforms import BoxTransform
+from .weights import logsumexp
+
+__all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
+           "assimilate_nested"]
+
+
+def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
+    """Column indices ``(static, drifting)`` when the kernel has both :class:`~seqbayes.Static`
+    components and others, else ``None`` (SMC^2 does not apply)."""
+    if not kernel.components:
+        return None
+    static = np.array([isinstance(c, Static) for c in kernel.components])
+    if static.all() or not static.any():
+        return None
+    return np.flatnonzero(static), np.flatnonzero(~static)
+
+
+def _joint(static, drifting, split, dim) -> np.ndarray:
+    """Rows ``theta (K, d)`` from static ``(K, d_s)`` and drifting ``(K, d_x)`` columns."""
+    theta = np.empty((static.shape[0], dim))
+    theta[:, split[0]] = static
+    theta[:, split[1]] = drifting
+    return theta
+
+
+def _take(cloud: dict, index) -> dict:
+    return {key: value[index] for key, value in cloud.items()}
+
+
+def _where(accept, new: dict, old: dict) -> dict:
+    out = {}
+    for key, value in old.items():
+        mask = accept.reshape((-1,) + (1,) * (value.ndim - 1))
+        out[key] = np.where(mask, new[key], value)
+    return out
+
+
+def _systematic_rows(log_weights, rng) -> np.ndarray:
+    """Systematic resampling of each row of ``log_weights (K, M)`` at once: ancestor indices ``(K, M)``."""
+    k, m = log_weights.shape
+    weights = np.exp(log_weights - log_weights.max(axis=1, keepdims=True))
+    cdf = np.cumsum(weights, axis=1)
+    cdf /= cdf[:, -1:]
+    offsets = np.arange(k)[:, None]
+    points = (rng.random((k, 1)) + np.arange(m)) / m + offsets
+    index = np.searchsorted((cdf + offsets).ravel(), points.ravel(), side="right").reshape(k, m) - offsets * m
+    return np.clip(index, 0, m - 1)
+
+
+@dataclass(frozen=True)
+class ParticleInnerFilter:
+    """A bootstrap particle filter over the drifting parameters, one per outer particle, all at once.
+
+    Parameters
+    ----------
+    n_inner : int
+        Inner particles ``M`` per outer particle (100). The outer target is exact for any ``M``;
+        a larger ``M`` lowers the noise of the likelihood estimates, which raises the PMMH
+        acceptance over long histories (the variance of ``log p^(D^{1:s})`` grows like ``s / M``).
+    ess_threshold : float
+        An inner filter resamples when its ESS falls below this fraction of ``M`` (0.5).
+    """
+
+    n_inner: int = 100
+    ess_threshold: float = 0.5
+
+    def __post_init__(self):
+        if int(self.n_inner) != self.n_inner or self.n_inner < 1:
+            raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
+        if not 0.0 <= self.ess_threshold <= 1.0:
+            raise ValueError(f"ess_threshold: must lie in [0, 1], got {self.ess_threshold}")
+
+    def check(self, problem, split) -> None:
+        if not isinstance(problem.prior, JointPrior):
+            raise TypeError("prior: SMC^2 draws the drifting parameters from their own marginals; "
+                            "give a seqbayes.JointPrior (independent marginals)")
+
+    def advance(self, problem, split, static, cloud, dataset, first, counter, rng):
+        """One step of every inner filter.
+
+        Parameters
+        ----------
+        static : (K, d_s) array
+        cloud : dict or None
+            ``{"x": (K, M, d_x), "log_w": (K, M)}`` after the last step (``None`` at ``first``).
+        first : bool
+            Draw the inner particles from the prior instead of propagating them.
+        counter : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
+            Evaluates (and counts) the user's likelihood.
+
+        Returns
+        -------
+        log_increment : (K,) array
+            ``log p^(D^s | D^{1:s-1}, phi)``; ``-inf`` where every inner particle has zero likelihood.
+        cloud : dict
+        """
+        k, m, dim = static.shape[0], int(self.n_inner), problem.kernel.dim
+        phi = np.repeat(static, m, axis=0)
+        if first:
+            theta = problem.prior.sample(k * m, rng)
+            theta[:, split[0]] = phi
+            log_w = np.full((k, m), -np.log(m))
+        else:
+            theta = problem.kernel.propagate(_joint(phi, cloud["x"].reshape(k * m, -1), split, dim), rng)  # Eq. (A2)
+            log_w = cloud["log_w"]
+        support = problem.support
+        inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
+        loglike = np.full(k * m, -np.inf)
+        if inside.all():
+            loglike = counter.loglike_on(theta, dataset)
+        elif inside.any():
+            loglike[inside] = counter.loglike_on(theta[inside], dataset)
+        loglike = loglike.reshape(k, m)
+        with np.errstate(invalid="ignore"):
+            joint = log_w + loglike
+            peak = np.max(joint, axis=1, keepdims=True)
+            alive = np.isfinite(peak[:, 0])
+            log_increment = np.full(k, -np.inf)
+            log_increment[alive] = (np.log(np.exp(joint[alive] - peak[alive]).sum(axis=1)) + peak[alive, 0])
+        log_w = np.where(alive[:, None], joint - np.where(alive, log_increment, 0.0)[:, None], -np.log(m))
+        x = theta[:, split[1]].reshape(k, m, -1)
+        ess = 1.0 / np.sum(np.exp(2.0 * log_w), axis=1)
+        rows = np.flatnonzero(alive & (ess < self.ess_threshold * m))
+        if rows.size:
+            index = _systematic_rows(log_w[rows], rng)
+            x[rows] = x[rows[:, None], index]
+            log_w[rows] = -np.log(m)
+        return log_increment, {"x": x, "log_w": log_w}
+
+    def draws(self, cloud, rng) -> np.ndarray:
+        """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
+        index = _categorical_rows(cloud["log_w"], rng)
+        return cloud["x"][np.arange(index.size), index]
+
+
+def _categorical_rows(log_weights, rng) -> np.ndarray:
+    """One index per row of ``log_weights (K, M)``, drawn with those weights."""
+    weights = np.exp(log_weights - log_weights.max(axis=1, keepdims=True))
+    cdf = np.cumsum(weights, axis=1)
+    u = rng.random(weights.shape[0]) * cdf[:, -1]
+    return np.minimum((cdf < u[:, None]).sum(axis=1), weights.shape[1] - 1)
+
+
+@dataclass(frozen=True, eq=False)
+class KalmanInnerFilter:
+    """An exact inner filter for drifting parameters that enter the observation linearly.
+
+    The user declares ``y = H(phi, D) x + b(phi, D) + e``, ``e ~ N(0, diag(r(phi, D)))``; the
+    drifting parameters ``x`` then have a Gaussian filtering posterior given each ``phi`` when
+    their kernel components are :class:`~seqbayes.Drift` or :class:`~seqbayes.Decay` (linear, with
+    Gaussian noise) and their prior marginals are normal. The likelihood estimate is then the
+    exact ``p(D^s | D^{1:s-1}, phi)`` (Rao-Blackwellised SMC^2), so PMMH is exact MH.
+
+    Parameters
+    ----------
+    observe : callable ``(phi (K, d_s), dataset) -> (H, b, r, y)``
+        ``H (K, m, d_x)``, ``b (K, m)``, ``r (K, m)`` (noise variances) and ``y (m,)``.
+    """
+
+    observe: object
+
+    def check(self, problem, split) -> None:
+        prior, kernel = problem.prior, problem.kernel
+        if not isinstance(prior, JointPrior):
+            raise TypeError("prior: KalmanInnerFilter needs a seqbayes.JointPrior with normal drifting marginals")
+        for j in split[1]:
+            dist = prior.distributions[j]
+            if getattr(getattr(dist, "dist", None), "name", None) != "norm":
+                raise ValueError(f"prior: {prior.names[j]!r} must be normal for KalmanInnerFilter")
+            if not isinstance(kernel.components[j], (Drift, Decay)):
+                raise ValueError(f"kernel: {prior.names[j]!r} must be Drift or Decay for KalmanInnerFilter")
+
+    def advance(self, problem, split, static, cloud, dataset, first, counter, rng):
+        """One Kalman step per outer particle; arguments and returns as :meth:`ParticleInnerFilter.advance`
+        (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
+        k, d_x = static.shape[0], split[1].size
+        if first:
+            dists = [problem.prior.distributions[j] for j in split[1]]
+            mean = np.tile([d.mean() for d in dists], (k, 1))
+            cov = np.tile(np.diag([d.var() for d in dists]), (k, 1, 1))
+        else:  # predict through the linear kernel, Eq. (A2)
+            components = [problem.kernel.components[j] for j in split[1]]
+            gain = np.array([1.0 if isinstance(c, Drift) else np.exp(-c.rate) for c in components])
+            shift = np.array([c.rate if isinstance(c, Drift) else 0.0 for c in components])
+            noise = np.array([c.noise_std for c in components]) ** 2
+            mean = cloud["mean"] * gain + shift
+            cov = cloud["cov"] * np.outer(gain, gain) + np.diag(noise)
+        design, offset, noise_var, y = self.observe(static, dataset)
+        design = np.broadcast_to(np.asarray(design, dtype=float), (k,) + np.shape(design)[-2:])
+        if design.shape[2] != d_x:
+            raise ValueError(f"observe: H has {design.shape[2]} columns, there are {d_x} drifting parameters")
+        innovation = np.asarray(y, dtype=float) - offset - np.einsum("kmj,kj->km", design, mean)
+        precision_noise = 1.0 / np.broadcast_to(np.asarray(noise_var, dtype=float), innovation.shape)
+        # information form (d_x x d_x, never m x m): posterior precision P^-1 + H^T R^-1 H
+        information = np.einsum("kmi,km,kmj->kij", design, precision_noise, design)
+        projected = np.einsum("kmi,km->ki", design, precision_noise * innovation)
+        posterior_cov = np.linalg.inv(np.linalg.inv(cov) + information)
+        posterior_cov = 0.5 * (posterior_cov + posterior_cov.transpose(0, 2, 1))
+        correction = np.einsum("kij,kj->ki", posterior_cov, projected)
+        # log N(v; 0, S) with S = H P H^T + R, by the determinant lemma and Woodbury's identity
+        log_det = (-np.log(precision_noise).sum(axis=1) + np.linalg.slogdet(cov)[1]
+                   - np.linalg.slogdet(posterior_cov)[1])
+        quadratic = np.sum(precision_noise * innovation**2, axis=1) - np.einsum("ki,ki->k", projected, correction)
+        log_increment = -0.5 * (quadratic + log_det + innovation.shape[1] * np.log(2.0 * np.pi))
+        counter.n_evals += k
+        mean, cov = mean + correction, posterior_cov
+        return log_increment, {"mean": mean, "cov": cov}
+
+    def draws(self, cloud, rng) -> np.ndarray:
+        chol = np.linalg.cholesky(cloud["cov"] + 1e-300 * np.eye(cloud["cov"].shape[1]))
+        return cloud["mean"] + np.einsum("kij,kj->ki", chol, rng.standard_normal(cloud["mean"].shape))
+
+
+@dataclass(frozen=True, eq=False)
+class NestedState:
+    """Everything SMC^2 needs to assimilate the next dataset.
+
+    Attributes
+    ----------
+    step : int
+    static : (N, d_s) array
+        Outer particles: the static parameters.
+    cloud : dict of arrays with leading axis N
+        The inner filters after the last dataset.
+    log_weights : (N,) array
+        Normalised outer log-weights.
+    log_prior : (N,) array
+        ``log p_0(phi)``.
+    log_likelihood : (N,) array
+        ``log p^(D^{1:s} | phi)``, the inner filters' running likelihood estimates.
+    datasets : tuple
+        ``D^1 .. D^s`` (PMMH re-runs the inner filters over them).
+    log_evidence, step_size : float
+    particles : (N, d) array
+        One joint draw per outer particle (the last posterior), for forecasts and resumption.
+    """
+
+    step: int
+    static: np.ndarray
+    cloud: dict
+    log_weights: np.ndarray
+    log_prior: np.ndarray
+    log_likelihood: np.ndarray
+    datasets: tuple
+    log_evidence: float
+    step_size: float
+    particles: np.ndarray = field(default=None)
+
+    @property
+    def posterior(self):
+        return self.particles if self.step else None
+
+    @property
+    def posterior_log_weights(self):
+        return self.log_weights if self.step else None
+
+
+def start_nested(prior, split, draws, step_size) -> NestedState:
+    """The state before the first dataset, from ``draws (N, d)`` of the prior."""
+    n = draws.shape[0]
+    static = draws[:, split[0]]
+    return NestedState(0, static, {}, np.full(n, -np.log(n)), _static_logpdf(prior, split, static),
+                       np.zeros(n), (), 0.0, float(step_size), draws)
+
+
+def _static_logpdf(prior, split, static) -> np.ndarray:
+    total = np.zeros(static.shape[0])
+    for column, j in enumerate(split[0]):
+        total += prior.marginal_logpdf(j, static[:, column])
+    return total
+
+
+def _pmmh(problem, config, inner, split, datasets, static, cloud, components, beta, step_size, counter, rng):
+    """Particle-marginal MH sweeps of the static parameters at tempering exponent ``beta``.
+
+    ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
+    the target is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets``
+    (fresh randomness), which is what makes the noisy likelihood estimate an exact PMMH target.
+    Sweeps continue until ``n_moves`` are done and ``moved_fraction`` of the particles has moved,
+    up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC, whose step size adapts by Eq. 9).
+    """
+    static, components = static.copy(), components.copy()
+    cloud = {key: value.copy() for key, value in cloud.items()}
+    support = problem.support[split[0]]
+    transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
+    position = transform.forward(static) if transform is not None else static.copy()
+    jacobian = transform.log_jacobian(position) if transform is not None else np.zeros(static.shape[0])
+    coefficients = np.array([beta, 1.0, 1.0])
+
+    def target(comp, jac):
+        with np.errstate(invalid="ignore"):
+            out = comp @ coefficients + jac
+        return np.where(np.isnan(out), -np.inf, out)
+
+    current = target(components, jacobian)
+    start = position.copy()
+    stats, n_sweeps, alpha_old = SweepStats(), 0, config.target_acceptance
+    limit = config.max_virtual if config.move == "stretch" else config.max_moves
+    n = static.shape[0]
+    while True:
+        if config.move == "stretch":
+            order = rng.permutation(n)
+            groups = (order[: n // 2], order[n // 2:])
+        else:
+            groups = (np.arange(n),)
+            move = GaussianMove(weighted_covariance(position), config.proposal_scale)
+        sweep_accepted = 0
+        for g, active in enumerate(groups):
+            if config.move == "stretch":
+                proposals, log_hastings, identical = StretchMove(step_size).propose(
+                    position[active], position[groups[1 - g]], rng)
+            else:
+                proposals, log_hastings = move.propose(position[active], rng)
+                identical = np.zeros(active.size, dtype=bool)
+            phi = transform.inverse(proposals) if transform is not None else proposals
+            inside = ~identical & ((phi >= support[:, 0]) & (phi <= support[:, 1])).all(axis=1)
+            new_components = np.full((active.size, 3), -np.inf)
+            new_jacobian = np.zeros(active.size)
+            new_cloud = _take(cloud, active)
+            if inside.any():
+                rows = np.flatnonzero(inside)
+                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, counter, rng)
+                new_components[rows] = np.column_stack([last, _static_logpdf(problem.prior, split, phi[rows]), past])
+                for key in new_cloud:
+                    new_cloud[key][rows] = rerun[key]
+                if transform is not None:
+                    new_jacobian[rows] = transform.log_jacobian(proposals[rows])
+            proposal_target = target(new_components, new_jacobian)
+            accept = metropolis_accept(current[active], proposal_target, log_hastings, rng) & inside
+            moved = active[accept]
+            position[moved] = proposals[accept]
+            static[moved] = phi[accept]
+            components[moved] = new_components[accept]
+            jacobian[moved] = new_jacobian[accept]
+            current[moved] = proposal_target[accept]
+            for key in cloud:
+                cloud[key][moved] = new_cloud[key][accept]
+            sweep_accepted += int(accept.sum())
+            stats = stats + SweepStats(active.size, int(accept.sum()), int(identical.sum()), int(inside.sum()))
+        n_sweeps += 1
+        alpha = sweep_accepted / n
+        if config.move == "stretch":
+            step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
+        moved_enough = (config.moved_fraction == 0
+                        or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction)
+        converged = (config.move != "stretch"
+                     or abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance)
+        if (n_sweeps >= config.n_moves and moved_enough and converged) or n_sweeps >= limit:
+            break
+        alpha_old = alpha
+    return static, cloud, components, stats, step_size, n_sweeps
+
+
+def _run_inner(problem, inner, split, static, datasets, counter, rng):
+    """Re-run inner filters from the first dataset: ``log p^(D^{1:s-1})``, ``log p^(D^s | D^{1:s-1})``
+    and the final cloud, for ``static (K, d_s)``."""
+    past = np.zeros(static.shape[0])
+    cloud, last = None, None
+    for k, dataset in enumerate(datasets):
+        if last is not None:
+            past = past + last
+        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, counter, rng)
+    return past, last, cloud
+
+
+def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng):
+    """Assimilate one dataset with SMC^2 (pure; ``state`` is not modified).
+
+    Returns
+    -------
+    new_state : NestedState
+    record : StepRecord
+    """
+    from .sequential import TemperingLimitError, ZeroLikelihoodError, _next_increment, _prior_name, count_distinct
+
+    start = time.perf_counter()
+    step = state.step + 1
+    n = config.n_samples
+    split, inner = nested_split(problem.kernel), problem.inner_filter
+    datasets = state.datasets + (_kept(dataset),)
+    log_increment, cloud = inner.advance(problem, split, state.static, state.cloud or None, dataset, step == 1,
+                                         counter, rng)
+    static, log_weights = state.static, state.log_weights
+    components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
+    if not np.isfinite(log_increment).any():
+        raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
+                                  f"{_prior_name(step)} is too far from the data")
+    beta, log_z, temperatures = 0.0, 0.0, []
+    stats, step_size, n_sweeps, resampled = SweepStats(), state.step_size, 0, False
+    while beta < 1.0:
+        if len(temperatures) >= config.max_stages:
+            raise TemperingLimitError(f"step {step}: tempering reached exponent {beta:.3g} after max_stages = "
+                                      f"{config.max_stages} stages; the dataset lies very far from the "
+                                      f"{_prior_name(step)} (check its units and the model), or raise max_stages")
+        remaining = 1.0 - beta
+        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
+                                 config.tempering_threshold) if config.tempering else remaining)
+        if remaining - delta < 1e-12:
+            delta = remaining
+        finite = np.isfinite(components[:, 0])
+        increment = np.where(finite, delta * np.where(finite, components[:, 0], 0.0), -np.inf)
+        stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
+        if not np.isfinite(stage_log_z):
+            raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
+                                      f"{_prior_name(step)} is too far from the data")
+        log_z += stage_log_z
+        beta = 1.0 if delta == remaining else beta + delta
+        temperatures.append(beta)
+        log_weights = log_weights + increment - stage_log_z
+        weights = np.exp(log_weights)
+        stage_ess = float(1.0 / np.dot(weights, weights))
+        resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
+        if resampled:  # resample-move (PMMH) only when the ESS has fallen
+            index = resample(config.resampling, weights, rng, n)
+            static, components, cloud = static[index], components[index], _take(cloud, index)
+            log_weights = np.full(n, -np.log(n))
+            static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
+                problem, config, inner, split, datasets, static, cloud, components, beta, step_size,
+                counter, rng)
+            stats, n_sweeps = stats + sweep, n_sweeps + sweeps
+            if config.move == "stretch":
+                step_size = step_size_new
+    posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
+    log_evidence = float(state.log_evidence + log_z)
+    info = StepInfo(
+        step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,
+        resampled=bool(resampled), acceptance_rate=stats.acceptance_rate,
+        step_size=float(step_size) if config.move == "stretch" else float("nan"), n_virtual=n_sweeps,
+        n_stages=len(temperatures), temperatures=tuple(temperatures), n_loglike_evals=counter.n_evals,
+        n_nan=counter.n_nan, n_distinct=count_distinct(static), n_proposed=stats.n_proposed,
+        n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
+        log_evidence_increment_path=float(log_z), evidence_ess=float("nan"), n_independent_accepted=0,
+        n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start)
+    predictive = problem.kernel.propagate(posterior, rng)
+    record = StepRecord(info, posterior, log_weights, predictive)
+    new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
+                            components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior)
+    return new_state, record
+
+
+def _kept(dataset):
+    import copy
+
+    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
