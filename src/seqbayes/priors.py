@@ -90,6 +90,11 @@ class JointPrior:
         total[np.isnan(total)] = -np.inf
         return total
 
+    def marginal_logpdf(self, j: int, values) -> np.ndarray:
+        """Log density of parameter ``j`` alone at ``values (N,)``; ``-inf`` outside its support."""
+        out = np.asarray(self._logpdfs[j](np.asarray(values, dtype=float)), dtype=float)
+        return np.where(np.isnan(out), -np.inf, out)
+
     def sample(self, n: int, rng=None) -> np.ndarray:
         """``n`` independent draws, shape ``(n, d)``."""
         if int(n) < 1:
