@@ -20,7 +20,7 @@ import numpy as np
 from ..structures.shear_building import DiscreteModel
 
 __all__ = ["KalmanResult", "kalman_filter", "kalman_log_likelihood", "measurement_covariance", "process_covariance",
-           "check_filter_inputs"]
+           "check_filter_inputs", "KalmanBank"]
 
 _LOG_2PI = np.log(2 * np.pi)
 
@@ -150,9 +150,41 @@ def kalman_filter(model: DiscreteModel, ground_acceleration, measurements, measu
     return KalmanResult(loglik, incs, means, P)
 
 
+def _sequential_update(mean, P, H, Ht, HHt, yw_k):
+    """Kalman update with whitened channels ``y_w = H X + v``, ``v ~ N(0, I)``,
+    processed one scalar at a time, but with one batched product before and
+    one after: the channel-``j`` columns ``P_j h_l`` of the later channels are
+    downdated as vectors, and ``P - sum_j g_j (P_j h_j)^T`` is one product.
+
+    Returns the updated ``mean (N, m)``, ``P (N, m, m)`` and the increment
+    ``-0.5 sum_j (log s_j + e_j^2 / s_j)`` (without the constant).
+    """
+    PH = P @ Ht  # (N, m, p), column j becomes P_j h_j once channels < j are processed
+    HPH = H @ PH  # (N, p, p): h_l . P h_j
+    p = H.shape[1]
+    gains = np.empty_like(PH)
+    increment = np.zeros(mean.shape[0])
+    innov = yw_k[None, :] - np.einsum("npm,nm->np", H, mean)  # e_l w.r.t. the current mean
+    for j in range(p):  # loop over channels only
+        c = PH[:, :, j]
+        s = HPH[:, j, j] + 1.0
+        e = innov[:, j]
+        g = c / s[:, None]
+        gains[:, :, j] = g
+        mean = mean + g * e[:, None]
+        increment -= 0.5 * (np.log(s) + e * e / s)
+        if j + 1 < p:  # downdate the later channels' columns, cross terms and innovations
+            hc = HPH[:, j + 1 :, j] / s[:, None]  # (N, p - j - 1): h_l . g
+            PH[:, :, j + 1 :] -= g[:, :, None] * HPH[:, None, j, j + 1 :]
+            HPH[:, j + 1 :, j + 1 :] -= hc[:, :, None] * HPH[:, None, j, j + 1 :]
+            innov[:, j + 1 :] -= hc * e[:, None]
+    P = P - gains @ np.swapaxes(PH, 1, 2)
+    return mean, P, increment
+
+
 def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
                           process_noise_std: float = 0.0, x0=None, P0=None, steady_tol: float = 1e-11,
-                          return_steady_step: bool = False):
+                          return_steady_step: bool = False, return_state: bool = False):
     """``log p(y_{0:T-1} | theta_i)`` for every member: the same numbers as
     :func:`kalman_filter`, computed fast for the many-``theta`` batches of a sampler.
 
@@ -180,6 +212,10 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
         (``0`` disables the steady-state phase).
     return_steady_step : bool
         Also return the step at which the steady state was reached (``T`` if never).
+    return_state : bool
+        Also return the filtered mean ``(N, m)`` and covariance ``(N, m, m)`` of
+        ``X_{T-1}`` given ``y_{0:T-1}`` (to continue the filter, e.g. with
+        :class:`KalmanBank`), after the steady step if both are asked for.
 
     Returns
     -------
@@ -203,16 +239,11 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
     k = 0
     steady = T
     P_prior = None  # the previous step's predicted covariance (steady-state test)
+    Ht = np.swapaxes(H, 1, 2).copy()
+    HHt = H @ Ht  # (N, p, p): h_j . h_l of the whitened channels
     while k < T:  # (1) transient: time-varying covariance, channels one at a time
-        for j in range(p):
-            h = H[:, j, :]
-            Ph = np.einsum("nab,nb->na", P, h)
-            s = np.einsum("na,na->n", h, Ph) + 1.0
-            e = yw[k, j] - np.einsum("na,na->n", h, mean)
-            gain = Ph / s[:, None]
-            mean = mean + gain * e[:, None]
-            P = P - gain[:, :, None] * Ph[:, None, :]
-            loglik -= 0.5 * (np.log(s) + e * e / s)
+        mean, P, increment = _sequential_update(mean, P, H, Ht, HHt, yw[k])
+        loglik += increment
         if k + 1 == T:
             break
         mean = np.einsum("nij,nj->ni", A, mean) + model.B0 * u[k] + model.B1 * u[k + 1]
@@ -248,4 +279,104 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
         z = L_inv @ innov
         logdet = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
         loglik -= 0.5 * (n_left * logdet + (z * z).sum(axis=(1, 2)))
-    return (loglik, steady) if return_steady_step else loglik
+        if return_state:  # filter the last prediction: m + K_f e, P - K_f S K_f^T with K_f = P H^T S^-1
+            filter_gain = P @ np.swapaxes(H, 1, 2) @ S_inv
+            mean = means[-1] + np.einsum("nmp,np->nm", filter_gain, innov[:, :, -1])
+            P = P - filter_gain @ S @ np.swapaxes(filter_gain, 1, 2)
+            P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    out = (loglik,)
+    if return_steady_step:
+        out += (steady,)
+    if return_state:
+        out += (mean, P)
+    return out if len(out) > 1 else loglik
+
+
+class KalmanBank:
+    """``N`` exact Kalman filters advanced together one time step at a time: the
+    on-line likelihood of a particle filter over parameters (resample-move SMC).
+
+    Built from the discrete models of the ``N`` parameter vectors; the
+    channels are whitened by ``R`` once and processed one scalar at a time
+    (sequential processing, as :func:`kalman_log_likelihood`), so a step costs
+    a handful of batched products and no small factorisation. The bank is
+    immutable in spirit: :meth:`step` returns new arrays, and a bank of a
+    subset or a re-ordering of the members is :meth:`take`.
+
+    Parameters
+    ----------
+    model : DiscreteModel
+        ``N`` members.
+    measurement_noise : (p,) stds, scalar, or (p, p) covariance
+    process_noise_std : float
+    """
+
+    def __init__(self, model: DiscreteModel, measurement_noise, process_noise_std: float = 0.0):
+        p = model.H.shape[1]
+        self.model = model
+        self.R = measurement_covariance(measurement_noise, p)
+        chol_R = np.linalg.cholesky(self.R)
+        self.white = np.linalg.inv(chol_R)
+        self.H = np.einsum("ij,njm->nim", self.white, model.H)  # whitened observation (N, p, m)
+        self.Ht = np.swapaxes(self.H, 1, 2).copy()
+        self.Q = process_covariance(model, process_noise_std)
+        self.At = np.swapaxes(model.A, 1, 2)
+        self.process_noise_std = float(process_noise_std)
+        self.constant = -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum())
+
+    @property
+    def n_members(self) -> int:
+        return self.model.A.shape[0]
+
+    def initial_state(self, x0=None, P0=None):
+        """Mean ``(N, m)`` and covariance ``(N, m, m)`` of ``X_0`` (default at rest, known)."""
+        N, m = self.model.A.shape[:2]
+        mean = np.zeros((N, m)) if x0 is None else np.broadcast_to(np.asarray(x0, float), (N, m)).copy()
+        P = np.zeros((N, m, m)) if P0 is None else np.broadcast_to(np.asarray(P0, float), (N, m, m)).copy()
+        return mean, P
+
+    def step(self, mean, P, y_k, u_prev=None, u_now=None):
+        """One step: predict from the filtered ``(mean, P)`` of step ``k - 1`` with
+        inputs ``u_prev = u_{k-1}``, ``u_now = u_k`` (skip the prediction when both
+        are ``None``: the first step), then update with ``y_k (p,)``.
+
+        Returns
+        -------
+        mean : (N, m), P : (N, m, m)
+            Filtered at step ``k``.
+        increment : (N,)
+            ``log p(y_k | y_{0:k-1}, theta_i)``.
+        """
+        model = self.model
+        if u_prev is not None:
+            mean = np.einsum("nij,nj->ni", model.A, mean) + model.B0 * u_prev + model.B1 * u_now
+            P = model.A @ P @ self.At + self.Q
+            P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        yw = self.white @ np.asarray(y_k, float)
+        mean, P, increment = _sequential_update(mean, P, self.H, self.Ht, None, yw)
+        return mean, P, increment + self.constant
+
+    def take(self, index) -> "KalmanBank":
+        """The bank of members ``index``."""
+        new = object.__new__(KalmanBank)
+        new.model = self.model.take(index)
+        new.R, new.white, new.constant = self.R, self.white, self.constant
+        new.process_noise_std = self.process_noise_std
+        new.H, new.Ht, new.Q, new.At = self.H[index], self.Ht[index], self.Q[index], self.At[index]
+        return new
+
+    @staticmethod
+    def concatenate(banks) -> "KalmanBank":
+        """One bank of the members of ``banks`` in order (same noise levels)."""
+        first = banks[0]
+        new = object.__new__(KalmanBank)
+        models = [b.model for b in banks]
+        new.model = DiscreteModel(*(np.concatenate([getattr(mo, f) for mo in models]) for f in ("A", "B0", "B1", "H")),
+                                  first.model.dt, first.model.hold)
+        new.R, new.white, new.constant = first.R, first.white, first.constant
+        new.process_noise_std = first.process_noise_std
+        new.H = np.concatenate([b.H for b in banks])
+        new.Ht = np.concatenate([b.Ht for b in banks])
+        new.Q = np.concatenate([b.Q for b in banks])
+        new.At = np.concatenate([b.At for b in banks])
+        return new

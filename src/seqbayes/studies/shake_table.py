@@ -56,7 +56,8 @@ from ..structures import (
 )
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
-           "integrated_autocorrelation_time", "run_case", "main"]
+           "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",
+           "exact_posterior"]
 
 DT = 0.02
 LOWER, UPPER = 0.7, 1.0
@@ -213,7 +214,8 @@ def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng
                               time.perf_counter() - start)
 
 
-def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4):
+def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4, lower: float = LOWER,
+                      upper: float = UPPER):
     """Gaussian (Laplace) approximation of ``p(theta | y)`` around its mode: Newton
     iterations on the exact Kalman log-likelihood, whose gradient and Hessian come
     from central differences on one batched evaluation of ``1 + 2d + 2d(d-1)``
@@ -235,7 +237,7 @@ def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4
     for _ in range(iterations):
         points = [theta] + [theta + s * eye[i] for i in range(d) for s in (1, -1)]
         points += [theta + si * eye[i] + sj * eye[j] for i, j in pairs for si in (1, -1) for sj in (1, -1)]
-        points = np.clip(np.array(points), LOWER + 1e-6, UPPER - 1e-6)
+        points = np.clip(np.array(points), lower + 1e-6, upper - 1e-6)
         ll = kalman_log_likelihood(discretise(building, points, DT), u, y, data["noise_std"],
                                    data["process_noise_std"])
         f0, fpm = ll[0], ll[1 : 1 + 2 * d].reshape(d, 2)
@@ -245,10 +247,112 @@ def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4
         for c, (i, j) in enumerate(pairs):
             hess[i, j] = hess[j, i] = (cross[c, 0] - cross[c, 1] - cross[c, 2] + cross[c, 3]) / (4 * step**2)
         delta = -np.linalg.solve(hess, grad)
-        theta = np.clip(theta + delta, LOWER + 1e-6, UPPER - 1e-6)
+        theta = np.clip(theta + delta, lower + 1e-6, upper - 1e-6)
         if np.max(np.abs(delta)) < 1e-7:
             break
     return theta, np.linalg.inv(-hess)
+
+
+def synthetic_record(building: ShearBuilding, theta, duration: float, rng=None, noise: float = 0.03,
+                     process_noise: float = 0.05, record: str = "kanai-tajimi", pga_g: float = 0.07,
+                     ground_frequency_hz: float = 2.5, ground_damping: float = 0.6) -> dict:
+    """Noisy floor accelerations of ``building`` at stiffness ratios ``theta`` (same
+    keys as :func:`make_data`): a Kanai-Tajimi record drawn from ``rng`` (or El
+    Centro, ``record="elcentro180"``/``"elcentro270"``) at 50 Hz scaled to
+    ``pga_g``, an unmeasured input noise of ``process_noise`` x the input RMS, and
+    measurement noise of ``noise`` x each channel's RMS."""
+    rng = as_generator(rng)
+    if record == "kanai-tajimi":
+        gm = kanai_tajimi(duration, DT, pga_g, ground_frequency_hz=ground_frequency_hz,
+                          ground_damping=ground_damping, rng=rng)
+    else:
+        gm = scale_to_pga(resample(load_el_centro(record[-3:]), DT).truncate(duration), pga_g)
+    u = gm.acceleration
+    sw = process_noise * float(np.sqrt(np.mean(u**2)))
+    theta = np.asarray(theta, float)
+    model = discretise(building, theta, DT)
+    y, X, drifts = simulate(model, u, process_noise_std=sw, rng=rng,
+                            extra_observations=[building.observation_matrix(theta, "drift")])
+    noisy, std = add_measurement_noise(y[0], noise, rng)
+    return {"building": building, "u": u, "y": noisy, "noise_std": std, "process_noise_std": sw,
+            "drifts": drifts[0], "theta": theta, "time": np.arange(u.size) * DT}
+
+
+@dataclass(frozen=True)
+class ExactPosterior:
+    """Importance sample of the exact posterior of ``theta`` (uniform box prior,
+    exact Kalman likelihood).
+
+    Attributes
+    ----------
+    mean, sd : (d,) arrays
+    q025, q975 : (d,) arrays
+        Weighted 2.5 % and 97.5 % quantiles.
+    ess : float
+        Effective sample size of the importance weights.
+    mean_mc_error : (d,) array
+        Monte Carlo error of ``mean`` in posterior sds (``1 / sqrt(ess)``).
+    samples : (n, d) array
+    log_weights : (n,) array
+    seconds : float
+    """
+
+    mean: np.ndarray
+    sd: np.ndarray
+    q025: np.ndarray
+    q975: np.ndarray
+    ess: float
+    mean_mc_error: np.ndarray
+    samples: np.ndarray
+    log_weights: np.ndarray
+    seconds: float
+
+
+def _log_likelihood_batched(data: dict, theta, batch: int = 500) -> np.ndarray:
+    from ..filters.kalman import kalman_log_likelihood
+
+    out = np.empty(theta.shape[0])
+    for i in range(0, theta.shape[0], batch):  # batches of thetas bound the memory of the steady phase
+        model = discretise(data["building"], theta[i : i + batch], DT)
+        out[i : i + batch] = kalman_log_likelihood(model, data["u"], data["y"], data["noise_std"],
+                                                   data["process_noise_std"])
+    return out
+
+
+def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, upper: float = UPPER,
+                    start=None, inflation: float = 1.5, dof: float = 5.0) -> ExactPosterior:
+    """The exact posterior by importance sampling, independent of any sequential sampler.
+
+    The likelihood mode and Hessian come from Newton steps on the exact Kalman
+    log-likelihood (:func:`laplace_posterior` without the box, so a mode
+    outside the prior box is found as it is); ``n`` draws from a multivariate
+    Student-t (``dof``) centred there with ``inflation`` x the Laplace sd are
+    weighted by prior x likelihood / proposal (draws outside the box weigh 0).
+    """
+    from scipy import stats
+
+    from ..weights import normalise
+
+    start_time = time.perf_counter()
+    rng = as_generator(rng)
+    theta0 = np.asarray(data["theta"] if start is None else start, float)
+    mode, cov = laplace_posterior(data, theta0, iterations=8, lower=0.05, upper=5.0)
+    d = mode.size
+    proposal = stats.multivariate_t(mode, inflation**2 * cov, df=dof)
+    draws = proposal.rvs(size=n, random_state=rng).reshape(n, d)
+    inside = np.all((draws > lower) & (draws < upper), axis=1)
+    logw = np.full(n, -np.inf)
+    logw[inside] = _log_likelihood_batched(data, draws[inside]) - proposal.logpdf(draws[inside])
+    logw = normalise(logw)
+    w = np.exp(logw)
+    mean = w @ draws
+    sd = np.sqrt(w @ (draws - mean) ** 2)
+    ess = float(1 / (w @ w))
+    from ..results import weighted_quantile
+
+    q = weighted_quantile(draws, logw, [0.025, 0.975])
+    return ExactPosterior(mean, sd, q[0], q[1], ess, np.full(d, 1 / np.sqrt(ess)), draws, logw,
+                          time.perf_counter() - start_time)
 
 
 def run_case(case: Case, duration: float = 40.0, members: int = 500, level: int = 6,
