@@ -23,6 +23,8 @@ import argparse
 import importlib
 import json
 import sys
+import traceback
+import warnings
 from pathlib import Path
 
 #: name -> module with ``main(argv)``; each study module parses its own options.
@@ -81,49 +83,75 @@ def cmd_update(args) -> int:
     from tqdm.auto import tqdm
 
     from .config import read_datafile
-    from .store import RunStore, store_lock
+    from .store import BoundWarning, RunStore, store_lock
 
     show = _progress_enabled() and not args.quiet
     with store_lock(args.run):
         store = RunStore.open(args.run)
         tables = [read_datafile(path, store.config) for path in args.datafiles]  # all files checked first
         executor, close = store.config.make_executor()
+        done = []
         try:
             for path, table in tqdm(list(zip(args.datafiles, tables)), desc="datasets", unit="dataset",
                                     disable=not show or len(tables) < 2):
                 with tqdm(desc=f"step {store.n_steps + (0 if args.replace_last else 1)}: likelihood",
-                          unit="eval", disable=not show or executor is not None, leave=False) as bar:
-                    loglike = _CountingLikelihood(store.load_likelihood(), bar) if not bar.disable else None
+                          unit="eval", disable=not show or executor is not None, leave=False) as bar, \
+                        warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always", BoundWarning)
                     try:
+                        loglike = (_CountingLikelihood(store.load_likelihood(args.accept_model_change), bar)
+                                   if not bar.disable else None)
                         info = store.assimilate(table, Path(path).name, replace_last=args.replace_last,
-                                                executor=executor, loglike=loglike)
+                                                executor=executor, loglike=loglike,
+                                                accept_model_change=args.accept_model_change)
                     except (KeyboardInterrupt, SystemExit):
                         raise
                     except Exception as err:
-                        raise CommandError(f"{path}: {_describe(err, store)}") from err
+                        raise CommandError(f"{path}: {_describe(err, store, done)}") from err
+                done.append(f"{Path(path).name} (step {info.step})")
                 tqdm.write(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
                            f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
                            f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f}, {info.n_loglike_evals} likelihood "
                            f"evaluations in {info.wall_time:.2f} s", file=sys.stdout)
+                for warning in caught:
+                    if issubclass(warning.category, BoundWarning):
+                        print(f"seqbayes update: warning: {warning.message}", file=sys.stderr)
                 args.replace_last = False
         finally:
             close()
     return 0
 
 
-def _describe(err, store) -> str:
-    from .config import ConfigError
+def _raised_in(err, files) -> bool:
+    """Whether the exception passed through one of ``files`` (the user's likelihood module)."""
+    files = {str(Path(f).resolve()) for f in files if f}
+    return any(str(Path(frame.filename).resolve()) in files for frame in traceback.extract_tb(err.__traceback__))
+
+
+def _describe(err, store, done=()) -> str:
+    """One line for an update that failed, saying what the run store holds now."""
+    from .config import ConfigError, DataError
     from .store import StoreError
 
-    if isinstance(err, (StoreError, ConfigError)):
-        return str(err)
+    if done:
+        unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
+                     f"ones after it were not assimilated")
+    else:
+        unchanged = "the run store is unchanged"
     text = str(err)
+    if isinstance(err, (StoreError, ConfigError, DataError)):
+        return text if "previous store is kept" in text else f"{text}; {unchanged}"
+    if isinstance(err, OSError):
+        where = f" ({err.filename})" if err.filename else ""
+        return f"{err.strerror or text}{where}; {unchanged}"
     if isinstance(err, ValueError) and text.startswith("loglike"):
-        return f"likelihood {store.config.likelihood}: {text}; the run store is unchanged"
+        return f"likelihood {store.config.likelihood}: {text}; {unchanged}"
+    if _raised_in(err, [store.config.likelihood_file]):
+        return f"the likelihood {store.config.likelihood} raised {type(err).__name__}: {text}; {unchanged}"
     if isinstance(err, ValueError) or type(err).__name__ in ("ZeroLikelihoodError", "TemperingLimitError"):
-        return f"{text}; the run store is unchanged"
-    return (f"the likelihood {store.config.likelihood} (or the sampler) raised {type(err).__name__}: {text}; "
-            f"the run store is unchanged")
+        return f"{text}; {unchanged}"
+    return (f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); "
+            f"{unchanged}")
 
 
 def cmd_status(args) -> int:
@@ -148,6 +176,9 @@ def cmd_predict(args) -> int:
         raise CommandError(f"{args.run}: no dataset assimilated yet; nothing to forecast from")
     if args.steps < 1:
         raise CommandError(f"--steps: must be >= 1, got {args.steps}")
+    if args.output and Path(args.output).is_dir():
+        raise CommandError(f"{args.output}: is a folder; give the forecast's file name, e.g. "
+                           f"{Path(args.output) / 'forecast.csv'}")
     draws = store.predict(args.steps)
     rows = forecast_rows(store, args.steps, args.level, draws)
     if args.output:
@@ -225,6 +256,8 @@ def cmd_report(args) -> int:
         stores, _, _ = _open_for_comparison([args.run, *args.compare])
         others = stores[1:]
     output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
+    if output.is_dir():
+        raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
     try:
         write_report(store, output, others=others, forecast_steps=args.forecast, level=args.level,
                      embed=not args.no_embed)
@@ -253,6 +286,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replace-last", action="store_true",
                    help="roll back the last step and assimilate the (first) dataset in its place")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--accept-model-change", action="store_true",
+                   help="run the likelihood module although its file changed since the run recorded it "
+                        "(the new hash is recorded)")
     p.set_defaults(func=cmd_update)
 
     p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")
@@ -301,10 +337,16 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (CommandError, ConfigError, DataError, StoreError, ValueError) as err:
+    except (CommandError, ConfigError, DataError, StoreError, ValueError, TypeError) as err:
         if args.traceback:
             raise
         print(f"seqbayes {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # a read-only folder, a full disk, a path that is a folder, ...
+        if args.traceback:
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"seqbayes {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
 
 

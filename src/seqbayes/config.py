@@ -43,24 +43,28 @@ from __future__ import annotations
 import csv
 import hashlib
 import importlib
+import importlib.machinery
 import importlib.util
 import json
 import math
 import sys
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config", "read_datafile",
-           "dataset_digest", "load_likelihood"]
+           "dataset_digest", "load_likelihood", "locate_module", "load_located", "ModuleSource", "file_sha256", "check_table"]
 
 #: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
 SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
 SMC_ONLY = ("proposal_scale", "max_moves")
 KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",)}
 EXECUTORS = ("serial", "processes", "dask")
+#: RunConfig fields that do not define the model (not in :meth:`RunConfig.fingerprint`).
+NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "likelihood_file",
+                     "likelihood_sha256")
 
 
 class ConfigError(ValueError):
@@ -133,6 +137,11 @@ class RunConfig:
     executor : {"serial", "processes", "dask"}
     workers : int
     address : str or None
+    likelihood_file : str or None
+        The likelihood module's file when the config was loaded (absolute path).
+    likelihood_sha256 : str or None
+        SHA-256 of that file's content (see :class:`ModuleSource`): a run store
+        runs the module only while the file still has this content.
     """
 
     name: str
@@ -150,6 +159,8 @@ class RunConfig:
     executor: str = "serial"
     workers: int = 2
     address: str | None = None
+    likelihood_file: str | None = None
+    likelihood_sha256: str | None = None
 
     # ------------------------------------------------------------------ builders
     @property
@@ -191,8 +202,12 @@ class RunConfig:
 
         return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
 
+    def locate_likelihood(self) -> "ModuleSource":
+        """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
+        return locate_module(_split_likelihood(self.likelihood)[0], self.search_path)
+
     def load_likelihood(self):
-        """Import and return the likelihood function."""
+        """Import and return the likelihood function (a config is trusted like code)."""
         return load_likelihood(self.likelihood, self.search_path)
 
     def build_sampler(self, executor=None, loglike=None):
@@ -219,7 +234,8 @@ class RunConfig:
                 "priors": self.priors, "kernel": self.kernel, "sampler": self.sampler,
                 "n_samples": self.n_samples, "seed": self.seed, "settings": self.settings,
                 "data_format": self.data_format, "rows": self.rows, "search_path": self.search_path,
-                "executor": self.executor, "workers": self.workers, "address": self.address}
+                "executor": self.executor, "workers": self.workers, "address": self.address,
+                "likelihood_file": self.likelihood_file, "likelihood_sha256": self.likelihood_sha256}
 
     @classmethod
     def from_dict(cls, data: dict) -> "RunConfig":
@@ -233,10 +249,10 @@ class RunConfig:
 
         The prior, kernel, likelihood name, data layout, sampler type and settings,
         sample size and seed; *not* the model's display name, the executor (it
-        does not change the numbers) nor the folder the likelihood is imported from.
+        does not change the numbers), the folder the likelihood is imported from nor its
+        file's hash (the run store records and checks that itself, per step).
         """
-        content = {k: v for k, v in self.to_dict().items()
-                   if k not in ("name", "search_path", "executor", "workers", "address")}
+        content = {k: v for k, v in self.to_dict().items() if k not in NOT_FINGERPRINTED}
         return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
     def make_executor(self):
@@ -254,7 +270,7 @@ class RunConfig:
             client = Client(self.address)
             return client, client.close
         cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
+                               host="127.0.0.1", dashboard_address="127.0.0.1:0")   # not on every interface
         client = Client(cluster)
 
         def close():
@@ -313,6 +329,30 @@ def _sampler_settings(kind):
     return tuple(n for n in names if n not in excluded)
 
 
+def _typed_setting(key, value, source):
+    """A ``[sampler]`` setting checked against the type of its :class:`~seqbayes.SamplerConfig` field.
+
+    ``tempering = "false"`` (a string, which Python would take as true) or ``max_stages = 10.5``
+    are refused rather than silently reinterpreted.
+    """
+    import dataclasses
+
+    from .sequential import SamplerConfig
+
+    kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    name = f"sampler.{key}"
+    if kind == "bool":
+        if not isinstance(value, bool):
+            _fail(source, name, f"expected true or false, got {value!r}")
+        return value
+    if kind in ("int", "float"):  # checked, but kept as written: the stored config (and fingerprint) stay the same
+        _number(value, source, name, integer=kind == "int")
+    if kind == "str" and not isinstance(value, str):
+        _fail(source, name, f"expected a string, got {value!r}")
+    return value
+
+
 def _parse_kernel(name, raw, source):
     prefix = f"kernel.{name}"
     if not isinstance(raw, dict):
@@ -337,28 +377,155 @@ def _parse_kernel(name, raw, source):
 
 
 # ------------------------------------------------------------------ likelihood
-def load_likelihood(spec: str, search_path: str | None = None):
-    """Import ``"module:function"``; ``search_path`` (a folder) is tried first.
+@dataclass(frozen=True)
+class ModuleSource:
+    """Where the likelihood's module lives and what it contains, found without running it.
+
+    Attributes
+    ----------
+    name : str
+        Dotted module name.
+    files : tuple of str
+        Absolute paths of the source files an import executes, outermost package first
+        (one file for a plain module); empty for a module without a Python source file.
+    sha256 : str
+        SHA-256 of the content: of the file itself for a plain module (what ``sha256sum``
+        prints), else of the files' hex digests joined; ``""`` without source files.
+    folder : str or None
+        The folder the module was found in (imported by file path), or None for a module
+        found on ``sys.path`` (installed; imported the usual way).
+    """
+
+    name: str
+    files: tuple
+    sha256: str
+    folder: str | None = None
+
+    @property
+    def file(self) -> str | None:
+        """The module's own file (the last of :attr:`files`)."""
+        return self.files[-1] if self.files else None
+
+
+def _split_likelihood(spec):
+    if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
+        raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
+    return spec.split(":")
+
+
+def file_sha256(path) -> str:
+    """SHA-256 hex digest of a file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _files_sha256(files) -> str:
+    if not files:
+        return ""
+    digests = [file_sha256(f) for f in files]
+    return digests[0] if len(digests) == 1 else hashlib.sha256(" ".join(digests).encode()).hexdigest()
+
+
+def _chain_in_folder(module_name: str, folder) -> tuple | None:
+    """The files ``import module_name`` would run from ``folder`` (packages' ``__init__.py`` first), or None."""
+    parts = module_name.split(".")
+    files = []
+    for i in range(1, len(parts) + 1):
+        base = Path(folder, *parts[:i])
+        if i < len(parts) or not base.with_suffix(".py").is_file():
+            init = base / "__init__.py"
+            if not init.is_file():
+                return None
+            files.append(str(init.resolve()))
+        else:
+            files.append(str(base.with_suffix(".py").resolve()))
+    return tuple(files)
+
+
+def locate_module(module_name: str, folder=None, search_installed: bool = True) -> ModuleSource | None:
+    """Find the likelihood's module without running it: in ``folder`` first, then on ``sys.path``.
+
+    With ``search_installed=False`` only ``folder`` is searched (None when it does not hold the module).
 
     Raises
     ------
     ConfigError
-        If the string is malformed, the module cannot be imported or the
-        attribute is missing or not callable.
+        The module is found nowhere.
     """
-    if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
-        raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
-    module_name, func_name = spec.split(":")
-    if search_path:
-        if search_path not in sys.path:
-            sys.path.insert(0, search_path)
-        _forget_module_from_elsewhere(module_name, search_path)
+    if folder:
+        chain = _chain_in_folder(module_name, folder)
+        if chain:
+            return ModuleSource(module_name, chain, _files_sha256(chain), str(Path(folder).resolve()))
+    if not search_installed:
+        return None
+    try:  # sys.path only, not the module cache (which may hold a module run from some folder)
+        spec = (importlib.machinery.PathFinder.find_spec(module_name) if "." not in module_name
+                else importlib.util.find_spec(module_name))
+    except Exception as err:  # a parent package that fails to import
+        spec, reason = None, f"{type(err).__name__}: {err}"
+    else:
+        reason = f"ModuleNotFoundError: No module named {module_name!r}"
+    if spec is None:
+        where = f" (searched {folder} and sys.path)" if folder else ""
+        raise ConfigError(f"model.likelihood: cannot import module {module_name!r}{where}: {reason}")
+    origin = (spec.origin if spec.has_location and spec.origin and spec.origin.endswith(".py")
+              and Path(spec.origin).is_file() else None)
+    files = (str(Path(origin).resolve()),) if origin else ()
+    return ModuleSource(module_name, files, _files_sha256(files), None)
+
+
+def _exec_source(name: str, file: str, source: bytes, package: bool):
+    """Run ``source`` (the bytes that were hashed, not a cached ``.pyc``) as module ``name`` from ``file``."""
+    spec = importlib.util.spec_from_file_location(
+        name, file, submodule_search_locations=[str(Path(file).parent)] if package else None)
+    module = importlib.util.module_from_spec(spec)
+    previous = sys.modules.get(name)
+    sys.modules[name] = module  # pickling (process pools, Dask) and dataclasses look the module up by name
     try:
-        module = importlib.import_module(module_name)
-    except Exception as err:
-        where = f" (searched {search_path} and sys.path)" if search_path else ""
-        raise ConfigError(f"model.likelihood: cannot import module {module_name!r}{where}: "
-                          f"{type(err).__name__}: {err}") from err
+        exec(compile(source, file, "exec"), module.__dict__)
+    except BaseException:
+        if previous is None:
+            sys.modules.pop(name, None)
+        else:
+            sys.modules[name] = previous
+        raise
+    module.__seqbayes_sha256__ = hashlib.sha256(source).hexdigest()
+    return module
+
+
+def import_module_source(source: ModuleSource):
+    """Import a located module; one found in a folder is run from its files by path, ``sys.path`` untouched.
+
+    A module of the same name cached from another file (two runs in two folders both
+    naming ``model:loglike``) is replaced, with its submodules; the same file with the
+    same content is reused.
+    """
+    if source.folder is None:
+        cached = sys.modules.get(source.name)
+        if cached is not None and source.file and getattr(cached, "__file__", None) and \
+                str(Path(cached.__file__).resolve()) != source.file:
+            del sys.modules[source.name]  # run from a folder before; the installed module is wanted now
+        return importlib.import_module(source.name)
+    parts = source.name.split(".")
+    module = None
+    for i, file in enumerate(source.files):
+        name = ".".join(parts[:i + 1])
+        content = Path(file).read_bytes()
+        cached = sys.modules.get(name)
+        if (cached is not None and getattr(cached, "__file__", None) and Path(cached.__file__).resolve() == Path(file)
+                and getattr(cached, "__seqbayes_sha256__", None) == hashlib.sha256(content).hexdigest()):
+            module = cached
+            continue
+        if cached is not None:
+            for other in [m for m in sys.modules if m.startswith(name + ".")]:
+                del sys.modules[other]
+        module = _exec_source(name, file, content, package=i < len(parts) - 1 or file.endswith("__init__.py"))
+        if i:
+            setattr(sys.modules[".".join(parts[:i])], parts[i], module)
+    return module
+
+
+def _function_of(module, spec: str):
+    module_name, func_name = spec.split(":")
     func = module
     for part in func_name.split("."):
         func = getattr(func, part, None)
@@ -369,30 +536,30 @@ def load_likelihood(spec: str, search_path: str | None = None):
     return func
 
 
-def _forget_module_from_elsewhere(module_name: str, search_path: str) -> None:
-    """Drop a cached module of that name imported from another folder than ``search_path``.
+def load_located(spec: str, source: ModuleSource):
+    """The function named by ``spec`` from the located module ``source`` (see :func:`locate_module`)."""
+    _split_likelihood(spec)
+    try:
+        module = import_module_source(source)
+    except Exception as err:
+        where = f" from {source.file}" if source.file else ""
+        raise ConfigError(f"model.likelihood: cannot import module {source.name!r}{where}: "
+                          f"{type(err).__name__}: {err}") from err
+    return _function_of(module, spec)
 
-    Two configs in two folders may both name ``model:loglike``; Python's module cache would
-    hand the second run the first folder's likelihood, silently. When ``search_path`` holds
-    the module's file and the cached module came from elsewhere, the cached package is
-    removed and ``search_path`` put first, so the import below finds the right file.
-    (Functions already loaded from the other folder keep working in this process.)
+
+def load_likelihood(spec: str, search_path: str | None = None):
+    """Import ``"module:function"``: from the file in ``search_path`` (a folder) if it holds one,
+    else from ``sys.path``. The folder is not added to ``sys.path``.
+
+    Raises
+    ------
+    ConfigError
+        If the string is malformed, the module cannot be imported or the
+        attribute is missing or not callable.
     """
-    parts = module_name.split(".")
-    candidates = [Path(search_path, *parts).with_suffix(".py"), Path(search_path, *parts, "__init__.py")]
-    local = next((c.resolve() for c in candidates if c.is_file()), None)
-    cached = sys.modules.get(module_name)
-    if local is None or cached is None:
-        return
-    origin = getattr(cached, "__file__", None)
-    if origin is not None and Path(origin).resolve() == local:
-        return
-    top = parts[0]
-    for name in [m for m in sys.modules if m == top or m.startswith(top + ".")]:
-        del sys.modules[name]
-    sys.path.remove(search_path)
-    sys.path.insert(0, search_path)
-    importlib.invalidate_caches()
+    module_name, _ = _split_likelihood(spec)
+    return load_located(spec, locate_module(module_name, search_path))
 
 
 # ---------------------------------------------------------------------- parsing
@@ -460,7 +627,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     if seed < 0:
         _fail(source, "sampler.seed", f"must be >= 0, got {seed}")
     _check_keys(sampler_raw, set(allowed), source, "sampler")
-    settings = dict(sampler_raw)
+    settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
     # let the core validate values, reporting the field
     from .sequential import SamplerConfig
 
@@ -492,9 +659,11 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
         _fail(source, "sampler.predictive", str(err))
     if check_likelihood:
         try:
-            config.load_likelihood()
+            located = config.locate_likelihood()
+            load_located(likelihood, located)
         except ConfigError as err:
             raise ConfigError(f"{source}: {err}") from None
+        config = replace(config, likelihood_file=located.file, likelihood_sha256=located.sha256)
     return config
 
 
@@ -506,6 +675,10 @@ def load_config(path, check_likelihood: bool = True) -> RunConfig:
             raw = tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a TOML run configuration") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: invalid TOML: {err}") from None
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
@@ -526,24 +699,50 @@ def read_datafile(path, config: RunConfig) -> np.ndarray:
         of different lengths, the wrong number of rows, or an empty file.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not a data file")
     if not path.is_file():
         raise DataError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    if suffix in (".nc", ".nc4", ".netcdf", ".h5", ".hdf5"):
-        table = _read_netcdf(path, config.columns)
-    else:
-        table = _read_csv(path, config.columns)
-    if table.shape[0] == 0:
-        raise DataError(f"{path}: no data rows")
-    bad = ~np.isfinite(table)
+    try:
+        if suffix in (".nc", ".nc4", ".netcdf", ".h5", ".hdf5"):
+            table = _read_netcdf(path, config.columns)
+        else:
+            table = _read_csv(path, config.columns)
+    except OSError as err:  # unreadable (permissions, I/O error)
+        raise DataError(f"{path}: cannot read: {err.strerror or err}") from None
+    return check_table(table, config, str(path))
+
+
+def check_table(table, config: RunConfig, source: str = "table") -> np.ndarray:
+    """Validate one dataset given as an array and return it as ``(n_rows, n_columns)`` float64.
+
+    Raises
+    ------
+    DataError
+        Naming ``source`` and the column, row or shape at fault: complex or non-numeric
+        values, the wrong shape or number of rows, no rows, NaN or inf.
+    """
+    array = np.asarray(table)
+    if np.iscomplexobj(array):
+        raise DataError(f"{source}: complex values; a dataset must be real")
+    if array.dtype.kind not in "fiu":
+        raise DataError(f"{source}: expected numbers, got an array of dtype {array.dtype}")
+    array = array.astype(float)
+    if array.ndim != 2 or array.shape[1] != len(config.columns):
+        raise DataError(f"{source}: expected shape (n_rows, {len(config.columns)}) for columns "
+                        f"{list(config.columns)}, got {array.shape}")
+    if array.shape[0] == 0:
+        raise DataError(f"{source}: no data rows")
+    bad = ~np.isfinite(array)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         count = int(bad[:, col].sum())
-        raise DataError(f"{path}: column {config.columns[col]!r} has {count} NaN/inf value(s), "
+        raise DataError(f"{source}: column {config.columns[col]!r} has {count} NaN/inf value(s), "
                         f"first at data row {row + 1}")
-    if config.rows is not None and table.shape[0] != config.rows:
-        raise DataError(f"{path}: expected {config.rows} rows (data.rows), got shape {table.shape}")
-    return table
+    if config.rows is not None and array.shape[0] != config.rows:
+        raise DataError(f"{source}: expected {config.rows} rows (data.rows), got shape {array.shape}")
+    return array
 
 
 def _read_csv(path, columns):

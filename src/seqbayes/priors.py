@@ -13,7 +13,7 @@ import numpy as np
 
 from .rng import as_generator
 
-__all__ = ["JointPrior", "as_samples", "support_of"]
+__all__ = ["JointPrior", "as_samples", "support_of", "check_distribution"]
 
 
 def as_samples(theta, dim: int | None = None, name: str = "theta") -> np.ndarray:
@@ -62,8 +62,7 @@ class JointPrior:
         if len(set(names)) != len(names):
             raise ValueError(f"names: duplicate parameter names in {names}")
         for name, dist in zip(names, distributions):
-            if not (hasattr(dist, "logpdf") and hasattr(dist, "rvs")):
-                raise TypeError(f"distributions[{name!r}]: expected a frozen scipy.stats distribution")
+            check_distribution(dist, f"distributions[{name!r}]")
         self.names = tuple(str(n) for n in names)
         self.distributions = tuple(distributions)
         self._logpdfs = tuple(_fast_logpdf(dist) for dist in self.distributions)
@@ -113,6 +112,45 @@ class JointPrior:
     def __repr__(self) -> str:
         parts = ", ".join(f"{d['name']}~{d['dist']}{tuple(d['args'])}{d['kwds'] or ''}" for d in self.describe())
         return f"JointPrior({parts})"
+
+
+def check_distribution(dist, label: str = "distribution") -> None:
+    """Refuse what would fail later: an unfrozen scipy distribution, a non-positive scale, invalid
+    shape parameters or a zero-width support. Objects that are not scipy's need ``logpdf`` and ``rvs``.
+
+    Raises
+    ------
+    TypeError
+        Not a (frozen) distribution.
+    ValueError
+        Invalid parameters; the message names ``label`` and the parameter.
+    """
+    from scipy import stats
+
+    if isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
+        raise TypeError(f"{label}: scipy.stats.{dist.name} is not frozen; give its parameters, e.g. "
+                        f"scipy.stats.{dist.name}(loc=0, scale=1)")
+    if isinstance(dist, type) or not (hasattr(dist, "logpdf") and hasattr(dist, "rvs")):
+        raise TypeError(f"{label}: expected a frozen scipy.stats distribution, got {dist!r}")
+    base = getattr(dist, "dist", None)
+    if isinstance(base, stats.rv_discrete):
+        raise ValueError(f"{label}: scipy.stats.{base.name} is discrete; parameters need a continuous distribution")
+    if not isinstance(base, stats.rv_continuous):
+        return
+    try:
+        shapes, loc, scale = base._parse_args(*dist.args, **dist.kwds)
+    except TypeError as err:
+        raise ValueError(f"{label}: scipy.stats.{base.name}: {err}") from None
+    if not np.all(np.isfinite(loc)):
+        raise ValueError(f"{label}: scipy.stats.{base.name}: loc must be finite, got {loc}")
+    if not np.all(np.asarray(scale) > 0) or not np.all(np.isfinite(scale)):
+        raise ValueError(f"{label}: scipy.stats.{base.name}: scale must be positive and finite, got {scale}")
+    if not np.all(base._argcheck(*shapes)):
+        raise ValueError(f"{label}: scipy.stats.{base.name}: invalid shape parameter(s) {tuple(map(float, shapes))}")
+    lower, upper = map(float, dist.support())
+    if not lower < upper or not np.isfinite(dist.logpdf(dist.median())):
+        raise ValueError(f"{label}: scipy.stats.{base.name}: zero-width or invalid distribution "
+                         f"(support [{lower}, {upper}])")
 
 
 def _location_scale(dist):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import json
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -146,8 +147,8 @@ def _figure_html(fig, caption, fig_id, image_dir=None):
     else:
         image_dir.mkdir(parents=True, exist_ok=True)
         plotting.save(fig, image_dir / f"{fig_id}.png", dpi=100)
-        src = f"{image_dir.name}/{fig_id}.png"
-    return (f"<figure id='{fig_id}'><img src='{src}' alt='{html.escape(caption)}'>"
+        src = urllib.parse.quote(f"{image_dir.name}/{fig_id}.png")   # the output's stem is the user's text
+    return (f"<figure id='{fig_id}'><img src='{html.escape(src, quote=True)}' alt='{html.escape(caption)}'>"
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 

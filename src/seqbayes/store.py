@@ -55,27 +55,33 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
-import glob
+import errno
+import hashlib
 import json
 import os
+import shutil
 import signal
+import threading
+import warnings
 from dataclasses import replace as _replace
 from pathlib import Path
 
 import numpy as np
 
-from .config import (ConfigError, RunConfig, as_likelihood_data, dataset_digest, load_likelihood,
-                     read_datafile)
+from .config import (NOT_FINGERPRINTED, ConfigError, DataError, ModuleSource, RunConfig, as_likelihood_data,
+                     check_table, dataset_digest, load_located, locate_module, read_datafile)
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
 from .sequential import SamplerState
 
-__all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "FORMAT_VERSION", "store_lock"]
+__all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
+           "FORMAT_VERSION", "store_lock"]
 
 #: Version of the on-disk layout; a store of another version is refused. Version 2 added the
-#: history prior of static kernels; version-1 stores (kernel-density priors only) are still read.
-FORMAT_VERSION = 2
-_READABLE_VERSIONS = (1, 2)
+#: history prior of static kernels, version 3 the likelihood module's hash per step, the
+#: content hash of the text variables and HDF5 checksums; versions 1 and 2 are still read.
+FORMAT_VERSION = 3
+_READABLE_VERSIONS = (1, 2, 3)
 
 #: Environment variable naming a fault-injection point (tests only): the process
 #: SIGKILLs itself there. One of ``before-write``, ``mid-write``, ``before-replace``,
@@ -91,23 +97,73 @@ class DuplicateDatasetError(StoreError):
     """The dataset has already been assimilated in this run."""
 
 
+class ModelChangedError(StoreError):
+    """The likelihood module's file no longer has the content the run recorded (or is missing)."""
+
+
+class BoundWarning(UserWarning):
+    """Most of a step's posterior lies at a bound of the prior (wrong units? too narrow a prior?)."""
+
+
 def _fault(point: str) -> None:
     if os.environ.get(FAULT_ENV) == point:  # pragma: no cover - the process dies here
         os.kill(os.getpid(), signal.SIGKILL)
 
 
+_LOCKS: dict = {}                      # resolved lock path -> [threading.RLock, depth]
+_LOCKS_GUARD = threading.Lock()
+
+
 @contextlib.contextmanager
 def store_lock(path):
-    """Advisory exclusive lock on ``<path>.lock`` (POSIX ``flock``), held for a read-modify-write."""
+    """Advisory exclusive lock on ``<path>.lock`` (POSIX ``flock``), held for a read-modify-write.
+
+    Re-entrant within a process (the CLI holds it around :meth:`RunStore.assimilate`, which
+    takes it too) and exclusive between threads and between processes.
+
+    Raises
+    ------
+    StoreError
+        The lock file cannot be created (a read-only folder, ...).
+    """
     import fcntl
 
     lock_path = str(path) + ".lock"
-    with open(lock_path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
+    key = os.path.abspath(lock_path)
+    with _LOCKS_GUARD:
+        entry = _LOCKS.setdefault(key, [threading.RLock(), 0, None])
+    with entry[0]:
+        if entry[1] == 0:
+            try:
+                fh = open(lock_path, "a")
+            except OSError as err:
+                raise StoreError(f"{path}: cannot take the lock {lock_path}: {_os_message(err)}") from None
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            entry[2] = fh
+        entry[1] += 1
         try:
             yield
         finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+            entry[1] -= 1
+            if entry[1] == 0:
+                fh, entry[2] = entry[2], None
+                fcntl.flock(fh, fcntl.LOCK_UN)
+                fh.close()
+
+
+def _os_message(err: OSError) -> str:
+    """``strerror`` (and the file, when the error names one) of an OS error, for one-line messages."""
+    text = err.strerror or str(err)
+    return f"{text} ({err.filename})" if err.filename else text
+
+
+def _file_stamp(path):
+    """What changes when the file is replaced or rewritten: inode, size, modification time."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _now() -> str:
@@ -126,7 +182,7 @@ def _fsync_dir(folder: Path) -> None:
 
 
 def _config_diff(a: RunConfig, b: RunConfig) -> list[str]:
-    skip = ("name", "search_path", "executor", "workers", "address")
+    skip = NOT_FINGERPRINTED
     da, db = a.to_dict(), b.to_dict()
     out = []
     for key in da:
@@ -166,7 +222,7 @@ class RunStore:
 
     def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
                  rng_states, result: Result, mixtures, step_sizes, digests, sources, log_priors=(), tables=(),
-                 created=None):
+                 created=None, module_hashes=None):
         self.path = Path(path)
         self.config = config
         self.initial_particles = initial_particles
@@ -180,34 +236,46 @@ class RunStore:
         self.step_sizes = list(step_sizes)          # S state step sizes
         self.digests = list(digests)
         self.sources = list(sources)
+        # SHA-256 of the likelihood module each step ran ("" for steps written before they were recorded)
+        self.module_hashes = list(module_hashes) if module_hashes is not None else [""] * len(self.digests)
         self.created = created or _now()
+        self._stamp = None                          # the file as last read or written (see _reload_if_changed)
 
     # ----------------------------------------------------------------- creation
     @classmethod
     def create(cls, path, config: RunConfig, *, overwrite: bool = False) -> "RunStore":
         """Start a new run at ``path`` from ``config`` (draws the initial prior samples) and write it.
 
+        The likelihood's module is located (not run) and its file and SHA-256 recorded,
+        unless ``config`` already records them (:func:`~seqbayes.config.load_config` does).
+
         Raises
         ------
         StoreError
-            If ``path`` exists and ``overwrite`` is false.
+            If ``path`` exists and ``overwrite`` is false, or cannot be written.
         """
         path = Path(path)
-        if path.exists() and not overwrite:
-            raise StoreError(f"{path}: a run store already exists (pass overwrite=True / --force to replace it)")
-        sampler = config.build_sampler()
-        state, records, rng_state = sampler.snapshot()
-        store = cls(path, config, initial_particles=np.array(state.particles),
-                    initial_log_weights=np.array(state.log_weights), initial_step_size=state.step_size,
-                    rng_states=[rng_state], result=Result(sampler.names, (), {}), mixtures=[], step_sizes=[],
-                    digests=[], sources=[])
-        store.write()
+        if path.is_dir():
+            raise StoreError(f"{path}: is a folder; give the run store's file name, e.g. {path / 'run.nc'}")
+        with store_lock(path):
+            if path.exists() and not overwrite:
+                raise StoreError(f"{path}: a run store already exists (pass overwrite=True / --force to replace it)")
+            if config.likelihood_sha256 is None:
+                located = config.locate_likelihood()
+                config = _replace(config, likelihood_file=located.file, likelihood_sha256=located.sha256)
+            sampler = config.build_sampler(loglike=_likelihood_not_needed)  # drawing the prior runs no user code
+            state, records, rng_state = sampler.snapshot()
+            store = cls(path, config, initial_particles=np.array(state.particles),
+                        initial_log_weights=np.array(state.log_weights), initial_step_size=state.step_size,
+                        rng_states=[rng_state], result=Result(sampler.names, (), {}), mixtures=[], step_sizes=[],
+                        digests=[], sources=[])
+            store.write()
         return store
 
     # ------------------------------------------------------------------ reading
     @classmethod
     def open(cls, path, config: RunConfig | None = None) -> "RunStore":
-        """Load a run store.
+        """Load a run store (this runs no user code).
 
         Parameters
         ----------
@@ -220,18 +288,24 @@ class RunStore:
         ------
         StoreError
             Missing or unreadable file, a file that is not a seqbayes run store,
-            another format version, or another model.
+            another format version, another model, or a damaged store (checksum or
+            content hash mismatch, missing or inconsistent variables, NaN samples).
         """
-        import xarray as xr
-
         path = Path(path)
-        if not path.is_file():
-            raise StoreError(f"{path}: no such run store (create one with `seqbayes init CONFIG {path}`)")
+        stamp = _file_stamp(path)
+        ds = _read_dataset(path)
         try:
-            with xr.open_dataset(path, engine="h5netcdf") as ds:
-                ds = ds.load()
-        except Exception as err:
-            raise StoreError(f"{path}: cannot read the run store: {type(err).__name__}: {err}") from None
+            store = cls._from_dataset(path, ds, config)
+        except StoreError:
+            raise
+        except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
+            what = f"missing variable or attribute {err}" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
+            raise StoreError(f"{path}: damaged or inconsistent run store ({what})") from None
+        store._stamp = stamp
+        return store
+
+    @classmethod
+    def _from_dataset(cls, path: Path, ds, config: RunConfig | None) -> "RunStore":
         version = ds.attrs.get("seqbayes_store_format")
         if version is None:
             raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
@@ -239,7 +313,13 @@ class RunStore:
             raise StoreError(f"{path}: run-store format version {int(version)}, but this seqbayes reads version "
                              f"{FORMAT_VERSION}; use the seqbayes version that wrote it (it says "
                              f"{ds.attrs.get('seqbayes_version', '?')})")
-        stored = RunConfig.from_dict(json.loads(ds.attrs["config"]))
+        if int(version) >= 3 and ds.attrs.get("content_sha256") != _content_hash(ds):
+            raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records "
+                             f"does not match (the file was edited or corrupted)")
+        try:
+            stored = RunConfig.from_dict(json.loads(ds.attrs["config"]))
+        except (json.JSONDecodeError, TypeError) as err:
+            raise StoreError(f"{path}: damaged run store: unreadable config attribute ({err})") from None
         if stored.fingerprint() != ds.attrs.get("model_fingerprint"):
             raise StoreError(f"{path}: model fingerprint does not match the stored configuration "
                              f"(the file was edited or written by an incompatible seqbayes)")
@@ -251,38 +331,26 @@ class RunStore:
         if n_steps:
             records = []
             for i in range(n_steps):
-                info = _step_info(json.loads(str(ds["step_info"].values[i])))
+                info = _step_info(_json(ds["step_info"].values[i], path, f"step_info[{i}]"))
                 records.append(StepRecord(info, ds["posterior"].values[i], ds["log_weights"].values[i],
                                           ds["predictive"].values[i]))
-            result = Result(stored.names, tuple(records), json.loads(ds.attrs.get("result_meta", "{}")))
-            mixtures, log_priors, tables = [], [], []
-            if "state_log_prior" in ds:
-                log_priors = list(ds["state_log_prior"].values)
-                ends = np.cumsum(ds["dataset_rows"].values)
-                tables = np.split(ds["dataset_values"].values, ends[:-1])
-            else:
-                mixtures = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
-                             ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
-                if stored.predictive_method == "history":
-                    raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
-                                     f"kernel-density prior; this version uses their exact history prior. Re-create "
-                                     f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
-                                     f"the seqbayes version that wrote it ({ds.attrs.get('seqbayes_version', '?')})")
-            step_sizes = [float(v) for v in ds["state_step_size"].values]
+            result = Result(stored.names, tuple(records), _json(ds.attrs.get("result_meta", "{}"), path, "result_meta"))
             digests = [str(v) for v in ds["dataset_sha256"].values]
             sources = [str(v) for v in ds["dataset_source"].values]
+            module_hashes = ([str(v) for v in ds["likelihood_sha256"].values] if "likelihood_sha256" in ds
+                             else [""] * n_steps)
         else:
-            result, mixtures, step_sizes, digests, sources = Result(stored.names, (), {}), [], [], [], []
-            log_priors, tables = [], []
-        rng_states = [json.loads(str(v)) for v in ds["rng_state"].values]
-        if len(rng_states) != n_steps + 1 or len(result.steps) != n_steps:
-            raise StoreError(f"{path}: inconsistent store ({len(result.steps)} steps, {len(rng_states)} generator "
-                             f"states, n_steps = {n_steps})")
+            result, digests, sources, module_hashes = Result(stored.names, (), {}), [], [], []
+        state = _read_state(path, ds, stored, n_steps)
+        if not (len(state["rng_states"]) == n_steps + 1 and len(result.steps) == n_steps == len(digests)
+                == len(sources) == len(module_hashes) == len(state["step_sizes"])):
+            raise StoreError(f"{path}: inconsistent store ({len(result.steps)} steps, {len(state['rng_states'])} "
+                             f"generator states, {len(digests)} dataset hashes, n_steps = {n_steps})")
+        _check_finite(path, ds)
         return cls(path, stored, initial_particles=ds["initial_particles"].values,
                    initial_log_weights=ds["initial_log_weights"].values,
-                   initial_step_size=float(ds.attrs["initial_step_size"]), rng_states=rng_states, result=result,
-                   mixtures=mixtures, step_sizes=step_sizes, digests=digests, sources=sources,
-                   log_priors=log_priors, tables=tables, created=ds.attrs.get("created"))
+                   initial_step_size=float(ds.attrs["initial_step_size"]), result=result, digests=digests,
+                   sources=sources, created=ds.attrs.get("created"), module_hashes=module_hashes, **state)
 
     @property
     def n_steps(self) -> int:
@@ -301,6 +369,7 @@ class RunStore:
         from . import __version__
 
         coords = {"sample": np.arange(self.initial_particles.shape[0]), "parameter": list(self.names)}
+        data = {}
         if self.n_steps:
             steps = self.result.steps
             infos = [dataclasses.asdict(r.info) for r in steps]
@@ -313,60 +382,106 @@ class RunStore:
                 # for readers without seqbayes; step_info holds the exact records
                 "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
                 "step_info": (("step",), np.array([json.dumps(i) for i in infos], dtype=object)),
-                "state_step_size": (("step",), np.array(self.step_sizes, dtype=float)),
                 "dataset_sha256": (("step",), np.array(self.digests, dtype=object)),
                 "dataset_source": (("step",), np.array(self.sources, dtype=object)),
+                "likelihood_sha256": (("step",), np.array(self.module_hashes, dtype=object)),
             }
-            if self.log_priors:  # the history prior: its values at the particles and the datasets it re-evaluates
-                coords["column"] = list(self.config.columns)
-                data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)),
-                            dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
-                            dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables])))
-            else:
-                data.update(
-                    mixture_centres=(("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
-                    mixture_bandwidth=(("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
-                    mixture_log_weights=(("step", "sample"), np.stack([m[2] for m in self.mixtures])))
-        else:
-            data = {}
+        state_data, state_coords = self._state_variables()
+        data.update(state_data)
+        coords.update(state_coords)
         ds = xr.Dataset(data, coords=coords)
         ds.attrs["result_meta"] = json.dumps(self.result.meta, default=str)
         ds["initial_particles"] = (("sample", "parameter"), self.initial_particles)
         ds["initial_log_weights"] = (("sample",), self.initial_log_weights)
-        ds["rng_state"] = (("rng_index",), np.array([json.dumps(s) for s in self.rng_states], dtype=object))
         ds.attrs.update({
             "seqbayes_store_format": FORMAT_VERSION, "seqbayes_version": __version__,
             "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),
             "model_name": self.config.name, "n_steps": self.n_steps, "initial_step_size": self.initial_step_size,
             "created": self.created, "updated": _now(),
         })
+        ds.attrs["content_sha256"] = _content_hash(ds)
         return ds
 
+    # The sampler's state, per step: what SEMC.restore needs besides the step records. Reading
+    # (_read_state), writing (_state_variables) and rebuilding (state_at) live here together.
+    def _state_variables(self) -> tuple[dict, dict]:
+        """``(data_vars, coords)`` of the per-step sampler state for :meth:`to_xarray`."""
+        data = {"rng_state": (("rng_index",), np.array([json.dumps(s) for s in self.rng_states], dtype=object))}
+        coords = {}
+        if not self.n_steps:
+            return data, coords
+        data["state_step_size"] = (("step",), np.array(self.step_sizes, dtype=float))
+        if self.log_priors:  # the history prior: its values at the particles and the datasets it re-evaluates
+            coords["column"] = list(self.config.columns)
+            data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)),
+                        dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
+                        dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables])))
+        else:
+            data.update(
+                mixture_centres=(("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
+                mixture_bandwidth=(("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
+                mixture_log_weights=(("step", "sample"), np.stack([m[2] for m in self.mixtures])))
+        return data, coords
+
     def write(self) -> None:
-        """Write the store atomically (temporary file in the same folder, fsync, :func:`os.replace`)."""
+        """Write the store atomically (temporary file in the same folder, fsync, :func:`os.replace`).
+
+        Holds the store's lock. The file keeps its permission bits. Refused up front
+        when the folder lacks the free space the file needs.
+
+        Raises
+        ------
+        StoreError
+            The folder is read-only, full, or the path is a folder; the previous store is kept.
+        """
+        with store_lock(self.path):
+            self._write_locked()
+
+    def _write_locked(self) -> None:
         folder = self.path.resolve().parent
-        folder.mkdir(parents=True, exist_ok=True)
-        for stale in glob.glob(str(folder / f".{self.path.name}.tmp-*")):  # left by a killed writer
-            with contextlib.suppress(OSError):
-                os.remove(stale)
+        if self.path.is_dir():
+            raise StoreError(f"{self.path}: is a folder, not a run store file")
+        prefix = f".{self.path.name}.tmp-"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            for entry in os.listdir(folder):  # left by a killed writer (the lock is held: no live one)
+                if entry.startswith(prefix) and entry[len(prefix):].isdigit():
+                    with contextlib.suppress(OSError):
+                        os.remove(folder / entry)
+        except OSError as err:
+            raise StoreError(f"{self.path}: cannot write in {folder}: {_os_message(err)}") from None
         ds = self.to_xarray()
-        tmp = folder / f".{self.path.name}.tmp-{os.getpid()}"
+        encoding = {name: {"fletcher32": True} for name, var in ds.data_vars.items()
+                    if var.dtype.kind in "fiu" and var.ndim and var.size}   # HDF5 checksums, verified on read
+        _check_free_space(self.path, folder, ds)
+        mode = None
+        with contextlib.suppress(OSError):
+            mode = os.stat(self.path).st_mode & 0o7777
+        tmp = folder / f"{prefix}{os.getpid()}"
         _fault("before-write")
         try:
-            ds.to_netcdf(tmp, engine="h5netcdf")
+            ds.to_netcdf(tmp, engine="h5netcdf", encoding=encoding)
             if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
                 os.truncate(tmp, os.path.getsize(tmp) // 2)
                 _fault("mid-write")
+            if mode is not None:
+                os.chmod(tmp, mode)
             with open(tmp, "rb+") as fh:
                 fh.flush()
                 os.fsync(fh.fileno())
             _fault("before-replace")
             os.replace(tmp, self.path)
+        except OSError as err:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            raise StoreError(f"{self.path}: cannot write the run store: {_os_message(err)}; the previous "
+                             f"store is kept") from None
         except BaseException:
             with contextlib.suppress(OSError):
                 os.remove(tmp)
             raise
         _fsync_dir(folder)
+        self._stamp = _file_stamp(self.path)
         _fault("after-replace")
 
     # ---------------------------------------------------------------- the state
@@ -401,14 +516,84 @@ class RunStore:
                                  posterior_log_weights=rec.log_weights, log_prior=log_prior)
         return state, tuple(self.result.steps[:step]), self.rng_states[step]
 
-    def load_likelihood(self):
-        """The configured likelihood, imported from the config's folder or, failing that, the store's."""
-        try:
-            return self.config.load_likelihood()
-        except ConfigError:
-            return load_likelihood(self.config.likelihood, str(self.path.resolve().parent))
+    def _store_state(self, base: int, state: SamplerState, rng_state: dict, table) -> None:
+        """Keep the sampler state after step ``base + 1`` (the steps after ``base`` are dropped)."""
+        if isinstance(state.prior, HistoryPrior):
+            self.log_priors = self.log_priors[:base] + [np.array(state.log_prior)]
+            self.tables = self.tables[:base] + [table]
+        else:
+            self.mixtures = self.mixtures[:base] + [(np.array(state.prior.centres), np.array(state.prior.bandwidth),
+                                                     np.array(state.prior.log_weights))]
+        self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
+        self.rng_states = self.rng_states[:base + 1] + [rng_state]
 
-    def share_likelihood(self, executor) -> None:
+    # ------------------------------------------------------------ the likelihood
+    def likelihood_candidates(self) -> list[ModuleSource]:
+        """Files that could be the run's likelihood module, located without running them.
+
+        In order: the config's folder (where the module was recorded), the store's
+        own folder, ``sys.path`` (an installed module). Only a candidate whose
+        SHA-256 is the recorded one is ever run (see :meth:`load_likelihood`).
+        """
+        module_name = self.config.likelihood.split(":")[0]
+        out = []
+        for folder in (self.config.search_path, str(self.path.resolve().parent)):
+            if folder and Path(folder).is_dir():
+                found = locate_module(module_name, folder, search_installed=False)
+                if found is not None and found.files not in [c.files for c in out]:
+                    out.append(found)
+        with contextlib.suppress(ConfigError):
+            found = locate_module(module_name, None)
+            if found.files not in [c.files for c in out]:
+                out.append(found)
+        return out
+
+    def _verified_likelihood(self, accept_model_change: bool = False):
+        """``(function, ModuleSource)``: the likelihood from a file whose content the run recorded."""
+        spec, recorded = self.config.likelihood, self.config.likelihood_sha256
+        candidates = self.likelihood_candidates()
+        if recorded is None:
+            # a store written before module hashes were recorded: only the config's folder (or an
+            # installed module), never the folder the store happens to lie in; the hash is recorded
+            # with the next step
+            trusted = self.config.search_path and str(Path(self.config.search_path).resolve())
+            candidates = [c for c in candidates if c.folder is None or c.folder == trusted]
+            chosen = candidates[0] if candidates else None
+        else:
+            chosen = next((c for c in candidates if c.sha256 == recorded), None)
+            if chosen is None and accept_model_change and candidates:
+                chosen = candidates[0]
+        if chosen is None:
+            raise ModelChangedError(self._model_changed_message(candidates))
+        try:
+            return load_located(spec, chosen), chosen
+        except ConfigError as err:
+            raise StoreError(f"{self.path}: {err}") from None
+
+    def _model_changed_message(self, candidates) -> str:
+        module_name = self.config.likelihood.split(":")[0]
+        recorded = self.config.likelihood_sha256 or "?"
+        where = self.config.likelihood_file or f"{module_name}.py in {self.config.search_path}"
+        if not candidates:
+            return (f"{self.path}: the likelihood module {module_name!r} the run recorded ({where}, sha256 "
+                    f"{recorded[:12]}) is not there, nor next to the store, nor installed; copy that file next "
+                    f"to the store")
+        found = "; ".join(f"{c.file or c.name} has sha256 {c.sha256[:12] or '(no source)'}" for c in candidates)
+        return (f"{self.path}: the likelihood module changed since the run recorded it (sha256 {recorded[:12]} "
+                f"for {where}); {found}; it is not run. If the change is intended, update with "
+                f"--accept-model-change (API: accept_model_change=True): the new hash is recorded for the "
+                f"steps that follow")
+
+    def load_likelihood(self, accept_model_change: bool = False):
+        """The run's likelihood, imported by file path from a file whose SHA-256 the run recorded.
+
+        Candidates are :meth:`likelihood_candidates`; a module file whose content
+        differs from the recorded one is not run (:class:`ModelChangedError`) unless
+        ``accept_model_change``.
+        """
+        return self._verified_likelihood(accept_model_change)[0]
+
+    def share_likelihood(self, executor, source: ModuleSource | None = None) -> None:
         """Make the user's likelihood module importable on a Dask cluster's workers.
 
         A module that lives next to the config (or the store) is not installed on the
@@ -416,36 +601,35 @@ class RunStore:
         :class:`dask.distributed.Client` the module file (or, for a dotted name, its
         top-level package as a zip) is sent with ``Client.upload_file``, which also
         reaches workers that join later. Installed modules and other executors
-        (``concurrent.futures`` inherit the parent's ``sys.path``) need nothing.
+        (``concurrent.futures`` workers are forked with the parent's modules) need nothing.
         """
         if executor is None or not hasattr(executor, "upload_file"):
             return
-        module_name = self.config.likelihood.split(":")[0]
-        top = module_name.split(".")[0]
-        roots = [Path(p).resolve() for p in (self.config.search_path, self.path.resolve().parent) if p]
-        for root in roots:
-            if (root / f"{top}.py").is_file() and top == module_name:
-                executor.upload_file(str(root / f"{top}.py"))
-                return
-            if (root / top / "__init__.py").is_file():
-                import shutil
-                import tempfile
+        source = source or self._verified_likelihood()[1]
+        if source.folder is None or not source.files:
+            return
+        if len(source.files) == 1:
+            executor.upload_file(source.file)
+            return
+        import tempfile
 
-                with tempfile.TemporaryDirectory() as tmp:
-                    archive = shutil.make_archive(str(Path(tmp) / top), "zip", root_dir=root, base_dir=top)
-                    executor.upload_file(archive)
-                return
+        top = source.name.split(".")[0]
+        with tempfile.TemporaryDirectory() as tmp:
+            archive = shutil.make_archive(str(Path(tmp) / top), "zip", root_dir=source.folder, base_dir=top)
+            executor.upload_file(archive)
 
     def sampler(self, step: int | None = None, executor=None, loglike=None):
         """A sampler restored to the state after ``step`` datasets (default: the last).
 
+        Without ``loglike`` the run's verified likelihood is loaded (:meth:`load_likelihood`).
         With a Dask client as ``executor`` the likelihood's module is first sent to the
         workers (:meth:`share_likelihood`).
         """
         step = self.n_steps if step is None else int(step)
-        self.share_likelihood(executor)
-        sampler = self.config.build_sampler(executor=executor,
-                                            loglike=self.load_likelihood() if loglike is None else loglike)
+        if loglike is None:
+            loglike, source = self._verified_likelihood()
+            self.share_likelihood(executor, source)
+        sampler = self.config.build_sampler(executor=executor, loglike=loglike)
         sampler.restore(*self.state_at(step))
         return sampler
 
@@ -460,14 +644,30 @@ class RunStore:
                 raise DuplicateDatasetError(f"{self.path}: this dataset was already assimilated as step {step} "
                                             f"(from {self.sources[step - 1]}, sha256 {digest[:12]}){hint}")
 
+    def _reload_if_changed(self, replace_last: bool) -> None:
+        """Under the lock: take in the steps another process (or object) stored since this one read the file."""
+        if self._stamp is None or _file_stamp(self.path) == self._stamp:
+            return
+        if replace_last:
+            raise StoreError(f"{self.path}: the run store changed since it was opened (another update); open it "
+                             f"again before replacing the last step")
+        fresh = RunStore.open(self.path)
+        if fresh.config.fingerprint() != self.config.fingerprint():
+            raise StoreError(f"{self.path}: the run store was replaced by a run of another model since it was "
+                             f"opened")
+        self.__dict__.update(fresh.__dict__)
+
     def assimilate(self, table, source: str = "<array>", *, replace_last: bool = False, executor=None,
-                   loglike=None, write: bool = True):
+                   loglike=None, write: bool = True, accept_model_change: bool = False):
         """Assimilate one dataset given as an ``(n_rows, n_columns)`` array and save the store.
+
+        The read-modify-write holds the store's lock; steps another process stored since
+        this object read the file are taken in first, so concurrent updates are all kept.
 
         Parameters
         ----------
         table : (n_rows, n_columns) array
-            Columns in the order of ``config.columns``.
+            Columns in the order of ``config.columns``; real, finite numbers.
         source : str
             Where it came from (recorded).
         replace_last : bool
@@ -475,9 +675,13 @@ class RunStore:
         executor : object with ``map``, optional
             Parallel likelihood evaluation (same numbers as serial).
         loglike : callable, optional
-            Overrides the configured likelihood (e.g. a wrapper that reports progress).
+            Replaces the configured likelihood's function (e.g. a wrapper that reports
+            progress); the module is still verified and its hash recorded.
         write : bool
             Save the store (default).
+        accept_model_change : bool
+            Run the likelihood module even though its file changed since the run
+            recorded it; the new hash is recorded for this step and the next ones.
 
         Returns
         -------
@@ -485,56 +689,225 @@ class RunStore:
 
         Raises
         ------
+        DataError
+            Complex, non-numeric, NaN/inf values or the wrong shape.
         DuplicateDatasetError
             Already assimilated.
+        ModelChangedError
+            The likelihood module's file is missing or has changed.
         ValueError
             From the likelihood or the sampler (wrong shape, ...); the store is unchanged.
+
+        Warns
+        -----
+        BoundWarning
+            Most of the new posterior lies at a bound of the prior.
         """
-        table = np.asarray(table, dtype=float)
-        if table.ndim != 2 or table.shape[1] != len(self.config.columns):
-            raise ValueError(f"table: expected shape (n_rows, {len(self.config.columns)}) for columns "
-                             f"{list(self.config.columns)}, got {table.shape}")
+        table = check_table(table, self.config, "table" if source == "<array>" else f"table from {source}")
         digest = dataset_digest(table, self.config.columns)
-        if replace_last and self.n_steps == 0:
-            raise StoreError(f"{self.path}: replace_last: no step to replace")
-        self.check_new_dataset(digest, replace_last)
-        base = self.n_steps - 1 if replace_last else self.n_steps
-        sampler = self.sampler(base, executor=executor, loglike=loglike)
-        info = sampler.update(as_likelihood_data(table, self.config))
-        state, records, rng_state = sampler.snapshot()
-        _check_state(state, records[-1])
-        if not isinstance(state.prior, (GaussianMixture, HistoryPrior)):  # pragma: no cover - a core change
-            raise StoreError(f"cannot store a predictive prior of type {type(state.prior).__name__}")
-        # commit to memory only now that the step succeeded
-        self.result = _replace(sampler.result, steps=tuple(records))
-        if isinstance(state.prior, HistoryPrior):
-            self.log_priors = self.log_priors[:base] + [np.array(state.log_prior)]
-            self.tables = self.tables[:base] + [table]
-        else:
-            self.mixtures = self.mixtures[:base] + [(np.array(state.prior.centres), np.array(state.prior.bandwidth),
-                                                     np.array(state.prior.log_weights))]
-        self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
-        self.digests = self.digests[:base] + [digest]
-        self.sources = self.sources[:base] + [str(source)]
-        self.rng_states = self.rng_states[:base + 1] + [rng_state]
-        if write:
-            self.write()
+        with store_lock(self.path) if write else contextlib.nullcontext():
+            if write:
+                self._reload_if_changed(replace_last)
+            if replace_last and self.n_steps == 0:
+                raise StoreError(f"{self.path}: replace_last: no step to replace")
+            self.check_new_dataset(digest, replace_last)
+            base = self.n_steps - 1 if replace_last else self.n_steps
+            function, module = self._verified_likelihood(accept_model_change)
+            self.share_likelihood(executor, module)
+            sampler = self.sampler(base, executor=executor, loglike=function if loglike is None else loglike)
+            info = sampler.update(as_likelihood_data(table, self.config))
+            state, records, rng_state = sampler.snapshot()
+            _check_state(state, records[-1])
+            if not isinstance(state.prior, (GaussianMixture, HistoryPrior)):  # pragma: no cover - a core change
+                raise StoreError(f"cannot store a predictive prior of type {type(state.prior).__name__}")
+            # commit to memory only now that the step succeeded
+            self.result = _replace(sampler.result, steps=tuple(records))
+            self._store_state(base, state, rng_state, table)
+            self.digests = self.digests[:base] + [digest]
+            self.sources = self.sources[:base] + [str(source)]
+            self.module_hashes = self.module_hashes[:base] + [module.sha256]
+            if (module.file, module.sha256) != (self.config.likelihood_file, self.config.likelihood_sha256):
+                self.config = _replace(self.config, likelihood_file=module.file, likelihood_sha256=module.sha256)
+            if write:
+                self.write()
+        for message in self.bound_messages():
+            warnings.warn(message, BoundWarning, stacklevel=2)
         return info
 
-    def update(self, datafile, *, replace_last: bool = False, executor=None, loglike=None):
+    def update(self, datafile, *, replace_last: bool = False, executor=None, loglike=None,
+               accept_model_change: bool = False):
         """Read a CSV/NetCDF data file (:func:`~seqbayes.config.read_datafile`) and :meth:`assimilate` it."""
         table = read_datafile(datafile, self.config)
         return self.assimilate(table, Path(datafile).name, replace_last=replace_last, executor=executor,
-                               loglike=loglike)
+                               loglike=loglike, accept_model_change=accept_model_change)
+
+    def bound_messages(self, step: int = -1, mass: float = 0.5, margin: float = 0.01) -> list[str]:
+        """Parameters whose posterior at ``step`` piles up at a finite bound of the prior.
+
+        A parameter is reported when more than ``mass`` of its posterior weight lies
+        within ``margin`` of the prior's central 99 % range from a finite bound of its
+        support (the prior itself puts about 1 % there): usually data in the wrong
+        units or a prior too narrow for the structure.
+        """
+        if not self.n_steps:
+            return []
+        record = self.result.steps[step]
+        weights = np.exp(record.log_weights - np.max(record.log_weights))
+        weights /= weights.sum()
+        out = []
+        for j, (name, dist) in enumerate(zip(self.names, self.config.build_prior().distributions)):
+            lower, upper = map(float, dist.support())
+            width = float(dist.ppf(0.995) - dist.ppf(0.005))
+            values = record.posterior[:, j]
+            for side, bound, near in (("lower", lower, values <= lower + margin * width),
+                                      ("upper", upper, values >= upper - margin * width)):
+                share = float(weights[near].sum()) if np.isfinite(bound) else 0.0
+                if share > mass:
+                    out.append(f"{self.path}: step {record.info.step}: {share:.0%} of the posterior of {name!r} lies "
+                               f"at the prior's {side} bound {bound:g}; check the data's units and the prior's range")
+        return out
 
     # ----------------------------------------------------------------- queries
     def predict(self, n_steps: int) -> np.ndarray:
-        """Forecast ``(n_steps, N, d)`` from the last posterior; reproducible, does not change the store."""
-        return self.sampler().predict(n_steps)
+        """Forecast ``(n_steps, N, d)`` from the last posterior; reproducible, does not change the store.
+
+        The kernels of a configuration are built in, so this runs no user code (the
+        likelihood is not imported).
+
+        Raises
+        ------
+        TypeError
+            ``n_steps`` is not an integer (``1.7`` is refused, not truncated).
+        ValueError
+            ``n_steps < 1`` or no dataset assimilated yet.
+        """
+        if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)):
+            raise TypeError(f"n_steps: expected an integer, got {n_steps!r}")
+        return self.sampler(loglike=_likelihood_not_needed).predict(int(n_steps))
 
     def to_arviz(self, step: int = -1, rng=None):
         """One step's posterior as :class:`arviz.InferenceData` (see :func:`posterior_to_arviz`)."""
         return posterior_to_arviz(self.result, step, rng)
+
+
+def _likelihood_not_needed(theta, data):  # pragma: no cover - a sampler built only to draw or forecast
+    raise RuntimeError("the likelihood is not loaded for forecasts and new runs")
+
+
+_NETCDF3 = (b"CDF\x01", b"CDF\x02", b"CDF\x05")
+_HDF5 = b"\x89HDF\r\n\x1a\n"
+
+
+def _read_dataset(path: Path):
+    """The store's :class:`xarray.Dataset`, loaded; a :class:`StoreError` for anything that is not one."""
+    import xarray as xr
+
+    if path.is_dir():
+        raise StoreError(f"{path}: is a folder, not a run store")
+    if not path.is_file():
+        raise StoreError(f"{path}: no such run store (create one with `seqbayes init CONFIG {path}`)")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as err:
+        raise StoreError(f"{path}: cannot read the run store: {_os_message(err)}") from None
+    if head[:4] in _NETCDF3:
+        raise StoreError(f"{path}: a NetCDF-3 (classic) file; run stores are NetCDF-4 (HDF5) files written by "
+                         f"`seqbayes init`, so this is not a run store")
+    if head != _HDF5:
+        raise StoreError(f"{path}: not a run store (not a NetCDF-4/HDF5 file)")
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            return ds.load()
+    except Exception as err:
+        hint = ("; a checksum failed: the file is corrupted" if "filter" in str(err).lower()
+                or "checksum" in str(err).lower() else "")
+        raise StoreError(f"{path}: cannot read the run store: {type(err).__name__}: {err}{hint}") from None
+
+
+def _json(text, path, what):
+    try:
+        return json.loads(str(text))
+    except json.JSONDecodeError as err:
+        raise StoreError(f"{path}: damaged run store: {what} is not valid JSON ({err})") from None
+
+
+def _read_state(path: Path, ds, config: RunConfig, n_steps: int) -> dict:
+    """The per-step sampler state (see :meth:`RunStore._state_variables`) as :class:`RunStore` keywords."""
+    rng_states = [_json(v, path, f"rng_state[{i}]") for i, v in enumerate(ds["rng_state"].values)]
+    for i, state in enumerate(rng_states):
+        if not (isinstance(state, dict) and isinstance(state.get("bit_generator"), str)
+                and isinstance(state.get("state"), dict)):
+            raise StoreError(f"{path}: damaged run store: rng_state[{i}] is not a numpy generator state")
+    state = {"rng_states": rng_states, "mixtures": [], "log_priors": [], "tables": [], "step_sizes": []}
+    if not n_steps:
+        return state
+    state["step_sizes"] = [float(v) for v in ds["state_step_size"].values]
+    if "state_log_prior" in ds:
+        rows = ds["dataset_rows"].values
+        if rows.shape != (n_steps,) or int(rows.sum()) != ds["dataset_values"].shape[0]:
+            raise StoreError(f"{path}: inconsistent store (dataset_rows {rows.tolist()} for "
+                             f"{ds['dataset_values'].shape[0]} stored data rows)")
+        state["log_priors"] = list(ds["state_log_prior"].values)
+        state["tables"] = np.split(ds["dataset_values"].values, np.cumsum(rows)[:-1])
+    else:
+        state["mixtures"] = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
+                              ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
+        if config.predictive_method == "history":
+            raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
+                             f"kernel-density prior; this version uses their exact history prior. Re-create "
+                             f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
+                             f"the seqbayes version that wrote it ({ds.attrs.get('seqbayes_version', '?')})")
+    return state
+
+
+def _check_finite(path: Path, ds) -> None:
+    """Refuse NaN (or inf) samples and NaN weights: a store holding them cannot be resumed."""
+    finite = ("posterior", "predictive", "initial_particles", "mixture_centres", "mixture_bandwidth",
+              "dataset_values")
+    not_nan = ("log_weights", "initial_log_weights", "mixture_log_weights", "state_log_prior")
+    for name in finite + not_nan:
+        if name in ds:
+            values = ds[name].values
+            bad = np.isnan(values) if name in not_nan else ~np.isfinite(values)
+            if bad.any():
+                where = np.argwhere(bad)[0]
+                raise StoreError(f"{path}: damaged run store: {name} holds {int(bad.sum())} NaN/inf value(s), "
+                                 f"first at index {tuple(int(i) for i in where)}")
+    if "log_weights" in ds and (ds["log_weights"].values == np.inf).any():
+        raise StoreError(f"{path}: damaged run store: log_weights holds +inf")
+
+
+#: Text variables and attributes covered by the store's content hash (the numeric arrays carry
+#: HDF5 Fletcher-32 checksums).
+_HASHED_TEXT = ("step_info", "rng_state", "dataset_sha256", "dataset_source", "likelihood_sha256")
+_HASHED_ATTRS = ("config", "model_fingerprint", "n_steps", "initial_step_size", "result_meta")
+
+
+def _content_hash(ds) -> str:
+    """SHA-256 of the store's text records and key attributes (see :data:`_HASHED_TEXT`)."""
+    h = hashlib.sha256()
+    for key in _HASHED_ATTRS:
+        h.update(json.dumps([key, str(ds.attrs.get(key))]).encode())
+    for name in _HASHED_TEXT:
+        if name in ds:
+            h.update(json.dumps([name, [str(v) for v in ds[name].values]]).encode())
+    return h.hexdigest()
+
+
+def _check_free_space(path: Path, folder: Path, ds) -> None:
+    """Refuse a write the folder has no room for, before HDF5 runs out of space half-way."""
+    size = 0
+    for var in ds.variables.values():
+        size += sum(len(str(v)) for v in var.values.ravel()) if var.dtype == object else var.nbytes
+    needed = int(size * 1.2) + 256 * 1024      # HDF5 headers, chunk indices, checksums
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:  # pragma: no cover - no statvfs
+        return
+    if free < needed:
+        raise StoreError(f"{path}: not enough free space in {folder}: about {needed // 1024} KiB needed, "
+                         f"{free // 1024} KiB free ({os.strerror(errno.ENOSPC)}); the previous store is kept")
 
 
 def _step_info(values: dict) -> StepInfo:

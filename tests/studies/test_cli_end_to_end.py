@@ -191,7 +191,7 @@ def test_bad_input_gives_one_clear_message_and_leaves_the_store_unchanged(work, 
         (("update", store, work / "month1.csv"), r"already assimilated as step 1"),
         (("update", store, work / "absent.csv"), r"absent.csv: no such file"),
         (("update", work / "absent.nc", work / "month1.csv"), r"absent.nc: no such run store"),
-        (("status", work / "month1.csv"), r"month1.csv: cannot read the run store"),
+        (("status", work / "month1.csv"), r"month1.csv: not a run store \(not a NetCDF-4/HDF5 file\)"),
     ]
     for args, message in cases:
         code, out, err = run(capsys, *args)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from seqbayes.config import load_config
-from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, posterior_to_arviz
+from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _content_hash, posterior_to_arviz
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -201,6 +201,10 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     ds = store.to_xarray()
     ds.attrs["config"] = ds.attrs["config"].replace('"seed": 11', '"seed": 12')
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match="edited.nc: damaged run store: the content hash .* does not match"):
+        RunStore.open(tmp_path / "edited.nc")
+    ds.attrs["content_sha256"] = _content_hash(ds)       # an edit that also redoes the content hash
+    ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match="edited.nc: model fingerprint does not match"):
         RunStore.open(tmp_path / "edited.nc")
     xr.Dataset({"x": ("i", np.zeros(2))}).to_netcdf(tmp_path / "plain.nc", engine="h5netcdf")
@@ -260,6 +264,7 @@ def test_a_store_with_older_or_newer_diagnostics_still_opens(tmp_path):
     info.pop("n_nan")                        # a diagnostic the writer did not have yet
     info["from_the_future"] = 1.5            # one this reader does not know
     ds["step_info"] = (("step",), np.array([json.dumps(info)], dtype=object))
+    ds.attrs["content_sha256"] = _content_hash(ds)       # as that writer would have
     ds.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
     loaded = RunStore.open(tmp_path / "other.nc")
     assert loaded.result.steps[0].info.n_nan == 0
