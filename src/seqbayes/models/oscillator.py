@@ -66,6 +66,7 @@ __all__ = [
     "truncated_exponential", "DegradationPath", "simulate_degradation",
     "OscillatorDataset", "simulate_inspections",
     "KernelFit", "fit_kernels", "OscillatorProblem", "make_problem",
+    "exact_grid_reference", "study_problem", "study_grid_references",
 ]
 
 MASS = 0.30            #: m [kg]
@@ -231,20 +232,18 @@ def prior() -> JointPrior:
     return JointPrior({name: stats.uniform(lo, hi - lo) for name, (lo, hi) in PRIOR_BOUNDS.items()})
 
 
-def exact_log_evidence(dataset: OscillatorDataset, n_coarse: int = 200, n_fine: int = 201,
-                       half_width: float = 12.0) -> float:
-    """``log p(D | prior)`` of one inspection under the uniform prior, by 2-D quadrature.
+def _likelihood_mode(dataset: OscillatorDataset, n_coarse: int = 200):
+    """Mode of the likelihood over the prior box and the posterior stds from its curvature.
 
-    The likelihood is evaluated on a coarse grid over the whole prior box
-    (``n_coarse x n_coarse``, log-spaced in ``k``) to find the mode; around it a
-    ``n_fine x n_fine`` trapezoid grid of ``+- half_width`` posterior stds (from the
-    coarse-grid curvature, enlarged until the edge carries no mass) gives the
-    integral. The coarse grid's mass outside that window is added (it is below
-    ``1e-100`` relative on the study's data). Used as the exact reference of the
-    step-1 log-evidence (the same for every kernel).
+    A coarse grid (``n_coarse`` per axis, log-spaced in ``k``) over the whole box locates
+    the mode, Nelder-Mead refines it, central differences give the Hessian.
+
+    Returns
+    -------
+    mode, sd : ndarray, shape (2,)
+    coarse : tuple ``(k (n,), c (n,), log-likelihood (n, n))``
     """
     lo, hi = np.array(PRIOR_BOUNDS["k"]), np.array(PRIOR_BOUNDS["c"])
-    log_prior = -np.log(np.diff(lo)[0] * np.diff(hi)[0])
     k = np.geomspace(lo[0], lo[1], n_coarse)
     c = np.linspace(hi[0], hi[1], n_coarse)
     kk, cc = np.meshgrid(k, c, indexing="ij")
@@ -264,6 +263,25 @@ def exact_log_evidence(dataset: OscillatorDataset, n_coarse: int = 200, n_fine: 
             hess[a, b] = (fun(mode + ea + eb) - fun(mode + ea - eb) - fun(mode - ea + eb)
                           + fun(mode - ea - eb)) / (4 * h[a] * h[b])
     sd = np.sqrt(np.diag(np.linalg.inv(hess)))
+    return mode, sd, (k, c, ll)
+
+
+def exact_log_evidence(dataset: OscillatorDataset, n_coarse: int = 200, n_fine: int = 201,
+                       half_width: float = 12.0) -> float:
+    """``log p(D | prior)`` of one inspection under the uniform prior, by 2-D quadrature.
+
+    The likelihood is evaluated on a coarse grid over the whole prior box
+    (``n_coarse x n_coarse``, log-spaced in ``k``) to find the mode; around it a
+    ``n_fine x n_fine`` trapezoid grid of ``+- half_width`` posterior stds (from the
+    coarse-grid curvature, enlarged until the edge carries no mass) gives the
+    integral. The coarse grid's mass outside that window is added (it is below
+    ``1e-100`` relative on the study's data). Used as the exact reference of the
+    step-1 log-evidence (the same for every kernel).
+    """
+    lo, hi = np.array(PRIOR_BOUNDS["k"]), np.array(PRIOR_BOUNDS["c"])
+    log_prior = -np.log(np.diff(lo)[0] * np.diff(hi)[0])
+    mode, sd, (k, c, ll) = _likelihood_mode(dataset, n_coarse)
+    kk, cc = np.meshgrid(k, c, indexing="ij")
     for _ in range(5):
         a = np.linspace(max(mode[0] - half_width * sd[0], lo[0]), min(mode[0] + half_width * sd[0], lo[1]), n_fine)
         b = np.linspace(max(mode[1] - half_width * sd[1], hi[0]), min(mode[1] + half_width * sd[1], hi[1]), n_fine)
@@ -473,3 +491,87 @@ def make_problem(rng, *, n_points: int = 7) -> OscillatorProblem:
     path = simulate_degradation(rng)
     datasets = simulate_inspections(path, rng)
     return OscillatorProblem(path, datasets, fit_kernels(path, n_points))
+
+
+# ------------------------------------------------------ exact reference at every step
+
+def _grid_log_likelihood(axes, dataset: OscillatorDataset) -> np.ndarray:
+    """Eq. (12)'s Gaussian log-likelihood on the tensor grid ``k x c``, shape ``(n_k, n_c)``."""
+    kk, cc = np.meshgrid(axes[0], axes[1], indexing="ij")
+    return log_likelihood(np.column_stack([kk.ravel(), cc.ravel()]), dataset).reshape(kk.shape)
+
+
+def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 301, tail_mass: float = 1e-40,
+                         first_half_width: float = 15.0, n_coarse: int = 201):
+    """Exact posterior moments of ``(k, c)`` and cumulative log-evidence at every step.
+
+    A grid filter (:func:`seqbayes.reference.grid_filter`) under the uniform box prior:
+    Eq. (12)'s likelihood evaluated on a data-centred grid, the predictive of the next
+    step the convolution of the grid posterior with the kernel's Gaussian transition
+    around ``Gamma(theta)`` (both parameters move), restricted to the box at every
+    step (mass predicted outside it is lost, as in the samplers). Step 1's grid lies
+    within ``first_half_width`` likelihood stds (from the curvature) of the likelihood's
+    mode: beyond about 9 stds the likelihood is a plateau ~40 nats below its peak
+    (wherever the model response has died out or lost phase), which over the whole box
+    holds ~1e-12 of the step-1 mass; it is neglected.
+
+    Parameters
+    ----------
+    datasets : sequence of OscillatorDataset
+    kernel : MarkovKernel
+        With one component per parameter (``Decay``/``Drift``/``Static``), e.g.
+        ``make_problem(...).kernels["T2"].kernel``.
+    n_points : int
+        Fine grid points per axis (made odd).
+    tail_mass : float
+        Each grid leaves at most this much of each marginal's mass outside, per side.
+    first_half_width : float
+        Step 1's window, in likelihood stds around the mode.
+    n_coarse : int
+        Coarse points per axis for locating the grid.
+
+    Returns
+    -------
+    seqbayes.reference.GridReference
+        ``mean``, ``std`` of shape ``(S, 2)`` (``k``, ``c``) and the cumulative
+        ``log_evidence (S,)``; after a step with zero evidence (no predictive mass
+        where the likelihood is positive) the evidence is ``-inf`` and the moments NaN.
+    """
+    from .. import reference
+
+    datasets = tuple(datasets)
+    for i, d in enumerate(datasets):
+        if not isinstance(d, OscillatorDataset):
+            raise TypeError(f"datasets[{i}]: expected an OscillatorDataset, got {type(d).__name__}")
+    if not isinstance(kernel, MarkovKernel) or len(kernel.components) != 2:
+        raise TypeError("kernel: expected a MarkovKernel with one component per parameter (k, c)")
+    box = np.array([PRIOR_BOUNDS["k"], PRIOR_BOUNDS["c"]])
+    mode, sd, _ = _likelihood_mode(datasets[0])
+    window = np.column_stack([mode - first_half_width * sd, mode + first_half_width * sd])
+    steps = reference.grid_filter(datasets, _grid_log_likelihood, box, [c.nominal for c in kernel.components],
+                                  kernel.noise_std, n_points, first_window=window, n_coarse=n_coarse,
+                                  tail_mass=tail_mass)
+    settings = {"n_points": int(n_points) | 1, "tail_mass": float(tail_mass), "n_coarse": int(n_coarse) | 1,
+                "first_half_width": float(first_half_width), "kernel": kernel.describe()}
+    return reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)
+
+
+def study_problem(run: int, seed: int = 0) -> OscillatorProblem:
+    """The problem of run ``run`` of the study (:mod:`seqbayes.studies.oscillator`) with root ``seed``."""
+    return make_problem(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(run, 0))))
+
+
+def study_grid_references(runs=range(10), kernels=("T1", "T2", "T3", "T4", "T5", "T6"), seed: int = 0,
+                          **kwargs) -> dict:
+    """:func:`exact_grid_reference` for every run and kernel of the study.
+
+    Returns
+    -------
+    dict (run, kernel) -> seqbayes.reference.GridReference
+    """
+    out = {}
+    for run in runs:
+        problem = study_problem(run, seed)
+        for name in kernels:
+            out[(run, name)] = exact_grid_reference(problem.datasets, problem.kernels[name].kernel, **kwargs)
+    return out

@@ -1,0 +1,521 @@
+"""Exact on-line references by grid filtering: the posterior of every step and the
+cumulative log-evidence, on a tensor grid with quadrature instead of samples.
+
+The target is the samplers' (Eqs. A2-A3 of Lye et al. 2023 with the box convention of
+:mod:`seqbayes.sequential`): the parameter space is the prior's box and the likelihood
+is zero outside it, so at step ``s``
+
+    p_s(theta) = L_s(theta) pi_s(theta) 1_box(theta) / Z_s,
+    pi_s(theta') = int T(theta' | theta) p_{s-1}(theta) dtheta,   pi_1 = prior,
+    Z_s = int_box L_s pi_s,
+
+and a kernel that predicts mass outside the box loses it from the evidence (the
+predictive is never renormalised). Here ``T`` acts on each parameter separately,
+``theta'_j = Gamma_j(theta_j) + N(0, q_j^2)`` (the components of a
+:class:`~seqbayes.kernels.MarkovKernel`); a parameter with ``q_j = 0`` must be static
+(``Gamma_j`` the identity) and keeps the grid axis it got at step 1.
+
+Each step chooses its grid from the data (:func:`adaptive_axes`): a coarse grid over a
+window (the whole box, or the previous grid carried through ``Gamma`` and widened by
+``20 q``, i.e. 200 nats of the transition density), trimmed to the range that leaves at
+most ``tail_mass`` (1e-40, about 13 sd of a Gaussian) of each marginal of ``L pi``
+outside, zoomed in until it stops shrinking,
+then a fine grid of ``n_points`` per axis over that range. Integrals are composite
+Simpson on each axis; the predictive is the convolution ``sum_j w_j T(x'_i | x_j)
+p(x_j)`` along each drifting axis (a matrix product on scaled exponentials, so the
+log domain is kept). The tails are kept that far because a later step whose data
+conflict with the prediction puts its posterior where the predictive is made of the
+previous posterior's far tail (run 9 of the oscillator study: 5-9 posterior sds out;
+with 1e-13, about 7 sds, the step-4 mean of ``k`` moved by 0.7 sd). Discontinuities of the integrand (box bounds, a likelihood that
+drops to zero beyond a known value) must be passed as hard bounds so that they are grid
+end points.
+
+Accuracy is measured, not assumed: the model functions that use this module are run at
+two resolutions and compared (``docs/exact_references.md``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import logsumexp
+
+__all__ = ["simpson_weights", "log_integral", "marginal_moments", "adaptive_axes", "propagate",
+           "GridStep", "grid_update", "GridReference", "grid_filter", "reference_from_steps",
+           "reference_table", "read_reference_table"]
+
+
+def simpson_weights(grid) -> np.ndarray:
+    """Composite Simpson weights of a uniform grid with an odd number of points.
+
+    Parameters
+    ----------
+    grid : array_like, shape (n,)
+        Uniform, increasing, ``n`` odd and at least 3.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+
+    Examples
+    --------
+    >>> w = simpson_weights(np.linspace(0.0, 1.0, 5))
+    >>> float(w @ np.linspace(0.0, 1.0, 5) ** 3)
+    0.25
+    """
+    grid = np.asarray(grid, dtype=float)
+    n = grid.size
+    if grid.ndim != 1 or n < 3 or n % 2 == 0:
+        raise ValueError(f"grid: expected a 1-D grid with an odd number >= 3 of points, got shape {grid.shape}")
+    h = (grid[-1] - grid[0]) / (n - 1)
+    if not h > 0 or not np.allclose(np.diff(grid), h, rtol=1e-6, atol=0.0):
+        raise ValueError("grid: expected a uniform increasing grid")
+    w = np.full(n, 2.0)
+    w[1::2] = 4.0
+    w[0] = w[-1] = 1.0
+    return w * (h / 3.0)
+
+
+def _log_weights(axes) -> list[np.ndarray]:
+    """Per-axis log Simpson weights, each shaped to broadcast against the tensor grid."""
+    d = len(axes)
+    out = []
+    for j, axis in enumerate(axes):
+        shape = [1] * d
+        shape[j] = axis.size
+        out.append(np.log(simpson_weights(axis)).reshape(shape))
+    return out
+
+
+def _clean(log_values) -> np.ndarray:
+    log_values = np.asarray(log_values, dtype=float)
+    return np.where(np.isnan(log_values), -np.inf, log_values)
+
+
+def log_integral(log_values, axes) -> float:
+    """``log int f`` over a tensor grid, by Simpson on each axis, from ``log f``.
+
+    Parameters
+    ----------
+    log_values : ndarray, shape (n_0, ..., n_{d-1})
+        ``log f`` on the grid; NaN counts as ``-inf`` (zero).
+    axes : sequence of d uniform odd-length grids
+
+    Returns
+    -------
+    float
+        ``-inf`` when ``f`` is zero everywhere.
+    """
+    total = _clean(log_values) + sum(_log_weights(axes))
+    return float(logsumexp(total))
+
+
+def _log_marginals(log_values, axes) -> list[np.ndarray]:
+    """Log of the (unnormalised) one-dimensional marginals, ``[(n_j,)]``."""
+    total = _clean(log_values) + sum(_log_weights(axes))
+    d = len(axes)
+    out = []
+    for j in range(d):
+        others = tuple(i for i in range(d) if i != j)
+        m = logsumexp(total, axis=others) if others else total
+        out.append(m - _log_weights([axes[j]])[0])          # density, not mass, on axis j
+    return out
+
+
+def marginal_moments(log_density, axes) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation of each coordinate under a grid density.
+
+    Parameters
+    ----------
+    log_density : ndarray, shape (n_0, ..., n_{d-1})
+        Log density (normalised or not) on the tensor grid.
+    axes : sequence of d uniform odd-length grids
+
+    Returns
+    -------
+    mean, std : ndarray, shape (d,)
+    """
+    total = _clean(log_density) + sum(_log_weights(axes))
+    mass = np.exp(total - logsumexp(total))
+    mean, std = np.empty(len(axes)), np.empty(len(axes))
+    for j, axis in enumerate(axes):
+        others = tuple(i for i in range(len(axes)) if i != j)
+        m = mass.sum(axis=others) if others else mass
+        mean[j] = m @ axis
+        std[j] = np.sqrt(max(m @ (axis - mean[j]) ** 2, 0.0))
+    return mean, std
+
+
+def _range_with_mass(log_marginal, axis, tail_mass):
+    """Indices of the first and last grid point such that at most ``tail_mass`` of the
+    marginal's mass lies beyond each of them."""
+    log_mass = log_marginal + np.log(simpson_weights(axis))
+    mass = np.exp(log_mass - logsumexp(log_mass))
+    below = np.cumsum(mass) - mass                       # mass strictly left of each point
+    above = np.cumsum(mass[::-1])[::-1] - mass           # mass strictly right of each point
+    return int(np.flatnonzero(below <= tail_mass)[-1]), int(np.flatnonzero(above <= tail_mass)[0])
+
+
+def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=None, n_coarse=201,
+                  tail_mass: float = 1e-40, max_rounds: int = 12) -> tuple[np.ndarray, ...]:
+    """A data-centred fine grid: the range of every marginal of ``exp(log_target)`` but for
+    ``tail_mass`` of its mass in each tail.
+
+    Starting from a coarse grid over ``window``, each round trims every axis to the
+    range that leaves at most ``tail_mass`` of its marginal's mass on each side (plus
+    one coarse cell each side), widens an axis whose mass reaches a window edge that is not a hard
+    bound (by the window's width), and zooms in; it stops when no axis shrinks below
+    half its width or moves.
+
+    Parameters
+    ----------
+    log_target : callable ``(axes) -> ndarray (n_0, ..., n_{d-1})``
+        Log of the unnormalised density on a tensor grid; NaN counts as zero.
+    window : array_like, shape (d, 2)
+        Initial ``[lower, upper]`` per axis.
+    n_points : int or sequence of d ints
+        Fine points per axis (made odd).
+    hard : array_like, shape (d, 2), optional
+        Bounds never crossed (the box, or where the density drops to zero); a window
+        edge equal to a hard bound is never widened. Default: ``window``.
+    fixed : sequence of d (ndarray or None), optional
+        Axes that are given (static parameters after step 1): used as they are.
+    n_coarse : int or sequence of d ints
+        Coarse points per axis.
+    tail_mass : float
+        Mass of each marginal allowed outside the grid, per side (a density-based
+        cut-off would fail on likelihoods with a far, flat plateau: the damped
+        oscillator's likelihood is only ~40 nats below its peak wherever the model
+        response has died out).
+    max_rounds : int
+
+    Returns
+    -------
+    tuple of d ndarrays
+        The fine axes.
+    """
+    window = np.array(window, dtype=float)
+    d = window.shape[0]
+    if window.shape != (d, 2) or not np.all(window[:, 1] > window[:, 0]):
+        raise ValueError(f"window: expected (d, 2) with lower < upper, got {window.tolist()}")
+    hard = window.copy() if hard is None else np.array(hard, dtype=float)
+    if hard.shape != (d, 2):
+        raise ValueError(f"hard: expected shape ({d}, 2), got {hard.shape}")
+    fixed = [None] * d if fixed is None else list(fixed)
+    n_points = np.broadcast_to(np.asarray(n_points, dtype=int), (d,)) | 1
+    n_coarse = np.broadcast_to(np.asarray(n_coarse, dtype=int), (d,)) | 1
+    window[:, 0] = np.maximum(window[:, 0], hard[:, 0])
+    window[:, 1] = np.minimum(window[:, 1], hard[:, 1])
+    for _ in range(max_rounds):
+        axes = [fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_coarse[j]) for j in range(d)]
+        values = _clean(log_target(axes))
+        if not np.isfinite(values).any():
+            raise ValueError(f"log_target: zero everywhere on the window {window.tolist()}")
+        marginals = _log_marginals(values, axes)
+        new = window.copy()
+        changed = False
+        for j in range(d):
+            if fixed[j] is not None:
+                continue
+            axis = axes[j]
+            i0, i1 = _range_with_mass(marginals[j], axis, tail_mass)
+            width = window[j, 1] - window[j, 0]
+            lo, hi = axis[max(i0 - 1, 0)], axis[min(i1 + 1, axis.size - 1)]
+            if i0 == 0 and window[j, 0] > hard[j, 0]:        # mass at an open edge: widen
+                lo = max(window[j, 0] - width, hard[j, 0])
+            if i1 == axis.size - 1 and window[j, 1] < hard[j, 1]:
+                hi = min(window[j, 1] + width, hard[j, 1])
+            new[j] = lo, hi
+            if (hi - lo) < 0.5 * width or lo < window[j, 0] or hi > window[j, 1]:
+                changed = True
+        window = new
+        if not changed:
+            break
+    else:
+        raise RuntimeError(f"adaptive_axes: the grid range did not settle in {max_rounds} rounds ({window.tolist()})")
+    return tuple(fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_points[j]) for j in range(d))
+
+
+def _transition_matrix(new_axis, old_axis, nominal, noise_std) -> np.ndarray:
+    """``M[i, j] = w_j N(new_i; Gamma(old_j), q^2)``, shape ``(n_new, n_old)`` (Eq. A2)."""
+    mean = np.asarray(nominal(old_axis), dtype=float)
+    z = (new_axis[:, None] - mean[None, :]) / noise_std
+    return np.exp(-0.5 * z * z) / (noise_std * np.sqrt(2.0 * np.pi)) * simpson_weights(old_axis)[None, :]
+
+
+def propagate(log_density, old_axes, new_axes, nominals, noise_stds) -> np.ndarray:
+    """Log predictive density ``log int T(theta' | theta) p(theta) dtheta`` on a new grid (Eq. A3).
+
+    Parameters
+    ----------
+    log_density : ndarray, shape (n_0, ..., n_{d-1})
+        Log posterior density on ``old_axes``.
+    old_axes, new_axes : sequences of d uniform odd-length grids
+        A static axis (``noise_stds[j] == 0``) must be the same array in both.
+    nominals : sequence of d callables ``(n,) -> (n,)``
+        ``Gamma_j``; ignored for static axes.
+    noise_stds : sequence of d floats
+
+    Returns
+    -------
+    ndarray, shape (len(new_axes[0]), ..., len(new_axes[d-1]))
+        ``-inf`` where the predictive underflows.
+    """
+    log_density = _clean(log_density)
+    shift = np.max(log_density)
+    if not np.isfinite(shift):
+        raise ValueError("log_density: zero everywhere")
+    values = np.exp(log_density - shift)             # scaled exponentials: log-sum-exp as a matrix product
+    for j, q in enumerate(noise_stds):
+        if q == 0:
+            if new_axes[j] is not old_axes[j] and not np.array_equal(new_axes[j], old_axes[j]):
+                raise ValueError(f"new_axes[{j}]: a static axis keeps its grid")
+            continue
+        matrix = _transition_matrix(np.asarray(new_axes[j]), np.asarray(old_axes[j]), nominals[j], float(q))
+        values = np.moveaxis(np.tensordot(matrix, values, axes=([1], [j])), 0, j)
+    with np.errstate(divide="ignore"):
+        return np.log(values) + shift
+
+
+@dataclass(frozen=True)
+class GridStep:
+    """One step of a grid filter.
+
+    Attributes
+    ----------
+    axes : tuple of d ndarrays
+        The fine grid.
+    log_density : ndarray, shape (n_0, ..., n_{d-1})
+        Normalised log posterior density on the grid.
+    log_evidence_increment : float
+        ``log Z_s = log int_box L_s pi_s``.
+    mean, std : ndarray, shape (d,)
+        Posterior moments of each coordinate.
+    """
+
+    axes: tuple
+    log_density: np.ndarray
+    log_evidence_increment: float
+    mean: np.ndarray
+    std: np.ndarray
+
+
+def grid_update(log_target: Callable, window, n_points, **kwargs) -> GridStep:
+    """One Bayes update on an adaptive grid: ``log_target = log(L pi)`` integrated and normalised.
+
+    Parameters are those of :func:`adaptive_axes` (``kwargs``: ``hard``, ``fixed``,
+    ``n_coarse``, ``tail_mass``). After the fine evaluation the marginal density at every
+    edge that is not a hard bound must lie 20 nats below its peak (else ``RuntimeError``).
+    """
+    axes = adaptive_axes(log_target, window, n_points, **kwargs)
+    values = _clean(log_target(axes))
+    hard = kwargs.get("hard", window)
+    for j, m in enumerate(_log_marginals(values, axes)):
+        peak = np.max(m)
+        open_lo, open_hi = axes[j][0] > np.asarray(hard)[j, 0], axes[j][-1] < np.asarray(hard)[j, 1]
+        if (open_lo and m[0] > peak - 20.0) or (open_hi and m[-1] > peak - 20.0):
+            raise RuntimeError(f"grid_update: axis {j} carries mass at an open edge "
+                               f"({m[0] - peak:.1f}, {m[-1] - peak:.1f} nats below the peak); widen the grid")
+    log_z = log_integral(values, axes)
+    log_density = values - log_z
+    mean, std = marginal_moments(log_density, axes)
+    for arr in (log_density, mean, std):
+        arr.setflags(write=False)
+    return GridStep(tuple(axes), log_density, log_z, mean, std)
+
+
+@dataclass(frozen=True)
+class GridReference:
+    """Exact per-step posterior summaries and evidence of one model and kernel.
+
+    Attributes
+    ----------
+    parameter_names : tuple of str
+    mean, std : ndarray, shape (S, d)
+        Posterior mean and standard deviation of each parameter after each step.
+    log_evidence : ndarray, shape (S,)
+        Cumulative ``log p(D^{1:s} | M)``.
+    log_evidence_increment : ndarray, shape (S,)
+    settings : dict
+        Resolution and thresholds used.
+    """
+
+    parameter_names: tuple
+    mean: np.ndarray
+    std: np.ndarray
+    log_evidence: np.ndarray
+    log_evidence_increment: np.ndarray
+    settings: dict
+
+    def __post_init__(self):
+        for name in ("mean", "std", "log_evidence", "log_evidence_increment"):
+            arr = np.array(getattr(self, name), dtype=float)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def rows(self) -> list[dict]:
+        """One dict per (step, quantity): ``step, quantity, mean, std`` (``std`` empty for the evidence)."""
+        out = []
+        for s in range(self.log_evidence.size):
+            out.append({"step": s + 1, "quantity": "log_evidence", "mean": float(self.log_evidence[s]), "std": None})
+            for j, name in enumerate(self.parameter_names):
+                out.append({"step": s + 1, "quantity": name, "mean": float(self.mean[s, j]),
+                            "std": float(self.std[s, j])})
+        return out
+
+
+def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Sequence[Callable],
+                noise_stds, n_points, *, first_window=None, hard=None, n_coarse=201,
+                tail_mass: float = 1e-40, widen: float = 20.0) -> list[GridStep]:
+    """Grid filter under a uniform box prior and a per-parameter Gaussian kernel.
+
+    Parameters
+    ----------
+    datasets : sequence
+        One item per step, passed to ``log_likelihood``.
+    log_likelihood : callable ``(axes, dataset) -> ndarray (n_0, ..., n_{d-1})``
+        On a tensor grid; NaN counts as zero.
+    box : array_like, shape (d, 2)
+        The uniform prior's box (the parameter space).
+    nominals : sequence of d callables ``(n,) -> (n,)``
+        ``Gamma_j`` of the kernel, per parameter.
+    noise_stds : array_like, shape (d,)
+        ``q_j``; 0 marks a static parameter (its grid is fixed at step 1).
+    n_points : int or sequence of d ints
+        Fine points per axis.
+    first_window : array_like (d, 2), optional
+        Step 1's grid stays inside this window (default: the box). For a likelihood
+        with a far plateau (the damped oscillator's) this is where its peak is; the
+        plateau's mass outside is neglected.
+    hard : callable ``(step_index, dataset) -> (d, 2)``, optional
+        Hard bounds per step (default: the box); for likelihoods that drop to zero
+        beyond a known value, so that the discontinuity is a grid end point.
+    n_coarse, tail_mass
+        As :func:`adaptive_axes`.
+    widen : float
+        The step-``s > 1`` window is the previous grid carried through ``Gamma`` and
+        widened by ``widen`` noise stds each side.
+
+    Returns
+    -------
+    list of GridStep
+        One per dataset; the list stops early if a step has zero evidence (the
+        predictive puts no mass where the likelihood is positive).
+    """
+    box = np.array(box, dtype=float)
+    d = box.shape[0]
+    noise = np.asarray(noise_stds, dtype=float)
+    if noise.shape != (d,) or np.any(noise < 0):
+        raise ValueError(f"noise_stds: expected {d} values >= 0, got {noise_stds!r}")
+    if len(nominals) != d:
+        raise ValueError(f"nominals: expected {d} callables, got {len(nominals)}")
+    log_volume = float(np.sum(np.log(box[:, 1] - box[:, 0])))
+    steps: list[GridStep] = []
+    for s, dataset in enumerate(datasets):
+        bounds = box if hard is None else np.array(hard(s, dataset), dtype=float)
+        if s == 0:
+            def log_target(axes, dataset=dataset):
+                return log_likelihood(axes, dataset) - log_volume
+            if first_window is not None:
+                window = np.array(first_window, dtype=float)
+                bounds = np.column_stack([np.maximum(window[:, 0], bounds[:, 0]), np.minimum(window[:, 1], bounds[:, 1])])
+            window = bounds
+            fixed = None
+        else:
+            prev = steps[-1]
+
+            def log_target(axes, dataset=dataset, prev=prev):
+                return propagate(prev.log_density, prev.axes, axes, nominals, noise) + log_likelihood(axes, dataset)
+            window = np.empty((d, 2))
+            for j in range(d):
+                ends = np.asarray(nominals[j](prev.axes[j][[0, -1]]), dtype=float)
+                window[j] = ends.min() - widen * noise[j], ends.max() + widen * noise[j]
+            fixed = [prev.axes[j] if noise[j] == 0 else None for j in range(d)]
+        try:
+            step = grid_update(log_target, window, n_points, hard=bounds, fixed=fixed, n_coarse=n_coarse,
+                               tail_mass=tail_mass)
+        except ValueError as err:
+            if "zero everywhere" in str(err):
+                break
+            raise
+        steps.append(step)
+    return steps
+
+
+def reference_from_steps(steps: Sequence[GridStep], parameter_names, n_steps: int, settings: dict) -> GridReference:
+    """Stack :class:`GridStep` records into a :class:`GridReference` (``-inf`` evidence, NaN moments
+    for the steps after a zero-evidence step)."""
+    d = len(parameter_names)
+    mean = np.full((n_steps, d), np.nan)
+    std = np.full((n_steps, d), np.nan)
+    inc = np.full(n_steps, -np.inf)
+    for s, step in enumerate(steps):
+        mean[s], std[s], inc[s] = step.mean, step.std, step.log_evidence_increment
+    return GridReference(tuple(parameter_names), mean, std, np.cumsum(inc), inc, dict(settings))
+
+
+_TABLE_COLUMNS = ("step", "quantity", "mean", "std")
+
+
+def reference_table(references: dict, key_names: Sequence[str]) -> str:
+    """CSV text of several references: one row per (key, step, quantity).
+
+    Parameters
+    ----------
+    references : dict tuple -> GridReference
+        Keyed by tuples named ``key_names`` (e.g. ``("T1",)`` or ``(9, "T2")``).
+    key_names : sequence of str
+        Column names of the key's fields.
+
+    Returns
+    -------
+    str
+        Header ``*key_names, step, quantity, mean, std``; ``std`` is empty for the
+        cumulative log-evidence; values to 10 significant digits.
+    """
+    lines = [",".join((*key_names, *_TABLE_COLUMNS))]
+    for key, ref in references.items():
+        key = key if isinstance(key, tuple) else (key,)
+        if len(key) != len(key_names):
+            raise ValueError(f"references: key {key!r} does not match key_names {tuple(key_names)}")
+        for row in ref.rows():
+            std = "" if row["std"] is None else f"{row['std']:.10g}"
+            lines.append(",".join((*map(str, key), str(row["step"]), row["quantity"], f"{row['mean']:.10g}", std)))
+    return "\n".join(lines) + "\n"
+
+
+def read_reference_table(text: str, key_names: Sequence[str], parameter_names: Sequence[str],
+                         key_types: Sequence[type] | None = None) -> dict:
+    """Parse :func:`reference_table` output (lines starting with ``#`` are comments).
+
+    Returns
+    -------
+    dict tuple -> GridReference
+        ``settings`` is empty; ``log_evidence_increment`` is recomputed from the cumulative values.
+    """
+    import csv
+
+    key_types = tuple(key_types) if key_types is not None else (str,) * len(key_names)
+    rows = list(csv.DictReader(line for line in text.splitlines() if line and not line.startswith("#")))
+    grouped: dict = {}
+    for row in rows:
+        key = tuple(t(row[name]) for t, name in zip(key_types, key_names))
+        grouped.setdefault(key, []).append(row)
+    out = {}
+    for key, group in grouped.items():
+        n_steps = max(int(r["step"]) for r in group)
+        mean = np.full((n_steps, len(parameter_names)), np.nan)
+        std = np.full((n_steps, len(parameter_names)), np.nan)
+        log_evidence = np.full(n_steps, np.nan)
+        for r in group:
+            s = int(r["step"]) - 1
+            if r["quantity"] == "log_evidence":
+                log_evidence[s] = float(r["mean"])
+            else:
+                j = list(parameter_names).index(r["quantity"])
+                mean[s, j], std[s, j] = float(r["mean"]), float(r["std"])
+        out[key] = GridReference(tuple(parameter_names), mean, std, log_evidence,
+                                 np.diff(log_evidence, prepend=0.0), {})
+    return out

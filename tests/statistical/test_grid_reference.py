@@ -1,0 +1,107 @@
+"""Exact grid references (seqbayes.reference): the generic grid filter against the Kalman
+filter, the Coulomb-friction reference against the one-step closed form and its bundled
+table, the damped-oscillator reference against its bundled table and issue 11.
+
+Tolerances are the measured grid errors (benchmarks/bench_reference.py) times ~10."""
+
+import math
+
+import numpy as np
+import pytest
+
+from seqbayes import reference
+from seqbayes.models import coulomb as cf
+from seqbayes.models import oscillator as osc
+from seqbayes.models.linear_gaussian import LinearGaussianProblem, kalman_filter
+
+
+def _assert_close(ref, exact, log_z_tol, mean_tol_sd, std_rel_tol):
+    """Cumulative log-evidence within ``log_z_tol`` nats, means within ``mean_tol_sd``
+    posterior sds, sds within ``std_rel_tol`` (relative), at every step."""
+    np.testing.assert_allclose(ref.log_evidence, exact.log_evidence, rtol=0, atol=log_z_tol)
+    assert np.all(np.abs(ref.mean - exact.mean) <= mean_tol_sd * exact.std), (ref.mean, exact.mean)
+    np.testing.assert_allclose(ref.std, exact.std, rtol=std_rel_tol)
+
+
+# ------------------------------------------------------------------ the generic filter
+
+def test_grid_filter_reproduces_the_kalman_filter_with_a_static_parameter():
+    """A random-walk offset and a static slope (linear-Gaussian): the grid filter (drifting
+    axis convolved, static axis fixed after step 1) against the Kalman filter at 10 steps.
+    The Gaussian prior enters as a step-1 factor over a uniform box 12 prior sds wide."""
+    problem = LinearGaussianProblem(drift_std=0.3, noise_std=0.5)
+    data, _ = problem.simulate(10, rng=np.random.default_rng(4))
+    box = np.array([[-12.0, 12.0], [-12.0, 12.0]])
+    x = problem.covariates
+    log_volume = np.sum(np.log(box[:, 1] - box[:, 0]))
+
+    def log_likelihood(axes, item):
+        s, y = item
+        a, b = axes[0][:, None], axes[1][None, :]
+        ss = (y @ y - 2 * a * y.sum() - 2 * b * (x @ y) + x.size * a * a + 2 * a * b * x.sum() + b * b * (x @ x))
+        out = -0.5 * ss / problem.noise_std**2 - x.size * math.log(problem.noise_std * math.sqrt(2 * math.pi))
+        if s == 0:  # N(0, 1) x N(0, 1) prior relative to the uniform box
+            out = out - 0.5 * (a * a + b * b) - math.log(2 * math.pi) + log_volume
+        return out
+
+    steps = reference.grid_filter(list(enumerate(data)), log_likelihood, box, [lambda v: v, lambda v: v],
+                                  [problem.drift_std, 0.0], 201)
+    kalman = kalman_filter(problem, data)
+    assert len(steps) == 10
+    for step, exact in zip(steps, kalman):
+        sd = np.sqrt(np.diag(exact.cov))
+        assert np.all(np.abs(step.mean - exact.mean) < 1e-6 * sd)
+        np.testing.assert_allclose(step.std, sd, rtol=1e-6)
+    log_z = np.cumsum([s.log_evidence_increment for s in steps])
+    np.testing.assert_allclose(log_z, [k.log_evidence for k in kalman], rtol=0, atol=1e-7)
+    # the static axis kept its grid; the drifting one moved with the data
+    assert all(s.axes[1] is steps[0].axes[1] for s in steps)
+    assert not np.array_equal(steps[-1].axes[0], steps[0].axes[0])
+
+
+def test_simpson_and_moments_are_exact_for_polynomials():
+    x, y = np.linspace(-1.0, 2.0, 7), np.linspace(0.0, 1.0, 3)
+    with np.errstate(divide="ignore"):
+        log_f = np.log(3 * x**2)[:, None] + np.zeros((1, y.size))       # int 3 x^2 dx dy = 9
+    assert reference.log_integral(log_f, (x, y)) == pytest.approx(math.log(9.0), abs=1e-12)
+    mean, std = reference.marginal_moments(np.zeros((x.size, y.size)), (x, y))    # uniform
+    np.testing.assert_allclose(mean, [0.5, 0.5], atol=1e-12)
+    np.testing.assert_allclose(std, [3 / math.sqrt(12), 1 / math.sqrt(12)], atol=1e-12)
+    with pytest.raises(ValueError, match="odd"):
+        reference.simpson_weights(np.linspace(0, 1, 4))
+
+
+# --------------------------------------------------------------------- Coulomb friction
+
+@pytest.fixture(scope="module")
+def coulomb_fresh():
+    """A fresh computation at half the default resolution (0.1 s per kernel)."""
+    return {k: cf.exact_grid_reference(k, n_points=(151, 101), n_omega=10001) for k in ("T1", "T2")}
+
+
+@pytest.mark.parametrize("kernel", ["T1", "T2"])
+def test_coulomb_bundled_table_equals_a_fresh_computation(coulomb_fresh, kernel):
+    # measured: half vs default resolution 1.3e-6 nats, 1.7e-6 sd, 4.6e-7 relative
+    bundled = cf.load_exact_reference(kernel)
+    assert bundled.mean.shape == (4, 4) and np.all(np.isfinite(bundled.log_evidence))
+    _assert_close(coulomb_fresh[kernel], bundled, log_z_tol=2e-5, mean_tol_sd=2e-5, std_rel_tol=1e-5)
+
+
+def test_coulomb_first_step_equals_the_closed_form(coulomb_fresh):
+    one_step = cf.reference_posterior(cf.load_experiment()[0], n_grid=200001)
+    for ref in coulomb_fresh.values():
+        assert ref.log_evidence[0] == pytest.approx(one_step.log_evidence, abs=2e-5)
+        assert np.all(np.abs(ref.mean[0] - one_step.mean) < 2e-5 * one_step.std)
+        np.testing.assert_allclose(ref.std[0], one_step.std, rtol=1e-5)
+
+
+def test_coulomb_kernels_differ_after_step_one_and_track_the_measured_force(coulomb_fresh):
+    t1, t2 = coulomb_fresh["T1"], coulomb_fresh["T2"]
+    np.testing.assert_array_equal(t1.mean[0], t2.mean[0])
+    # the static pair (omega_n, sigma_r) does not depend on the kernel; F_mu and sigma_phi do
+    np.testing.assert_allclose(t1.mean[:, [1, 3]], t2.mean[:, [1, 3]], rtol=1e-12)
+    assert np.all(np.abs(t1.mean[1:, 0] - t2.mean[1:, 0]) > 0.2 * t1.std[1:, 0])
+    # the friction force follows the measurements within 3 posterior sds at every step
+    assert np.all(np.abs(t1.mean[:, 0] - cf.MEASURED_FORCES) < 3 * t1.std[:, 0])
+    # T1 is the better kernel on these data (log Bayes factor at s = 4)
+    assert t1.log_evidence[-1] - t2.log_evidence[-1] > 1.0
