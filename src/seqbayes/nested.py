@@ -51,7 +51,7 @@ from .transforms import BoxTransform
 from .weights import logsumexp
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
-           "assimilate_nested"]
+           "after_joint_first_step", "assimilate_nested"]
 
 
 def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
@@ -114,6 +114,15 @@ class ParticleInnerFilter:
     n_inner: int = 100
     ess_threshold: float = 0.5
 
+    #: The outer particles carry the drifting parameters' first value too: the first dataset is then a
+    #: static problem in every parameter (tempering, restarts and the importance evidence of the other
+    #: samplers apply), and each inner filter starts from its outer particle's value instead of blind
+    #: prior draws, which a sharp dataset would leave with one or no useful inner particle.
+    joint_first_step = True
+
+    def outer_columns(self, split, dim) -> np.ndarray:
+        return np.arange(dim)
+
     def __post_init__(self):
         if int(self.n_inner) != self.n_inner or self.n_inner < 1:
             raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
@@ -125,16 +134,17 @@ class ParticleInnerFilter:
             raise TypeError("prior: SMC^2 draws the drifting parameters from their own marginals; "
                             "give a seqbayes.JointPrior (independent marginals)")
 
-    def advance(self, problem, split, static, cloud, dataset, first, counter, rng):
+    def advance(self, problem, split, outer, cloud, dataset, first, counter, rng):
         """One step of every inner filter.
 
         Parameters
         ----------
-        static : (K, d_s) array
+        outer : (K, d) array
+            Outer particles: the static parameters and the drifting parameters' first value.
         cloud : dict or None
             ``{"x": (K, M, d_x), "log_w": (K, M)}`` after the last step (``None`` at ``first``).
         first : bool
-            Draw the inner particles from the prior instead of propagating them.
+            The first dataset: its likelihood at the outer particle itself.
         counter : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
             Evaluates (and counts) the user's likelihood.
 
@@ -144,16 +154,19 @@ class ParticleInnerFilter:
             ``log p^(D^s | D^{1:s-1}, phi)``; ``-inf`` where every inner particle has zero likelihood.
         cloud : dict
         """
-        k, m, dim = static.shape[0], int(self.n_inner), problem.kernel.dim
-        phi = np.repeat(static, m, axis=0)
-        if first:
-            theta = problem.prior.sample(k * m, rng)
-            theta[:, split[0]] = phi
-            log_w = np.full((k, m), -np.log(m))
-        else:
-            theta = problem.kernel.propagate(_joint(phi, cloud["x"].reshape(k * m, -1), split, dim), rng)  # Eq. (A2)
-            log_w = cloud["log_w"]
+        k, m, dim = outer.shape[0], int(self.n_inner), problem.kernel.dim
         support = problem.support
+        if first:  # the outer particle holds the first value of the drifting parameters
+            inside = ((outer >= support[:, 0]) & (outer <= support[:, 1])).all(axis=1)
+            log_increment = np.full(k, -np.inf)
+            if inside.any():
+                log_increment[inside] = counter.loglike_on(outer[inside], dataset)
+            return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1))}
+        x, log_w = cloud["x"], cloud["log_w"]
+        if x.shape[1] != m:  # one value per outer particle after the first step: M children each
+            x, log_w = np.repeat(x, m, axis=1), np.full((k, m), -np.log(m))
+        phi = np.repeat(outer[:, split[0]], m, axis=0)
+        theta = problem.kernel.propagate(_joint(phi, x.reshape(k * m, -1), split, dim), rng)  # Eq. (A2)
         inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
         loglike = np.full(k * m, -np.inf)
         if inside.all():
@@ -209,6 +222,11 @@ class KalmanInnerFilter:
 
     observe: object
 
+    joint_first_step = False
+
+    def outer_columns(self, split, dim) -> np.ndarray:
+        return split[0]
+
     def check(self, problem, split) -> None:
         prior, kernel = problem.prior, problem.kernel
         if not isinstance(prior, JointPrior):
@@ -221,7 +239,7 @@ class KalmanInnerFilter:
                 raise ValueError(f"kernel: {prior.names[j]!r} must be Drift or Decay for KalmanInnerFilter")
 
     def advance(self, problem, split, static, cloud, dataset, first, counter, rng):
-        """One Kalman step per outer particle; arguments and returns as :meth:`ParticleInnerFilter.advance`
+        """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
         (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
         k, d_x = static.shape[0], split[1].size
         if first:
@@ -268,16 +286,17 @@ class NestedState:
     Attributes
     ----------
     step : int
-    static : (N, d_s) array
-        Outer particles: the static parameters.
+    outer : (N, d_o) array
+        Outer particles: the static parameters, and with :class:`ParticleInnerFilter` the drifting
+        parameters' first value (columns ``inner.outer_columns``).
     cloud : dict of arrays with leading axis N
         The inner filters after the last dataset.
     log_weights : (N,) array
         Normalised outer log-weights.
     log_prior : (N,) array
-        ``log p_0(phi)``.
+        ``log p_0`` of the outer particles.
     log_likelihood : (N,) array
-        ``log p^(D^{1:s} | phi)``, the inner filters' running likelihood estimates.
+        ``log p^(D^{1:s} | outer)``, the inner filters' running likelihood estimates.
     datasets : tuple
         ``D^1 .. D^s`` (PMMH re-runs the inner filters over them).
     log_evidence, step_size : float
@@ -286,7 +305,7 @@ class NestedState:
     """
 
     step: int
-    static: np.ndarray
+    outer: np.ndarray
     cloud: dict
     log_weights: np.ndarray
     log_prior: np.ndarray
@@ -305,18 +324,28 @@ class NestedState:
         return self.log_weights if self.step else None
 
 
-def start_nested(prior, split, draws, step_size) -> NestedState:
-    """The state before the first dataset, from ``draws (N, d)`` of the prior."""
+def start_nested(prior, columns, draws, step_size) -> NestedState:
+    """The state before the first dataset, from ``draws (N, d)`` of the prior; ``columns`` are the
+    outer particles' columns."""
     n = draws.shape[0]
-    static = draws[:, split[0]]
-    return NestedState(0, static, {}, np.full(n, -np.log(n)), _static_logpdf(prior, split, static),
+    outer = draws[:, columns]
+    return NestedState(0, outer, {}, np.full(n, -np.log(n)), _outer_logpdf(prior, columns, outer),
                        np.zeros(n), (), 0.0, float(step_size), draws)
 
 
-def _static_logpdf(prior, split, static) -> np.ndarray:
-    total = np.zeros(static.shape[0])
-    for column, j in enumerate(split[0]):
-        total += prior.marginal_logpdf(j, static[:, column])
+def after_joint_first_step(split, particles, log_weights, components, dataset, log_evidence, step_size,
+                           posterior) -> NestedState:
+    """The state after a first step done jointly over every parameter (``joint_first_step``):
+    ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``."""
+    return NestedState(1, particles, {"x": particles[:, None, split[1]].copy(), "log_w": np.zeros((particles.shape[0], 1))},
+                       log_weights, components[:, 1].copy(), components[:, 0].copy(), (_kept(dataset),),
+                       float(log_evidence), float(step_size), posterior)
+
+
+def _outer_logpdf(prior, columns, outer) -> np.ndarray:
+    total = np.zeros(outer.shape[0])
+    for column, j in enumerate(columns):
+        total += prior.marginal_logpdf(j, outer[:, column])
     return total
 
 
@@ -331,7 +360,8 @@ def _pmmh(problem, config, inner, split, datasets, static, cloud, components, be
     """
     static, components = static.copy(), components.copy()
     cloud = {key: value.copy() for key, value in cloud.items()}
-    support = problem.support[split[0]]
+    columns = inner.outer_columns(split, problem.kernel.dim)
+    support = problem.support[columns]
     transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
     position = transform.forward(static) if transform is not None else static.copy()
     jacobian = transform.log_jacobian(position) if transform is not None else np.zeros(static.shape[0])
@@ -370,7 +400,7 @@ def _pmmh(problem, config, inner, split, datasets, static, cloud, components, be
             if inside.any():
                 rows = np.flatnonzero(inside)
                 past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, counter, rng)
-                new_components[rows] = np.column_stack([last, _static_logpdf(problem.prior, split, phi[rows]), past])
+                new_components[rows] = np.column_stack([last, _outer_logpdf(problem.prior, columns, phi[rows]), past])
                 for key in new_cloud:
                     new_cloud[key][rows] = rerun[key]
                 if transform is not None:
@@ -428,9 +458,9 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     n = config.n_samples
     split, inner = nested_split(problem.kernel), problem.inner_filter
     datasets = state.datasets + (_kept(dataset),)
-    log_increment, cloud = inner.advance(problem, split, state.static, state.cloud or None, dataset, step == 1,
+    log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
                                          counter, rng)
-    static, log_weights = state.static, state.log_weights
+    static, log_weights = state.outer, state.log_weights
     components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
     if not np.isfinite(log_increment).any():
         raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
@@ -470,7 +500,11 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
             stats, n_sweeps = stats + sweep, n_sweeps + sweeps
             if config.move == "stretch":
                 step_size = step_size_new
-    posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
+    if static.shape[1] == problem.kernel.dim:  # the outer particles hold every column: replace the drifting ones
+        posterior = static.copy()
+        posterior[:, split[1]] = inner.draws(cloud, rng)
+    else:
+        posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
     log_evidence = float(state.log_evidence + log_z)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,

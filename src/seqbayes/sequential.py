@@ -41,7 +41,8 @@ import numpy as np
 from .density import PREDICTIVE_METHODS, HistoryPrior, RunningStatistics, predictive_density
 from .evidence import importance_step
 from .kernels import MarkovKernel
-from .nested import NestedState, ParticleInnerFilter, assimilate_nested, nested_split, start_nested
+from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, assimilate_nested, nested_split,
+                     start_nested)
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
 from .parallel import evaluate_loglike
@@ -661,6 +662,8 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
 def _propagate(state, cloud, dataset, log_increment, log_evidence, method, problem, config, rng):
     """Stage 6: the next step's prior (Eq. A2-A3). Returns the density, its particles and their prior
     values (known for the history prior: the particles are the posterior itself)."""
+    if method == "joint":
+        return None, problem.kernel.propagate(cloud.particles, rng), None
     if method == "history":  # the next prior is this posterior, exactly: keep the particles and their weights
         density = state.prior.extended(dataset, log_evidence) if isinstance(state.prior, HistoryPrior) else \
             HistoryPrior.start(problem.prior, problem.history, dataset, log_evidence)
@@ -691,8 +694,26 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     _check_dataset(dataset, step)
     counter = _Counter(problem, dataset, step)
     if isinstance(state, NestedState):
-        return assimilate_nested(state, dataset, problem, config, counter, rng)
+        if step > 1 or not problem.inner_filter.joint_first_step:
+            return assimilate_nested(state, dataset, problem, config, counter, rng)
+        # the first dataset has no dynamics yet: a static problem in every parameter
+        joint = SamplerState(0, state.particles, state.log_weights, problem.prior, 0.0, state.step_size)
+        _, record, cloud = _assimilate_particles(joint, dataset, problem, config, rng, counter, "joint", start)
+        new_state = after_joint_first_step(nested_split(problem.kernel), cloud.particles, cloud.log_weights,
+                                           cloud.components, dataset, record.info.log_evidence,
+                                           state.step_size if np.isnan(record.info.step_size) else record.info.step_size,
+                                           cloud.particles)
+        return new_state, record
     method = resolve_predictive(config.predictive, problem.kernel)
+    new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
+    return new_state, record
+
+
+def _assimilate_particles(state, dataset, problem, config, rng, counter, method, start):
+    """Stages 1-6 for a :class:`SamplerState`; ``method`` is the resolved predictive (``"joint"``: the
+    first step of SMC^2 with a particle inner filter, propagated but with no density built).
+    Returns the new state, the record and the final cloud."""
+    step = state.step + 1
     prior_logpdf = _prior_logpdf(state.prior, counter)
     history = isinstance(state.prior, HistoryPrior)  # static parameters: the particles are the last posterior
     move_every_stage = _moves_every_stage(config, method)
@@ -736,7 +757,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
                              step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                              posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
                              log_prior=next_log_prior)
-    return new_state, record
+    return new_state, record, cloud
 
 
 class _SequentialSampler:
@@ -785,7 +806,8 @@ class _SequentialSampler:
         if self.config.predictive == "smc2":
             split = nested_split(kernel)
             inner_filter.check(self.problem, split)
-            self._state = start_nested(prior, split, initial, float(self.config.step_size))
+            self._state = start_nested(prior, inner_filter.outer_columns(split, dim), initial,
+                                       float(self.config.step_size))
         else:
             self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
                                        prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))

@@ -227,3 +227,23 @@ class LinearGaussianStateSpace:
             total += increment
             out.append(KalmanStep(mean.copy(), cov.copy(), float(increment), float(total)))
         return out
+
+    def running_statistics(self):
+        """The likelihood's additive statistics (``sum y``, ``X^T y``, the dataset count), so that the
+        history prior of an all-static run evaluates every past dataset in one call
+        (:class:`~seqbayes.RunningStatistics`)."""
+        from ..density import RunningStatistics
+
+        design, noise = self.design, self.noise_std
+        gram = design.T @ design
+        constant = design.shape[0] * (np.log(noise) + 0.5 * np.log(2.0 * np.pi))
+
+        def summarise(y):
+            y = np.asarray(y, dtype=float)
+            return {"count": 1.0, "yy": y @ y, "xy": design.T @ y}
+
+        def loglike(theta, t):
+            quadratic = t["yy"] - 2.0 * theta @ t["xy"] + t["count"] * np.einsum("ij,jk,ik->i", theta, gram, theta)
+            return -0.5 * quadratic / noise**2 - t["count"] * constant
+
+        return RunningStatistics(summarise, loglike)

@@ -1,0 +1,252 @@
+"""Long streams against the exact Kalman-filter answer (issue 10).
+
+Usage (each prints a markdown table for docs/benchmarks.md):
+
+    python benchmarks/bench_longstream.py mixed  [--seeds 10] [--steps 1000] [--n 1000]
+    python benchmarks/bench_longstream.py static [--seeds 10] [--steps 1000] [--n 1000]
+    python benchmarks/bench_longstream.py predictive [--seeds 2] [--steps 300]
+    python benchmarks/bench_longstream.py particles [--seeds 10] [--steps 100]
+
+``mixed``: one AR(1)-decaying, one drifting and two static parameters
+(:meth:`~seqbayes.models.linear_gaussian.LinearGaussianStateSpace.mixed`), ``predictive="auto"``
+(SMC^2) with the Kalman inner filter (the model declared linear-Gaussian) and, with
+``--inner pf``, the bootstrap particle inner filter. At s = 10, 100, 1000: the largest
+|mean error| in exact posterior sds, the largest |sd ratio - 1| and |log-evidence error|;
+median and worst over seeds, for SEMC and SMC.
+
+``static``: the same design with four static parameters (history prior, the defaults), with and
+without :class:`~seqbayes.RunningStatistics`: the same errors, and the mean time and likelihood
+evaluations per update over s = 900-1000 against s = 10-20.
+
+``predictive``: the older predictives (Liu-West transition mixture, the paper's KDE) on the
+mixed problem, for their long-stream errors.
+
+``particles``: against ``particles``' SMC^2 (``pip install particles``) on the mixed problem,
+paired per seed, same N_theta and N_x, both with bootstrap inner filters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import seqbayes  # noqa: E402
+from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
+from seqbayes.nested import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
+
+CHECKPOINTS = (10, 100, 1000)
+
+
+def errors(mean, std, log_evidence, exact_step):
+    sd = np.sqrt(np.diag(exact_step.cov))
+    return (float(np.max(np.abs(mean - exact_step.mean) / sd)), float(np.max(np.abs(std / sd - 1.0))),
+            float(abs(log_evidence - exact_step.log_evidence)))
+
+
+def run_stream(sampler, data, exact, checkpoints):
+    """Errors at the checkpoints, and per-update wall time and likelihood evaluations."""
+    out, times, evals = {}, [], []
+    for s, y in enumerate(data, start=1):
+        info = sampler.update(y)
+        times.append(info.wall_time)
+        evals.append(info.n_loglike_evals)
+        if s in checkpoints:
+            record = sampler.result.steps[-1]
+            out[s] = errors(record.mean(), record.std(), info.log_evidence, exact[s - 1])
+    return out, np.array(times), np.array(evals)
+
+
+def summary_table(rows, checkpoints, title):
+    print(f"\n### {title}\n")
+    print("| sampler | s | mean err / sd (median, worst) | sd err (median, worst) | log Z err (median, worst) "
+          "| within 0.3 sd, 15 %, 0.5 nats |")
+    print("|---|---|---|---|---|---|")
+    for label, per_seed in rows.items():
+        for s in checkpoints:
+            e = np.array([r[s] for r in per_seed if s in r])
+            if not e.size:
+                continue
+            ok = np.sum((e[:, 0] < 0.3) & (e[:, 1] < 0.15) & (e[:, 2] < 0.5))
+            print(f"| {label} | {s} | {np.median(e[:, 0]):.3f}, {e[:, 0].max():.3f} | "
+                  f"{np.median(e[:, 1]):.3f}, {e[:, 1].max():.3f} | {np.median(e[:, 2]):.3f}, {e[:, 2].max():.3f} | "
+                  f"{ok}/{len(e)} |")
+
+
+def mixed(args):
+    problem = LinearGaussianStateSpace.mixed()
+    checkpoints = tuple(c for c in CHECKPOINTS if c <= args.steps)
+    rows = {}
+    for cls in (seqbayes.SEMC, seqbayes.SMC):
+        label = f"{cls.__name__}, {args.inner} inner"
+        rows[label] = []
+        for seed in range(args.seeds):
+            data, _ = problem.simulate(args.steps, rng=1000 + seed)
+            exact = problem.exact(data)
+            inner = KalmanInnerFilter(problem.observe) if args.inner == "kalman" else ParticleInnerFilter(args.m)
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                          inner_filter=inner)
+            start = time.perf_counter()
+            errs, times, evals = run_stream(sampler, data, exact, checkpoints)
+            rows[label].append(errs)
+            print(f"{label} seed {seed}: {time.perf_counter() - start:.1f} s, "
+                  + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats" for s, e in errs.items()), flush=True)
+    summary_table(rows, checkpoints, f"Mixed static + drifting, SMC^2, N = {args.n}, {args.seeds} seeds")
+
+
+def static(args):
+    base = LinearGaussianStateSpace.mixed()
+    problem = LinearGaussianStateSpace(base.design, ("static",) * 4, np.zeros(4), np.zeros(4), base.prior_mean,
+                                       base.prior_std, base.noise_std)
+    checkpoints = tuple(c for c in CHECKPOINTS if c <= args.steps)
+    early, late = slice(9, 20), slice(max(0, args.steps - 101), args.steps)
+    rows, costs = {}, {}
+    for cls in (seqbayes.SEMC, seqbayes.SMC):
+        for running in (False, True):
+            label = f"{cls.__name__}, {'running statistics' if running else 'past datasets'}"
+            rows[label], costs[label] = [], []
+            for seed in range(args.seeds):
+                data, _ = problem.simulate(args.steps, rng=2000 + seed)
+                exact = problem.exact(data)
+                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                              history=problem.running_statistics() if running else None)
+                errs, times, evals = run_stream(sampler, data, exact, checkpoints)
+                rows[label].append(errs)
+                ratio_t = times[late].mean() / times[early].mean()
+                ratio_e = evals[late].mean() / evals[early].mean()
+                costs[label].append((times[early].mean(), times[late].mean(), ratio_t, evals[early].mean(),
+                                     evals[late].mean(), ratio_e))
+                print(f"{label} seed {seed}: total {times.sum():.1f} s; per update s=10-20 {1e3 * times[early].mean():.1f} ms, "
+                      f"s={late.start + 1}-{late.stop} {1e3 * times[late].mean():.1f} ms (x{ratio_t:.2f}); evals "
+                      f"{evals[early].mean():.0f} -> {evals[late].mean():.0f} (x{ratio_e:.2f}); "
+                      + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats" for s, e in errs.items()),
+                      flush=True)
+    summary_table(rows, checkpoints, f"All static, history prior (defaults), N = {args.n}, {args.seeds} seeds")
+    print("\n| sampler | ms/update s=10-20 | ms/update late | time ratio (median, worst) | evals/update s=10-20 "
+          "| evals/update late | evals ratio (median, worst) |")
+    print("|---|---|---|---|---|---|---|")
+    for label, c in costs.items():
+        c = np.array(c)
+        print(f"| {label} | {1e3 * np.median(c[:, 0]):.2f} | {1e3 * np.median(c[:, 1]):.2f} | "
+              f"{np.median(c[:, 2]):.2f}, {c[:, 2].max():.2f} | {np.median(c[:, 3]):.0f} | {np.median(c[:, 4]):.0f} | "
+              f"{np.median(c[:, 5]):.2f}, {c[:, 5].max():.2f} |")
+
+
+def predictive(args):
+    problem = LinearGaussianStateSpace.mixed()
+    checkpoints = tuple(c for c in (10, 50, 100, 300, 1000) if c <= args.steps)
+    rows = {}
+    for method in ("transition", "kde"):
+        for cls in (seqbayes.SEMC, seqbayes.SMC):
+            label = f"{cls.__name__}, predictive={method!r}"
+            rows[label] = []
+            for seed in range(args.seeds):
+                data, _ = problem.simulate(args.steps, rng=1000 + seed)
+                exact = problem.exact(data)
+                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                              predictive=method)
+                try:
+                    errs, _, _ = run_stream(sampler, data, exact, checkpoints)
+                except Exception as error:  # a collapsed run is itself the measurement
+                    errs = {}
+                    print(f"{label} seed {seed}: stopped: {type(error).__name__}: {error}")
+                rows[label].append(errs)
+                print(f"{label} seed {seed}: " + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats"
+                                                           for s, e in errs.items()), flush=True)
+    summary_table(rows, checkpoints, f"Older predictives on the mixed problem, N = {args.n}, {args.seeds} seeds")
+
+
+def particles_comparison(args):
+    import particles
+    from particles import smc_samplers as ssp
+    from particles import state_space_models as ssm
+    from particles import distributions as dists
+
+    problem = LinearGaussianStateSpace.mixed()
+    design, noise = problem.design, problem.noise_std
+    gain_a, q = problem.gains[0], problem.process_std
+
+    class Mixed(ssm.StateSpaceModel):
+        """particles' model: state (a, b), static (c, e) as parameters."""
+        default_params = {"c": 0.0, "e": 0.0}
+
+        def PX0(self):
+            return dists.IndepProd(dists.Normal(problem.prior_mean[0], problem.prior_std[0]),
+                                   dists.Normal(problem.prior_mean[1], problem.prior_std[1]))
+
+        def PX(self, t, xp):
+            return dists.IndepProd(dists.Normal(gain_a * xp[:, 0], q[0]), dists.Normal(xp[:, 1], q[1]))
+
+        def PY(self, t, xp, x):
+            mean = (x[:, 0:1] * design[:, 0] + x[:, 1:2] * design[:, 1]
+                    + self.c * design[:, 2] + self.e * design[:, 3])
+            return dists.IndepProd(*[dists.Normal(mean[:, k], noise) for k in range(design.shape[0])])
+
+    prior = dists.StructDist({"c": dists.Normal(problem.prior_mean[2], problem.prior_std[2]),
+                              "e": dists.Normal(problem.prior_mean[3], problem.prior_std[3])})
+    rows = {"particles SMC^2": [], "seqbayes SMC (SMC^2)": [], "seqbayes SEMC (SMC^2)": []}
+    times = {k: [] for k in rows}
+    for seed in range(args.seeds):
+        data, _ = problem.simulate(args.steps, rng=3000 + seed)
+        exact = problem.exact(data)
+        final = exact[-1]
+        # particles
+        np.random.seed(seed)  # particles draws from numpy's global generator
+        fk = ssp.SMC2(ssm_cls=Mixed, prior=prior, data=[y for y in data], init_Nx=args.m, ar_to_increase_Nx=-1.0,
+                      len_chain=1)
+        pf = particles.SMC(fk=fk, N=args.n, collect=[], verbose=False)
+        start = time.perf_counter()
+        pf.run()
+        times["particles SMC^2"].append(time.perf_counter() - start)
+        w = pf.W
+        theta = np.column_stack([pf.X.theta["c"], pf.X.theta["e"]])
+        mean = w @ theta
+        std = np.sqrt(w @ (theta - mean) ** 2)
+        sd = np.sqrt(np.diag(final.cov))[2:]
+        rows["particles SMC^2"].append((float(np.max(np.abs(mean - final.mean[2:]) / sd)),
+                                        float(np.max(np.abs(std / sd - 1))), float(abs(pf.logLt - final.log_evidence))))
+        for cls, label in ((seqbayes.SMC, "seqbayes SMC (SMC^2)"), (seqbayes.SEMC, "seqbayes SEMC (SMC^2)")):
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                          inner_filter=ParticleInnerFilter(args.m))
+            start = time.perf_counter()
+            result = sampler.run(data)
+            times[label].append(time.perf_counter() - start)
+            record = result.steps[-1]
+            rows[label].append((float(np.max(np.abs(record.mean()[2:] - final.mean[2:]) / sd)),
+                                float(np.max(np.abs(record.std()[2:] / sd - 1))),
+                                float(abs(record.info.log_evidence - final.log_evidence))))
+        print(f"seed {seed}: " + "; ".join(f"{k}: {times[k][-1]:.1f} s, {rows[k][-1][0]:.3f} sd, {rows[k][-1][2]:.3f} nats"
+                                           for k in rows), flush=True)
+    print(f"\n### Against particles' SMC^2: mixed problem, {args.steps} datasets, N_theta = {args.n}, "
+          f"N_x = {args.m}, {args.seeds} paired seeds (static parameters' errors at the last step)\n")
+    print("| sampler | wall time, s (median) | time / particles (median of paired ratios) | RMS mean err / sd | "
+          "RMS sd err | RMS log Z err |")
+    print("|---|---|---|---|---|---|")
+    base = np.array(times["particles SMC^2"])
+    for label, e in rows.items():
+        e, t = np.array(e), np.array(times[label])
+        rms = np.sqrt(np.mean(e**2, axis=0))
+        print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.2f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles"))
+    parser.add_argument("--seeds", type=int, default=None)
+    parser.add_argument("--steps", type=int, default=None)
+    parser.add_argument("--n", type=int, default=1000)
+    parser.add_argument("--m", type=int, default=100, help="inner particles (particle inner filter)")
+    parser.add_argument("--inner", choices=("kalman", "pf"), default="kalman")
+    args = parser.parse_args()
+    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (10, 100)}[args.case]
+    args.seeds = defaults[0] if args.seeds is None else args.seeds
+    args.steps = defaults[1] if args.steps is None else args.steps
+    {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison}[args.case](args)
+
+
+if __name__ == "__main__":
+    main()
