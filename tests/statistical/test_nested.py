@@ -1,0 +1,123 @@
+"""SMC^2 (``predictive="smc2"``, the default for kernels with static and drifting parameters)
+against the exact Kalman-filter answer, and the history prior's running statistics.
+
+Tolerances are the issue's (means within 0.3 posterior sd, sds within 15 %, cumulative log-evidence
+within 0.5 nats). ``benchmarks/bench_longstream.py mixed`` measures, over 10 seeds of 1000 datasets
+at N = 1000 with the Kalman inner filter, worst errors of 0.12 sd, 11 % and 0.45 nats; at N = 500
+and 30 steps the same errors scale by sqrt(2), which these seeds (fixed in advance) meet with room.
+"""
+
+import numpy as np
+import pytest
+
+from seqbayes import SEMC, SMC
+from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
+from seqbayes.nested import KalmanInnerFilter, NestedState, ParticleInnerFilter
+
+
+def errors(result, exact):
+    out = []
+    for record, step in zip(result.steps, exact):
+        sd = np.sqrt(np.diag(step.cov))
+        out.append((np.max(np.abs(record.mean() - step.mean) / sd), np.max(np.abs(record.std() / sd - 1)),
+                    abs(record.info.log_evidence - step.log_evidence)))
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def problem_and_data():
+    problem = LinearGaussianStateSpace.mixed()
+    data, _ = problem.simulate(30, rng=11)
+    return problem, data, problem.exact(data)
+
+
+@pytest.mark.parametrize("cls", [SEMC, SMC])
+def test_kalman_inner_filter_matches_the_kalman_filter_at_every_step(cls, problem_and_data):
+    problem, data, exact = problem_and_data
+    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=5,
+                  inner_filter=KalmanInnerFilter(problem.observe))
+    assert sampler.config.predictive == "smc2"
+    result = sampler.run(data)
+    assert isinstance(sampler.state, NestedState)
+    err = errors(result, exact)
+    assert np.all(err[:, 0] < 0.3), err
+    assert np.all(err[:, 1] < 0.15), err
+    assert np.all(err[:, 2] < 0.5), err
+
+
+@pytest.mark.parametrize("cls", [SEMC, SMC])
+def test_particle_inner_filter_matches_the_kalman_filter(cls, problem_and_data):
+    """The general inner filter (bootstrap particle filter over the drifting parameters), the default."""
+    problem, data, exact = problem_and_data
+    result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=6,
+                 inner_filter=ParticleInnerFilter(50)).run(data[:8])
+    err = errors(result, exact[:8])
+    assert np.all(err[:, 0] < 0.3), err
+    assert np.all(err[:, 1] < 0.15), err
+    assert np.all(err[:, 2] < 0.5), err
+
+
+def test_same_seed_same_numbers_and_resume(problem_and_data):
+    problem, data, _ = problem_and_data
+
+    def fresh():
+        return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=3,
+                   inner_filter=ParticleInnerFilter(20))
+
+    full = fresh().run(data[:5])
+    first = fresh()
+    for y in data[:3]:
+        first.update(y)
+    resumed = fresh()
+    resumed.restore(*first.snapshot())
+    for y in data[3:5]:
+        resumed.update(y)
+    again = fresh().run(data[:5])
+    for a, b, c in zip(full.steps, again.steps, resumed.result.steps):
+        assert np.array_equal(a.posterior, b.posterior) and np.array_equal(a.posterior, c.posterior)
+        assert a.info.log_evidence == b.info.log_evidence == c.info.log_evidence
+
+
+def test_auto_chooses_smc2_only_for_mixed_kernels(problem_and_data):
+    problem, _, _ = problem_and_data
+    assert SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0).config.predictive == "smc2"
+    drifting = LinearGaussianStateSpace(problem.design[:, :2], ("decay", "drift"), (0.1, 0.0), (0.1, 0.05),
+                                        (0.0, 0.0), (1.0, 1.0))
+    assert SEMC(drifting.prior, drifting.kernel, drifting.loglike, n_samples=50,
+                rng=0).config.predictive == "transition"
+    with pytest.raises(ValueError, match="inner_filter"):
+        SEMC(drifting.prior, drifting.kernel, drifting.loglike, n_samples=50, rng=0,
+             inner_filter=ParticleInnerFilter(10))
+
+
+def test_kalman_inner_filter_refuses_a_non_normal_drifting_prior(problem_and_data):
+    from scipy import stats
+    from seqbayes import JointPrior
+
+    problem, _, _ = problem_and_data
+    prior = JointPrior({"a": stats.uniform(-1, 2), "b": stats.norm(0, 1), "c": stats.norm(0, 1),
+                        "e": stats.norm(0, 1)})
+    with pytest.raises(ValueError, match="'a' must be normal"):
+        SMC(prior, problem.kernel, problem.loglike, n_samples=50, rng=0, inner_filter=KalmanInnerFilter(problem.observe))
+
+
+@pytest.mark.parametrize("cls", [SEMC, SMC])
+def test_running_statistics_give_the_same_posterior_in_one_call(cls):
+    """All static: the history prior from summed statistics equals the one that re-reads every dataset
+    (to round-off), and makes one history call per evaluation whatever the number of datasets."""
+    base = LinearGaussianStateSpace.mixed()
+    problem = LinearGaussianStateSpace(base.design, ("static",) * 4, np.zeros(4), np.zeros(4), base.prior_mean,
+                                       base.prior_std, base.noise_std)
+    data, _ = problem.simulate(12, rng=4)
+    exact = problem.exact(data)
+    plain = cls(problem.prior, problem.kernel, problem.loglike, n_samples=400, rng=2).run(data)
+    running = cls(problem.prior, problem.kernel, problem.loglike, n_samples=400, rng=2,
+                  history=problem.running_statistics()).run(data)
+    for a, b in zip(plain.steps, running.steps):
+        np.testing.assert_allclose(a.posterior, b.posterior, rtol=1e-9, atol=1e-12)
+        assert abs(a.info.log_evidence - b.info.log_evidence) < 1e-8
+    moved = [(a.info.n_loglike_evals, b.info.n_loglike_evals) for a, b in zip(plain.steps, running.steps)
+             if a.info.n_proposed and a.info.step > 3]
+    assert all(b < a for a, b in moved)  # the past costs one call, not one per dataset
+    err = errors(running, exact)
+    assert np.all(err[:, 0] < 0.3) and np.all(err[:, 1] < 0.15) and np.all(err[:, 2] < 0.5), err
