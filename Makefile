@@ -18,8 +18,9 @@ run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled 
 test: $(STAMP)       ## the whole test suite
 	$(PY) -m pytest -q
 
-bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy (installs the bench extra)
+bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy, pocomc (installs the bench extra)
 	$(PY) -m pip install --quiet -e ".[bench]"
+	$(PY) -m pip install --quiet --no-deps "particles>=0.4"   # its numpy<2 pin would break pandas 3
 	for script in benchmarks/bench_*.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
 docs: $(STAMP)        ## the documentation site (API reference from docstrings), strict
