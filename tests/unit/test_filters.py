@@ -136,3 +136,59 @@ def test_mismatched_channels_and_nan_are_rejected():
         kalman_filter(model, bad, y, std, sw)
     with pytest.raises(ValueError, match="measurements"):
         ekf(AugmentedModel(FRAME, 0.02, sw), u, y[:, :2], std)
+
+
+def test_kalman_bank_steps_equal_the_batched_filter():
+    from seqbayes.filters.kalman import KalmanBank
+
+    model, u, y, std, sw = _data(120)
+    thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9], [0.7, 0.75, 0.95]])
+    batch = discretise(FRAME, thetas, 0.02)
+    ref = kalman_filter(batch, u, y, std, sw, store=True)
+    bank = KalmanBank(batch, std, sw)
+    mean, P = bank.initial_state()
+    for k in range(u.size):  # loop over time only
+        mean, P, inc = bank.step(mean, P, y[k], *((u[k - 1], u[k]) if k else (None, None)))
+        np.testing.assert_allclose(inc, ref.log_likelihood_increments[:, k], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(mean, ref.filtered_means[:, -1], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(P, ref.filtered_covariances, rtol=1e-8, atol=1e-18)
+    # a sub-bank is the bank of the sub-batch
+    sub = bank.take([2, 0])
+    m2, P2 = sub.initial_state()
+    np.testing.assert_array_equal(sub.step(m2, P2, y[0])[2], bank.step(*bank.initial_state(), y[0])[2][[2, 0]])
+
+
+@pytest.mark.parametrize("T", [40, 300])
+def test_fast_log_likelihood_returns_the_filtered_state(T):
+    # T = 40 ends in the transient, T = 300 in the steady-state phase (steady from step 173)
+    model, u, y, std, sw = _data(300)
+    thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9]])
+    batch = discretise(FRAME, thetas, 0.02)
+    ref = kalman_filter(batch, u[:T], y[:T], std, sw, store=True)
+    ll, steady, mean, P = kalman_log_likelihood(batch, u[:T], y[:T], std, sw, return_steady_step=True,
+                                                return_state=True)
+    assert (steady < T) == (T == 300)
+    np.testing.assert_allclose(ll, ref.log_likelihood, rtol=0, atol=1e-6)
+    scale = np.abs(ref.filtered_means[:, -1]).max()
+    np.testing.assert_allclose(mean, ref.filtered_means[:, -1], rtol=0, atol=1e-8 * scale)
+    np.testing.assert_allclose(P, ref.filtered_covariances, rtol=0, atol=1e-8 * np.abs(P).max())
+
+
+def test_ekf_jacobian_is_the_derivative_of_the_exact_discretisation():
+    # the exact Frechet-derivative Jacobian against central differences of discretise()
+    model = AugmentedModel(FRAME, 0.02, 0.01)
+    rng = np.random.default_rng(0)
+    z = np.concatenate([1e-3 * rng.standard_normal(6), [0.85, 0.9, 0.95]])
+    fz, F, b = model.linearise(z, 0.3, -0.2)
+
+    def step(theta):
+        m = discretise(FRAME, theta, 0.02)
+        return m.A[0] @ z[:6] + m.B0[0] * 0.3 + m.B1[0] * -0.2
+
+    np.testing.assert_allclose(fz[:6], step(z[6:]), rtol=1e-12, atol=1e-15)
+    h = 1e-6
+    fd = np.column_stack([(step(z[6:] + h * e) - step(z[6:] - h * e)) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(F[:6, 6:], fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
+    np.testing.assert_allclose(F[:6, :6], discretise(FRAME, z[6:], 0.02).A[0], rtol=1e-12, atol=1e-14)
+    m = discretise(FRAME, z[6:], 0.02)
+    np.testing.assert_allclose(b, m.B0[0] + m.B1[0], rtol=1e-12, atol=1e-18)

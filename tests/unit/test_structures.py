@@ -137,3 +137,18 @@ def test_synthetic_generators():
     freq = np.fft.rfftfreq(wn.acceleration.size, 0.02)
     # almost no power below 0.25 Hz relative to the pass band
     assert spec[freq < 0.2].mean() < 0.01 * spec[(freq > 1) & (freq < 20)].mean()
+
+
+def test_expm_and_derivatives_equal_scipy_frechet():
+    from scipy.linalg import expm, expm_frechet
+
+    from seqbayes.structures.shear_building import expm_and_derivatives
+
+    rng = np.random.default_rng(0)
+    M = 3 * rng.standard_normal((6, 6))
+    E = rng.standard_normal((2, 6, 6))
+    R, L = expm_and_derivatives(M, E)
+    np.testing.assert_allclose(R, expm(M), rtol=1e-11, atol=1e-11 * np.abs(R).max())
+    for j in range(2):
+        np.testing.assert_allclose(L[j], expm_frechet(M, E[j], compute_expm=False), rtol=1e-10,
+                                   atol=1e-10 * np.abs(L[j]).max())

@@ -9,9 +9,16 @@ Augmented state ``Z = [X, theta]`` (size ``m + d``)::
     y_k         = H(theta_k) X_k + v_k
 
 ``A, B0, B1`` are the exact FOH discretisation (a better transition than the
-Euler step of Eq. 3); the Jacobians with respect to ``theta`` are central
-differences of that discretisation, evaluated for all ``d`` directions in one
-batched call. The observation is bilinear, so its Jacobian is exact.
+Euler step of Eq. 3). ``A_c(theta)`` and ``H(theta)`` are affine in ``theta``
+(``K`` and the Rayleigh ``C`` are), so their ``d`` slopes are computed once;
+a step builds the augmented FOH matrix ``Phi = [[A_c dt, b_c dt, 0], [0, 0, 1],
+[0, 0, 0]]`` from them and takes one exponential with its exact derivatives
+along ``E_j = dPhi/dtheta_j`` (the first block row of ``expm([[Phi, E], [0,
+Phi]])``, Van Loan 1978; :func:`~seqbayes.structures.shear_building.expm_and_derivatives`)
+-- the Jacobian with respect to ``theta`` without finite differences and
+without re-discretising the building ``2d + 1`` times per step (the previous
+version: ~3 ms a step for 4 storeys). The observation is bilinear, so its
+Jacobian is exact.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..structures.shear_building import ShearBuilding, discretise
+from ..structures.shear_building import ShearBuilding, batched_expm, expm_and_derivatives
 from .kalman import measurement_covariance
 
 __all__ = ["AugmentedModel", "JointFilterResult", "ekf"]
@@ -74,7 +81,9 @@ class AugmentedModel:
         Std of the random-walk step of ``theta`` per time step.
     channels : str
     fd_step : float
-        Central-difference step for the ``theta`` Jacobian.
+        Unused (the ``theta`` Jacobian is now exact); kept for compatibility.
+    theta_floor : float
+        Stiffness ratios below this are clamped (keeps the stiffness positive).
     """
 
     def __init__(self, building: ShearBuilding, dt: float, process_noise_std: float = 0.0,
@@ -91,21 +100,54 @@ class AugmentedModel:
         self.channels = channels
         self.fd_step = float(fd_step)
         self.theta_floor = float(theta_floor)
+        if channels not in ("absolute_acceleration", "drift"):
+            raise ValueError(f"channels: expected 'absolute_acceleration' or 'drift', got {channels!r}")
+        building.check_sampling(dt)
+        # affine pieces: A_c(theta) = A_c0 + sum_j theta_j A_cj, H(theta) = H0 + sum_j theta_j H_j
+        d, m = self.d, self.m
+        basis = np.vstack([np.zeros(d), np.eye(d)])  # theta = 0 and the unit vectors
+        A_c, b_c = building.continuous_state_space(np.maximum(basis, 1e-300))
+        self._Ac0 = A_c[0]
+        self._Ac_slopes = A_c[1:] - A_c[0]  # (d, m, m)
+        H = building.observation_matrix(np.maximum(basis, 1e-300), channels)
+        self._H0, self._H_slopes = H[0], H[1:] - H[0]  # (p, m), (d, p, m)
+        size = m + 2
+        self._phi0 = np.zeros((size, size))
+        self._phi0[:m, m] = b_c * self.dt
+        self._phi0[m, m + 1] = 1.0  # (1/dt) * dt: the first-order hold
+        self._directions = np.zeros((d, size, size))  # E_j = dPhi / dtheta_j
+        self._directions[:, :m, :m] = self._Ac_slopes * self.dt
+
+    def _phi(self, theta):
+        """Augmented FOH matrices ``(K, m + 2, m + 2)`` for a batch ``theta (K, d)``."""
+        m = self.m
+        phi = np.broadcast_to(self._phi0, (theta.shape[0],) + self._phi0.shape).copy()
+        phi[:, :m, :m] = (self._Ac0 + np.tensordot(theta, self._Ac_slopes, axes=1)) * self.dt
+        return phi
+
+    def _transition(self, theta):
+        """``E = expm(Phi)`` for a batch ``(K, d)``: ``A = E[:m, :m]``, ``X' = E[:m] @ [X, u_k, u_{k+1} - u_k]``."""
+        return batched_expm(self._phi(theta))
+
+    def _H(self, theta):
+        """``H (K, p, m)`` for a batch ``theta (K, d)``."""
+        return self._H0 + np.tensordot(theta, self._H_slopes, axes=1)
 
     def _safe(self, theta):
         return np.maximum(theta, self.theta_floor)  # keep stiffness positive
 
     def propagate(self, Z, u_now, u_next):
         """``f(Z)`` for a batch ``Z (K, m + d)``; also returns ``b(theta) (K, m)``."""
-        X, theta = Z[:, : self.m], self._safe(Z[:, self.m :])
-        model = discretise(self.building, theta, self.dt, channels=self.channels)
-        Xn = np.einsum("kij,kj->ki", model.A, X) + model.B0 * u_now + model.B1 * u_next
-        return np.concatenate([Xn, Z[:, self.m :]], axis=1), model.B0 + model.B1
+        m = self.m
+        E = self._transition(self._safe(Z[:, m:]))
+        drive = np.concatenate([Z[:, :m], np.full((Z.shape[0], 1), u_now), np.full((Z.shape[0], 1), u_next - u_now)],
+                               axis=1)
+        Xn = np.einsum("kij,kj->ki", E[:, :m, :], drive)
+        return np.concatenate([Xn, Z[:, m:]], axis=1), E[:, :m, m]  # b = B0 + B1 = e12
 
     def observe(self, Z):
         """``h(Z) = H(theta) X`` for a batch ``(K, m + d)`` -> ``(K, p)``."""
-        H = self.building.observation_matrix(self._safe(Z[:, self.m :]), self.channels)
-        return np.einsum("kpm,km->kp", H, Z[:, : self.m])
+        return np.einsum("kpm,km->kp", self._H(self._safe(Z[:, self.m :])), Z[:, : self.m])
 
     def process_covariance(self, b):
         """``Q_aug``: ``s_w^2 b b^T`` on the state block, ``s_theta^2 I`` on theta."""
@@ -116,31 +158,25 @@ class AugmentedModel:
         return Q
 
     def linearise(self, z, u_now, u_next):
-        """``f(z)``, ``F = df/dZ``, ``b`` at one augmented state ``z (m + d,)``."""
-        m, d, h = self.m, self.d, self.fd_step
-        steps = np.zeros((2 * d, m + d))
-        steps[np.arange(d), m + np.arange(d)] = h
-        steps[d + np.arange(d), m + np.arange(d)] = -h
-        batch = np.vstack([z[None, :], z[None, :] + steps])
-        X, theta = batch[:, :m], self._safe(batch[:, m:])
-        model = discretise(self.building, theta, self.dt, channels=self.channels)
-        Xn = np.einsum("kij,kj->ki", model.A, X) + model.B0 * u_now + model.B1 * u_next
+        """``f(z)``, ``F = df/dZ``, ``b`` at one augmented state ``z (m + d,)``: one
+        exponential with its derivatives along every ``theta_j`` (module docstring)."""
+        m, d = self.m, self.d
+        theta = self._safe(z[m:])
+        E, dE = expm_and_derivatives(self._phi(theta[None, :])[0], self._directions)
+        drive = np.concatenate([z[:m], [u_now, u_next - u_now]])
+        Xn = E[:m] @ drive
         F = np.eye(m + d)
-        F[:m, :m] = model.A[0]
-        F[:m, m:] = ((Xn[1 : 1 + d] - Xn[1 + d :]) / (2 * h)).T  # d f_X / d theta (central)
-        return np.concatenate([Xn[0], z[m:]]), F, model.B0[0] + model.B1[0]
+        F[:m, :m] = E[:m, :m]
+        F[:m, m:] = (dE[:, :m] @ drive).T * (z[m:] > self.theta_floor)  # d X' / d theta_j; clamped: 0
+        return np.concatenate([Xn, z[m:]]), F, E[:m, m]
 
     def observation_jacobian(self, z):
         """``h(z)`` and ``Hz = dh/dZ`` (exact: ``H`` is affine in theta)."""
         m, d = self.m, self.d
-        theta = self._safe(z[m:])
-        H = self.building.observation_matrix(theta, self.channels)[0]
-        basis = np.vstack([theta, theta[None, :] + np.eye(d)])
-        Hs = self.building.observation_matrix(basis, self.channels)
-        dH = Hs[1:] - Hs[0]  # exact directional derivatives (affine)
-        J = np.zeros((H.shape[0], m + d))
+        H = self._H(self._safe(z[m:])[None, :])[0]
+        J = np.empty((H.shape[0], m + d))
         J[:, :m] = H
-        J[:, m:] = np.einsum("jpm,m->pj", dH, z[:m])
+        J[:, m:] = (self._H_slopes @ z[:m]).T * (z[m:] > self.theta_floor)
         return H @ z[:m], J
 
 

@@ -47,6 +47,7 @@ __all__ = [
     "add_measurement_noise",
     "HOLDS",
     "batched_expm",
+    "expm_and_derivatives",
     "CHANNELS",
 ]
 
@@ -294,6 +295,42 @@ def batched_expm(M: np.ndarray) -> np.ndarray:
     for _ in range(s):
         result = result @ result
     return result
+
+
+def expm_and_derivatives(M: np.ndarray, directions: np.ndarray, degree: int = 14):
+    """``expm(M)`` and its Frechet derivatives ``L(M, E_j)`` along ``directions (d, m, m)``.
+
+    Scaling and squaring of a degree-``degree`` Taylor polynomial (norm scaled
+    to <= 0.25, truncation error ~1e-20), differentiated term by term (Horner:
+    ``dR <- (E R + M dR) / j``) and squared blockwise (``d(P^2) = P dP + dP P``):
+    the first block row of ``expm([[M, E], [0, M]])`` (Van Loan 1978) at
+    ``(1 + 2d) m^3`` flops per product instead of ``((d + 1) m)^3``.
+
+    Returns
+    -------
+    expm : (m, m) array
+    derivatives : (d, m, m) array
+
+    Examples
+    --------
+    >>> E, L = expm_and_derivatives(np.array([[0.5]]), np.array([[[1.0]]]))
+    >>> bool(np.isclose(E[0, 0], np.exp(0.5)) and np.isclose(L[0, 0, 0], np.exp(0.5)))
+    True
+    """
+    M = np.asarray(M, dtype=float)
+    directions = np.asarray(directions, dtype=float)
+    norm = np.abs(M).sum(axis=0).max() + np.abs(directions).sum(axis=-2).max(initial=0.0)
+    s = int(max(0, np.ceil(np.log2(norm / 0.25)))) if norm > 0 else 0
+    X, E = M / 2.0**s, directions / 2.0**s
+    eye = np.eye(M.shape[0])
+    R, dR = eye.copy(), np.zeros_like(E)
+    for j in range(degree, 0, -1):  # Horner for the polynomial and its derivative
+        dR = (E @ R + X @ dR) / j
+        R = eye + (X @ R) / j
+    for _ in range(s):
+        dR = R @ dR + dR @ R
+        R = R @ R
+    return R, dR
 
 
 def _check_dt(dt) -> float:
