@@ -328,6 +328,15 @@ class RunStore:
             raise StoreError(f"{path}: the run was created for another model (fingerprint "
                              f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]}); differing fields: {fields}")
         n_steps = int(ds.attrs["n_steps"])
+        required = ["initial_particles", "initial_log_weights", "rng_state"]
+        if n_steps:
+            required += ["posterior", "log_weights", "predictive", "step_info", "dataset_sha256", "dataset_source",
+                         "state_step_size"]
+            required += (["state_log_prior", "dataset_values", "dataset_rows"] if "state_log_prior" in ds
+                         else ["mixture_centres", "mixture_bandwidth", "mixture_log_weights"])
+        missing = [name for name in required if name not in ds]
+        if missing:
+            raise StoreError(f"{path}: damaged run store: missing variable(s) {', '.join(missing)}")
         if n_steps:
             records = []
             for i in range(n_steps):
@@ -453,22 +462,22 @@ class RunStore:
         ds = self.to_xarray()
         encoding = {name: {"fletcher32": True} for name, var in ds.data_vars.items()
                     if var.dtype.kind in "fiu" and var.ndim and var.size}   # HDF5 checksums, verified on read
-        _check_free_space(self.path, folder, ds)
+        # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
+        # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
+        content = ds.to_netcdf(engine="h5netcdf", encoding=encoding)
+        _check_free_space(self.path, folder, len(content))
         mode = None
         with contextlib.suppress(OSError):
             mode = os.stat(self.path).st_mode & 0o7777
         tmp = folder / f"{prefix}{os.getpid()}"
         _fault("before-write")
         try:
-            ds.to_netcdf(tmp, engine="h5netcdf", encoding=encoding)
+            _write_file(tmp, content)
             if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
                 os.truncate(tmp, os.path.getsize(tmp) // 2)
                 _fault("mid-write")
             if mode is not None:
                 os.chmod(tmp, mode)
-            with open(tmp, "rb+") as fh:
-                fh.flush()
-                os.fsync(fh.fileno())
             _fault("before-replace")
             os.replace(tmp, self.path)
         except OSError as err:
@@ -895,12 +904,20 @@ def _content_hash(ds) -> str:
     return h.hexdigest()
 
 
-def _check_free_space(path: Path, folder: Path, ds) -> None:
-    """Refuse a write the folder has no room for, before HDF5 runs out of space half-way."""
-    size = 0
-    for var in ds.variables.values():
-        size += sum(len(str(v)) for v in var.values.ravel()) if var.dtype == object else var.nbytes
-    needed = int(size * 1.2) + 256 * 1024      # HDF5 headers, chunk indices, checksums
+def _write_file(path: Path, content) -> None:
+    """Write ``content`` to a new file ``path`` and ``fsync`` it."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    try:
+        view = memoryview(content)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _check_free_space(path: Path, folder: Path, needed: int) -> None:
+    """Refuse a write the folder has no room for (the old file stays until the new one is complete)."""
     try:
         free = shutil.disk_usage(folder).free
     except OSError:  # pragma: no cover - no statvfs

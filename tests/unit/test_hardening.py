@@ -212,3 +212,313 @@ def test_the_dask_cluster_a_config_starts_listens_on_localhost_only(tmp_path, mo
     client, close = load_config(path).make_executor()
     close()
     assert seen["dashboard_address"].startswith("127.0.0.1:") and seen["host"] == "127.0.0.1"
+
+
+# ------------------------------------------------------------------ item 2: concurrent updates, temporary files
+def test_two_store_objects_opened_before_either_update_both_keep_their_dataset(tmp_path):
+    make_run(tmp_path, "lockmodel_a", n_steps=0)
+    first, second = RunStore.open(tmp_path / "run.nc"), RunStore.open(tmp_path / "run.nc")
+    data = tables(2)
+    first.assimilate(data[0], "first")
+    second.assimilate(data[1], "second")            # takes in the first's step, then adds its own
+    final = RunStore.open(tmp_path / "run.nc")
+    assert final.sources == ["first", "second"] and final.n_steps == 2
+    with pytest.raises(StoreError, match="changed since it was opened"):
+        first.assimilate(data[1] * 1.01, "fix", replace_last=True)   # would replace the other's step
+
+
+def test_two_processes_updating_at_once_are_both_stored(tmp_path):
+    import os
+
+    make_run(tmp_path, "lockmodel_b", n_steps=0)
+    data = tables(2)
+    pids = []
+    for i in range(2):
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child
+            code = 1
+            try:
+                RunStore.open(tmp_path / "run.nc").assimilate(data[i], f"process{i}")
+                code = 0
+            finally:
+                os._exit(code)
+        pids.append(pid)
+    assert [os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for pid in pids] == [0, 0]
+    final = RunStore.open(tmp_path / "run.nc")
+    assert sorted(final.sources) == ["process0", "process1"]
+
+
+def test_temporary_files_of_other_stores_are_left_alone(tmp_path):
+    """``run[1].nc`` as a glob pattern matches ``run1.nc``: only this store's own names are removed."""
+    store = make_run(tmp_path, "tmpmodel", n_steps=0)
+    shutil.copy(tmp_path / "run.nc", tmp_path / "run[1].nc")
+    others = [tmp_path / ".run1.nc.tmp-123", tmp_path / ".run[1].nc.tmp-123.bak", tmp_path / ".run[1].nc.tmp-x"]
+    mine = tmp_path / ".run[1].nc.tmp-99999"
+    for path in [*others, mine]:
+        path.write_bytes(b"a temporary file")
+    bracketed = RunStore.open(tmp_path / "run[1].nc")
+    bracketed.assimilate(tables(1)[0])
+    assert not mine.exists() and all(p.exists() for p in others)
+    assert store.n_steps == 0
+
+
+# ------------------------------------------------------------------ items 4 and 5: one clear line each
+def cli_fails(capsys, args, message, store=None):
+    """``seqbayes ARGS`` exits 2 with one line matching ``message`` and leaves ``store`` byte-identical."""
+    import re
+
+    from seqbayes import cli
+
+    before = sha(store) if store is not None and store.exists() else None
+    code = cli.main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    assert code == 2, (args, out, err)
+    assert len(err.strip().splitlines()) == 1, err       # one line, no traceback
+    assert re.search(message, err), err
+    if before is not None:
+        assert sha(store) == before
+    return err
+
+
+def rewrite(store_path, edit, target):
+    """Write ``target``: the store at ``store_path`` changed by ``edit(ds)``, its content hash redone."""
+    import xarray as xr
+
+    from seqbayes.store import _content_hash
+
+    with xr.open_dataset(store_path, engine="h5netcdf") as ds:
+        ds = ds.load()
+    edit(ds)
+    ds.attrs["content_sha256"] = _content_hash(ds)
+    ds.to_netcdf(target, engine="h5netcdf")
+    return target
+
+
+def test_damaged_stores_get_one_line_naming_the_file(tmp_path, capsys):
+    import json
+
+    make_run(tmp_path, "damagemodel", n_steps=2)
+    run = tmp_path / "run.nc"
+    (tmp_path / "d3.csv").write_text("t,y\n0,1\n1,0.5\n")
+
+    def set_attr(key, value):
+        return lambda ds: ds.attrs.__setitem__(key, value)
+
+    def garble(name, index, text):
+        def edit(ds):
+            values = ds[name].values.copy()
+            values[index] = text
+            ds[name] = (ds[name].dims, values)
+        return edit
+
+    def nan_posterior(ds):
+        values = ds["posterior"].values.copy()
+        values[1, 5, 0] = np.nan
+        ds["posterior"] = (ds["posterior"].dims, values)
+
+    cases = {
+        "steps.nc": (set_attr("n_steps", 3), r"steps.nc: damaged or inconsistent run store \(IndexError"),
+        "dropped.nc": (lambda ds: ds.__delitem__("predictive"),
+                       r"dropped.nc: damaged run store: missing variable\(s\) predictive"),
+        "config.nc": (set_attr("config", '{"name": '), r"config.nc: damaged run store: unreadable config attribute"),
+        "rng.nc": (garble("rng_state", 1, json.dumps({"state": 1})),
+                   r"rng.nc: damaged run store: rng_state\[1\] is not a numpy generator state"),
+        "info.nc": (garble("step_info", 0, "{oops"), r"info.nc: damaged run store: step_info\[0\] is not valid JSON"),
+        "nan.nc": (nan_posterior, r"nan.nc: damaged run store: posterior holds 1 NaN/inf value\(s\), first at index "
+                                  r"\(1, 5, 0\)"),
+    }
+    for name, (edit, message) in cases.items():
+        target = rewrite(run, edit, tmp_path / name)
+        for command in (["update", target, tmp_path / "d3.csv"], ["status", target], ["predict", target, "--steps", 1]):
+            cli_fails(capsys, command, message, target)
+    # garbled without redoing the hash: the content hash says so
+    import xarray as xr
+
+    with xr.open_dataset(run, engine="h5netcdf") as ds:
+        ds = ds.load()
+    ds.attrs["config"] = ds.attrs["config"].replace('"seed": 3', '"seed": 4')
+    ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
+    cli_fails(capsys, ["status", tmp_path / "edited.nc"], r"edited.nc: damaged run store: the content hash", tmp_path / "edited.nc")
+    # NetCDF-3 and a folder
+    xr.Dataset({"x": ("i", np.zeros(2))}).to_netcdf(tmp_path / "classic.nc", engine="scipy")
+    cli_fails(capsys, ["status", tmp_path / "classic.nc"], r"classic.nc: a NetCDF-3 \(classic\) file; run stores are "
+                                                           r"NetCDF-4")
+    cli_fails(capsys, ["status", tmp_path], r": is a folder, not a run store")
+
+
+def test_a_flipped_bit_in_the_stored_arrays_is_detected(tmp_path):
+    import h5py
+
+    make_run(tmp_path, "bitmodel", n_steps=2)
+    run = tmp_path / "run.nc"
+    with h5py.File(run, "r") as fh:
+        dataset = fh["mixture_centres"]
+        assert dataset.fletcher32
+        offset = dataset.id.get_chunk_info(0).byte_offset + 24
+    raw = bytearray(run.read_bytes())
+    raw[offset] ^= 0x10                                  # one bit of one stored centre
+    run.write_bytes(bytes(raw))
+    with pytest.raises(StoreError, match=r"run.nc: cannot read the run store: .*a checksum failed"):
+        RunStore.open(run)
+
+
+def test_bad_paths_get_one_line(tmp_path, capsys):
+    make_run(tmp_path, "pathmodel", n_steps=1)
+    run = tmp_path / "run.nc"
+    (tmp_path / "out").mkdir()
+    (tmp_path / "cfgdir.toml").mkdir()
+    cli_fails(capsys, ["init", tmp_path / "cfgdir.toml", tmp_path / "new.nc"], r"cfgdir.toml: is a folder, not a TOML")
+    cli_fails(capsys, ["report", run, "-o", tmp_path / "out", "--forecast", 0], r"out: is a folder; give the report's "
+                                                                                 r"file name", run)
+    cli_fails(capsys, ["predict", run, "--steps", 1, "-o", tmp_path / "out"], r"out: is a folder", run)
+    cli_fails(capsys, ["init", tmp_path / "run.toml", tmp_path / "out"], r"out: is a folder; give the run store's")
+    cli_fails(capsys, ["update", run, tmp_path / "out"], r"out: is a folder, not a data file", run)
+
+
+def test_a_bad_second_file_says_what_was_committed(tmp_path, capsys):
+    make_run(tmp_path, "multimodel", n_steps=0)
+    run = tmp_path / "run.nc"
+    for i, table in enumerate(tables(2)):
+        np.savetxt(tmp_path / f"m{i}.csv", table, delimiter=",", header="t,y", comments="")
+    shutil.copy(tmp_path / "m0.csv", tmp_path / "again.csv")   # passes the reader, refused by the store
+    cli_fails(capsys, ["update", run, tmp_path / "m0.csv", tmp_path / "again.csv", tmp_path / "m1.csv"],
+              r"again.csv: .*already assimilated as step 1.*; the run store keeps the steps committed before it "
+              r"\(m0.csv \(step 1\)\); this file and the ones after it were not assimilated")
+    assert RunStore.open(run).n_steps == 1
+
+
+def test_settings_values_and_datasets_of_the_wrong_type_are_refused(tmp_path):
+    from seqbayes.config import ConfigError
+
+    write_model(tmp_path, "typemodel")
+    base = write_cfg(tmp_path, "typemodel").read_text()
+    for setting, message in (('tempering = "false"', r"sampler.tempering: expected true or false, got 'false'"),
+                             ("max_stages = 10.5", r"sampler.max_stages: expected an integer, got 10.5"),
+                             ('step_size = "2"', r"sampler.step_size: expected a number, got '2'"),
+                             ("n_samples = 100.5", r"sampler.n_samples: expected an integer, got 100.5")):
+        text = base.replace("n_samples = 40\n", "") if setting.startswith("n_samples") else base
+        (tmp_path / "bad.toml").write_text(text.replace("[sampler]\n", f"[sampler]\n{setting}\n"))
+        with pytest.raises(ConfigError, match=message):
+            load_config(tmp_path / "bad.toml")
+    store = make_run(tmp_path / "run", "typemodel_b", n_steps=1)
+    with pytest.raises(TypeError, match=r"n_steps: expected an integer, got 1.7"):
+        store.predict(1.7)
+    table = tables(2)[1]
+    with pytest.raises(DataError, match=r"table: complex values"):
+        store.assimilate(table + 0j)
+    bad = table.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(DataError, match=r"table: column 'y' has 1 NaN/inf value\(s\), first at data row 4"):
+        store.assimilate(bad)
+    assert store.n_steps == 1
+
+
+def test_a_posterior_piled_up_at_a_prior_bound_is_reported(tmp_path, capsys):
+    from seqbayes.store import BoundWarning
+
+    store = make_run(tmp_path, "boundmodel", n_steps=0)
+    millivolts = tables(1)[0] * [1.0, 1000.0]             # y in mV instead of V: amplitude ~1500
+    with pytest.warns(BoundWarning, match=r"step 1: 100% of the posterior of 'a' lies at the prior's upper bound "
+                                          r"2.5; check the data's units"):
+        store.assimilate(millivolts)
+    assert store.bound_messages() and not make_run(tmp_path / "fine", "boundmodel_b").bound_messages()
+
+
+def test_invalid_priors_are_refused_with_the_parameter_named():
+    from scipy import stats
+
+    from seqbayes.priors import JointPrior
+
+    with pytest.raises(TypeError, match=r"distributions\['k'\]: scipy.stats.norm is not frozen"):
+        JointPrior({"k": stats.norm})
+    with pytest.raises(ValueError, match=r"distributions\['k'\]: scipy.stats.uniform: scale must be positive"):
+        JointPrior({"k": stats.uniform(0.0, 0.0)})
+    with pytest.raises(ValueError, match=r"distributions\['c'\]: scipy.stats.norm: scale must be positive"):
+        JointPrior({"k": stats.uniform(0.0, 1.0), "c": stats.norm(0.0, -1.0)})
+    with pytest.raises(ValueError, match=r"distributions\['s'\]: scipy.stats.lognorm: invalid shape"):
+        JointPrior({"s": stats.lognorm(-0.5)})
+    assert JointPrior({"k": stats.uniform(0.0, 1.0)}).dim == 1
+
+
+def test_report_keeps_user_strings_out_of_the_markup(tmp_path):
+    from seqbayes.report import write_report
+
+    store = make_run(tmp_path, "escapemodel", n_steps=1)
+    page = write_report(store, tmp_path / "a'b onerror=alert(1) x.html", embed=False, forecast_steps=0)
+    text = page.read_text()
+    assert "onerror=alert(1)" not in text.replace("onerror%3Dalert%281%29", "")
+    assert "src='a%27b%20onerror%3Dalert%281%29%20x_figures/fig-parameters.png'" in text
+
+
+def test_the_store_keeps_its_permission_bits(tmp_path):
+    import os
+    import stat
+
+    store = make_run(tmp_path, "modemodel", n_steps=0)
+    os.chmod(tmp_path / "run.nc", 0o600)
+    store.assimilate(tables(1)[0])
+    assert stat.S_IMODE(os.stat(tmp_path / "run.nc").st_mode) == 0o600
+
+
+# ------------------------------------------------------------------ filesystem faults on a small tmpfs
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MiB tmpfs (root only; skipped where mounting is not permitted)."""
+    import os
+    import subprocess
+
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)], capture_output=True,
+                          text=True)
+    if done.returncode:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    yield mount
+    subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def fill(folder, leave_bytes):
+    import os
+
+    free = os.statvfs(folder).f_bavail * os.statvfs(folder).f_frsize
+    with open(folder / "filler", "wb") as fh:
+        fh.write(b"\0" * max(0, free - leave_bytes))
+
+
+def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monkeypatch):
+    import seqbayes.store as store_module
+
+    make_run(small_disk, "diskmodel", n_steps=1)
+    run = small_disk / "run.nc"
+    np.savetxt(small_disk / "next.csv", tables(2)[1], delimiter=",", header="t,y", comments="")
+    fill(small_disk, 8 * 1024)
+    cli_fails(capsys, ["update", run, small_disk / "next.csv"],
+              r"next.csv: .*run.nc: not enough free space in .*disk: about \d+ KiB needed, \d+ KiB free", run)
+    # and when the space runs out during the write itself (the check bypassed): an OS error, no crash
+    monkeypatch.setattr(store_module, "_check_free_space", lambda *args: None)
+    cli_fails(capsys, ["update", run, small_disk / "next.csv"],
+              r"next.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
+              run)
+    assert [p.name for p in small_disk.iterdir() if ".tmp-" in p.name] == []
+    (small_disk / "filler").unlink()
+    monkeypatch.undo()
+    assert RunStore.open(run).n_steps == 1
+    RunStore.open(run).update(small_disk / "next.csv")   # room again: the run goes on
+
+
+def test_a_read_only_folder_gives_one_line(small_disk, capsys):
+    import subprocess
+
+    make_run(small_disk, "romodel", n_steps=1)
+    run = small_disk / "run.nc"
+    np.savetxt(small_disk / "next.csv", tables(2)[1], delimiter=",", header="t,y", comments="")
+    (small_disk / "run.nc.lock").unlink()
+    subprocess.run(["mount", "-o", "remount,ro", str(small_disk)], check=True)
+    cli_fails(capsys, ["init", small_disk / "run.toml", small_disk / "new.nc"],
+              r"new.nc: cannot take the lock .*new.nc.lock: Read-only file system")
+    cli_fails(capsys, ["update", run, small_disk / "next.csv"], r"run.nc: cannot take the lock .*Read-only file system",
+              run)
+    cli_fails(capsys, ["report", run, "--forecast", 0], r"Read-only file system", run)
+    assert RunStore.open(run).n_steps == 1                 # reading needs no write access
