@@ -61,6 +61,7 @@ import json
 import os
 import shutil
 import signal
+import sys
 import threading
 import warnings
 from dataclasses import replace as _replace
@@ -464,7 +465,7 @@ class RunStore:
                     if var.dtype.kind in "fiu" and var.ndim and var.size}   # HDF5 checksums, verified on read
         # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
         # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
-        content = ds.to_netcdf(engine="h5netcdf", encoding=encoding)
+        content = _netcdf_bytes(ds, encoding)
         _check_free_space(self.path, folder, len(content))
         mode = None
         with contextlib.suppress(OSError):
@@ -902,6 +903,18 @@ def _content_hash(ds) -> str:
         if name in ds:
             h.update(json.dumps([name, [str(v) for v in ds[name].values]]).encode())
     return h.hexdigest()
+
+
+def _netcdf_bytes(ds, encoding):
+    """The NetCDF-4 file of ``ds`` as bytes. With a Dask client active xarray would take a
+    distributed lock named after the target (here a buffer); the write is local, so Dask's
+    synchronous scheduler is used for it."""
+    if "dask" in sys.modules:
+        import dask
+
+        with dask.config.set(scheduler="synchronous"):
+            return ds.to_netcdf(engine="h5netcdf", encoding=encoding)
+    return ds.to_netcdf(engine="h5netcdf", encoding=encoding)
 
 
 def _write_file(path: Path, content) -> None:
