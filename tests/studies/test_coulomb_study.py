@@ -47,10 +47,13 @@ def test_semc_t1_tracks_the_measured_friction_and_natural_frequency(study):
 
 
 def test_semc_acceptance_rates_within_bounds(study):
+    """Every step that moved its particles (SMC^2 moves only when the ESS falls; the first step always)."""
     for kernel in ("T1", "T2"):
         acc = study.acceptance[("SEMC", kernel)]
         assert acc.shape == (N_RUNS, 4)
-        assert np.all((acc >= 0.15) & (acc <= 0.50)), acc
+        assert np.all(np.isfinite(acc[:, 0]))
+        moved = acc[np.isfinite(acc)]
+        assert np.all((moved >= 0.15) & (moved <= 0.50)), acc
 
 
 def test_t1_is_the_most_probable_kernel_with_semc(study):

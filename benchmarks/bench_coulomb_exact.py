@@ -1,0 +1,74 @@
+"""The Coulomb-friction study against its exact grid reference at every step (issue 10, bullet 3).
+
+    python benchmarks/bench_coulomb_exact.py [--runs 10] [--n 1000] [--inner 100] [--predictive auto]
+
+For T1 and T2, SEMC and SMC, ``--runs`` independent runs over the four datasets; per step the
+largest |mean error| over the four parameters in exact posterior sds, the largest |sd ratio - 1|
+and the cumulative log-evidence error, against ``seqbayes.models.coulomb.load_exact_reference``
+(the bundled grid filter). Prints the worst over runs (and the mean over runs of each error) and
+the time of the runs. ``--predictive transition`` measures the older Liu-West predictive.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import seqbayes  # noqa: E402
+from seqbayes.models import coulomb as model  # noqa: E402
+from seqbayes.nested import ParticleInnerFilter  # noqa: E402
+
+
+def run(args):
+    data = model.load_experiment()
+    print(f"| sampler | kernel | step | worst mean err / sd | worst sd err | worst log Z err | "
+          f"mean over runs of (mean err / sd) per parameter | all runs within 0.2 sd, 15 % |")
+    print("|---|---|---|---|---|---|---|---|")
+    total_time, n_fail = 0.0, 0
+    for cls in (seqbayes.SEMC, seqbayes.SMC):
+        for kernel in ("T1", "T2"):
+            exact = model.load_exact_reference(kernel)
+            errs, times = [], []
+            for run_index in range(args.runs):
+                settings = {"predictive": args.predictive}
+                if args.predictive in ("auto", "smc2"):
+                    settings["inner_filter"] = ParticleInnerFilter(args.inner)
+                start = time.perf_counter()
+                sampler = cls(model.prior(), model.kernel(kernel), model.loglike, n_samples=args.n,
+                              rng=np.random.default_rng([args.seed, run_index]), **settings)
+                result = sampler.run(data)
+                times.append(time.perf_counter() - start)
+                errs.append([((rec.mean() - exact.mean[s]) / exact.std[s], rec.std() / exact.std[s] - 1.0,
+                              rec.info.log_evidence - exact.log_evidence[s]) for s, rec in enumerate(result.steps)])
+            total_time += sum(times)
+            for s in range(4):
+                mean_err = np.array([e[s][0] for e in errs])
+                sd_err = np.array([e[s][1] for e in errs])
+                z_err = np.array([e[s][2] for e in errs])
+                ok = np.sum((np.abs(mean_err).max(axis=1) < 0.2) & (np.abs(sd_err).max(axis=1) < 0.15))
+                n_fail += len(errs) - ok
+                print(f"| {cls.__name__} | {kernel} | {s + 1} | {np.abs(mean_err).max():.3f} | {np.abs(sd_err).max():.3f} | "
+                      f"{np.abs(z_err).max():.3f} | {np.array2string(mean_err.mean(axis=0), precision=3)} | "
+                      f"{ok}/{len(errs)} |", flush=True)
+            print(f"<!-- {cls.__name__} {kernel}: run time {np.median(times):.2f} s median, {max(times):.2f} s max -->",
+                  flush=True)
+    print(f"\nsum of run times {total_time:.1f} s (one core); runs x steps outside the tolerances: {n_fail}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--n", type=int, default=1000)
+    parser.add_argument("--inner", type=int, default=100, help="inner particles per outer particle (SMC^2)")
+    parser.add_argument("--predictive", default="auto")
+    parser.add_argument("--seed", type=int, default=2023)
+    run(parser.parse_args())
+
+
+if __name__ == "__main__":
+    main()
