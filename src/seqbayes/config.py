@@ -777,10 +777,13 @@ def _read_csv(path, columns):
 def _read_netcdf(path, columns):
     import xarray as xr
 
+    with open(path, "rb") as fh:
+        classic = fh.read(4) in (b"CDF\x01", b"CDF\x02")   # NetCDF-3 (64-bit offsets too): scipy reads it
     try:
-        ds = xr.open_dataset(path, engine="h5netcdf")
+        ds = xr.open_dataset(path, engine="scipy" if classic else "h5netcdf")
     except Exception as err:
-        raise DataError(f"{path}: cannot read as NetCDF: {err}") from None
+        kind = "NetCDF-3" if classic else "NetCDF-4/HDF5"
+        raise DataError(f"{path}: cannot read as {kind}: {type(err).__name__}: {err}") from None
     with ds:
         missing = [c for c in columns if c not in ds.variables]
         if missing:

@@ -522,3 +522,16 @@ def test_a_read_only_folder_gives_one_line(small_disk, capsys):
               run)
     cli_fails(capsys, ["report", run, "--forecast", 0], r"Read-only file system", run)
     assert RunStore.open(run).n_steps == 1                 # reading needs no write access
+
+
+def test_netcdf3_data_files_are_read(tmp_path):
+    import xarray as xr
+
+    from seqbayes.config import read_datafile
+
+    store = make_run(tmp_path, "classicmodel", n_steps=0)
+    table = tables(1)[0]
+    xr.Dataset({"t": ("row", table[:, 0]), "y": ("row", table[:, 1])}).to_netcdf(tmp_path / "classic.nc",
+                                                                               engine="scipy")
+    assert (tmp_path / "classic.nc").read_bytes()[:3] == b"CDF"
+    np.testing.assert_array_equal(read_datafile(tmp_path / "classic.nc", store.config), table)
