@@ -164,13 +164,15 @@ from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 from .weights import logsumexp, normalise
 
 _LOG_2PI = float(np.log(2 * np.pi))
+_STEADY_TOL = 1e-11  # relative change of the filter covariance below which it is frozen (as kalman_log_likelihood)
 
 STATE_MOVES = ("regression", "shift", "inherit")
 SAMPLERS = ("resample-move", "paper")
 PROPOSALS = ("mixture", "independent", "random_walk")
 
 __all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult",
-           "STATE_MOVES", "SAMPLERS", "PROPOSALS", "weighted_quantiles", "weighted_mode", "stage_quantiles", "stage_modes"]
+           "STATE_MOVES", "SAMPLERS", "PROPOSALS", "weighted_quantiles", "weighted_mode", "stage_quantiles",
+           "stage_modes"]
 
 
 class ExactTransition:
@@ -637,13 +639,20 @@ class SGEnMCMC:
                 idx = resample(self.resampling, w, rng, N)
                 theta, past, inc = theta[idx], past[idx], inc[idx]
                 mean, mean_k, cov_k = mean[idx], mean_k[idx], cov_k[idx]
-                theta, past, inc, mean_k, cov_k, acceptance = self._move(
+                theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
                     theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng)
+                frozen = bank.frozen is not None and moved_steady
                 bank = KalmanBank(self.transition(theta), R, self.process_noise_std)
+                if frozen:  # every covariance (kept and moved) is in its steady state
+                    bank = bank.freeze(cov_k)
                 logw = np.zeros(N)
                 res_hist[k] = True
                 events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
             past = past + inc
+            if bank.frozen is None and k % 10 == 1 and not res_hist[k]:  # steady test, consecutive covariances
+                change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
+                if np.all(change < _STEADY_TOL):
+                    bank = bank.freeze(cov_k)
             mean, cov = mean_k, cov_k
             w = np.exp(normalise(logw))
             drifts = mean[:, :n] @ drift_op.T
@@ -667,19 +676,20 @@ class SGEnMCMC:
         """Tempered log-target terms of candidates ``theta (M, d)`` at step ``k``: one
         batched Kalman pass over ``y_{0:k-1}`` and one step of a bank on ``y_k``.
 
-        Returns ``past (M,)``, the increment ``(M,)``, and the filtered mean and
-        covariance at step ``k``."""
+        Returns ``past (M,)``, the increment ``(M,)``, the filtered mean and
+        covariance at step ``k``, and whether their covariances had reached the
+        steady state."""
         model = self.transition(theta)
         bank = KalmanBank(model, R, self.process_noise_std)
         if k == 0:
             mean, cov = bank.initial_state()
             past = np.zeros(theta.shape[0])
             mean_k, cov_k, inc = bank.step(mean, cov, y[0])
-        else:
-            past, mean, cov = kalman_log_likelihood(model, u[:k], y[:k], R, self.process_noise_std,
-                                                    return_state=True)
-            mean_k, cov_k, inc = bank.step(mean, cov, y[k], u[k - 1], u[k])
-        return past, inc, mean_k, cov_k
+            return past, inc, mean_k, cov_k, False
+        past, steady_step, mean, cov = kalman_log_likelihood(model, u[:k], y[:k], R, self.process_noise_std,
+                                                             return_steady_step=True, return_state=True)
+        mean_k, cov_k, inc = bank.step(mean, cov, y[k], u[k - 1], u[k])
+        return past, inc, mean_k, cov_k, steady_step < k
 
     def _move(self, theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng):
         """Metropolis-Hastings sweeps (the corrected Eq. 27, module docstring) on all
@@ -697,6 +707,7 @@ class SGEnMCMC:
 
         acceptance = []
         total = 0.0
+        steady = True
         while total < self.moves_per_particle and len(acceptance) < self.max_sweeps:
             eps = rng.standard_normal((N, d)) @ chol.T
             if self.proposal == "independent":
@@ -711,7 +722,8 @@ class SGEnMCMC:
             log_u = np.log(rng.random(N))
             accept = np.zeros(N, bool)
             if inside.any():
-                c_past, c_inc, c_mean, c_cov = self._history_likelihood(candidate[inside], phi, k, u, y, R)
+                c_past, c_inc, c_mean, c_cov, c_steady = self._history_likelihood(candidate[inside], phi, k, u, y, R)
+                steady = steady and c_steady
                 log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
                 ok = log_u[inside] < log_ratio
                 where = np.flatnonzero(inside)[ok]
@@ -723,7 +735,7 @@ class SGEnMCMC:
             rate = float(accept.mean())
             acceptance.append(rate)
             total += rate
-        return theta, past, inc, mean_k, cov_k, np.array(acceptance)
+        return theta, past, inc, mean_k, cov_k, np.array(acceptance), steady
 
 
 def _weighted_fit(theta, w):

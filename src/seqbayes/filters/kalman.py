@@ -182,17 +182,74 @@ def _sequential_update(mean, P, H, Ht, HHt, yw_k):
     return mean, P, increment
 
 
+def _chandrasekhar_transient(model, H, yw, u, mean, loglik, process_noise_std, steady_tol):
+    """Predicted-form Kalman recursion from a known initial state with the
+    Riccati equation in Chandrasekhar form (see :func:`kalman_log_likelihood`).
+
+    Returns ``(k, mean, P, loglik, steady)``: if the covariance increments
+    fell below ``steady_tol`` at step ``k < T``, ``mean`` and ``P`` are the
+    *predicted* moments of step ``k`` and ``steady = k`` (the data of step
+    ``k`` not yet processed); otherwise ``k = T - 1``, ``steady = T`` and
+    ``mean``, ``P`` are *filtered* at the last step, as the sequential loop leaves them.
+    """
+    A, B0, B1 = model.A, model.B0, model.B1
+    N, m = mean.shape
+    p = H.shape[1]
+    T = yw.shape[0]
+    L = B0 + B1  # P_1 - P_0 = Q = s_w^2 b b^T
+    M = np.full(N, float(process_noise_std) ** 2)
+    P = np.zeros((N, m, m))
+    S_inv = np.broadcast_to(np.eye(p), (N, p, p)).copy()  # S_0 = H P_0 H^T + I = I
+    logdet = np.zeros(N)
+    K_bar = np.zeros((N, m, p))  # A P_k H^T (the unnormalised predicted-form gain)
+    for k in range(T):  # loop over time only
+        e = yw[k] - np.einsum("npm,nm->np", H, mean)
+        Se = np.einsum("npq,nq->np", S_inv, e)
+        loglik -= 0.5 * (logdet + np.einsum("np,np->n", e, Se))
+        if k + 1 == T:  # filter the last step: m + P H^T S^-1 e, P - P H^T S^-1 H P
+            PHt = P @ np.swapaxes(H, 1, 2)
+            mean = mean + np.einsum("nmp,np->nm", PHt, Se)
+            P = P - PHt @ S_inv @ np.swapaxes(PHt, 1, 2)
+            return k, mean, 0.5 * (P + np.swapaxes(P, 1, 2)), loglik, T
+        mean = np.einsum("nij,nj->ni", A, mean) + B0 * u[k] + B1 * u[k + 1] + np.einsum("nmp,np->nm", K_bar, Se)
+        v = np.einsum("npm,nm->np", H, L)  # H L_k
+        AL = np.einsum("nij,nj->ni", A, L)
+        L_next = AL - np.einsum("nmp,np->nm", K_bar, np.einsum("npq,nq->np", S_inv, v))  # (A - K_k H) L_k
+        K_bar = K_bar + (M[:, None] * AL)[:, :, None] * v[:, None, :]
+        Sv = np.einsum("npq,nq->np", S_inv, v)
+        denominator = 1.0 + M * np.einsum("np,np->n", v, Sv)
+        S_inv = S_inv - (M / denominator)[:, None, None] * Sv[:, :, None] * Sv[:, None, :]  # Sherman-Morrison
+        logdet = logdet + np.log(denominator)
+        increment = M[:, None, None] * L[:, :, None] * L[:, None, :]
+        P = P + increment  # predicted covariance of step k + 1
+        M = M / denominator
+        L = L_next
+        if steady_tol > 0 and k > 0:
+            change = np.abs(increment).max(axis=(1, 2)) / np.abs(P).max(axis=(1, 2)).clip(1e-300)
+            if np.all(change < steady_tol):
+                return k + 1, mean, P, loglik, k + 1
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
 def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
                           process_noise_std: float = 0.0, x0=None, P0=None, steady_tol: float = 1e-11,
-                          return_steady_step: bool = False, return_state: bool = False):
+                          return_steady_step: bool = False, return_state: bool = False,
+                          chandrasekhar: bool = True):
     """``log p(y_{0:T-1} | theta_i)`` for every member: the same numbers as
     :func:`kalman_filter`, computed fast for the many-``theta`` batches of a sampler.
 
     Two phases, looping over time only:
 
-    1. *Transient.* The channels are whitened (``R = I``) and processed one
-       scalar at a time (sequential processing: exact, and no ``p x p``
-       factorisation per step), while the covariance recursion runs.
+    1. *Transient.* The channels are whitened (``R = I``). From a known
+       initial state (``P0=None``) the predicted covariance grows by rank-1
+       increments ``P_{k+1} - P_k = M_k L_k L_k^T`` (``P_1 = Q = s_w^2 b b^T``),
+       so the Riccati recursion runs in Chandrasekhar form (Morf, Sidhu and
+       Kailath 1974): ``L_{k+1} = (A - K_k H) L_k``, ``M_{k+1} = M_k / (1 +
+       M_k v^T S_k^-1 v)``, ``v = H L_k``, the innovation covariance ``S`` and
+       its inverse by rank-1 (Sherman-Morrison) updates -- vector operations
+       instead of ``m x m`` products per step. Otherwise (or
+       ``chandrasekhar=False``) the channels are processed one scalar at a
+       time while the full covariance recursion runs.
     2. *Steady state.* The predicted covariance does not depend on the data;
        once it has stopped changing for every member (max relative change
        below ``steady_tol``), the gain and innovation covariance are frozen
@@ -212,6 +269,8 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
         (``0`` disables the steady-state phase).
     return_steady_step : bool
         Also return the step at which the steady state was reached (``T`` if never).
+    chandrasekhar : bool
+        Use the Chandrasekhar transient when ``P0`` is None (default).
     return_state : bool
         Also return the filtered mean ``(N, m)`` and covariance ``(N, m, m)`` of
         ``X_{T-1}`` given ``y_{0:T-1}`` (to continue the filter, e.g. with
@@ -241,7 +300,10 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
     P_prior = None  # the previous step's predicted covariance (steady-state test)
     Ht = np.swapaxes(H, 1, 2).copy()
     HHt = H @ Ht  # (N, p, p): h_j . h_l of the whitened channels
-    while k < T:  # (1) transient: time-varying covariance, channels one at a time
+    if P0 is None and chandrasekhar:  # (1) transient from a known state: rank-1 covariance increments
+        k, mean, P, loglik, steady = _chandrasekhar_transient(model, H, yw, u, mean, loglik, process_noise_std,
+                                                              steady_tol)
+    while k < T and steady == T and not (P0 is None and chandrasekhar):  # (1) transient, channels one at a time
         mean, P, increment = _sequential_update(mean, P, H, Ht, HHt, yw[k])
         loglik += increment
         if k + 1 == T:
@@ -323,6 +385,7 @@ class KalmanBank:
         self.At = np.swapaxes(model.A, 1, 2)
         self.process_noise_std = float(process_noise_std)
         self.constant = -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum())
+        self.frozen = None  # (gain, S^-1, log det S / 2) once steady: see freeze()
 
     @property
     def n_members(self) -> int:
@@ -348,13 +411,36 @@ class KalmanBank:
             ``log p(y_k | y_{0:k-1}, theta_i)``.
         """
         model = self.model
+        yw = self.white @ np.asarray(y_k, float)
+        if self.frozen is not None and u_prev is not None:  # steady state: P and the gain are fixed
+            gain, S_inv, half_logdet = self.frozen
+            mean = np.einsum("nij,nj->ni", model.A, mean) + model.B0 * u_prev + model.B1 * u_now
+            e = yw - np.einsum("npm,nm->np", self.H, mean)
+            Se = np.einsum("npq,nq->np", S_inv, e)
+            mean = mean + np.einsum("nmp,np->nm", gain, e)
+            return mean, P, self.constant - half_logdet - 0.5 * np.einsum("np,np->n", e, Se)
         if u_prev is not None:
             mean = np.einsum("nij,nj->ni", model.A, mean) + model.B0 * u_prev + model.B1 * u_now
             P = model.A @ P @ self.At + self.Q
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
-        yw = self.white @ np.asarray(y_k, float)
         mean, P, increment = _sequential_update(mean, P, self.H, self.Ht, None, yw)
         return mean, P, increment + self.constant
+
+    def freeze(self, P) -> "KalmanBank":
+        """A bank whose covariance is in its steady state: from the filtered ``P``
+        (steady), the predicted ``P^- = A P A^T + Q``, ``S = H P^- H^T + I`` and
+        the gain ``P^- H^T S^-1`` are fixed, and :meth:`step` only moves the
+        mean (four batched products), returning ``P`` unchanged. Exact to the
+        tolerance at which ``P`` was declared steady."""
+        new = self.take(slice(None))
+        prior = self.model.A @ P @ self.At + self.Q
+        PHt = prior @ self.Ht
+        S = self.H @ PHt + np.eye(self.H.shape[1])
+        L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
+        L_inv = np.linalg.inv(L)
+        S_inv = np.swapaxes(L_inv, 1, 2) @ L_inv
+        new.frozen = (PHt @ S_inv, S_inv, np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1))
+        return new
 
     def take(self, index) -> "KalmanBank":
         """The bank of members ``index``."""
@@ -363,6 +449,7 @@ class KalmanBank:
         new.R, new.white, new.constant = self.R, self.white, self.constant
         new.process_noise_std = self.process_noise_std
         new.H, new.Ht, new.Q, new.At = self.H[index], self.Ht[index], self.Q[index], self.At[index]
+        new.frozen = None if self.frozen is None else tuple(x[index] for x in self.frozen)
         return new
 
     @staticmethod
@@ -379,4 +466,5 @@ class KalmanBank:
         new.Ht = np.concatenate([b.Ht for b in banks])
         new.Q = np.concatenate([b.Q for b in banks])
         new.At = np.concatenate([b.At for b in banks])
+        new.frozen = None
         return new
