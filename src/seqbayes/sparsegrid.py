@@ -117,9 +117,6 @@ class SparseGrid:
         dim, level = _check_dim_level(self.dim, self.level)
         if self.basis not in BASES:
             raise ValueError(f"basis: expected one of {BASES}, got {self.basis!r}")
-        if dim * level > 62:
-            raise ValueError(f"dim * level: {dim * level} exceeds the 62-bit point keys; "
-                             "use a lower level or fewer dimensions")
         subspaces = [c for total in range(dim, level + dim) for c in _compositions(total, dim)]
         subspace_levels = np.array(subspaces, dtype=np.int64).reshape(-1, dim)
         sizes = 2 ** (subspace_levels - 1)  # points per dimension in W_l
@@ -154,9 +151,22 @@ class SparseGrid:
         return self.points.shape[0]
 
     def _keys(self, levels, indices) -> np.ndarray:
+        """One sortable key per point: the heap positions per dimension (``< 2^level``)
+        packed ``level`` bits each into int64 words of at most 62 bits; a single word
+        when ``dim * level <= 62``, else a structured array of words (lexicographic
+        order), so there is no cap on ``dim * level``."""
         pos = 2 ** (levels - 1) + (indices - 1) // 2  # heap position per dimension, < 2^level
-        shifts = np.arange(self.dim, dtype=np.int64) * self.level
-        return (pos << shifts).sum(axis=-1)
+        per_word = max(1, 62 // self.level)
+        words = []
+        for start in range(0, self.dim, per_word):  # loop over key words (usually one)
+            stop = min(start + per_word, self.dim)
+            shifts = np.arange(stop - start, dtype=np.int64) * self.level
+            words.append((pos[..., start:stop] << shifts).sum(axis=-1))
+        if len(words) == 1:
+            return words[0]
+        stacked = np.ascontiguousarray(np.stack(words, axis=-1))
+        dtype = np.dtype([(f"w{i}", "<i8") for i in range(len(words))])
+        return stacked.view(dtype)[..., 0]
 
     def _lookup(self, levels, indices) -> np.ndarray:
         keys = self._keys(levels, indices)

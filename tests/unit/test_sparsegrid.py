@@ -77,3 +77,20 @@ def test_transition_interpolation_error_falls_with_level():
         errs.append(np.abs(A - exact).max())
     assert errs[0] > errs[1] > errs[2]
     assert errs[2] < 0.01
+
+
+@pytest.mark.parametrize("dim, level", [(32, 2), (21, 3)])
+def test_no_cap_on_dim_times_level(dim, level):
+    # dim * level = 64, 63 > 62: the point keys take two int64 words (11 storeys at level 6, 114,687
+    # points, build the same way; too slow for the unit tests)
+    from seqbayes.sparsegrid import SparseGrid, fit
+
+    grid = SparseGrid(dim, level)
+    rng = np.random.default_rng(0)
+    values = rng.standard_normal(grid.n_points)
+    interp = fit(grid, values)
+    np.testing.assert_allclose(interp(grid.points)[:, 0], values, rtol=0, atol=1e-9)  # interpolates its nodes
+    slope = rng.standard_normal(dim)
+    linear = fit(grid, grid.points @ slope + 0.5)
+    x = rng.random((20, dim))
+    np.testing.assert_allclose(linear(x)[:, 0], x @ slope + 0.5, rtol=0, atol=1e-9)  # modified basis: exact
