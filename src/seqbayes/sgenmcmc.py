@@ -594,80 +594,128 @@ class SGEnMCMC:
     # ------------------------------------------------------------ resample-move
     def _run_resample_move(self, ground_acceleration, measurements, rng, progress,
                            initial_theta) -> SGEnMCMCResult:
-        import time
+        self.reset(rng, initial_theta)
+        self.update(ground_acceleration, measurements, progress=progress)
+        return self.result()
 
+    # ------------------------------------------------------------------ on-line
+    def reset(self, rng=None, initial_theta=None) -> None:
+        """Start an on-line identification (``sampler="resample-move"``): draw the
+        particles from the prior (or take ``initial_theta (N, d)``), structure at
+        rest. Then call :meth:`update` with each new block of the record.
+        ``reset`` + ``update`` over any split of a record gives bit for bit the
+        numbers of :meth:`run` on the whole record with the same ``rng``."""
+        if self.sampler != "resample-move":
+            raise ValueError("reset/update: the on-line interface needs sampler='resample-move'")
+        rng = as_generator(rng)
         probe = self.transition(self.lower[None, :])
-        u, y = check_filter_inputs(probe, ground_acceleration, measurements)
-        T = u.size
-        N, d = self.n_members, self.lower.size
         p, m = probe.H.shape[1], probe.A.shape[1]
-        R = measurement_covariance(self.measurement_noise, p)
-        n = self.building.n_storeys
-        drift_op = np.eye(n) - np.eye(n, k=-1)
-        start = time.perf_counter()
         theta = self._initial_theta(initial_theta, rng)
+        R = measurement_covariance(self.measurement_noise, p)
         bank = KalmanBank(self.transition(theta), R, self.process_noise_std)
         mean, cov = bank.initial_state()
-        past = np.zeros(N)  # log p(y_{0:k-1} | theta_i)
-        logw = np.zeros(N)
-        stats = _Histories(T, d, m, n, self.lower, self.upper)
-        evid = np.zeros(T)
-        res_hist = np.zeros(T, bool)
-        events = []  # (step, phi, acceptance per sweep, sweeps)
-        target_ess = self.ess_threshold * N
-        iterator = range(T)
+        N, d, n = self.n_members, self.lower.size, self.building.n_storeys
+        self._online = _Online(
+            rng=rng, R=R, probe=probe, theta=theta, bank=bank, mean=mean, cov=cov, past=np.zeros(N),
+            logw=np.zeros(N), u=np.zeros(0), y=np.zeros((0, p)),
+            stats=_Histories(0, d, m, n, self.lower, self.upper), evid=np.zeros(0), resampled=np.zeros(0, bool),
+            events=[], elapsed=0.0)
+
+    def update(self, ground_acceleration, measurements, progress: bool = False) -> SGEnMCMCResult:
+        """Process the next block of the record: ``measurements (n, p)`` under
+        ``ground_acceleration (n,)``, continuing from the previous blocks (call
+        :meth:`reset` first). Returns :meth:`result` (histories of all steps so far)."""
+        import time
+
+        state = getattr(self, "_online", None)
+        if state is None:
+            raise ValueError("update: call reset() first (or run() for a whole record)")
+        u_new, y_new = check_filter_inputs(state.probe, ground_acceleration, measurements)
+        started = time.perf_counter()
+        first = state.u.size
+        state.u = np.concatenate([state.u, u_new])
+        state.y = np.concatenate([state.y, y_new])
+        state.stats.extend(u_new.size)
+        state.evid = np.concatenate([state.evid, np.zeros(u_new.size)])
+        state.resampled = np.concatenate([state.resampled, np.zeros(u_new.size, bool)])
+        iterator = range(first, state.u.size)
         if progress:
             from tqdm import tqdm
 
             iterator = tqdm(iterator, desc="SG-EnMCMC (resample-move)", unit="step")
         for k in iterator:  # loop over time only
-            inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
-            mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
-            phi = 0.0
-            while phi < 1.0:  # tempering of step k's data: phi -> 1
-                new_phi = _next_exponent(logw, inc, phi, target_ess)
-                delta = new_phi - phi
-                evid[k] += logsumexp(normalise(logw) + delta * inc)  # log sum_i W_i exp(delta l_i)
-                logw = logw + delta * inc
-                phi = new_phi
-                if phi >= 1.0:
-                    break
-                # resample (Eq. 28) and move with MH targeting p(theta | y_{0:k-1}) p(y_k | ...)^phi
-                stats.flush(theta)
-                w = np.exp(normalise(logw))
-                fit_mean, fit_cov = _weighted_fit(theta, w)
-                idx = resample(self.resampling, w, rng, N)
-                theta, past, inc = theta[idx], past[idx], inc[idx]
-                mean, mean_k, cov_k = mean[idx], mean_k[idx], cov_k[idx]
-                theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
-                    theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng)
-                frozen = bank.frozen is not None and moved_steady
-                bank = KalmanBank(self.transition(theta), R, self.process_noise_std)
-                if frozen:  # every covariance (kept and moved) is in its steady state
-                    bank = bank.freeze(cov_k)
-                logw = np.zeros(N)
-                res_hist[k] = True
-                events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
-            past = past + inc
-            if bank.frozen is None and k % 10 == 1 and not res_hist[k]:  # steady test, consecutive covariances
-                change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
-                if np.all(change < _STEADY_TOL):
-                    bank = bank.freeze(cov_k)
-            mean, cov = mean_k, cov_k
+            self._step(state, k)
+        state.elapsed += time.perf_counter() - started
+        return self.result()
+
+    def _step(self, state, k: int) -> None:
+        """One step of the resample-move sampler (module docstring), in place on ``state``."""
+        N = self.n_members
+        n = self.building.n_storeys
+        u, y, rng, R = state.u, state.y, state.rng, state.R
+        target_ess = self.ess_threshold * N
+        theta, past, logw, bank, mean, cov = state.theta, state.past, state.logw, state.bank, state.mean, state.cov
+        inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
+        mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
+        phi = 0.0
+        while phi < 1.0:  # tempering of step k's data: phi -> 1
+            new_phi = _next_exponent(logw, inc, phi, target_ess)
+            delta = new_phi - phi
+            state.evid[k] += logsumexp(normalise(logw) + delta * inc)  # log sum_i W_i exp(delta l_i)
+            logw = logw + delta * inc
+            phi = new_phi
+            if phi >= 1.0:
+                break
+            # resample (Eq. 28) and move with MH targeting p(theta | y_{0:k-1}) p(y_k | ...)^phi
+            state.stats.flush(theta)
             w = np.exp(normalise(logw))
-            drifts = mean[:, :n] @ drift_op.T
-            drift_var = np.einsum("ij,njk,ik->ni", drift_op, cov[:, :n, :n], drift_op)
-            stats.record(k, w, float(1.0 / (w @ w)), w @ mean, w @ drifts, w @ (drifts**2 + drift_var))
-        stats.flush(theta)
-        final_w = np.exp(normalise(logw))
-        idx = resample(self.resampling, final_w, rng, N)
-        elapsed = time.perf_counter() - start
-        ev = np.array(events, dtype=float).reshape(-1, 4)
+            fit_mean, fit_cov = _weighted_fit(theta, w)
+            idx = resample(self.resampling, w, rng, N)
+            theta, past, inc = theta[idx], past[idx], inc[idx]
+            mean, mean_k, cov_k = mean[idx], mean_k[idx], cov_k[idx]
+            theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
+                theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng)
+            frozen = bank.frozen is not None and moved_steady
+            bank = KalmanBank(self.transition(theta), R, self.process_noise_std)
+            if frozen:  # every covariance (kept and moved) is in its steady state
+                bank = bank.freeze(cov_k)
+            logw = np.zeros(N)
+            state.resampled[k] = True
+            state.events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
+        past = past + inc
+        if bank.frozen is None and k % 10 == 1 and not state.resampled[k]:  # steady test, consecutive covariances
+            change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
+            if np.all(change < _STEADY_TOL):
+                bank = bank.freeze(cov_k)
+        w = np.exp(normalise(logw))
+        drift_op = np.eye(n) - np.eye(n, k=-1)
+        drifts = mean_k[:, :n] @ drift_op.T
+        drift_var = np.einsum("ij,njk,ik->ni", drift_op, cov_k[:, :n, :n], drift_op)
+        state.stats.record(k, w, float(1.0 / (w @ w)), w @ mean_k, w @ drifts, w @ (drifts**2 + drift_var))
+        state.theta, state.past, state.logw, state.bank, state.mean, state.cov = theta, past, logw, bank, mean_k, cov_k
+
+    def result(self) -> SGEnMCMCResult:
+        """Histories of the on-line identification so far (after :meth:`update`).
+
+        ``final_theta`` is a resample of the current particles drawn from a copy
+        of the generator's state, so asking for a result does not change later
+        updates."""
+        state = getattr(self, "_online", None)
+        if state is None:
+            raise ValueError("result: nothing identified yet; call reset() and update()")
+        state.stats.flush(state.theta)
+        N, d = self.n_members, self.lower.size
+        copy = np.random.Generator(type(state.rng.bit_generator)())
+        copy.bit_generator.state = state.rng.bit_generator.state
+        idx = resample(self.resampling, np.exp(normalise(state.logw)), copy, N)
+        stats = state.stats
+        ev = np.array(state.events, dtype=float).reshape(-1, 4)
         return SGEnMCMCResult(
-            theta_mean=stats.mean, theta_var=stats.var, theta_mpv=stats.mpv, theta_quantiles=stats.quantiles,
-            ess=stats.ess, resampled=res_hist, log_evidence_increments=evid, state_mean=stats.state_mean,
-            drift_mean=stats.drift_mean, drift_std=stats.drift_std, final_theta=theta[idx],
-            final_log_weights=np.zeros(N), elapsed=elapsed,
+            theta_mean=stats.mean.copy(), theta_var=stats.var.copy(), theta_mpv=stats.mpv.copy(),
+            theta_quantiles=stats.quantiles.copy(), ess=stats.ess.copy(), resampled=state.resampled.copy(),
+            log_evidence_increments=state.evid.copy(), state_mean=stats.state_mean.copy(),
+            drift_mean=stats.drift_mean.copy(), drift_std=stats.drift_std.copy(), final_theta=state.theta[idx],
+            final_log_weights=np.zeros(N), elapsed=state.elapsed,
             names=tuple(f"theta_{j + 1}" for j in range(d)), sampler="resample-move",
             move_steps=ev[:, 0].astype(int), move_exponents=ev[:, 1], move_acceptance=ev[:, 2],
             move_sweeps=ev[:, 3].astype(int))
@@ -816,6 +864,31 @@ class _Stage:
         return X.mean(axis=0) + (new_theta - self.theta_mean) @ self.slope(X) + residual[order]
 
 
+@dataclass
+class _Online:
+    """Mutable state of an on-line resample-move identification (held by
+    :class:`SGEnMCMC` between :meth:`SGEnMCMC.update` calls): the generator,
+    the particles with their exact Kalman filters and running log-likelihoods,
+    the record so far (the moves re-filter it) and the histories."""
+
+    rng: np.random.Generator
+    R: np.ndarray
+    probe: DiscreteModel
+    theta: np.ndarray
+    bank: KalmanBank
+    mean: np.ndarray
+    cov: np.ndarray
+    past: np.ndarray
+    logw: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    stats: "_Histories"
+    evid: np.ndarray
+    resampled: np.ndarray
+    events: list
+    elapsed: float
+
+
 class _Histories:
     """Per-step summaries. Weights are buffered over a stage (fixed members) and
     the weighted mean, variance, quantiles and MPV of all its steps are computed
@@ -829,6 +902,12 @@ class _Histories:
         self.lower, self.upper, self.bins = lower, upper, bins
         self.steps, self.weights = [], []
 
+    def extend(self, steps: int) -> None:
+        """Room for ``steps`` more steps (on-line use)."""
+        for name in ("mean", "var", "mpv", "quantiles", "ess", "state_mean", "drift_mean", "drift_std"):
+            old = getattr(self, name)
+            setattr(self, name, np.concatenate([old, np.empty((steps,) + old.shape[1:])]))
+
     def record(self, k, w, ess, state_mean, drift_mean, drift_second_moment):
         self.steps.append(k)
         self.weights.append(w)
@@ -839,9 +918,11 @@ class _Histories:
         if not self.steps:
             return
         steps, W = np.array(self.steps), np.array(self.weights)  # (L,), (L, N)
-        mean = W @ theta
+        # einsum, not W @ theta: BLAS blocks by the number of rows L, and the same step must give the
+        # same bits however the steps were grouped (on-line updates are bit-identical to one run)
+        mean = np.einsum("ln,nd->ld", W, theta)
         self.mean[steps] = mean
-        self.var[steps] = np.maximum(W @ theta**2 - mean**2, 0)
+        self.var[steps] = np.maximum(np.einsum("ln,nd->ld", W, theta**2) - mean**2, 0)
         q = stage_quantiles(theta, W, [0.01, 0.025, 0.5, 0.975, 0.99])  # (L, 5, d)
         self.quantiles[steps] = q[:, 1:4]
         self.mpv[steps] = stage_modes(theta, W, self.lower, self.upper, q[:, 0], q[:, 4], self.bins)

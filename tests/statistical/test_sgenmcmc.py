@@ -161,5 +161,30 @@ def test_bad_arguments(wc1):
     with pytest.raises(ValueError, match="max_sweeps"):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], max_sweeps=0)
     sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"][:2], n_members=60, level=3)
-    with pytest.raises(ValueError, match="channels"):
+    with pytest.raises(ValueError, match="channel"):  # 2 noise stds and 2 channels for a 3-channel model
         sg.run(wc1["u"], wc1["y"][:, :2])
+
+
+def test_online_updates_are_bit_identical_to_one_run(wc1):
+    def make():
+        return SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=100)
+
+    whole = make().run(wc1["u"][:240], wc1["y"][:240], rng=3)
+    online = make()
+    online.reset(rng=3)
+    for lo, hi in [(0, 1), (1, 57), (57, 150), (150, 240)]:  # blocks of the record as they arrive
+        partial = online.update(wc1["u"][lo:hi], wc1["y"][lo:hi])
+        assert partial.theta_mean.shape == (hi, 3)
+    result = online.result()
+    for name in ("theta_mean", "theta_var", "theta_quantiles", "theta_mpv", "ess", "log_evidence_increments",
+                 "drift_mean", "drift_std", "final_theta", "move_steps", "move_acceptance", "resampled"):
+        assert np.array_equal(getattr(whole, name), getattr(result, name)), name
+
+
+def test_online_interface_errors(wc1):
+    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=60)
+    with pytest.raises(ValueError, match="reset"):
+        sg.update(wc1["u"][:10], wc1["y"][:10])
+    paper = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=60, level=3, sampler="paper")
+    with pytest.raises(ValueError, match="resample-move"):
+        paper.reset(rng=0)
