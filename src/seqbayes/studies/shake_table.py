@@ -320,7 +320,7 @@ def _log_likelihood_batched(data: dict, theta, batch: int = 500) -> np.ndarray:
 
 
 def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, upper: float = UPPER,
-                    start=None, inflation: float = 1.5, dof: float = 5.0) -> ExactPosterior:
+                    start=None, inflation: float = 1.5, dof: float = 5.0, adapt: int = 2) -> ExactPosterior:
     """The exact posterior by importance sampling, independent of any sequential sampler.
 
     The likelihood mode and Hessian come from Newton steps on the exact Kalman
@@ -328,9 +328,14 @@ def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, u
     outside the prior box is found as it is); ``n`` draws from a multivariate
     Student-t (``dof``) centred there with ``inflation`` x the Laplace sd are
     weighted by prior x likelihood / proposal (draws outside the box weigh 0).
+    Then ``adapt`` more rounds re-centre the t on the weighted mean and
+    covariance of the previous round (adaptive importance sampling: robust
+    when the Laplace fit is poor, e.g. a posterior cut by the prior bound);
+    the estimates come from the last round alone.
     """
     from scipy import stats
 
+    from ..results import weighted_quantile
     from ..weights import normalise
 
     start_time = time.perf_counter()
@@ -338,24 +343,27 @@ def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, u
     theta0 = np.asarray(data["theta"] if start is None else start, float)
     mode, cov = laplace_posterior(data, theta0, iterations=8, lower=0.05, upper=5.0)
     d = mode.size
-    proposal = stats.multivariate_t(mode, inflation**2 * cov, df=dof)
-    draws = proposal.rvs(size=n, random_state=rng).reshape(n, d)
-    inside = np.all((draws > lower) & (draws < upper), axis=1)
-    logw = np.full(n, -np.inf)
-    logw[inside] = _log_likelihood_batched(data, draws[inside]) - proposal.logpdf(draws[inside])
-    logw = normalise(logw)
-    w = np.exp(logw)
-    mean = w @ draws
-    sd = np.sqrt(w @ (draws - mean) ** 2)
+    if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(cov) <= 0):
+        cov = np.diag(np.full(d, ((upper - lower) / 10) ** 2))
+    mode = np.clip(mode, lower, upper)
+    for _ in range(adapt + 1):
+        proposal = stats.multivariate_t(mode, inflation**2 * cov, df=dof)
+        draws = proposal.rvs(size=n, random_state=rng).reshape(n, d)
+        inside = np.all((draws > lower) & (draws < upper), axis=1)
+        logw = np.full(n, -np.inf)
+        logw[inside] = _log_likelihood_batched(data, draws[inside]) - proposal.logpdf(draws[inside])
+        logw = normalise(logw)
+        w = np.exp(logw)
+        mode = w @ draws
+        centred = draws - mode
+        cov = (centred * w[:, None]).T @ centred
+    sd = np.sqrt(np.diag(cov))
     ess = float(1 / (w @ w))
-    from ..results import weighted_quantile
-
     q = weighted_quantile(draws, logw, [0.025, 0.975])
-    return ExactPosterior(mean, sd, q[0], q[1], ess, np.full(d, 1 / np.sqrt(ess)), draws, logw,
+    return ExactPosterior(mode, sd, q[0], q[1], ess, np.full(d, 1 / np.sqrt(ess)), draws, logw,
                           time.perf_counter() - start_time)
 
-
-def run_case(case: Case, duration: float = 40.0, members: int = 500, level: int = 6,
+def run_case(case: Case, duration: float = 40.0, members: int = 500, level="auto",
              ref_walkers: int = 32, ref_steps: int = 150, seed: int = 0, progress: bool = False,
              sgenmcmc_options: dict | None = None) -> dict:
     """Data, SG-EnMCMC, EKF, UKF and the reference posterior for one case."""
@@ -542,15 +550,25 @@ def _figures(outs: dict, folder: Path) -> list[str]:
     return written
 
 
+def _level(text: str):
+    """``--level``: an integer, ``exact`` (None) or ``auto``."""
+    if text in ("auto", "exact"):
+        return None if text == "exact" else "auto"
+    return int(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="seqbayes example shake-table", description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default="wc1,wc2,nest", help="comma-separated: wc1, wc2, nest")
     parser.add_argument("--duration", type=float, default=40.0, help="seconds of record (40 s = 2000 steps)")
     parser.add_argument("--members", type=int, default=500)
-    parser.add_argument("--level", type=int, default=6, help="sparse-grid level")
-    parser.add_argument("--shrinkage", type=float, default=0.5, help="Liu-West a of SG-EnMCMC")
+    parser.add_argument("--level", type=_level, default="auto",
+                        help="sparse-grid level, 'exact', or 'auto' (exact matrices for resample-move, 6 for paper)")
+    parser.add_argument("--sampler", default="resample-move", choices=["resample-move", "paper"],
+                        help="SG-EnMCMC sampler (see seqbayes.sgenmcmc)")
+    parser.add_argument("--shrinkage", type=float, default=0.5, help="Liu-West a of the paper sampler")
     parser.add_argument("--state-move", default="regression", choices=["regression", "shift", "inherit"],
-                        help="state of a moved SG-EnMCMC member (see seqbayes.sgenmcmc)")
+                        help="state of a moved member of the paper sampler (see seqbayes.sgenmcmc)")
     parser.add_argument("--ref-walkers", type=int, default=32)
     parser.add_argument("--ref-steps", type=int, default=150)
     parser.add_argument("--seed", type=int, default=0)
@@ -560,7 +578,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-figures", action="store_true")
     args = parser.parse_args(argv)
     if args.quick:
-        args.duration, args.members, args.level, args.ref_walkers, args.ref_steps = 8.0, 150, 4, 12, 40
+        args.duration, args.members, args.ref_walkers, args.ref_steps = 8.0, 150, 12, 40
+        if args.sampler == "paper":
+            args.level = 4
     names = [c.strip() for c in args.cases.split(",") if c.strip()]
     unknown = [c for c in names if c not in CASES]
     if unknown:
@@ -572,7 +592,8 @@ def main(argv: list[str] | None = None) -> int:
     for i, name in enumerate(names):
         out = run_case(CASES[name], args.duration, args.members, args.level, args.ref_walkers,
                        args.ref_steps, seed=args.seed + i, progress=progress,
-                       sgenmcmc_options={"shrinkage": args.shrinkage, "state_move": args.state_move})
+                       sgenmcmc_options={"shrinkage": args.shrinkage, "state_move": args.state_move,
+                                         "sampler": args.sampler})
         outs[name] = out
         summaries.append(summarise(out))
         s = summaries[-1]
