@@ -192,3 +192,17 @@ def test_ekf_jacobian_is_the_derivative_of_the_exact_discretisation():
     np.testing.assert_allclose(F[:6, :6], discretise(FRAME, z[6:], 0.02).A[0], rtol=1e-12, atol=1e-14)
     m = discretise(FRAME, z[6:], 0.02)
     np.testing.assert_allclose(b, m.B0[0] + m.B1[0], rtol=1e-12, atol=1e-18)
+
+
+def test_enkf_bank_likelihood_approaches_the_kalman_likelihood():
+    from seqbayes.filters.enkf import enkf_log_likelihood
+
+    model, u, y, std, sw = _data(60)
+    batch = discretise(FRAME, THETA, 0.02)
+    exact = kalman_log_likelihood(batch, u, y, std, sw)[0]
+    # measured at 2,000 members per filter over 5 seeds: error -0.02 +- 0.20 (sd); bound 5 sd
+    estimate, X, cov = enkf_log_likelihood(batch, u, y, std, sw, 2000, rng=0)
+    assert abs(estimate[0] - exact) < 1.0
+    assert X.shape == (1, 2000, 6) and cov.shape == (1, 6, 6)
+    again = enkf_log_likelihood(batch, u, y, std, sw, 2000, rng=0)[0]
+    assert np.array_equal(estimate, again)

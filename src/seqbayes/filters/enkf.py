@@ -38,6 +38,8 @@ __all__ = [
     "forecast",
     "EnKFResult",
     "enkf_filter",
+    "EnKFBank",
+    "enkf_log_likelihood",
 ]
 
 _LOG_2PI = np.log(2 * np.pi)
@@ -230,3 +232,105 @@ def enkf_filter(model: DiscreteModel, ground_acceleration, measurements, measure
         if k + 1 < T:
             X = forecast(model, X, u[k], u[k + 1], process_noise_std, rng)
     return EnKFResult(float(incs.sum()), incs, means, X)
+
+
+class EnKFBank:
+    """``N`` stochastic ensemble Kalman filters of ``M`` members each, advanced
+    together one step at a time (no loop over filters or members): the
+    on-line EnKF likelihood of a particle filter over parameters, the
+    counterpart of :class:`~seqbayes.filters.kalman.KalmanBank` for models
+    where an exact filter is not available.
+
+    The state of the bank is the ensembles ``X (N, M, m)`` and their sample
+    covariances ``(N, m, m)`` (for summaries). Each step: forecast every
+    member with its filter's matrices and its own process noise; increment
+    ``log N(y_k; mean(Y_i), C_yy,i + R)`` (Eq. 25 with the ensemble mean);
+    perturbed-observation update with ``K_i = C_xy,i (C_yy,i + R)^-1``
+    (Eq. 22). The increment is a random, biased estimate of the exact
+    ``log p(y_k | y_{0:k-1}, theta_i)``; for a linear model it converges to
+    the Kalman filter's as ``M`` grows.
+
+    Parameters
+    ----------
+    model : DiscreteModel
+        ``N`` filters.
+    measurement_noise : (p,) stds, scalar, or (p, p) covariance
+    process_noise_std : float
+    members : int
+        Ensemble size ``M`` per filter.
+    rng : numpy.random.Generator
+        Source of the process noise and the observation perturbations.
+    """
+
+    can_freeze = False
+    frozen = None
+
+    def __init__(self, model: DiscreteModel, measurement_noise, process_noise_std: float, members: int, rng):
+        if not isinstance(members, (int, np.integer)) or members < 2:
+            raise ValueError(f"members: expected an integer >= 2, got {members!r}")
+        p = model.H.shape[1]
+        self.model = model
+        self.R = measurement_covariance(measurement_noise, p)
+        self.chol_R = np.linalg.cholesky(self.R)
+        self.process_noise_std = float(process_noise_std)
+        self.members = int(members)
+        self.rng = rng
+        self.b = model.B0 + model.B1
+
+    def initial_state(self):
+        """Ensembles at rest ``(N, M, m)`` and zero covariances ``(N, m, m)``."""
+        N, m = self.model.A.shape[:2]
+        return np.zeros((N, self.members, m)), np.zeros((N, m, m))
+
+    def moments(self, X, cov):
+        """Mean ``(N, m)`` and covariance ``(N, m, m)`` of each filter's state."""
+        return X.mean(axis=1), cov
+
+    def step(self, X, cov, y_k, u_prev=None, u_now=None):
+        """One step (prediction skipped when ``u_prev`` is None): returns the
+        updated ensembles, their covariances and the increments ``(N,)``."""
+        model, rng = self.model, self.rng
+        N, M = X.shape[:2]
+        p = model.H.shape[1]
+        if u_prev is not None:
+            noise = rng.standard_normal((N, M)) * self.process_noise_std
+            X = (np.einsum("nij,nkj->nki", model.A, X) + (model.B0 * u_prev + model.B1 * u_now)[:, None, :]
+                 + self.b[:, None, :] * noise[:, :, None])
+        Y = np.einsum("npm,nkm->nkp", model.H, X)
+        X_anom = X - X.mean(axis=1, keepdims=True)
+        Y_mean = Y.mean(axis=1)
+        Y_anom = Y - Y_mean[:, None, :]
+        C_yy = np.einsum("nkp,nkq->npq", Y_anom, Y_anom) / (M - 1)
+        C_xy = np.einsum("nkm,nkp->nmp", X_anom, Y_anom) / (M - 1)
+        S = C_yy + self.R
+        L = np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2)))
+        L_inv = np.linalg.inv(L)
+        z = np.einsum("npq,nq->np", L_inv, y_k - Y_mean)
+        increment = -0.5 * (p * _LOG_2PI + (z * z).sum(axis=1)) - np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        gain = C_xy @ (np.swapaxes(L_inv, 1, 2) @ L_inv)  # C_xy S^-1
+        perturbed = y_k + rng.standard_normal((N, M, p)) @ self.chol_R.T
+        X = X + np.einsum("nmp,nkp->nkm", gain, perturbed - Y)
+        X_anom = X - X.mean(axis=1, keepdims=True)
+        cov = np.einsum("nki,nkj->nij", X_anom, X_anom) / (M - 1)
+        return X, cov, increment
+
+
+def enkf_log_likelihood(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
+                        process_noise_std: float, members: int, rng=None):
+    """EnKF log-likelihood of ``y_{0:T-1}`` for each of the ``N`` filters of ``model``
+    (:class:`EnKFBank`, ``members`` each), and the final ensembles and covariances.
+
+    Returns
+    -------
+    log_likelihood : (N,) array
+    X : (N, M, m) array
+    cov : (N, m, m) array
+    """
+    u, y = check_filter_inputs(model, ground_acceleration, measurements)
+    bank = EnKFBank(model, measurement_noise, process_noise_std, members, as_generator(rng))
+    X, cov = bank.initial_state()
+    total = np.zeros(model.A.shape[0])
+    for k in range(u.size):  # loop over time only
+        X, cov, increment = bank.step(X, cov, y[k], *((u[k - 1], u[k]) if k else (None, None)))
+        total += increment
+    return total, X, cov

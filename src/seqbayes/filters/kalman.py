@@ -387,9 +387,15 @@ class KalmanBank:
         self.constant = -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum())
         self.frozen = None  # (gain, S^-1, log det S / 2) once steady: see freeze()
 
+    can_freeze = True
+
     @property
     def n_members(self) -> int:
         return self.model.A.shape[0]
+
+    def moments(self, mean, P):
+        """Mean ``(N, m)`` and covariance ``(N, m, m)`` of each filter's state (as they are)."""
+        return mean, P
 
     def initial_state(self, x0=None, P0=None):
         """Mean ``(N, m)`` and covariance ``(N, m, m)`` of ``X_0`` (default at rest, known)."""
