@@ -51,7 +51,7 @@ from .transforms import BoxTransform
 from .weights import logsumexp
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
-           "after_joint_first_step", "assimilate_nested"]
+           "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays"]
 
 
 def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
@@ -526,3 +526,24 @@ def _kept(dataset):
     import copy
 
     return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
+
+
+def nested_state_arrays(state: NestedState) -> dict:
+    """The arrays that, with the datasets, rebuild ``state`` (:func:`nested_state_from_arrays`), for the
+    run store: every value is a float array; the inner filter's cloud keys are prefixed ``cloud_``."""
+    out = {"outer": state.outer, "log_weights": state.log_weights, "log_prior": state.log_prior,
+           "log_likelihood": state.log_likelihood, "particles": state.particles,
+           "scalars": np.array([state.step, state.log_evidence, state.step_size], dtype=float)}
+    out.update({f"cloud_{key}": value for key, value in state.cloud.items()})
+    return {key: np.asarray(value, dtype=float) for key, value in out.items()}
+
+
+def nested_state_from_arrays(arrays: dict, datasets: tuple) -> NestedState:
+    """The inverse of :func:`nested_state_arrays`; ``datasets`` are ``D^1 .. D^s``."""
+    step, log_evidence, step_size = np.asarray(arrays["scalars"], dtype=float)
+    if int(step) != len(datasets):
+        raise ValueError(f"datasets: {len(datasets)} datasets for a state at step {int(step)}")
+    cloud = {key[len("cloud_"):]: np.array(value) for key, value in arrays.items() if key.startswith("cloud_")}
+    return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
+                       np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),
+                       float(log_evidence), float(step_size), np.array(arrays["particles"]))
