@@ -342,6 +342,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"seqbayes {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `seqbayes status RUN | head`: the reader has what it wanted
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as err:  # a read-only folder, a full disk, a path that is a folder, ...
         if args.traceback:
             raise

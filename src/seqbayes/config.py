@@ -55,7 +55,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config", "read_datafile",
-           "dataset_digest", "load_likelihood", "locate_module", "load_located", "ModuleSource", "file_sha256", "check_table"]
+           "dataset_digest", "load_likelihood", "locate_module", "load_located", "ModuleSource", "file_sha256",
+           "check_table"]
 
 #: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
 SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
@@ -262,7 +263,13 @@ class RunConfig:
         if self.executor == "processes":
             from concurrent.futures import ProcessPoolExecutor
 
-            pool = ProcessPoolExecutor(max_workers=self.workers)
+            import multiprocessing
+
+            # forked workers inherit the likelihood's module, which is imported by file path and so
+            # is not importable by name in a spawned process (the default start method may change)
+            context = (multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods()
+                       else None)
+            pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=context)
             return pool, pool.shutdown
         from distributed import Client, LocalCluster  # optional extra: seqbayes[dask]
 

@@ -19,13 +19,25 @@ Keeping every step's state (not only the last) costs one ``(N, d)`` mixture (or
 one ``(N,)`` vector and the dataset) per step and allows :meth:`RunStore.assimilate` with ``replace_last=True``: the run
 is rolled back to the step before and the new dataset assimilated in its place.
 
-Writes are atomic: the new file is written to a temporary file in the same
-folder, flushed and ``fsync``-ed, then moved over the old one with
-:func:`os.replace` (atomic on POSIX), and the folder is ``fsync``-ed. A crash or
-``SIGKILL`` at any point leaves either the previous store or the new one, never
-a mixture; a leftover temporary file is removed by the next write. Concurrent
-``update`` commands on one run are serialised by an advisory lock on
-``RUN.lock``.
+Writes are atomic: HDF5 writes the new file to memory, which is written to a
+temporary file in the same folder (``.RUN.tmp-PID``) with plain OS calls and
+``fsync``-ed, then moved over the old one with :func:`os.replace` (atomic on
+POSIX) keeping the old file's permission bits, and the folder is ``fsync``-ed. A
+crash or ``SIGKILL`` at any point leaves either the previous store or the new
+one, never a mixture; a leftover temporary file of this store (exactly that
+name) is removed by the next write. A full disk or a read-only folder is one
+:class:`StoreError`, the previous store kept. Every read-modify-write
+(:meth:`RunStore.assimilate`, :meth:`RunStore.write`) holds an advisory lock on
+``RUN.lock``; an object that opened the store before another process stored a
+step takes that step in first, so concurrent updates are all kept.
+
+Trust: a store is trusted like code (it names the module the likelihood comes
+from), but runs only a module file whose SHA-256 it recorded
+(:meth:`RunStore.load_likelihood`), imported by file path without touching
+``sys.path``; opening, ``predict`` and reports run no user code. The numeric
+arrays carry HDF5 Fletcher-32 checksums and the configuration and text records a
+SHA-256 (``content_sha256``), verified by :meth:`RunStore.open`, which also
+refuses NaN samples and missing or inconsistent variables.
 
 Layout: ``posterior``, ``predictive`` ``(step, sample, parameter)``, ``log_weights``
 ``(step, sample)``, ``mixture_centres``/``_bandwidth``/``_log_weights`` or
@@ -34,9 +46,12 @@ and ``dataset_rows (step)``,
 ``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
 any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
 as JSON), ``dataset_sha256``, ``dataset_source``, ``state_step_size``,
-``initial_particles``, ``rng_state (rng_index)``; attributes ``config``,
-``model_fingerprint``, ``seqbayes_store_format``. Few variables keep a write
-fast (HDF5 pays per variable).
+``initial_particles``, ``rng_state (rng_index)``, ``likelihood_sha256 (step)``;
+attributes ``config`` (with the likelihood module's file and hash), ``model_fingerprint``,
+``content_sha256``, ``seqbayes_store_format``. The per-step sampler state is written by
+:meth:`RunStore._state_variables`, read by :func:`_read_state` and rebuilt by
+:meth:`RunStore.state_at` (with :meth:`RunStore._store_state` keeping it after a step).
+Few variables keep a write fast (HDF5 pays per variable).
 
 Why NetCDF (HDF5 underneath, through xarray and h5netcdf): the content is a set
 of labelled float64 arrays ``(step, sample, parameter)`` plus small metadata,
@@ -69,7 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import (NOT_FINGERPRINTED, ConfigError, DataError, ModuleSource, RunConfig, as_likelihood_data,
+from .config import (NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, as_likelihood_data,
                      check_table, dataset_digest, load_located, locate_module, read_datafile)
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
@@ -300,7 +315,8 @@ class RunStore:
         except StoreError:
             raise
         except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
-            what = f"missing variable or attribute {err}" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
+            what = (f"missing variable or attribute {err}" if isinstance(err, KeyError)
+                    else f"{type(err).__name__}: {err}")
             raise StoreError(f"{path}: damaged or inconsistent run store ({what})") from None
         store._stamp = stamp
         return store
@@ -699,7 +715,7 @@ class RunStore:
 
         Raises
         ------
-        DataError
+        seqbayes.config.DataError
             Complex, non-numeric, NaN/inf values or the wrong shape.
         DuplicateDatasetError
             Already assimilated.

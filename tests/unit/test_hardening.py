@@ -338,7 +338,8 @@ def test_damaged_stores_get_one_line_naming_the_file(tmp_path, capsys):
         ds = ds.load()
     ds.attrs["config"] = ds.attrs["config"].replace('"seed": 3', '"seed": 4')
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
-    cli_fails(capsys, ["status", tmp_path / "edited.nc"], r"edited.nc: damaged run store: the content hash", tmp_path / "edited.nc")
+    cli_fails(capsys, ["status", tmp_path / "edited.nc"], r"edited.nc: damaged run store: the content hash",
+              tmp_path / "edited.nc")
     # NetCDF-3 and a folder
     xr.Dataset({"x": ("i", np.zeros(2))}).to_netcdf(tmp_path / "classic.nc", engine="scipy")
     cli_fails(capsys, ["status", tmp_path / "classic.nc"], r"classic.nc: a NetCDF-3 \(classic\) file; run stores are "

@@ -1,0 +1,116 @@
+"""SIGKILL ``seqbayes update`` at random moments, many times, and check the store after each kill.
+
+The machinery is that of ``tests/unit/test_kill_resume.py`` (forked CLI children, so a kill
+lands in the likelihood evaluations or the write rather than in imports). One run assimilates
+``--steps`` datasets; every update is killed after a random delay, drawn from
+``uniform(0, 1.2)`` (half the kills) or ``uniform(0.85, 1.05)`` (the other half, near the
+write) times the duration of one update, until one completes; then the next dataset
+follows. After every kill the store must load, hold only completed steps, each
+bit-identical to an uninterrupted in-process run, with the generator states and step sizes
+of that run; a run that reaches the last dataset must equal the uninterrupted run bit for
+bit. Runs are repeated until ``--kills`` kills have been made.
+
+    python benchmarks/bench_kill.py --kills 200
+
+prints the number of kills, how many landed before the store was replaced (and of those, how many
+during the write of the temporary file) and after it, the number of completed runs and the time taken.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "unit")]
+
+from _user_model import decay_tables, write_config, write_model  # noqa: E402
+from test_kill_resume import assert_prefix_of_reference, fork_cli, wait  # noqa: E402
+
+from seqbayes import cli  # noqa: E402
+from seqbayes.config import load_config  # noqa: E402
+from seqbayes.store import RunStore  # noqa: E402
+
+
+def setup(folder: Path, n_steps: int) -> RunStore:
+    """The model, config and data files in ``folder``; returns the uninterrupted reference run."""
+    write_model(folder, "benchkillmodel")
+    write_config(folder / "run.toml", "benchkillmodel", kernel='a = { type = "drift", rate = -0.05, noise_std = 0.02 }',
+                 n_samples=120, seed=21)
+    with open(folder / "run.toml", "a") as fh:
+        fh.write('predictive = "transition"\n')
+    tables = decay_tables([1.5 - 0.05 * s for s in range(n_steps)], np.linspace(0, 3, 15), 0.1, seed=4)
+    for s, table in enumerate(tables):
+        np.savetxt(folder / f"d{s + 1}.csv", table, delimiter=",", header="t,y", comments="")
+    reference = RunStore.create(folder / "reference.nc", load_config(folder / "run.toml"))
+    for s in range(n_steps):
+        reference.update(folder / f"d{s + 1}.csv")
+    return reference
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--kills", type=int, default=200, help="SIGKILLs to make (default 200)")
+    parser.add_argument("--steps", type=int, default=6, help="datasets per run (default 6)")
+    parser.add_argument("--seed", type=int, default=20240611)
+    args = parser.parse_args(argv)
+    rng = np.random.default_rng(args.seed)
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        reference = setup(folder, args.steps)
+        run = folder / "killed.nc"
+        kills = lost = stored = torn = runs = 0
+        durations = []
+        while kills < args.kills:
+            assert cli.main(["init", str(folder / "run.toml"), str(run), "--force"]) == 0
+            for s in range(1, args.steps + 1):
+                while RunStore.open(run).n_steps < s:
+                    before = RunStore.open(run).n_steps
+                    t0 = time.perf_counter()
+                    pid = fork_cli(["update", str(run), str(folder / f"d{s}.csv")])
+                    if durations and kills < args.kills:
+                        # half the kills anywhere in the update, half near its end, where the store is written
+                        late = rng.uniform() < 0.5
+                        time.sleep((rng.uniform(0.85, 1.05) if late else rng.uniform(0.0, 1.2)) * np.median(durations))
+                        with contextlib.suppress(ProcessLookupError):
+                            os.kill(pid, signal.SIGKILL)
+                    code = wait(pid)
+                    if code == 0:
+                        durations.append(time.perf_counter() - t0)
+                    else:
+                        assert code == -signal.SIGKILL, code
+                        kills += 1
+                    store = RunStore.open(run)               # loads whatever the kill hit
+                    assert store.n_steps in (before, before + 1), (before, store.n_steps)
+                    if code != 0:
+                        lost += store.n_steps == before
+                        stored += store.n_steps == before + 1
+                        torn += any(p.name.startswith(f".{run.name}.tmp-") for p in folder.iterdir())
+                    assert_prefix_of_reference(store, reference)
+            final = RunStore.open(run)
+            assert final.n_steps == args.steps
+            assert_prefix_of_reference(final, reference)
+            np.testing.assert_array_equal(final.result.log_evidence, reference.result.log_evidence)
+            runs += 1
+            print(f"run {runs}: complete and bit-identical to the uninterrupted run; {kills} kills so far",
+                  flush=True)
+    elapsed = time.perf_counter() - start
+    print(f"{kills} SIGKILLs of `seqbayes update` ({lost} before the step was stored, of which {torn} left a "
+          f"half-written temporary file; {stored} after the store was replaced); after each the store loaded "
+          f"and every stored step was bit-identical; "
+          f"{runs} runs of {args.steps} datasets completed bit for bit; one update takes "
+          f"{np.median(durations):.2f} s; {elapsed:.0f} s in all")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
