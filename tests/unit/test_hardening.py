@@ -82,6 +82,27 @@ def test_a_copied_store_runs_no_module_it_did_not_record(tmp_path):
     assert RunStore.open(elsewhere / "run.nc").n_steps == 2
 
 
+def test_the_cli_on_a_copied_store_runs_no_foreign_module(tmp_path, capsys):
+    """The issue's probe: ``predict``, ``report`` and ``update`` on a store copied next to another
+    ``module.py``; none runs it (two work without any likelihood, update refuses in one line)."""
+    from seqbayes import cli
+
+    home, elsewhere = tmp_path / "home", tmp_path / "elsewhere"
+    make_run(home, "trustmodel_cli")
+    elsewhere.mkdir()
+    shutil.copy(home / "run.nc", elsewhere / "run.nc")
+    shutil.rmtree(home)
+    write_model(elsewhere, "trustmodel_cli", extra=MARKER)
+    np.savetxt(elsewhere / "next.csv", tables(2)[1], delimiter=",", header="t,y", comments="")
+    run = elsewhere / "run.nc"
+    assert cli.main(["predict", str(run), "--steps", "2"]) == 0
+    assert cli.main(["report", str(run), "--forecast", "1", "-o", str(elsewhere / "r.html")]) == 0
+    capsys.readouterr()
+    cli_fails(capsys, ["update", run, elsewhere / "next.csv"], r"next.csv: .*run.nc: the likelihood module changed "
+                                                                r"since the run recorded it .* it is not run", run)
+    assert not (elsewhere / "trustmodel_cli.ran").exists()
+
+
 def test_a_store_whose_module_is_nowhere_says_where_it_was(tmp_path):
     make_run(tmp_path / "home", "trustmodel_b")
     (tmp_path / "home" / "trustmodel_b.py").unlink()
