@@ -32,7 +32,7 @@ def _tails(level):
 def status_rows(store, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
-    Keys: ``step, dataset, acceptance_rate, ess, resampled, log_evidence_increment,
+    Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, resampled, log_evidence_increment,
     log_evidence, step_size, n_loglike_evals, wall_time, parameters`` where
     ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
     ``level`` interval).
@@ -43,7 +43,9 @@ def status_rows(store, level: float = 0.95) -> list[dict]:
         info = record.info
         mean, sd, q = record.mean(), record.std(), record.quantile([lo, hi])
         rows.append({
-            "step": int(info.step), "dataset": store.sources[i], "acceptance_rate": float(info.acceptance_rate),
+            "step": int(info.step), "dataset": store.sources[i],
+            "likelihood_sha256": store.module_hashes[i] if i < len(getattr(store, "module_hashes", ())) else "",
+            "acceptance_rate": float(info.acceptance_rate),
             "ess": float(info.ess), "resampled": bool(info.resampled),
             "log_evidence_increment": float(info.log_evidence_increment), "log_evidence": float(info.log_evidence),
             "step_size": float(info.step_size), "n_loglike_evals": int(info.n_loglike_evals),
@@ -73,6 +75,12 @@ def format_status(store, level: float = 0.95) -> str:
     for r in rows:
         lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {r['acceptance_rate']:7.3f} {r['ess']:8.1f} "
                      f"{r['ess'] / n:6.3f} {r['log_evidence_increment']:11.4f} {r['log_evidence']:11.4f}")
+    previous = rows[0]["likelihood_sha256"]
+    for r in rows[1:]:   # an edited likelihood module accepted with --accept-model-change
+        if r["likelihood_sha256"] != previous:
+            lines.append(f"note: the likelihood module changed at step {r['step']} (sha256 {previous[:12] or '?'} -> "
+                         f"{r['likelihood_sha256'][:12] or '?'})")
+            previous = r["likelihood_sha256"]
     pct = f"{level:.0%}"
     lines.append("")
     lines.append(f"{'step':>4}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}")

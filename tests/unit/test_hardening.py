@@ -139,6 +139,10 @@ def test_an_edited_module_is_noticed_and_its_hash_recorded_per_step_once_accepte
     assert reopened.module_hashes == [first, sha(tmp_path / "trustmodel_d.py")]
     assert reopened.config.likelihood_sha256 == sha(tmp_path / "trustmodel_d.py")
     reopened.assimilate(tables(3)[2])                     # the new content is now the recorded one
+    from seqbayes.report import format_status, status_rows
+
+    assert [r["likelihood_sha256"] for r in status_rows(reopened)] == reopened.module_hashes
+    assert f"note: the likelihood module changed at step 2 (sha256 {first[:12]} -> " in format_status(reopened)
 
 
 def test_loading_the_likelihood_leaves_sys_path_alone_and_shadows_nothing(tmp_path):
