@@ -43,7 +43,9 @@ def test_history_prior_skips_rows_already_at_zero():
 
 def test_auto_chooses_history_for_static_kernels_only():
     assert resolve_predictive("auto", STATIC) == "history"
-    assert resolve_predictive("auto", PROBLEM.kernel) == "transition"
+    assert resolve_predictive("auto", PROBLEM.kernel) == "smc2"  # a drifting and a static parameter
+    assert resolve_predictive("auto", MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])) == \
+        "transition"
     assert resolve_predictive("kde", STATIC) == "kde"
     with pytest.raises(ValueError, match="predictive: 'history' .* needs a kernel whose every parameter is Static"):
         resolve_predictive("history", PROBLEM.kernel)
