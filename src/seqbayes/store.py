@@ -743,9 +743,12 @@ class RunStore:
             sampler = self.sampler(base, executor=executor, loglike=function if loglike is None else loglike)
             info = sampler.update(as_likelihood_data(table, self.config))
             state, records, rng_state = sampler.snapshot()
+            if not isinstance(state, SamplerState) or not isinstance(state.prior, (GaussianMixture, HistoryPrior)):
+                kind = type(state).__name__ if not isinstance(state, SamplerState) else type(state.prior).__name__
+                raise StoreError(f"{self.path}: this seqbayes cannot store a sampler state of type {kind} yet "
+                                 f"(predictive = {self.config.predictive_method!r}); set predictive = \"transition\" "
+                                 f"under [sampler]; the run store is unchanged")
             _check_state(state, records[-1])
-            if not isinstance(state.prior, (GaussianMixture, HistoryPrior)):  # pragma: no cover - a core change
-                raise StoreError(f"cannot store a predictive prior of type {type(state.prior).__name__}")
             # commit to memory only now that the step succeeded
             self.result = _replace(sampler.result, steps=tuple(records))
             self._store_state(base, state, rng_state, table)
