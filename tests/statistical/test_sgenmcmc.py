@@ -160,6 +160,8 @@ def test_bad_arguments(wc1):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], proposal="langevin")
     with pytest.raises(ValueError, match="max_sweeps"):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], max_sweeps=0)
+    with pytest.raises(ValueError, match="blas_threads"):
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], blas_threads=0)
     with pytest.raises(ValueError, match="likelihood"):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], likelihood="particle")
     with pytest.raises(ValueError, match="enkf_members"):
