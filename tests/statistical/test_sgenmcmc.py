@@ -197,9 +197,10 @@ def test_online_interface_errors(wc1):
 
 
 def test_resample_move_with_the_enkf_likelihood():
-    # the general (EnKF-likelihood) path on a 2-storey building, 3 s: against the exact posterior. Measured
-    # on a 4 s record (200 particles, 30 and 100 members): z within 0.07, sd ratio 0.96-1.03; bound: 1 sd
-    # and 35 % (the EnKF likelihood's own bias and the short run's Monte Carlo error, not an accuracy claim)
+    # the general (EnKF-likelihood) path on a 2-storey building, 3 s, 100 particles x 30 members, against
+    # the exact posterior. Measured over 6 sampler seeds (20,000-draw reference): z mean 0.02 / 0.05, sd
+    # 0.11 / 0.045; sd ratio mean 0.91 / 0.92 (the 30-member EnKF likelihood is a little too sharp), sd
+    # 0.04 / 0.05. The 2,000-draw reference (ESS ~1260) adds 0.03 to z. Bounds: bias + 4 combined sds.
     from seqbayes.structures import ShearBuilding
     from seqbayes.studies.shake_table import synthetic_record
 
@@ -211,5 +212,5 @@ def test_resample_move_with_the_enkf_likelihood():
     run = sg.run(data["u"], data["y"], rng=1)
     z = (run.theta_mean[-1] - ref.mean) / ref.sd
     ratio = np.sqrt(run.theta_var[-1]) / ref.sd
-    assert np.all(np.abs(z) < 1.0), z
-    assert np.all(np.abs(ratio - 1) < 0.35), ratio
+    assert np.all(np.abs(z) < 0.05 + 4 * np.hypot(0.11, 0.03)), z
+    assert np.all(np.abs(ratio - 0.91) < 4 * np.hypot(0.053, 0.02)), ratio
