@@ -271,23 +271,34 @@ _TRUE = {"F_mu": model.MEASURED_FORCES, "omega_n": (model.OMEGA_N,) * 4}
 
 
 def tables_markdown(study: CoulombStudy) -> str:
-    """The analogues of Tables 4-13 (mean +- std over runs), with the paper's mean +- Stdev. beside."""
+    """The analogues of Tables 4-13 (mean +- std over runs), with the paper's mean +- Stdev. and the
+    exact grid filter's values (:func:`seqbayes.models.coulomb.load_exact_reference`) beside."""
     combos = list(study.results)
+    kernels = sorted({k for _, k in combos})
+    exact = {k: model.load_exact_reference(k) for k in kernels}
+
+    def exact_value(q, k, step):
+        if q == "log_evidence":
+            return exact[k].log_evidence[step]
+        return exact[k].mean[step, model.PARAMETER_NAMES.index(q)]
+
     n_runs = len(next(iter(study.results.values())))
     lines = [f"Runs per (sampler, kernel): {n_runs}; samples per run: "
              f"{study.results[combos[0]][0].steps[0].posterior.shape[0]}.", ""]
     for q in _QUANTITIES:
         label, what = _TITLES[q]
         lines += [f"### {label}: {what}", ""]
-        head = "| s |" + ("  true |" if q in _TRUE else "")
-        rule = "|---|" + ("---|" if q in _TRUE else "")
+        head = "| s |" + ("  true |" if q in _TRUE else "") + "".join(f" exact {k} |" for k in kernels)
+        rule = "|---|" + ("---|" if q in _TRUE else "") + "---|" * len(kernels)
         for s, k in combos:
             head += f" {s} {k} (ours) | paper |"
             rule += "---|---|"
         lines += [head, rule]
         n_steps = study.tables[(q, *combos[0])].shape[1]
         for step in range(n_steps):
+            fmt = ".4f" if q == "sigma_r" else ".3f"
             row = f"| {step + 1} |" + (f" {_TRUE[q][step]:.4g} |" if q in _TRUE else "")
+            row += "".join(f" {exact_value(q, k, step):{fmt}} |" for k in kernels)
             for s, k in combos:
                 m, sd = study.tables[(q, s, k)][:, step]
                 paper, paper_sd = PAPER.get((q, s, k)), PAPER_STD.get((q, s, k))
