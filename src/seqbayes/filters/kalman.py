@@ -196,38 +196,51 @@ def _chandrasekhar_transient(model, H, yw, u, mean, loglik, process_noise_std, s
     N, m = mean.shape
     p = H.shape[1]
     T = yw.shape[0]
-    L = B0 + B1  # P_1 - P_0 = Q = s_w^2 b b^T
+    # W = [mean, L]: the two vectors share every product with A, H, S^-1 and K_bar
+    W = np.stack([mean, B0 + B1], axis=2)  # L_0 = b: P_1 - P_0 = Q = s_w^2 b b^T
     M = np.full(N, float(process_noise_std) ** 2)
-    P = np.zeros((N, m, m))
     S_inv = np.broadcast_to(np.eye(p), (N, p, p)).copy()  # S_0 = H P_0 H^T + I = I
     logdet = np.zeros(N)
     K_bar = np.zeros((N, m, p))  # A P_k H^T (the unnormalised predicted-form gain)
+    increments_L, increments_M = [], []  # P_k = sum_{j<k} M_j L_j L_j^T, summed once at the end
+    diag_P = np.zeros((N, m))  # for the steady test: max |P_ij| = max P_ii (P is PSD)
+
+    def covariance():
+        if not increments_L:
+            return np.zeros((N, m, m))
+        Ls, Ms = np.array(increments_L), np.array(increments_M)  # (k, N, m), (k, N)
+        return np.einsum("kn,kni,knj->nij", Ms, Ls, Ls)
+
     for k in range(T):  # loop over time only
-        e = yw[k] - np.einsum("npm,nm->np", H, mean)
-        Se = np.einsum("npq,nq->np", S_inv, e)
-        loglik -= 0.5 * (logdet + np.einsum("np,np->n", e, Se))
+        HW = H @ W  # (N, p, 2): H mean, v = H L
+        HW[:, :, 0] = yw[k] - HW[:, :, 0]  # innovation e
+        SE = S_inv @ HW  # S^-1 e, S^-1 v
+        e, Se = HW[:, :, 0], SE[:, :, 0]
+        loglik -= 0.5 * (logdet + (e * Se).sum(axis=1))
         if k + 1 == T:  # filter the last step: m + P H^T S^-1 e, P - P H^T S^-1 H P
+            P = covariance()
             PHt = P @ np.swapaxes(H, 1, 2)
-            mean = mean + np.einsum("nmp,np->nm", PHt, Se)
+            mean = W[:, :, 0] + (PHt @ Se[:, :, None])[:, :, 0]
             P = P - PHt @ S_inv @ np.swapaxes(PHt, 1, 2)
             return k, mean, 0.5 * (P + np.swapaxes(P, 1, 2)), loglik, T
-        mean = np.einsum("nij,nj->ni", A, mean) + B0 * u[k] + B1 * u[k + 1] + np.einsum("nmp,np->nm", K_bar, Se)
-        v = np.einsum("npm,nm->np", H, L)  # H L_k
-        AL = np.einsum("nij,nj->ni", A, L)
-        L_next = AL - np.einsum("nmp,np->nm", K_bar, np.einsum("npq,nq->np", S_inv, v))  # (A - K_k H) L_k
-        K_bar = K_bar + (M[:, None] * AL)[:, :, None] * v[:, None, :]
-        Sv = np.einsum("npq,nq->np", S_inv, v)
-        denominator = 1.0 + M * np.einsum("np,np->n", v, Sv)
+        AW = A @ W
+        KS = K_bar @ SE  # K_bar S^-1 e, K_bar S^-1 v
+        v, Sv, L = HW[:, :, 1], SE[:, :, 1], W[:, :, 1]
+        W = np.stack([AW[:, :, 0] + B0 * u[k] + B1 * u[k + 1] + KS[:, :, 0],  # predicted mean of k + 1
+                      AW[:, :, 1] - KS[:, :, 1]], axis=2)  # L_{k+1} = (A - K_k H) L_k
+        K_bar = K_bar + (M[:, None] * AW[:, :, 1])[:, :, None] * v[:, None, :]
+        denominator = 1.0 + M * (v * Sv).sum(axis=1)
         S_inv = S_inv - (M / denominator)[:, None, None] * Sv[:, :, None] * Sv[:, None, :]  # Sherman-Morrison
         logdet = logdet + np.log(denominator)
-        increment = M[:, None, None] * L[:, :, None] * L[:, None, :]
-        P = P + increment  # predicted covariance of step k + 1
+        increments_L.append(L)
+        increments_M.append(M)
+        L2 = L * L
+        diag_P += M[:, None] * L2
         M = M / denominator
-        L = L_next
         if steady_tol > 0 and k > 0:
-            change = np.abs(increment).max(axis=(1, 2)) / np.abs(P).max(axis=(1, 2)).clip(1e-300)
+            change = increments_M[-1] * L2.max(axis=1) / diag_P.max(axis=1).clip(1e-300)
             if np.all(change < steady_tol):
-                return k + 1, mean, P, loglik, k + 1
+                return k + 1, W[:, :, 0].copy(), covariance(), loglik, k + 1
     raise AssertionError("unreachable")  # pragma: no cover
 
 
