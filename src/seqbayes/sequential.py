@@ -140,6 +140,9 @@ class SamplerConfig:
         With 1 (the paper's SMC) the error of a static parameter after 5 steps grows ~1.5x.
     proposal_scale : float
         SMC's ``gamma`` of Eq. (A7).
+    n_inner : int
+        SMC^2 (static and drifting parameters): particles of the default inner filter
+        (:class:`~seqbayes.nested.ParticleInnerFilter`) per outer particle (100).
     transform : bool
         Move in unconstrained coordinates (log / logit of bounded parameters; see
         :mod:`seqbayes.transforms`). ``False`` moves in the parameters' own
@@ -182,6 +185,7 @@ class SamplerConfig:
     n_independent: int = 3
     min_evidence_ess: float = 0.3
     max_refits: int = 5
+    n_inner: int = 100
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -222,6 +226,8 @@ class SamplerConfig:
             raise ValueError(f"n_moves: {self.n_moves} exceeds max_virtual {self.max_virtual}")
         if not self.proposal_scale > 0:
             raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
+        if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
+            raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -820,7 +826,7 @@ class _SequentialSampler:
         if history is not None and not isinstance(history, RunningStatistics):
             raise TypeError("history: expected a seqbayes.RunningStatistics(summarise, loglike)")
         if self.config.predictive == "smc2":
-            inner_filter = ParticleInnerFilter() if inner_filter is None else inner_filter
+            inner_filter = ParticleInnerFilter(self.config.n_inner) if inner_filter is None else inner_filter
             if not (hasattr(inner_filter, "advance") and hasattr(inner_filter, "draws")):
                 raise TypeError("inner_filter: expected a seqbayes.ParticleInnerFilter or KalmanInnerFilter")
         elif inner_filter is not None:

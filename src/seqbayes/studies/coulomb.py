@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import nested
 from ._runner import map_tasks
 from ..models import coulomb as model
 
@@ -44,8 +43,7 @@ __all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study"
 #: 30 inner particles per outer particle (not the default 100) meet the exact grid reference at every
 #: step (``benchmarks/bench_coulomb_exact.py``: within 0.2 posterior sd and 15 % in every run) at a
 #: third of the cost, because the kernels' noise (0.04 N) is about one posterior sd of F_mu.
-SAMPLER_SETTINGS = {"SEMC": {"inner_filter": nested.ParticleInnerFilter(30)},
-                    "SMC": {"inner_filter": nested.ParticleInnerFilter(30)}}
+SAMPLER_SETTINGS = {"SEMC": {"n_inner": 30}, "SMC": {"n_inner": 30}}
 
 #: The paper's tables (Tables 4-13), mean over its 10 runs, per step 1..4: {(table, sampler, kernel): values}.
 PAPER = {
