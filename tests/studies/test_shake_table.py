@@ -55,3 +55,26 @@ def test_laplace_and_aies_reference_agree():
     assert 0.3 < ref.acceptance_rate < 0.9
     np.testing.assert_array_less(np.abs(ref.samples.mean(axis=0) - mode) / sd, 0.5)
     np.testing.assert_allclose(ref.samples.std(axis=0), sd, rtol=0.3)
+
+
+def test_exact_posterior_by_importance_sampling_agrees_with_laplace():
+    data = shake_table.make_data(shake_table.CASES["wc1"], duration=4.0, rng=0)
+    ref = shake_table.exact_posterior(data, n=1000, rng=0, adapt=1)
+    mode, cov = shake_table.laplace_posterior(data, data["theta"])
+    sd = np.sqrt(np.diag(cov))
+    assert ref.ess > 300  # measured 525-552 over 4 seeds (1,000 draws)
+    # near-Gaussian posterior: the IS mean and sd match the Laplace fit; measured over 4 seeds: within
+    # 0.07 sd and 4 % (MC error ~1 / sqrt(ESS) = 0.04 sd); bounds 0.3 sd and 20 %
+    assert np.all(np.abs(ref.mean - mode) / sd < 0.3), (ref.mean - mode) / sd
+    assert np.all(np.abs(ref.sd / sd - 1) < 0.2), ref.sd / sd
+    assert np.all((ref.q025 < ref.mean) & (ref.mean < ref.q975))
+
+
+def test_synthetic_record_of_any_building():
+    from seqbayes.structures import ShearBuilding
+
+    b = ShearBuilding(np.array([12.0, 10.0]) * 1e3, np.array([20.0, 14.0]) * 1e6)
+    one = shake_table.synthetic_record(b, [0.8, 0.9], 2.0, rng=4)
+    two = shake_table.synthetic_record(b, [0.8, 0.9], 2.0, rng=4)
+    assert one["y"].shape == (101, 2) and one["u"].shape == (101,) and one["drifts"].shape == (101, 2)
+    assert np.array_equal(one["y"], two["y"]) and np.all(one["noise_std"] > 0)
