@@ -158,15 +158,16 @@ def test_kalman_bank_steps_equal_the_batched_filter():
     np.testing.assert_array_equal(sub.step(m2, P2, y[0])[2], bank.step(*bank.initial_state(), y[0])[2][[2, 0]])
 
 
+@pytest.mark.parametrize("chandrasekhar", [True, False])
 @pytest.mark.parametrize("T", [40, 300])
-def test_fast_log_likelihood_returns_the_filtered_state(T):
+def test_fast_log_likelihood_returns_the_filtered_state(T, chandrasekhar):
     # T = 40 ends in the transient, T = 300 in the steady-state phase (steady from step 173)
     model, u, y, std, sw = _data(300)
     thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9]])
     batch = discretise(FRAME, thetas, 0.02)
     ref = kalman_filter(batch, u[:T], y[:T], std, sw, store=True)
     ll, steady, mean, P = kalman_log_likelihood(batch, u[:T], y[:T], std, sw, return_steady_step=True,
-                                                return_state=True)
+                                                return_state=True, chandrasekhar=chandrasekhar)
     assert (steady < T) == (T == 300)
     np.testing.assert_allclose(ll, ref.log_likelihood, rtol=0, atol=1e-6)
     scale = np.abs(ref.filtered_means[:, -1]).max()

@@ -150,7 +150,7 @@ def kalman_filter(model: DiscreteModel, ground_acceleration, measurements, measu
     return KalmanResult(loglik, incs, means, P)
 
 
-def _sequential_update(mean, P, H, Ht, HHt, yw_k):
+def _sequential_update(mean, P, H, Ht, yw_k):
     """Kalman update with whitened channels ``y_w = H X + v``, ``v ~ N(0, I)``,
     processed one scalar at a time, but with one batched product before and
     one after: the channel-``j`` columns ``P_j h_l`` of the later channels are
@@ -312,12 +312,11 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
     steady = T
     P_prior = None  # the previous step's predicted covariance (steady-state test)
     Ht = np.swapaxes(H, 1, 2).copy()
-    HHt = H @ Ht  # (N, p, p): h_j . h_l of the whitened channels
     if P0 is None and chandrasekhar:  # (1) transient from a known state: rank-1 covariance increments
         k, mean, P, loglik, steady = _chandrasekhar_transient(model, H, yw, u, mean, loglik, process_noise_std,
                                                               steady_tol)
     while k < T and steady == T and not (P0 is None and chandrasekhar):  # (1) transient, channels one at a time
-        mean, P, increment = _sequential_update(mean, P, H, Ht, HHt, yw[k])
+        mean, P, increment = _sequential_update(mean, P, H, Ht, yw[k])
         loglik += increment
         if k + 1 == T:
             break
@@ -442,7 +441,7 @@ class KalmanBank:
             mean = np.einsum("nij,nj->ni", model.A, mean) + model.B0 * u_prev + model.B1 * u_now
             P = model.A @ P @ self.At + self.Q
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
-        mean, P, increment = _sequential_update(mean, P, self.H, self.Ht, None, yw)
+        mean, P, increment = _sequential_update(mean, P, self.H, self.Ht, yw)
         return mean, P, increment + self.constant
 
     def freeze(self, P) -> "KalmanBank":
