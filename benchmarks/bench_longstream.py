@@ -21,8 +21,9 @@ evaluations per update over s = 900-1000 against s = 10-20.
 ``predictive``: the older predictives (Liu-West transition mixture, the paper's KDE) on the
 mixed problem, for their long-stream errors.
 
-``particles``: against ``particles``' SMC^2 (``pip install particles``) on the mixed problem,
-paired per seed, same N_theta and N_x, both with bootstrap inner filters.
+``particles``: against ``particles``' SMC^2 (``make bench`` installs it) on the mixed problem,
+paired per seed, the same N_x and bootstrap inner filters; particles with its defaults (waste-free,
+chains of 10) and with 5 PMMH steps per rejuvenation, ours at N and 4 N.
 """
 
 from __future__ import annotations
@@ -188,49 +189,51 @@ def particles_comparison(args):
 
     prior = dists.StructDist({"c": dists.Normal(problem.prior_mean[2], problem.prior_std[2]),
                               "e": dists.Normal(problem.prior_mean[3], problem.prior_std[3])})
-    rows = {"particles SMC^2": [], "seqbayes SMC (SMC^2)": [], "seqbayes SEMC (SMC^2)": []}
+    particles_settings = {"particles SMC^2, defaults (waste-free)": {},
+                          "particles SMC^2, 5 PMMH steps (not waste-free)": {"wastefree": False, "len_chain": 5}}
+    ours = {f"seqbayes {cls.__name__} (SMC^2), N = {n}": (cls, n) for n in (args.n, 4 * args.n)
+            for cls in (seqbayes.SMC, seqbayes.SEMC)}
+    rows = {label: [] for label in (*particles_settings, *ours)}
     times = {k: [] for k in rows}
+
+    def record_errors(label, mean, std, log_evidence, final):
+        sd = np.sqrt(np.diag(final.cov))[2:]
+        rows[label].append((float(np.max(np.abs(mean - final.mean[2:]) / sd)), float(np.max(np.abs(std / sd - 1))),
+                            float(abs(log_evidence - final.log_evidence))))
+
     for seed in range(args.seeds):
         data, _ = problem.simulate(args.steps, rng=3000 + seed)
-        exact = problem.exact(data)
-        final = exact[-1]
-        # particles
-        np.random.seed(seed)  # particles draws from numpy's global generator
-        fk = ssp.SMC2(ssm_cls=Mixed, prior=prior, data=[y for y in data], init_Nx=args.m, ar_to_increase_Nx=-1.0,
-                      len_chain=1)
-        pf = particles.SMC(fk=fk, N=args.n, collect=[], verbose=False)
-        start = time.perf_counter()
-        pf.run()
-        times["particles SMC^2"].append(time.perf_counter() - start)
-        w = pf.W
-        theta = np.column_stack([pf.X.theta["c"], pf.X.theta["e"]])
-        mean = w @ theta
-        std = np.sqrt(w @ (theta - mean) ** 2)
-        sd = np.sqrt(np.diag(final.cov))[2:]
-        rows["particles SMC^2"].append((float(np.max(np.abs(mean - final.mean[2:]) / sd)),
-                                        float(np.max(np.abs(std / sd - 1))), float(abs(pf.logLt - final.log_evidence))))
-        for cls, label in ((seqbayes.SMC, "seqbayes SMC (SMC^2)"), (seqbayes.SEMC, "seqbayes SEMC (SMC^2)")):
-            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+        final = problem.exact(data)[-1]
+        for label, settings in particles_settings.items():
+            np.random.seed(seed)  # particles draws from numpy's global generator
+            fk = ssp.SMC2(ssm_cls=Mixed, prior=prior, data=[y for y in data], init_Nx=args.m,
+                          ar_to_increase_Nx=-1.0, **settings)  # a fixed N_x, as ours
+            pf = particles.SMC(fk=fk, N=args.n, collect=[], verbose=False)
+            start = time.perf_counter()
+            pf.run()
+            times[label].append(time.perf_counter() - start)
+            theta = np.column_stack([pf.X.theta["c"], pf.X.theta["e"]])
+            mean = pf.W @ theta
+            record_errors(label, mean, np.sqrt(pf.W @ (theta - mean) ** 2), pf.logLt, final)
+        for label, (cls, n) in ours.items():
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=seed,
                           inner_filter=ParticleInnerFilter(args.m))
             start = time.perf_counter()
-            result = sampler.run(data)
+            last = sampler.run(data).steps[-1]
             times[label].append(time.perf_counter() - start)
-            record = result.steps[-1]
-            rows[label].append((float(np.max(np.abs(record.mean()[2:] - final.mean[2:]) / sd)),
-                                float(np.max(np.abs(record.std()[2:] / sd - 1))),
-                                float(abs(record.info.log_evidence - final.log_evidence))))
+            record_errors(label, last.mean()[2:], last.std()[2:], last.info.log_evidence, final)
         print(f"seed {seed}: " + "; ".join(f"{k}: {times[k][-1]:.1f} s, {rows[k][-1][0]:.3f} sd, {rows[k][-1][2]:.3f} nats"
                                            for k in rows), flush=True)
-    print(f"\n### Against particles' SMC^2: mixed problem, {args.steps} datasets, N_theta = {args.n}, "
-          f"N_x = {args.m}, {args.seeds} paired seeds (static parameters' errors at the last step)\n")
-    print("| sampler | wall time, s (median) | time / particles (median of paired ratios) | RMS mean err / sd | "
-          "RMS sd err | RMS log Z err |")
+    print(f"\n### Against particles' SMC^2: mixed problem, {args.steps} datasets, N_x = {args.m}, "
+          f"{args.seeds} paired seeds (static parameters' errors at the last step)\n")
+    print("| sampler | wall time, s (median) | time / particles' defaults (median of paired ratios) | "
+          "RMS mean err / sd | RMS sd err | RMS log Z err |")
     print("|---|---|---|---|---|---|")
-    base = np.array(times["particles SMC^2"])
+    base = np.array(times["particles SMC^2, defaults (waste-free)"])
     for label, e in rows.items():
         e, t = np.array(e), np.array(times[label])
         rms = np.sqrt(np.mean(e**2, axis=0))
-        print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.2f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
+        print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.3f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
 
 
 def main():
@@ -242,7 +245,7 @@ def main():
     parser.add_argument("--m", type=int, default=100, help="inner particles (particle inner filter)")
     parser.add_argument("--inner", choices=("kalman", "pf"), default="kalman")
     args = parser.parse_args()
-    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (10, 100)}[args.case]
+    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30)}[args.case]
     args.seeds = defaults[0] if args.seeds is None else args.seeds
     args.steps = defaults[1] if args.steps is None else args.steps
     {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison}[args.case](args)
