@@ -159,7 +159,8 @@ def _range_with_mass(log_marginal, axis, tail_mass):
 
 
 def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=None, n_coarse=201,
-                  tail_mass: float = 1e-40, max_rounds: int = 12) -> tuple[np.ndarray, ...]:
+                  tail_mass: float = 1e-40, max_rounds: int = 12, points_per_sd: float | None = None,
+                  scales=None, max_points: int = 2001) -> tuple[np.ndarray, ...]:
     """A data-centred fine grid: the range of every marginal of ``exp(log_target)`` but for
     ``tail_mass`` of its mass in each tail.
 
@@ -190,6 +191,14 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
         oscillator's likelihood is only ~40 nats below its peak wherever the model
         response has died out).
     max_rounds : int
+    points_per_sd : float, optional
+        If given, an axis gets more than ``n_points`` when needed to put this many
+        points in the smaller of its marginal sd (estimated on the coarse grid) and its
+        ``scales`` entry (up to ``max_points``): wide ranges kept for far tails stay resolved.
+    scales : array_like, shape (d,), optional
+        A further length per axis to resolve (e.g. the transition's width in the
+        previous step's coordinates); ``inf`` for none.
+    max_points : int
 
     Returns
     -------
@@ -208,6 +217,9 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
     n_coarse = np.broadcast_to(np.asarray(n_coarse, dtype=int), (d,)) | 1
     window[:, 0] = np.maximum(window[:, 0], hard[:, 0])
     window[:, 1] = np.minimum(window[:, 1], hard[:, 1])
+    if np.any(window[:, 1] <= window[:, 0]):     # e.g. a predictive that left the box entirely
+        raise ValueError(f"log_target: zero everywhere on the window {window.tolist()} (outside the hard bounds)")
+    n_fine = n_points.copy()
     for _ in range(max_rounds):
         axes = [fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_coarse[j]) for j in range(d)]
         values = _clean(log_target(axes))
@@ -235,7 +247,14 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
             break
     else:
         raise RuntimeError(f"adaptive_axes: the grid range did not settle in {max_rounds} rounds ({window.tolist()})")
-    return tuple(fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_points[j]) for j in range(d))
+    if points_per_sd is not None:
+        _, sd = marginal_moments(values, axes)
+        scale = np.full(d, np.inf) if scales is None else np.asarray(scales, dtype=float)
+        length = np.minimum(sd, scale) / float(points_per_sd)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            needed = np.where(length > 0, np.ceil((window[:, 1] - window[:, 0]) / length), n_points)
+        n_fine = np.clip(np.nan_to_num(needed, nan=0.0, posinf=max_points), n_points, max_points).astype(int) | 1
+    return tuple(fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_fine[j]) for j in range(d))
 
 
 def _transition_matrix(new_axis, old_axis, nominal, noise_std) -> np.ndarray:
@@ -355,6 +374,33 @@ class GridReference:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
 
+    def errors(self, mean, std, log_evidence) -> dict:
+        """A sampler's errors against this reference, step by step.
+
+        Parameters
+        ----------
+        mean, std : array_like, shape (S', d)
+            The sampler's posterior means and sds for the first ``S' <= S`` steps
+            (e.g. ``Result.means()``, ``Result.stds()``).
+        log_evidence : array_like, shape (S',)
+            Its cumulative log-evidence.
+
+        Returns
+        -------
+        dict
+            ``"mean_sd" (S', d)``: (sampler - exact) / exact sd; ``"std_ratio" (S', d)``:
+            sampler sd / exact sd - 1; ``"log_evidence" (S',)``: sampler - exact [nats].
+        """
+        mean, std = np.atleast_2d(np.asarray(mean, dtype=float)), np.atleast_2d(np.asarray(std, dtype=float))
+        log_evidence = np.atleast_1d(np.asarray(log_evidence, dtype=float))
+        n = log_evidence.size
+        d = self.mean.shape[1]
+        if mean.shape != (n, d) or std.shape != (n, d) or n > self.log_evidence.size:
+            raise ValueError(f"mean, std, log_evidence: expected shapes (S, {d}), (S, {d}), (S,) with "
+                             f"S <= {self.log_evidence.size}; got {mean.shape}, {std.shape}, {log_evidence.shape}")
+        return {"mean_sd": (mean - self.mean[:n]) / self.std[:n], "std_ratio": std / self.std[:n] - 1.0,
+                "log_evidence": log_evidence - self.log_evidence[:n]}
+
     def rows(self) -> list[dict]:
         """One dict per (step, quantity): ``step, quantity, mean, std`` (``std`` empty for the evidence)."""
         out = []
@@ -368,7 +414,8 @@ class GridReference:
 
 def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Sequence[Callable],
                 noise_stds, n_points, *, first_window=None, hard=None, n_coarse=201,
-                tail_mass: float = 1e-40, widen: float = 20.0) -> list[GridStep]:
+                tail_mass: float = 1e-40, widen: float = 20.0, points_per_sd: float | None = None,
+                max_points: int = 2001) -> list[GridStep]:
     """Grid filter under a uniform box prior and a per-parameter Gaussian kernel.
 
     Parameters
@@ -397,6 +444,9 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
     widen : float
         The step-``s > 1`` window is the previous grid carried through ``Gamma`` and
         widened by ``widen`` noise stds each side.
+    points_per_sd, max_points
+        As :func:`adaptive_axes`; the transition's width in the previous step's
+        coordinates, ``q_j / |dGamma_j/dtheta_j|``, is a length to resolve too.
 
     Returns
     -------
@@ -412,6 +462,12 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
     if len(nominals) != d:
         raise ValueError(f"nominals: expected {d} callables, got {len(nominals)}")
     log_volume = float(np.sum(np.log(box[:, 1] - box[:, 0])))
+    scales = np.full(d, np.inf)          # the transition's width seen from the previous grid
+    for j in range(d):
+        if noise[j] > 0:
+            ends = np.asarray(nominals[j](box[j]), dtype=float)
+            slope = abs(ends[1] - ends[0]) / (box[j, 1] - box[j, 0])
+            scales[j] = noise[j] / slope if slope > 0 else np.inf
     steps: list[GridStep] = []
     for s, dataset in enumerate(datasets):
         bounds = box if hard is None else np.array(hard(s, dataset), dtype=float)
@@ -435,7 +491,8 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
             fixed = [prev.axes[j] if noise[j] == 0 else None for j in range(d)]
         try:
             step = grid_update(log_target, window, n_points, hard=bounds, fixed=fixed, n_coarse=n_coarse,
-                               tail_mass=tail_mass)
+                               tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
+                               max_points=max_points)
         except ValueError as err:
             if "zero everywhere" in str(err):
                 break

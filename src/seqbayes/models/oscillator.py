@@ -46,6 +46,12 @@ decimal (2 for the slope of ``c``) and the noise stds to 1 decimal for ``k``
 ``c``; their 1.5x linear kernel for ``k`` is ``round(1.5 b, 1) * 1.5``
 (2.25 x, a slip); and their closures capture the whole rate matrix rather
 than this run's rate. We use the unrounded values and exactly 0.8x / 1.5x.
+
+Exact reference. :func:`exact_grid_reference` gives the exact posterior moments and
+cumulative evidence at every step for one run and kernel (a grid filter,
+:mod:`seqbayes.reference`); :func:`study_grid_references` does every run and kernel of
+the study and :func:`load_exact_references` reads the bundled table of them
+(``docs/exact_references.md``).
 """
 
 from __future__ import annotations
@@ -66,7 +72,8 @@ __all__ = [
     "truncated_exponential", "DegradationPath", "simulate_degradation",
     "OscillatorDataset", "simulate_inspections",
     "KernelFit", "fit_kernels", "OscillatorProblem", "make_problem",
-    "exact_grid_reference", "study_problem", "study_grid_references",
+    "exact_grid_reference", "study_problem", "study_grid_references", "load_exact_references",
+    "EXACT_REFERENCE_FILE",
 ]
 
 MASS = 0.30            #: m [kg]
@@ -501,19 +508,43 @@ def _grid_log_likelihood(axes, dataset: OscillatorDataset) -> np.ndarray:
     return log_likelihood(np.column_stack([kk.ravel(), cc.ravel()]), dataset).reshape(kk.shape)
 
 
-def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 301, tail_mass: float = 1e-40,
-                         first_half_width: float = 15.0, n_coarse: int = 201):
+def _references_agree(a, b, tolerance: float) -> bool:
+    """Cumulative log-evidence within ``tolerance`` nats, means within ``tolerance`` sds and
+    sds within ``tolerance`` (relative) at every step (zero-evidence steps must coincide)."""
+    finite = np.isfinite(a.log_evidence)
+    if not np.array_equal(finite, np.isfinite(b.log_evidence)):
+        return False
+    if not finite.any():
+        return True
+    return bool(np.all(np.abs(a.log_evidence[finite] - b.log_evidence[finite]) <= tolerance)
+                and np.all(np.abs(a.mean[finite] - b.mean[finite]) <= tolerance * b.std[finite])
+                and np.all(np.abs(a.std[finite] / b.std[finite] - 1.0) <= tolerance))
+
+
+def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201, points_per_sd: float = 5.0,
+                         tail_mass: float = 1e-100, ridge_factors=(2.0, 3.0, 4.5, 6.75, 10.0, 15.0),
+                         tolerance: float = 1e-3, n_coarse: int = 201, max_points: int = 2001):
     """Exact posterior moments of ``(k, c)`` and cumulative log-evidence at every step.
 
     A grid filter (:func:`seqbayes.reference.grid_filter`) under the uniform box prior:
     Eq. (12)'s likelihood evaluated on a data-centred grid, the predictive of the next
     step the convolution of the grid posterior with the kernel's Gaussian transition
     around ``Gamma(theta)`` (both parameters move), restricted to the box at every
-    step (mass predicted outside it is lost, as in the samplers). Step 1's grid lies
-    within ``first_half_width`` likelihood stds (from the curvature) of the likelihood's
-    mode: beyond about 9 stds the likelihood is a plateau ~40 nats below its peak
-    (wherever the model response has died out or lost phase), which over the whole box
-    holds ~1e-12 of the step-1 mass; it is neglected.
+    step (mass predicted outside it is lost, as in the samplers). Each grid keeps the
+    posterior's tails down to ``tail_mass`` and resolves the smaller of the posterior
+    sd and the transition's width with ``points_per_sd`` points.
+
+    The step-1 likelihood has a long ridge towards large ``(k, c)`` (a stiffer, more
+    damped oscillator fits the record almost as well: about 12 nats below the peak at
+    1.5 times the mode's ``k``, 27 at 3 times), and a decay kernel that is faster than
+    the data's can make later posteriors live on it: on run 9 with T2 the step-6
+    posterior of ``k`` comes from step-1 values near 4-9 times the mode. So step 1's grid
+    spans ``k`` from 15 likelihood sds below the mode up to ``f`` times the mode and
+    ``c`` up to critical damping there (the likelihood is zero beyond), and ``f`` runs
+    through ``ridge_factors`` until two consecutive results agree within ``tolerance``
+    (nats, sds, relative sds) at every step. The likelihood's plateau ~40 nats below its
+    peak far from the ridge (where the model response has died out or lost phase) is
+    outside the window; it holds ~1e-12 of the step-1 mass.
 
     Parameters
     ----------
@@ -522,13 +553,17 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 301,
         With one component per parameter (``Decay``/``Drift``/``Static``), e.g.
         ``make_problem(...).kernels["T2"].kernel``.
     n_points : int
-        Fine grid points per axis (made odd).
+        Least fine grid points per axis (made odd).
+    points_per_sd : float
+        Grid points per posterior sd (or transition width), up to ``max_points`` per axis.
     tail_mass : float
         Each grid leaves at most this much of each marginal's mass outside, per side.
-    first_half_width : float
-        Step 1's window, in likelihood stds around the mode.
-    n_coarse : int
-        Coarse points per axis for locating the grid.
+    ridge_factors : sequence of float
+        Step 1's upper ``k`` in multiples of the likelihood's mode, tried in turn.
+    tolerance : float
+        Agreement that ends the ridge search.
+    n_coarse, max_points : int
+        Coarse points per axis for locating the grid; most fine points per axis.
 
     Returns
     -------
@@ -536,6 +571,8 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 301,
         ``mean``, ``std`` of shape ``(S, 2)`` (``k``, ``c``) and the cumulative
         ``log_evidence (S,)``; after a step with zero evidence (no predictive mass
         where the likelihood is positive) the evidence is ``-inf`` and the moments NaN.
+        ``settings["ridge_factor"]`` is the factor used, ``settings["converged"]``
+        whether the last two agreed.
     """
     from .. import reference
 
@@ -547,13 +584,25 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 301,
         raise TypeError("kernel: expected a MarkovKernel with one component per parameter (k, c)")
     box = np.array([PRIOR_BOUNDS["k"], PRIOR_BOUNDS["c"]])
     mode, sd, _ = _likelihood_mode(datasets[0])
-    window = np.column_stack([mode - first_half_width * sd, mode + first_half_width * sd])
-    steps = reference.grid_filter(datasets, _grid_log_likelihood, box, [c.nominal for c in kernel.components],
-                                  kernel.noise_std, n_points, first_window=window, n_coarse=n_coarse,
-                                  tail_mass=tail_mass)
-    settings = {"n_points": int(n_points) | 1, "tail_mass": float(tail_mass), "n_coarse": int(n_coarse) | 1,
-                "first_half_width": float(first_half_width), "kernel": kernel.describe()}
-    return reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)
+    nominals = [c.nominal for c in kernel.components]
+    previous, converged = None, False
+    for factor in ridge_factors:
+        k_hi = min(box[0, 1], factor * mode[0])
+        window = np.array([[max(box[0, 0], mode[0] - 15.0 * sd[0]), k_hi],
+                           [max(box[1, 0], mode[1] - 15.0 * sd[1]), min(box[1, 1], 2.0 * np.sqrt(MASS * k_hi))]])
+        steps = reference.grid_filter(datasets, _grid_log_likelihood, box, nominals, kernel.noise_std, n_points,
+                                      first_window=window, n_coarse=n_coarse, tail_mass=tail_mass,
+                                      points_per_sd=points_per_sd, max_points=max_points)
+        settings = {"n_points": int(n_points) | 1, "points_per_sd": float(points_per_sd),
+                    "tail_mass": float(tail_mass), "n_coarse": int(n_coarse) | 1, "ridge_factor": float(factor),
+                    "first_window": window.round(6).tolist(), "kernel": kernel.describe()}
+        current = reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)
+        if previous is not None and _references_agree(current, previous, tolerance):
+            converged = True
+            break
+        previous = current
+    current.settings["converged"] = converged
+    return current
 
 
 def study_problem(run: int, seed: int = 0) -> OscillatorProblem:
@@ -575,3 +624,24 @@ def study_grid_references(runs=range(10), kernels=("T1", "T2", "T3", "T4", "T5",
         for name in kernels:
             out[(run, name)] = exact_grid_reference(problem.datasets, problem.kernels[name].kernel, **kwargs)
     return out
+
+
+#: Bundled output of :func:`study_grid_references` (see ``data/PROVENANCE_exact_references.md``).
+EXACT_REFERENCE_FILE = "data/oscillator_exact_reference.csv"
+
+
+def load_exact_references() -> dict:
+    """The bundled exact grid references of the study (seed 0, runs 0-9, kernels T1-T6;
+    :func:`study_grid_references` at its defaults), without recomputing them.
+
+    Returns
+    -------
+    dict (run, kernel) -> seqbayes.reference.GridReference
+        ``mean``, ``std`` ``(6, 2)`` and cumulative ``log_evidence (6,)``.
+    """
+    from importlib import resources
+
+    from .. import reference
+
+    text = resources.files("seqbayes").joinpath(EXACT_REFERENCE_FILE).read_text()
+    return reference.read_reference_table(text, ("run", "kernel"), PARAMETER_NAMES, (int, str))
