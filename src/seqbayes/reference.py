@@ -18,17 +18,19 @@ predictive is never renormalised). Here ``T`` acts on each parameter separately,
 Each step chooses its grid from the data (:func:`adaptive_axes`): a coarse grid over a
 window (the whole box, or the previous grid carried through ``Gamma`` and widened by
 ``20 q``, i.e. 200 nats of the transition density), trimmed to the range that leaves at
-most ``tail_mass`` (1e-40, about 13 sd of a Gaussian) of each marginal of ``L pi``
-outside, zoomed in until it stops shrinking,
-then a fine grid of ``n_points`` per axis over that range. Integrals are composite
-Simpson on each axis; the predictive is the convolution ``sum_j w_j T(x'_i | x_j)
-p(x_j)`` along each drifting axis (a matrix product on scaled exponentials, so the
-log domain is kept). The tails are kept that far because a later step whose data
-conflict with the prediction puts its posterior where the predictive is made of the
-previous posterior's far tail (run 9 of the oscillator study: 5-9 posterior sds out;
-with 1e-13, about 7 sds, the step-4 mean of ``k`` moved by 0.7 sd). Discontinuities of the integrand (box bounds, a likelihood that
-drops to zero beyond a known value) must be passed as hard bounds so that they are grid
-end points.
+most ``tail_mass`` of each marginal of ``L pi`` outside (default 1e-40, about 13 sds of a
+Gaussian), zoomed in until it stops shrinking, then a fine grid of ``n_points`` per axis
+(or more, see ``points_per_sd``) over that range. Integrals are composite Simpson on each
+axis; the predictive is the convolution ``sum_j w_j T(x'_i | x_j) p(x_j)`` along each
+drifting axis (a matrix product on scaled exponentials, so the log domain is kept).
+
+The tails are kept that far because a later step whose data conflict with the
+prediction puts its posterior where the predictive is made of the previous posterior's
+far tail: on run 9 of the oscillator study (kernel T2) a cut at 1e-13 (about 7 sds) moved
+the step-4 mean of ``k`` by 0.8 posterior sd, and even 1e-40 left step 6 off by 7e-3 nats
+(the oscillator uses 1e-100). Discontinuities of the integrand (box bounds, a likelihood
+that drops to zero beyond a known value) must be passed as hard bounds so that they are
+grid end points.
 
 Accuracy is measured, not assumed: the model functions that use this module are run at
 two resolutions and compared (``docs/exact_references.md``).
@@ -476,7 +478,8 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
                 return log_likelihood(axes, dataset) - log_volume
             if first_window is not None:
                 window = np.array(first_window, dtype=float)
-                bounds = np.column_stack([np.maximum(window[:, 0], bounds[:, 0]), np.minimum(window[:, 1], bounds[:, 1])])
+                bounds = np.column_stack([np.maximum(window[:, 0], bounds[:, 0]),
+                                          np.minimum(window[:, 1], bounds[:, 1])])
             window = bounds
             fixed = None
         else:
