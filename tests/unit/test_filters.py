@@ -59,7 +59,8 @@ def test_kalman_batched_equals_one_at_a_time():
 
 def test_fast_log_likelihood_equals_kalman_filter():
     # 600 steps: the covariance reaches its steady state (~200 steps here) and the frozen-gain
-    # phase runs for the rest; the difference is O(T * steady_tol) relative (measured 1e-10)
+    # phase runs for the rest (two blocks of 256 steps); the difference is O(T * steady_tol) relative
+    # (measured 1e-10)
     model, u, y, std, sw = _data(600)
     thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9], [0.7, 0.75, 0.95], THETA])
     batch = discretise(FRAME, thetas, 0.02)

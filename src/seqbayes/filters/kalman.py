@@ -23,6 +23,7 @@ __all__ = ["KalmanResult", "kalman_filter", "kalman_log_likelihood", "measuremen
            "check_filter_inputs", "KalmanBank"]
 
 _LOG_2PI = np.log(2 * np.pi)
+_STEADY_BLOCK = 256  # time steps per block of the steady-state phase of kalman_log_likelihood
 
 
 @dataclass(frozen=True)
@@ -341,18 +342,26 @@ def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurement
         F = A - A @ gain @ H  # A (I - K H)
         G = A @ gain
         n_left = T - k
-        # inputs of the frozen recursion, laid out (time, member, state) for contiguous steps
-        drive = u[k:-1, None, None] * model.B0[None] + u[k + 1 :, None, None] * model.B1[None]
-        drive += (G.reshape(N * m, p) @ yw[k:-1].T).reshape(N, m, n_left - 1).transpose(2, 0, 1)
-        means = np.empty((n_left, N, m))
-        means[0] = mean
-        for t in range(1, n_left):  # loop over time only
-            np.add(np.einsum("nij,nj->ni", F, means[t - 1]), drive[t - 1], out=means[t])
-        # innovations and their whitened norms for all remaining steps at once: (N, p, T - k)
-        innov = yw[k:].T[None] - H @ means.transpose(1, 2, 0)
-        z = L_inv @ innov
         logdet = 2 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        loglik -= 0.5 * (n_left * logdet + (z * z).sum(axis=(1, 2)))
+        loglik -= 0.5 * n_left * logdet
+        G_flat = G.reshape(N * m, p)
+        for start in range(k, T, _STEADY_BLOCK):  # blocks of time bound the memory (T x N x m at once before)
+            stop = min(start + _STEADY_BLOCK, T)
+            n = stop - start
+            # inputs of the frozen recursion, laid out (time, member, state) for contiguous steps
+            drive = u[start : stop - 1, None, None] * model.B0[None] + u[start + 1 : stop, None, None] * model.B1[None]
+            drive += (G_flat @ yw[start : stop - 1].T).reshape(N, m, n - 1).transpose(2, 0, 1)
+            means = np.empty((n, N, m))
+            means[0] = mean
+            for t in range(1, n):  # loop over time only
+                np.add(np.einsum("nij,nj->ni", F, means[t - 1]), drive[t - 1], out=means[t])
+            # innovations and their whitened norms for the block's steps at once: (N, p, n)
+            innov = yw[start:stop].T[None] - H @ means.transpose(1, 2, 0)
+            z = L_inv @ innov
+            loglik -= 0.5 * (z * z).sum(axis=(1, 2))
+            if stop < T:  # the prediction of the next block's first step
+                mean = (np.einsum("nij,nj->ni", F, means[-1]) + model.B0 * u[stop - 1] + model.B1 * u[stop]
+                        + (G_flat @ yw[stop - 1]).reshape(N, m))
         if return_state:  # filter the last prediction: m + K_f e, P - K_f S K_f^T with K_f = P H^T S^-1
             filter_gain = P @ np.swapaxes(H, 1, 2) @ S_inv
             mean = means[-1] + np.einsum("nmp,np->nm", filter_gain, innov[:, :, -1])
