@@ -2,7 +2,7 @@
 2024, Sec. 2 and Algorithm 1), with two samplers.
 
 ``sampler="resample-move"`` (default): exact posterior
-==========================================================
+======================================================
 Sequential Monte Carlo over the stiffness ratios ``theta`` (IBIS, Chopin 2002;
 resample-move, Gilks and Berzuini 2001), annealed over the record step by step
 and, within a step whose data would degenerate the weights, tempered. Each of
@@ -61,8 +61,17 @@ grows). Transition matrices: the exact discretisation by default
 1.1-2x slower than the batched matrix exponential at 3-4 storeys); a
 sparse-grid level can be given.
 
+On-line use: :meth:`SGEnMCMC.reset` then :meth:`SGEnMCMC.update` with each new
+block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record).
+
+Measured (docs/shake_table.md, benchmarks/bench_sgenmcmc.py): on 2-, 3- and
+4-storey buildings and a 2-storey case with the truth at 0.705 of U(0.7, 1),
+10 seeds each, default settings: every posterior mean within 0.13 exact
+posterior sd, every sd within 9 %, the truth inside the 95 % intervals as
+often as inside the exact posterior's; 4 storeys x 1,500 steps in ~4 s of CPU.
+
 ``sampler="paper"``: the ensemble variant of Lin et al.
-=========================================================
+=======================================================
 The first implementation, kept as an option: one EnKF member per ``theta``,
 importance weights from the per-member EnKF likelihood, resampling and a
 Liu-West kernel move in place of Eq. 27. It has **no guarantee of reaching the
