@@ -46,7 +46,7 @@ from .kernels import Decay, Drift, MarkovKernel, Static
 from .moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
 from .priors import JointPrior
 from .resampling import resample
-from .results import StepInfo, StepRecord
+from .results import StepInfo, StepRecord, prior_data_conflict
 from .transforms import BoxTransform
 from .weights import logsumexp
 
@@ -301,7 +301,10 @@ class NestedState:
         ``D^1 .. D^s`` (PMMH re-runs the inner filters over them).
     log_evidence, step_size : float
     particles : (N, d) array
-        One joint draw per outer particle (the last posterior), for forecasts and resumption.
+        One joint draw per outer particle (the last posterior; the prior draws before the first step).
+    predictive : (N, d) array or None
+        Those draws propagated through the kernel (the record's predictive), the reference of the
+        next step's prior-data conflict diagnostic.
     """
 
     step: int
@@ -314,6 +317,7 @@ class NestedState:
     log_evidence: float
     step_size: float
     particles: np.ndarray = field(default=None)
+    predictive: np.ndarray | None = None
 
     @property
     def posterior(self):
@@ -334,12 +338,12 @@ def start_nested(prior, columns, draws, step_size) -> NestedState:
 
 
 def after_joint_first_step(split, particles, log_weights, components, dataset, log_evidence, step_size,
-                           posterior) -> NestedState:
+                           posterior, predictive) -> NestedState:
     """The state after a first step done jointly over every parameter (``joint_first_step``):
     ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``."""
     return NestedState(1, particles, {"x": particles[:, None, split[1]].copy(), "log_w": np.zeros((particles.shape[0], 1))},
                        log_weights, components[:, 1].copy(), components[:, 0].copy(), (_kept(dataset),),
-                       float(log_evidence), float(step_size), posterior)
+                       float(log_evidence), float(step_size), posterior, predictive)
 
 
 def _outer_logpdf(prior, columns, outer) -> np.ndarray:
@@ -506,6 +510,8 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     else:
         posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
     log_evidence = float(state.log_evidence + log_z)
+    prior_draws = state.predictive if state.predictive is not None else state.particles
+    conflict = prior_data_conflict(prior_draws, state.log_weights, posterior, log_weights)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,
         resampled=bool(resampled), acceptance_rate=stats.acceptance_rate,
@@ -514,11 +520,13 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
         n_nan=counter.n_nan, n_distinct=count_distinct(static), n_proposed=stats.n_proposed,
         n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
         log_evidence_increment_path=float(log_z), evidence_ess=float("nan"), n_independent_accepted=0,
-        n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start)
+        n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start,
+        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()))
     predictive = problem.kernel.propagate(posterior, rng)
     record = StepRecord(info, posterior, log_weights, predictive)
     new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
-                            components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior)
+                            components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior,
+                            predictive)
     return new_state, record
 
 
@@ -533,6 +541,7 @@ def nested_state_arrays(state: NestedState) -> dict:
     run store: every value is a float array; the inner filter's cloud keys are prefixed ``cloud_``."""
     out = {"outer": state.outer, "log_weights": state.log_weights, "log_prior": state.log_prior,
            "log_likelihood": state.log_likelihood, "particles": state.particles,
+           **({"predictive": state.predictive} if state.predictive is not None else {}),
            "scalars": np.array([state.step, state.log_evidence, state.step_size], dtype=float)}
     out.update({f"cloud_{key}": value for key, value in state.cloud.items()})
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
@@ -546,4 +555,5 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple) -> NestedState:
     cloud = {key[len("cloud_"):]: np.array(value) for key, value in arrays.items() if key.startswith("cloud_")}
     return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
                        np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),
-                       float(log_evidence), float(step_size), np.array(arrays["particles"]))
+                       float(log_evidence), float(step_size), np.array(arrays["particles"]),
+                       np.array(arrays["predictive"]) if "predictive" in arrays else None)

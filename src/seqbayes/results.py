@@ -15,7 +15,7 @@ import numpy as np
 
 from .weights import normalise
 
-__all__ = ["StepInfo", "StepRecord", "Result", "weighted_quantile"]
+__all__ = ["StepInfo", "StepRecord", "Result", "weighted_quantile", "prior_data_conflict"]
 
 
 @dataclass(frozen=True)
@@ -68,6 +68,13 @@ class StepInfo:
         which also counts the initial, restart and importance evaluations).
     wall_time : float
         Seconds spent in the step.
+    prior_data_conflict : float
+        How far the step's posterior lies in the tail of its prior (the predictive distribution
+        for ``s > 1``): the largest over parameters of ``|posterior mean - prior mean| / prior sd``.
+        Under the model this exceeds 4 with probability below ~1e-4 per parameter; larger values
+        flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
+    conflict_parameter : int
+        The parameter (column) where it is largest.
     """
 
     step: int
@@ -91,6 +98,8 @@ class StepInfo:
     n_independent_accepted: int
     n_move_evaluations: int
     wall_time: float
+    prior_data_conflict: float = float("nan")
+    conflict_parameter: int = 0
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":
@@ -104,6 +113,21 @@ class StepInfo:
             kwargs[f.name] = (tuple(value) if type_name == "tuple" else bool(value) if type_name == "bool"
                               else int(value) if type_name == "int" else float(value))
         return cls(**kwargs)
+
+
+def prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weights) -> np.ndarray:
+    """``|posterior mean - prior mean| / prior sd`` per parameter, ``(d,)``.
+
+    Parameters
+    ----------
+    prior, posterior : (N, d) arrays
+        The step's prior particles (before the likelihood) and its posterior particles.
+    prior_log_weights, posterior_log_weights : (N,) arrays
+    """
+    w0, w1 = np.exp(normalise(prior_log_weights)), np.exp(normalise(posterior_log_weights))
+    mean0 = w0 @ prior
+    sd0 = np.sqrt(np.maximum(w0 @ (prior - mean0) ** 2, 1e-300))
+    return np.abs(w1 @ posterior - mean0) / sd0
 
 
 def weighted_quantile(samples, log_weights, q) -> np.ndarray:

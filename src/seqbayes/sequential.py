@@ -49,17 +49,21 @@ from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_
 from .parallel import evaluate_loglike
 from .priors import as_samples, support_of
 from .resampling import SCHEMES, resample
-from .results import Result, StepInfo, StepRecord
+from .results import Result, StepInfo, StepRecord, prior_data_conflict
 from .rng import as_generator, generator_from_state, generator_state
 from .transforms import BoxTransform
 from .weights import ess, logsumexp
 
 __all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError",
-           "TemperingLimitError"]
+           "TemperingLimitError", "PriorDataConflictWarning"]
 
 
 class ZeroLikelihoodError(RuntimeError):
     """Every sample has zero likelihood for a dataset."""
+
+
+class PriorDataConflictWarning(RuntimeWarning):
+    """A step's posterior lies far in the tail of its prior (``StepInfo.prior_data_conflict``)."""
 
 
 class TemperingLimitError(RuntimeError):
@@ -140,6 +144,9 @@ class SamplerConfig:
         With 1 (the paper's SMC) the error of a static parameter after 5 steps grows ~1.5x.
     proposal_scale : float
         SMC's ``gamma`` of Eq. (A7).
+    conflict_threshold : float
+        A :class:`PriorDataConflictWarning` is issued when a step's posterior mean lies more than
+        this many prior sds from its prior mean (``StepInfo.prior_data_conflict``; 4).
     n_inner : int
         SMC^2 (static and drifting parameters): particles of the default inner filter
         (:class:`~seqbayes.nested.ParticleInnerFilter`) per outer particle (100).
@@ -186,6 +193,7 @@ class SamplerConfig:
     min_evidence_ess: float = 0.3
     max_refits: int = 5
     n_inner: int = 100
+    conflict_threshold: float = 4.0
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -709,7 +717,7 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         new_state = after_joint_first_step(nested_split(problem.kernel), cloud.particles, cloud.log_weights,
                                            cloud.components, dataset, record.info.log_evidence,
                                            state.step_size if np.isnan(record.info.step_size) else record.info.step_size,
-                                           cloud.particles)
+                                           cloud.particles, record.predictive)
         return new_state, record
     method = resolve_predictive(config.predictive, problem.kernel)
     new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
@@ -733,6 +741,7 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         if deferred:
             particles, log_weights, log_prior, moves, rejuvenated = _rejuvenate_deferred(
                 state, problem, config, prior_logpdf, moves, rng)
+    prior_particles, prior_log_weights = particles, log_weights
     cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config,
                                                  counter, prior_logpdf, rng)
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
@@ -747,6 +756,7 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     density, predictive, next_log_prior = _propagate(state, cloud, dataset, log_increment, log_evidence, method,
                                                      problem, config, rng)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
+    conflict = prior_data_conflict(prior_particles, prior_log_weights, cloud.particles, cloud.log_weights)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
@@ -757,7 +767,8 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         n_identical_partner=moves.stats.n_identical_partner,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
         n_independent_accepted=n_independent, n_move_evaluations=moves.stats.n_evaluations,
-        wall_time=time.perf_counter() - start)
+        wall_time=time.perf_counter() - start, prior_data_conflict=float(conflict.max()),
+        conflict_parameter=int(conflict.argmax()))
     record = StepRecord(info, cloud.particles, cloud.log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
                              log_evidence=log_evidence,
@@ -872,10 +883,19 @@ class _SequentialSampler:
 
     def update(self, dataset) -> StepInfo:
         """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`."""
+        prior = (self._state.particles, self._state.log_weights)
         with _blas_limit(self._blas_threads):
             state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
         self._state = state
         self._records.append(record)
+        if record.info.prior_data_conflict > self.config.conflict_threshold:
+            conflict = prior_data_conflict(*prior, record.posterior, record.log_weights)
+            far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
+                            if value > self.config.conflict_threshold)
+            warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
+                          f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
+                          f"kernel too narrow for the data, and the sampler may be unreliable here",
+                          PriorDataConflictWarning, stacklevel=2)
         return record.info
 
     def run(self, datasets) -> Result:

@@ -110,7 +110,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
 _STEP_FIELDS = ("log_evidence", "log_evidence_increment", "acceptance_rate", "step_size", "n_virtual",
                 "n_stages", "n_loglike_evals", "n_distinct", "n_proposed", "n_accepted",
                 "n_identical_partner", "n_nan", "ess", "log_evidence_increment_path", "evidence_ess",
-                "n_independent_accepted")
+                "n_independent_accepted", "prior_data_conflict")
 _EXTRA_STEP_FIELDS = ("log_mass_inside",)
 
 
