@@ -234,6 +234,8 @@ class SamplerConfig:
             raise ValueError(f"n_moves: {self.n_moves} exceeds max_virtual {self.max_virtual}")
         if not self.proposal_scale > 0:
             raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
+        if not self.conflict_threshold > 0:
+            raise ValueError(f"conflict_threshold: must be positive, got {self.conflict_threshold}")
         if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
             raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
 

@@ -1,0 +1,54 @@
+"""The prior-data conflict diagnostic (``StepInfo.prior_data_conflict``, issue 11)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from seqbayes import SMC
+from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
+from seqbayes.results import prior_data_conflict
+from seqbayes.sequential import PriorDataConflictWarning
+
+
+def test_shift_in_prior_sds_exactly():
+    prior = np.array([[0.0, 10.0], [2.0, 10.0], [4.0, 10.0], [6.0, 14.0]])  # means (3, 11), sds (sqrt 5, sqrt 3)
+    posterior = np.array([[9.0, 11.0], [9.0, 11.0]])
+    conflict = prior_data_conflict(prior, np.zeros(4), posterior, np.log([0.5, 0.5]))
+    np.testing.assert_allclose(conflict, [6.0 / np.sqrt(5.0), 0.0], atol=1e-12)
+
+
+def drifting_problem():
+    return LinearGaussianStateSpace(np.column_stack([np.linspace(-1, 1, 10), np.ones(10)]), ("drift", "drift"),
+                                    (0.0, 0.0), (0.05, 0.05), (0.0, 0.0), (1.0, 1.0), noise_std=0.2)
+
+
+def test_an_abrupt_change_warns_and_names_the_parameter():
+    problem = drifting_problem()
+    data, path = problem.simulate(4, rng=3)
+    jumped = data.copy()
+    jumped[3] += 2.0  # the offset jumps by 2, ~14 predictive sds (process noise 0.05 on ~0.1 posterior sd)
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        infos = [sampler.update(y) for y in jumped]
+    conflicts = [w for w in caught if issubclass(w.category, PriorDataConflictWarning)]
+    assert len(conflicts) == 1 and "step 4" in str(conflicts[0].message) and "theta_1" in str(conflicts[0].message)
+    assert infos[3].prior_data_conflict > 4 and infos[3].conflict_parameter == 1
+    assert all(info.prior_data_conflict < 4 for info in infos[1:3])
+
+
+def test_smooth_data_stay_silent():
+    problem = drifting_problem()
+    data, _ = problem.simulate(6, rng=4)
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PriorDataConflictWarning)
+        infos = [sampler.update(y) for y in data]
+    assert all(np.isfinite(info.prior_data_conflict) for info in infos)
+
+
+def test_threshold_is_a_validated_setting():
+    problem = drifting_problem()
+    with pytest.raises(ValueError, match="conflict_threshold"):
+        SMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0, conflict_threshold=-1.0)
