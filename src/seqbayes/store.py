@@ -19,10 +19,14 @@ Keeping every step's state (not only the last) costs one ``(N, d)`` mixture (or
 one ``(N,)`` vector and the dataset) per step and allows :meth:`RunStore.assimilate` with ``replace_last=True``: the run
 is rolled back to the step before and the new dataset assimilated in its place.
 
-Writes are atomic: HDF5 writes the new file to memory, which is written to a
-temporary file in the same folder (``.RUN.tmp-PID``) with plain OS calls and
-``fsync``-ed, then moved over the old one with :func:`os.replace` (atomic on
-POSIX) keeping the old file's permission bits, and the folder is ``fsync``-ed. A
+Writes are atomic: a new step is appended to a copy of the file that the kernel
+makes (``copy_file_range``, a reflink where the filesystem shares extents), so the
+bytes HDF5 writes per step do not grow with the run; a new layout (the first step,
+``replace_last``, an older store) is written whole by HDF5 to memory and then to the
+temporary file with plain OS calls. Either way the temporary file in the same folder
+(``.RUN.tmp-PID``) is ``fsync``-ed and moved over the old one with :func:`os.replace`
+(atomic on POSIX) keeping the old file's permission bits, and the folder is
+``fsync``-ed; readers see the old file or the new one. A
 crash or ``SIGKILL`` at any point leaves either the previous store or the new
 one, never a mixture; a leftover temporary file of this store (exactly that
 name) is removed by the next write. A full disk or a read-only folder is one
@@ -256,6 +260,7 @@ class RunStore:
         self.module_hashes = list(module_hashes) if module_hashes is not None else [""] * len(self.digests)
         self.created = created or _now()
         self._stamp = None                          # the file as last read or written (see _reload_if_changed)
+        self._disk_steps = 0                        # leading steps the file holds exactly as this object does
 
     # ----------------------------------------------------------------- creation
     @classmethod
@@ -319,6 +324,7 @@ class RunStore:
                     else f"{type(err).__name__}: {err}")
             raise StoreError(f"{path}: damaged or inconsistent run store ({what})") from None
         store._stamp = stamp
+        store._disk_steps = store.n_steps
         return store
 
     @classmethod
@@ -477,16 +483,16 @@ class RunStore:
         except OSError as err:
             raise StoreError(f"{self.path}: cannot write in {folder}: {_os_message(err)}") from None
         ds = self.to_xarray()
-        encoding = {name: {"fletcher32": True} for name, var in ds.data_vars.items()
-                    if var.dtype.kind in "fiu" and var.ndim and var.size}   # HDF5 checksums, verified on read
-        # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
-        # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
-        content = _netcdf_bytes(ds, encoding)
-        _check_free_space(self.path, folder, len(content))
         mode = None
         with contextlib.suppress(OSError):
             mode = os.stat(self.path).st_mode & 0o7777
         tmp = folder / f"{prefix}{os.getpid()}"
+        if self._append_to_copy(ds, folder, tmp, mode):
+            return
+        # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
+        # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
+        content = _netcdf_bytes(ds, _encoding(ds), unlimited_dims=[d for d in _GROWING if d in ds.dims])
+        _check_free_space(self.path, folder, len(content))
         _fault("before-write")
         try:
             _write_file(tmp, content)
@@ -508,7 +514,69 @@ class RunStore:
             raise
         _fsync_dir(folder)
         self._stamp = _file_stamp(self.path)
+        self._disk_steps = self.n_steps
         _fault("after-replace")
+
+    def _append_to_copy(self, ds, folder: Path, tmp: Path, mode) -> bool:
+        """Write by appending: copy the file (in the kernel; a reflink where the filesystem has them),
+        append the new steps' rows to the copy, ``fsync`` and :func:`os.replace` it.
+
+        Used when the file on disk holds this object's first steps unchanged (no
+        ``replace_last`` since) in the appendable layout; returns False (nothing written)
+        otherwise, and the caller writes the whole file. Readers see the old file or the
+        new one, as with a whole write.
+        """
+        import h5netcdf
+
+        if not (self._disk_steps and self._disk_steps < self.n_steps and self._stamp is not None
+                and _file_stamp(self.path) == self._stamp):
+            return False
+        old_size = os.path.getsize(self.path)
+        _check_free_space(self.path, folder, old_size + 4 * sum(
+            v.values[self._disk_steps:].nbytes if v.dtype != object else 0 for v in ds.variables.values()
+            if v.dims and v.dims[0] == "step") + 1024 * 1024)
+        _fault("before-write")
+        try:
+            _copy_file(self.path, tmp)
+            with open(tmp, "r+b") as fh:
+                with h5netcdf.File(fh, "r+") as f:
+                    if not _appendable(f, ds, self._disk_steps):
+                        raise _NotAppendable
+                    old = {dim: f.dimensions[dim].size for dim in _GROWING if dim in ds.dims}
+                    for dim in old:
+                        f.resize_dimension(dim, ds.sizes[dim])
+                    for name, var in ds.variables.items():
+                        if var.dims and var.dims[0] in old:
+                            f.variables[name][old[var.dims[0]]:] = var.values[old[var.dims[0]]:]
+                    for key, value in ds.attrs.items():
+                        f.attrs[key] = value
+                fh.flush()
+                os.fsync(fh.fileno())
+            if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
+                os.truncate(tmp, os.path.getsize(tmp) // 2)
+                _fault("mid-write")
+            if mode is not None:
+                os.chmod(tmp, mode)
+            _fault("before-replace")
+            os.replace(tmp, self.path)
+        except _NotAppendable:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            return False
+        except OSError as err:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            raise StoreError(f"{self.path}: cannot write the run store: {_os_message(err)}; the previous "
+                             f"store is kept") from None
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            raise
+        _fsync_dir(folder)
+        self._stamp = _file_stamp(self.path)
+        self._disk_steps = self.n_steps
+        _fault("after-replace")
+        return True
 
     # ---------------------------------------------------------------- the state
     def _mixture(self, i) -> GaussianMixture:
@@ -738,6 +806,7 @@ class RunStore:
                 raise StoreError(f"{self.path}: replace_last: no step to replace")
             self.check_new_dataset(digest, replace_last)
             base = self.n_steps - 1 if replace_last else self.n_steps
+            self._disk_steps = min(self._disk_steps, base)
             function, module = self._verified_likelihood(accept_model_change)
             self.share_likelihood(executor, module)
             sampler = self.sampler(base, executor=executor, loglike=function if loglike is None else loglike)
@@ -924,16 +993,75 @@ def _content_hash(ds) -> str:
     return h.hexdigest()
 
 
-def _netcdf_bytes(ds, encoding):
+#: Dimensions that grow with the run (unlimited in the file, so that a step can be appended),
+#: with the chunk length along them.
+_GROWING = {"step": 8, "rng_index": 8, "dataset_row": 256}
+
+
+class _NotAppendable(Exception):
+    """The file on disk cannot take the new steps by appending (another layout or content)."""
+
+
+def _encoding(ds) -> dict:
+    """HDF5 Fletcher-32 checksums on the numeric arrays (verified on read) and, along the growing
+    dimensions, chunks of a few steps, so that appending a step writes a few chunks."""
+    encoding = {}
+    for name, var in ds.variables.items():
+        enc = {}
+        if var.dtype.kind in "fiu" and var.ndim and var.size:
+            enc["fletcher32"] = True
+        if var.dims and var.dims[0] in _GROWING:
+            enc["chunksizes"] = (_GROWING[var.dims[0]],) + tuple(var.shape[1:])
+        if enc:
+            encoding[name] = enc
+    return encoding
+
+
+def _appendable(f, ds, disk_steps: int) -> bool:
+    """Whether the open file ``f`` is ``ds`` minus the rows after ``disk_steps`` steps."""
+    if int(f.attrs.get("n_steps", -1)) != disk_steps or set(f.variables) != set(ds.variables):
+        return False
+    for dim, size in ds.sizes.items():
+        if dim not in f.dimensions:
+            return False
+        if dim in _GROWING:
+            if not f.dimensions[dim].isunlimited() or f.dimensions[dim].size > size:
+                return False
+        elif f.dimensions[dim].size != size:
+            return False
+    return all(tuple(f.variables[name].dimensions) == tuple(var.dims) for name, var in ds.variables.items())
+
+
+def _copy_file(source: Path, target: Path) -> None:
+    """Copy a file in the kernel (``copy_file_range``: a reflink on filesystems that share extents)."""
+    with open(source, "rb") as fin, open(target, "wb") as fout:
+        remaining = os.fstat(fin.fileno()).st_size
+        try:
+            while remaining > 0:
+                copied = os.copy_file_range(fin.fileno(), fout.fileno(), remaining)
+                if copied == 0:
+                    break
+                remaining -= copied
+        except OSError as err:
+            if err.errno not in (errno.EXDEV, errno.ENOSYS, errno.EOPNOTSUPP, errno.EINVAL):
+                raise
+            fin.seek(0)
+            fout.seek(0)
+            fout.truncate()
+            shutil.copyfileobj(fin, fout)
+
+
+def _netcdf_bytes(ds, encoding, unlimited_dims=()):
     """The NetCDF-4 file of ``ds`` as bytes. With a Dask client active xarray would take a
     distributed lock named after the target (here a buffer); the write is local, so Dask's
     synchronous scheduler is used for it."""
+    kwargs = dict(engine="h5netcdf", encoding=encoding, unlimited_dims=list(unlimited_dims))
     if "dask" in sys.modules:
         import dask
 
         with dask.config.set(scheduler="synchronous"):
-            return ds.to_netcdf(engine="h5netcdf", encoding=encoding)
-    return ds.to_netcdf(engine="h5netcdf", encoding=encoding)
+            return ds.to_netcdf(**kwargs)
+    return ds.to_netcdf(**kwargs)
 
 
 def _write_file(path: Path, content) -> None:

@@ -561,3 +561,42 @@ def test_netcdf3_data_files_are_read(tmp_path):
                                                                                engine="scipy")
     assert (tmp_path / "classic.nc").read_bytes()[:3] == b"CDF"
     np.testing.assert_array_equal(read_datafile(tmp_path / "classic.nc", store.config), table)
+
+
+# ------------------------------------------------------------------ item 7: a step is appended, not the whole file
+def test_a_step_is_appended_to_a_copy_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
+    import seqbayes.store as store_module
+
+    calls = []
+    original = RunStore._append_to_copy
+
+    def spy(self, *args):
+        calls.append(original(self, *args))
+        return calls[-1]
+
+    monkeypatch.setattr(RunStore, "_append_to_copy", spy)
+    store = make_run(tmp_path, "appendmodel", n_steps=3)
+    assert calls == [False, False, True, True]     # creation and the first step write it whole; then appends
+    sizes = []
+    for table in tables(6)[3:]:
+        before = (tmp_path / "run.nc").stat().st_size
+        store.assimilate(table)
+        sizes.append((tmp_path / "run.nc").stat().st_size - before)
+    assert calls[-3:] == [True, True, True]
+    one_step = 3 * 40 * 2 * 8 + 40 * 8 * 2           # posterior, predictive, centres; two weight vectors
+    assert max(sizes) < 4 * one_step + 8192, sizes     # the file grows by about one step, not by a rewrite
+    appended = RunStore.open(tmp_path / "run.nc")
+    whole = RunStore.open(tmp_path / "run.nc")
+    whole.path, whole._disk_steps = tmp_path / "whole.nc", 0
+    whole.write()                                      # the same content written in one piece
+    again = RunStore.open(tmp_path / "whole.nc")
+    assert calls[-1] is False
+    for a, b in zip(appended.result.steps, again.result.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        np.testing.assert_array_equal(a.log_weights, b.log_weights)
+    assert appended.rng_states == again.rng_states and appended.digests == again.digests
+    np.testing.assert_array_equal(appended.predict(2), again.predict(2))
+    # replace_last rewrites the whole file (its last rows change) and the run goes on appending
+    appended.assimilate(tables(6)[5] * 1.01, "fixed", replace_last=True)
+    assert calls[-1] is False and RunStore.open(tmp_path / "run.nc").sources[-1] == "fixed"
+    assert store_module._GROWING["step"] > 1
