@@ -2,15 +2,17 @@
 bundled tables.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_reference.py [--coulomb] [--oscillator]
-                                                                          [--write] [--runs 0 9]
+                                                                          [--write] [--runs 0 1 ...]
 
 - ``--coulomb``: :func:`seqbayes.models.coulomb.exact_grid_reference` for T1 and T2 at three
   resolutions (half, default, double) and a thinner tail cut; prints the largest changes
   of the cumulative log-evidence [nats] and of the means [posterior sds] and stds [relative]
   between consecutive resolutions, and the time of the default one.
-- ``--oscillator``: the same for run 9 of the oscillator study, kernel T2 (and the run-9
-  numbers of issue 11), and the time of every run and kernel of ``--runs`` at the defaults.
+- ``--oscillator``: the same for runs/kernels 9/T2 (issue 11's case), 9/T3 and 8/T1 of the
+  oscillator study (the two whose step-1 likelihood ridge matters most), and the time of
+  every run and kernel of ``--runs`` at the defaults.
 - ``--plain-grid``: an independent check of run 9, T2 on one fixed trapezoid grid.
+- ``--sweep``: every bundled oscillator (run, kernel) recomputed at 3 points per sd (~3 min).
 - ``--write``: write ``src/seqbayes/data/coulomb_exact_reference.csv`` (and, with
   ``--oscillator``, ``oscillator_exact_reference.csv`` for the ``--runs`` x T1..T6) at
   the defaults, with a comment header naming this command.
@@ -68,38 +70,35 @@ def bench_coulomb(write: bool):
 
 
 def bench_oscillator(write: bool, runs):
-    problem = oscillator.study_problem(9)
-    kern = problem.kernels["T2"].kernel
-    print("Oscillator, run 9, kernel T2")
-    start = time.perf_counter()
-    default = oscillator.exact_grid_reference(problem.datasets, kern)
-    elapsed = time.perf_counter() - start
-    coarse = oscillator.exact_grid_reference(problem.datasets, kern, points_per_sd=3.0)
-    fine = oscillator.exact_grid_reference(problem.datasets, kern, points_per_sd=8.0, n_points=301)
-    thick = oscillator.exact_grid_reference(problem.datasets, kern, tail_mass=1e-80)
-    wide = oscillator.exact_grid_reference(problem.datasets, kern, ridge_factors=(10.0,))
-    _compare("3 vs 5 points per sd (default)", coarse, default)
-    _compare("default vs 8 points per sd, at least 301", default, fine)
-    _compare("tail 1e-80 vs 1e-100 (default)", thick, default)
-    _compare(f"ridge factor {default.settings['ridge_factor']} (default search) vs 10", default, wide)
-    print(f"  default: {elapsed:.2f} s; step-1 window {default.settings.get('first_window')}")
-    _print(default)
-    print("  issue 11 quotes k = 1.453 +- 0.066, 1.206, 1.052 at steps 3, 4, 6")
+    for run, name in ((9, "T2"), (9, "T3"), (8, "T1")):
+        problem = oscillator.study_problem(run)
+        kern = problem.kernels[name].kernel
+        print(f"Oscillator, run {run}, kernel {name}")
+        start = time.perf_counter()
+        default = oscillator.exact_grid_reference(problem.datasets, kern)
+        elapsed = time.perf_counter() - start
+        coarse = oscillator.exact_grid_reference(problem.datasets, kern, points_per_sd=3.0)
+        fine = oscillator.exact_grid_reference(problem.datasets, kern, points_per_sd=8.0, n_points=301,
+                                               max_points=3001)
+        thick = oscillator.exact_grid_reference(problem.datasets, kern, tail_mass=1e-80)
+        _compare("3 vs 5 points per sd (default)", coarse, default)
+        _compare("default vs 8 points per sd (at least 301, at most 3001)", default, fine)
+        _compare("tail 1e-80 vs 1e-100 (default)", thick, default)
+        print(f"  default: {elapsed:.2f} s")
+        _print(default)
+    print("  issue 11 quotes k = 1.453 +- 0.066, 1.206, 1.052 at steps 3, 4, 6 for run 9, T2")
     start = time.perf_counter()
     refs = {}
     for run in runs:
         for name, ref in oscillator.study_grid_references([run]).items():
             refs[name] = ref
-            print(f"  run {run} {name[1]}: ridge factor {ref.settings['ridge_factor']}, converged "
-                  f"{ref.settings['converged']}, log Z(6) {ref.log_evidence[-1]:.3f}, "
+            print(f"  run {run} {name[1]}: log Z(6) {ref.log_evidence[-1]:.3f}, "
                   f"{time.perf_counter() - start:.1f} s so far", flush=True)
     print(f"runs {list(runs)} x 6 kernels: {time.perf_counter() - start:.1f} s")
-    unsettled = [f"{run}/{k}" for (run, k), ref in refs.items() if not ref.settings["converged"]]
     if write:
         header = ("# Exact grid reference of the damped-oscillator study (Sec. 5; seqbayes example oscillator, seed 0),\n"
                   f"# runs {' '.join(map(str, runs))}, kernels T1-T6: seqbayes.models.oscillator.study_grid_references(runs) at its\n"
-                  "# defaults; regenerate with OPENBLAS_NUM_THREADS=1 python benchmarks/bench_reference.py --oscillator --write\n"
-                  f"# step-1 ridge search not settled within 1e-3 at factor 15 (run/kernel): {' '.join(unsettled) or 'none'}\n")
+                  "# defaults; regenerate with OPENBLAS_NUM_THREADS=1 python benchmarks/bench_reference.py --oscillator --write\n")
         path = DATA / "oscillator_exact_reference.csv"
         path.write_text(header + reference.reference_table(refs, ("run", "kernel")))
         print(f"wrote {path}")
@@ -151,18 +150,33 @@ def plain_grid_check(run: int = 9, kernel: str = "T2", k_range=(0.5, 13.0), c_ra
         print(f"    s = {s + 1}: log Z {total:.4f}  k {mk:.5f} +- {sk:.4f}  c {mc:.5f} +- {sc:.4f}")
 
 
+def sweep_oscillator(runs):
+    """Every bundled (run, kernel) recomputed at 3 points per sd instead of 5: the largest
+    change of the cumulative log-evidence [nats], the means [sd] and the sds [relative]."""
+    bundled = oscillator.load_exact_references()
+    print("Oscillator table: 3 against 5 (bundled) points per sd")
+    for run in runs:
+        problem = oscillator.study_problem(run)
+        for name in problem.kernels:
+            fresh = oscillator.exact_grid_reference(problem.datasets, problem.kernels[name].kernel, points_per_sd=3.0)
+            _compare(f"run {run} {name}", fresh, bundled[(run, name)])
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--coulomb", action="store_true")
     parser.add_argument("--oscillator", action="store_true")
     parser.add_argument("--write", action="store_true")
-    parser.add_argument("--runs", type=int, nargs="+", default=[0, 9],
-                        help="oscillator runs to tabulate (default: 0 and 9; the study has 0-9)")
+    parser.add_argument("--runs", type=int, nargs="+", default=list(range(10)),
+                        help="oscillator runs to tabulate (default: all ten of the study)")
     parser.add_argument("--plain-grid", action="store_true", help="the independent fixed-grid check (run 9, T2)")
+    parser.add_argument("--sweep", action="store_true", help="recompute the bundled oscillator table at 3 points per sd")
     args = parser.parse_args()
     if args.plain_grid:
         plain_grid_check()
-    if not (args.coulomb or args.oscillator or args.plain_grid):
+    if args.sweep:
+        sweep_oscillator(args.runs)
+    if not (args.coulomb or args.oscillator or args.plain_grid or args.sweep):
         args.coulomb = args.oscillator = True
     if args.coulomb:
         bench_coulomb(args.write)

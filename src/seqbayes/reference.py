@@ -20,9 +20,11 @@ window (the whole box, or the previous grid carried through ``Gamma`` and widene
 ``20 q``, i.e. 200 nats of the transition density), trimmed to the range that leaves at
 most ``tail_mass`` of each marginal of ``L pi`` outside (default 1e-40, about 13 sds of a
 Gaussian), zoomed in until it stops shrinking, then a fine grid of ``n_points`` per axis
-(or more, see ``points_per_sd``) over that range. Integrals are composite Simpson on each
-axis; the predictive is the convolution ``sum_j w_j T(x'_i | x_j) p(x_j)`` along each
-drifting axis (a matrix product on scaled exponentials, so the log domain is kept).
+(or more, see ``points_per_sd``) over that range, uniform or geometric per axis
+(``log_axes``, for long tails towards large values). Integrals are composite Simpson on
+each axis (in ``log x`` with the Jacobian on a geometric axis); the predictive is the
+convolution ``sum_j w_j T(x'_i | x_j) p(x_j)`` along each drifting axis (a matrix product
+on scaled exponentials, so the log domain is kept).
 
 The tails are kept that far because a later step whose data conflict with the
 prediction puts its posterior where the predictive is made of the previous posterior's
@@ -50,12 +52,15 @@ __all__ = ["simpson_weights", "log_integral", "marginal_moments", "adaptive_axes
 
 
 def simpson_weights(grid) -> np.ndarray:
-    """Composite Simpson weights of a uniform grid with an odd number of points.
+    """Composite Simpson weights of a uniform or log-uniform grid with an odd number of points.
+
+    A log-uniform (geometric) grid is Simpson's rule in ``u = log x`` with the Jacobian
+    ``dx = x du``: fine where ``x`` is small, coarse where it is large.
 
     Parameters
     ----------
     grid : array_like, shape (n,)
-        Uniform, increasing, ``n`` odd and at least 3.
+        Uniform or geometric (positive), increasing, ``n`` odd and at least 3.
 
     Returns
     -------
@@ -66,18 +71,30 @@ def simpson_weights(grid) -> np.ndarray:
     >>> w = simpson_weights(np.linspace(0.0, 1.0, 5))
     >>> float(w @ np.linspace(0.0, 1.0, 5) ** 3)
     0.25
+    >>> x = np.geomspace(1.0, 2.0, 201)
+    >>> round(float(simpson_weights(x) @ (1.0 / x)), 10)        # log 2
+    0.6931471806
     """
     grid = np.asarray(grid, dtype=float)
     n = grid.size
     if grid.ndim != 1 or n < 3 or n % 2 == 0:
         raise ValueError(f"grid: expected a 1-D grid with an odd number >= 3 of points, got shape {grid.shape}")
-    h = (grid[-1] - grid[0]) / (n - 1)
-    if not h > 0 or not np.allclose(np.diff(grid), h, rtol=1e-6, atol=0.0):
-        raise ValueError("grid: expected a uniform increasing grid")
     w = np.full(n, 2.0)
     w[1::2] = 4.0
     w[0] = w[-1] = 1.0
-    return w * (h / 3.0)
+    h = (grid[-1] - grid[0]) / (n - 1)
+    if h > 0 and np.allclose(np.diff(grid), h, rtol=1e-6, atol=0.0):
+        return w * (h / 3.0)
+    if grid[0] > 0:
+        u = np.log(grid)
+        hu = (u[-1] - u[0]) / (n - 1)
+        if hu > 0 and np.allclose(np.diff(u), hu, rtol=1e-6, atol=0.0):
+            return w * (hu / 3.0) * grid
+    raise ValueError("grid: expected a uniform or geometric increasing grid")
+
+
+def _axis(lo: float, hi: float, n: int, log: bool) -> np.ndarray:
+    return np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n)
 
 
 def _log_weights(axes) -> list[np.ndarray]:
@@ -162,7 +179,7 @@ def _range_with_mass(log_marginal, axis, tail_mass):
 
 def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=None, n_coarse=201,
                   tail_mass: float = 1e-40, max_rounds: int = 12, points_per_sd: float | None = None,
-                  scales=None, max_points: int = 2001) -> tuple[np.ndarray, ...]:
+                  scales=None, max_points: int = 2001, log_axes=None) -> tuple[np.ndarray, ...]:
     """A data-centred fine grid: the range of every marginal of ``exp(log_target)`` but for
     ``tail_mass`` of its mass in each tail.
 
@@ -201,6 +218,10 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
         A further length per axis to resolve (e.g. the transition's width in the
         previous step's coordinates); ``inf`` for none.
     max_points : int
+    log_axes : sequence of d bool, optional
+        Axes gridded geometrically (positive windows only): for posteriors with long
+        tails towards large values. ``points_per_sd`` then counts in ``log x`` and the
+        ``scales`` are taken relative to the marginal's geometric mean.
 
     Returns
     -------
@@ -221,9 +242,12 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
     window[:, 1] = np.minimum(window[:, 1], hard[:, 1])
     if np.any(window[:, 1] <= window[:, 0]):     # e.g. a predictive that left the box entirely
         raise ValueError(f"log_target: zero everywhere on the window {window.tolist()} (outside the hard bounds)")
+    log_axes = np.zeros(d, dtype=bool) if log_axes is None else np.asarray(log_axes, dtype=bool)
+    if log_axes.shape != (d,) or np.any(window[log_axes, 0] <= 0):
+        raise ValueError(f"log_axes: expected {d} flags, and positive windows on the flagged axes")
     n_fine = n_points.copy()
     for _ in range(max_rounds):
-        axes = [fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_coarse[j]) for j in range(d)]
+        axes = [fixed[j] if fixed[j] is not None else _axis(*window[j], n_coarse[j], log_axes[j]) for j in range(d)]
         values = _clean(log_target(axes))
         if not np.isfinite(values).any():
             raise ValueError(f"log_target: zero everywhere on the window {window.tolist()}")
@@ -250,13 +274,21 @@ def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=No
     else:
         raise RuntimeError(f"adaptive_axes: the grid range did not settle in {max_rounds} rounds ({window.tolist()})")
     if points_per_sd is not None:
-        _, sd = marginal_moments(values, axes)
         scale = np.full(d, np.inf) if scales is None else np.asarray(scales, dtype=float)
-        length = np.minimum(sd, scale) / float(points_per_sd)
+        width = window[:, 1] - window[:, 0]
+        length = np.empty(d)
+        for j, m in enumerate(_log_marginals(values, axes)):
+            mass = np.exp(m + np.log(simpson_weights(axes[j])) - logsumexp(m + np.log(simpson_weights(axes[j]))))
+            coord = np.log(axes[j]) if log_axes[j] else axes[j]
+            centre = mass @ coord
+            sd = np.sqrt(max(mass @ (coord - centre) ** 2, 0.0))
+            length[j] = min(sd, scale[j] / np.exp(centre) if log_axes[j] else scale[j]) / float(points_per_sd)
+            if log_axes[j]:
+                width[j] = np.log(window[j, 1] / window[j, 0])
         with np.errstate(divide="ignore", invalid="ignore"):
-            needed = np.where(length > 0, np.ceil((window[:, 1] - window[:, 0]) / length), n_points)
+            needed = np.where(length > 0, np.ceil(width / length), n_points)
         n_fine = np.clip(np.nan_to_num(needed, nan=0.0, posinf=max_points), n_points, max_points).astype(int) | 1
-    return tuple(fixed[j] if fixed[j] is not None else np.linspace(*window[j], n_fine[j]) for j in range(d))
+    return tuple(fixed[j] if fixed[j] is not None else _axis(*window[j], n_fine[j], log_axes[j]) for j in range(d))
 
 
 def _transition_matrix(new_axis, old_axis, nominal, noise_std) -> np.ndarray:
@@ -417,7 +449,7 @@ class GridReference:
 def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Sequence[Callable],
                 noise_stds, n_points, *, first_window=None, hard=None, n_coarse=201,
                 tail_mass: float = 1e-40, widen: float = 20.0, points_per_sd: float | None = None,
-                max_points: int = 2001) -> list[GridStep]:
+                max_points: int = 2001, log_axes=None) -> list[GridStep]:
     """Grid filter under a uniform box prior and a per-parameter Gaussian kernel.
 
     Parameters
@@ -446,7 +478,7 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
     widen : float
         The step-``s > 1`` window is the previous grid carried through ``Gamma`` and
         widened by ``widen`` noise stds each side.
-    points_per_sd, max_points
+    points_per_sd, max_points, log_axes
         As :func:`adaptive_axes`; the transition's width in the previous step's
         coordinates, ``q_j / |dGamma_j/dtheta_j|``, is a length to resolve too.
 
@@ -495,7 +527,7 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
         try:
             step = grid_update(log_target, window, n_points, hard=bounds, fixed=fixed, n_coarse=n_coarse,
                                tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
-                               max_points=max_points)
+                               max_points=max_points, log_axes=log_axes)
         except ValueError as err:
             if "zero everywhere" in str(err):
                 break

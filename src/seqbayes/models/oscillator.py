@@ -508,22 +508,8 @@ def _grid_log_likelihood(axes, dataset: OscillatorDataset) -> np.ndarray:
     return log_likelihood(np.column_stack([kk.ravel(), cc.ravel()]), dataset).reshape(kk.shape)
 
 
-def _references_agree(a, b, tolerance: float) -> bool:
-    """Cumulative log-evidence within ``tolerance`` nats, means within ``tolerance`` sds and
-    sds within ``tolerance`` (relative) at every step (zero-evidence steps must coincide)."""
-    finite = np.isfinite(a.log_evidence)
-    if not np.array_equal(finite, np.isfinite(b.log_evidence)):
-        return False
-    if not finite.any():
-        return True
-    return bool(np.all(np.abs(a.log_evidence[finite] - b.log_evidence[finite]) <= tolerance)
-                and np.all(np.abs(a.mean[finite] - b.mean[finite]) <= tolerance * b.std[finite])
-                and np.all(np.abs(a.std[finite] / b.std[finite] - 1.0) <= tolerance))
-
-
 def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201, points_per_sd: float = 5.0,
-                         tail_mass: float = 1e-100, ridge_factors=(2.0, 3.0, 4.5, 6.75, 10.0, 15.0),
-                         tolerance: float = 1e-3, n_coarse: int = 201, max_points: int = 2001):
+                         tail_mass: float = 1e-100, n_coarse: int = 201, max_points: int = 2001):
     """Exact posterior moments of ``(k, c)`` and cumulative log-evidence at every step.
 
     A grid filter (:func:`seqbayes.reference.grid_filter`) under the uniform box prior:
@@ -534,17 +520,15 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201,
     posterior's tails down to ``tail_mass`` and resolves the smaller of the posterior
     sd and the transition's width with ``points_per_sd`` points.
 
-    The step-1 likelihood has a long ridge towards large ``(k, c)`` (a stiffer, more
-    damped oscillator fits the record almost as well: about 12 nats below the peak at
-    1.5 times the mode's ``k``, 27 at 3 times), and a decay kernel that is faster than
-    the data's can make later posteriors live on it: on run 9 with T2 the step-6
-    posterior of ``k`` comes from step-1 values near 4-9 times the mode. So step 1's grid
-    spans ``k`` from 15 likelihood sds below the mode up to ``f`` times the mode and
-    ``c`` up to critical damping there (the likelihood is zero beyond), and ``f`` runs
-    through ``ridge_factors`` until two consecutive results agree within ``tolerance``
-    (nats, sds, relative sds) at every step. The likelihood's plateau ~40 nats below its
-    peak far from the ridge (where the model response has died out or lost phase) is
-    outside the window; it holds ~1e-12 of the step-1 mass.
+    Both axes are geometric (uniform in ``log k``, ``log c``) and step 1 spans the whole
+    box: the step-1 likelihood has a long ridge towards large ``(k, c)`` (a stiffer, more
+    damped oscillator fits the record almost as well: about 12 nats below the peak at 1.5
+    times the mode's ``k``, 27 at 3 times) that reaches the box's edge on some runs (run
+    8: the step-1 sd of ``k`` grows from 0.465 to 0.521 as the window grows from 2 to 37
+    times the mode), and beyond it a plateau ~40 nats down where the model response has
+    died out or lost phase. A decay kernel faster than the data's makes later posteriors
+    live on the ridge: on run 9 with T2 the step-6 posterior of ``k`` comes from step-1
+    values 4-9 times the mode. A geometric grid resolves the peak and spans the box.
 
     Parameters
     ----------
@@ -555,13 +539,10 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201,
     n_points : int
         Least fine grid points per axis (made odd).
     points_per_sd : float
-        Grid points per posterior sd (or transition width), up to ``max_points`` per axis.
+        Grid points per posterior sd of ``log k``, ``log c`` (or transition width),
+        up to ``max_points`` per axis.
     tail_mass : float
         Each grid leaves at most this much of each marginal's mass outside, per side.
-    ridge_factors : sequence of float
-        Step 1's upper ``k`` in multiples of the likelihood's mode, tried in turn.
-    tolerance : float
-        Agreement that ends the ridge search.
     n_coarse, max_points : int
         Coarse points per axis for locating the grid; most fine points per axis.
 
@@ -571,8 +552,6 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201,
         ``mean``, ``std`` of shape ``(S, 2)`` (``k``, ``c``) and the cumulative
         ``log_evidence (S,)``; after a step with zero evidence (no predictive mass
         where the likelihood is positive) the evidence is ``-inf`` and the moments NaN.
-        ``settings["ridge_factor"]`` is the factor used, ``settings["converged"]``
-        whether the last two agreed.
     """
     from .. import reference
 
@@ -583,26 +562,12 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201,
     if not isinstance(kernel, MarkovKernel) or len(kernel.components) != 2:
         raise TypeError("kernel: expected a MarkovKernel with one component per parameter (k, c)")
     box = np.array([PRIOR_BOUNDS["k"], PRIOR_BOUNDS["c"]])
-    mode, sd, _ = _likelihood_mode(datasets[0])
-    nominals = [c.nominal for c in kernel.components]
-    previous, converged = None, False
-    for factor in ridge_factors:
-        k_hi = min(box[0, 1], factor * mode[0])
-        window = np.array([[max(box[0, 0], mode[0] - 15.0 * sd[0]), k_hi],
-                           [max(box[1, 0], mode[1] - 15.0 * sd[1]), min(box[1, 1], 2.0 * np.sqrt(MASS * k_hi))]])
-        steps = reference.grid_filter(datasets, _grid_log_likelihood, box, nominals, kernel.noise_std, n_points,
-                                      first_window=window, n_coarse=n_coarse, tail_mass=tail_mass,
-                                      points_per_sd=points_per_sd, max_points=max_points)
-        settings = {"n_points": int(n_points) | 1, "points_per_sd": float(points_per_sd),
-                    "tail_mass": float(tail_mass), "n_coarse": int(n_coarse) | 1, "ridge_factor": float(factor),
-                    "first_window": window.round(6).tolist(), "kernel": kernel.describe()}
-        current = reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)
-        if previous is not None and _references_agree(current, previous, tolerance):
-            converged = True
-            break
-        previous = current
-    current.settings["converged"] = converged
-    return current
+    steps = reference.grid_filter(datasets, _grid_log_likelihood, box, [c.nominal for c in kernel.components],
+                                  kernel.noise_std, n_points, n_coarse=n_coarse, tail_mass=tail_mass,
+                                  points_per_sd=points_per_sd, max_points=max_points, log_axes=(True, True))
+    settings = {"n_points": int(n_points) | 1, "points_per_sd": float(points_per_sd), "tail_mass": float(tail_mass),
+                "n_coarse": int(n_coarse) | 1, "max_points": int(max_points), "kernel": kernel.describe()}
+    return reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)
 
 
 def study_problem(run: int, seed: int = 0) -> OscillatorProblem:
