@@ -73,6 +73,25 @@ def test_simpson_and_moments_are_exact_for_polynomials():
 
 # --------------------------------------------------------------------- Coulomb friction
 
+def test_coulomb_likelihood_factorises():
+    """Eq. (23) = phase part (F_mu, sigma_phi) + frequency part (omega_n, sigma_r), the premise
+    of the reference; zero (stick-slip) exactly where the phase part is."""
+    rng = np.random.default_rng(2)
+    theta = np.column_stack([rng.uniform(0.05, 1.7, 1000), rng.uniform(15, 25, 1000), rng.uniform(0.5, 8, 1000),
+                             rng.uniform(0.005, 0.5, 1000)])
+    for dataset in cf.load_experiment():
+        m = dataset.size
+        phase = (-0.5 * m * math.log(2 * math.pi) - m * np.log(theta[:, 2])
+                 - 0.5 * cf._phase_sum_of_squares(theta[:, 0], dataset, "mc") / theta[:, 2] ** 2)
+        freq = (-0.5 * m * math.log(2 * math.pi) - m * np.log(theta[:, 3])
+                - 0.5 * cf._frequency_sum_of_squares(theta[:, 1], dataset) / theta[:, 3] ** 2)
+        full = cf.loglike(theta, dataset)
+        ok = np.isfinite(full)
+        assert 0 < ok.sum() < theta.shape[0]
+        np.testing.assert_array_equal(ok, np.isfinite(phase))
+        np.testing.assert_allclose(full[ok], (phase + freq)[ok], rtol=0, atol=1e-10)
+
+
 @pytest.fixture(scope="module")
 def coulomb_fresh():
     """A fresh computation at half the default resolution (0.1 s per kernel)."""
