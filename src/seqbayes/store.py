@@ -76,6 +76,7 @@ import dataclasses
 import datetime as _dt
 import errno
 import hashlib
+import io
 import json
 import os
 import shutil
@@ -539,7 +540,8 @@ class RunStore:
         try:
             _copy_file(self.path, tmp)
             with open(tmp, "r+b") as fh:
-                with h5netcdf.File(fh, "r+") as f:
+                pending = _PendingWrites(fh)   # HDF5 writes to memory; applied below with plain OS calls
+                with h5netcdf.File(pending, "r+") as f:
                     if not _appendable(f, ds, self._disk_steps):
                         raise _NotAppendable
                     old = {dim: f.dimensions[dim].size for dim in _GROWING if dim in ds.dims}
@@ -550,8 +552,7 @@ class RunStore:
                             f.variables[name][old[var.dims[0]]:] = var.values[old[var.dims[0]]:]
                     for key, value in ds.attrs.items():
                         f.attrs[key] = value
-                fh.flush()
-                os.fsync(fh.fileno())
+                pending.apply()
             if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
                 os.truncate(tmp, os.path.getsize(tmp) // 2)
                 _fault("mid-write")
@@ -1030,6 +1031,98 @@ def _appendable(f, ds, disk_steps: int) -> bool:
         elif f.dimensions[dim].size != size:
             return False
     return all(tuple(f.variables[name].dimensions) == tuple(var.dims) for name, var in ds.variables.items())
+
+
+class _PendingWrites(io.RawIOBase):
+    """The file HDF5 appends to: reads come from the file with the pending writes laid over them,
+    writes stay in memory until :meth:`apply` writes them with plain OS calls. So a full disk or an
+    I/O error is an OSError raised here, never inside HDF5 (where ENOSPC crashed the process)."""
+
+    PAGE = 1 << 16
+
+    def __init__(self, fh):
+        self.fd = fh.fileno()
+        self.size = os.fstat(self.fd).st_size       # the logical size
+        self.on_disk = self.size                    # bytes of the file below which the disk content is valid
+        self.pages = {}
+        self.pos = 0
+
+    def readable(self):
+        return True
+
+    def writable(self):
+        return True
+
+    def seekable(self):
+        return True
+
+    def seek(self, offset, whence=io.SEEK_SET):
+        self.pos = {io.SEEK_SET: 0, io.SEEK_CUR: self.pos, io.SEEK_END: self.size}[whence] + offset
+        return self.pos
+
+    def tell(self):
+        return self.pos
+
+    def _disk(self, start, length) -> bytes:
+        valid = max(0, min(length, self.on_disk - start))
+        data = os.pread(self.fd, valid, start) if valid else b""
+        return data.ljust(length, b"\0")
+
+    def readinto(self, buffer):
+        view = memoryview(buffer).cast("B")
+        n = max(0, min(len(view), self.size - self.pos))
+        done = 0
+        while done < n:
+            index, offset = divmod(self.pos + done, self.PAGE)
+            take = min(self.PAGE - offset, n - done)
+            page = self.pages.get(index)
+            view[done:done + take] = (page[offset:offset + take] if page is not None
+                                      else self._disk(self.pos + done, take))
+            done += take
+        self.pos += n
+        return n
+
+    def write(self, data):
+        view = memoryview(data).cast("B")
+        done = 0
+        while done < len(view):
+            index, offset = divmod(self.pos + done, self.PAGE)
+            take = min(self.PAGE - offset, len(view) - done)
+            page = self.pages.get(index)
+            if page is None:
+                page = self.pages[index] = bytearray(self._disk(index * self.PAGE, self.PAGE))
+            page[offset:offset + take] = view[done:done + take]
+            done += take
+        self.pos += len(view)
+        self.size = max(self.size, self.pos)
+        return len(view)
+
+    def truncate(self, size=None):
+        size = self.pos if size is None else size
+        if size < self.size:                        # what lies beyond must read as zeros if the file grows again
+            self.on_disk = min(self.on_disk, size)
+            for index in [i for i in self.pages if i * self.PAGE >= size]:
+                del self.pages[index]
+            if size // self.PAGE in self.pages:
+                page = self.pages[size // self.PAGE]
+                page[size % self.PAGE:] = bytes(self.PAGE - size % self.PAGE)
+        self.size = size
+        return size
+
+    def flush(self):
+        pass
+
+    def apply(self) -> None:
+        """Write the pending pages, set the size and ``fsync``."""
+        for index in sorted(self.pages):
+            start = index * self.PAGE
+            if start < self.size:
+                view = memoryview(self.pages[index])[:min(self.PAGE, self.size - start)]
+                while view:
+                    written = os.pwrite(self.fd, view, start)
+                    view, start = view[written:], start + written
+        os.ftruncate(self.fd, self.size)
+        os.fsync(self.fd)
 
 
 def _copy_file(source: Path, target: Path) -> None:

@@ -527,6 +527,12 @@ def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monk
     cli_fails(capsys, ["update", run, small_disk / "next.csv"],
               r"next.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
               run)
+    # room for the kernel's copy of the file but not for the appended step: still one line, no crash
+    (small_disk / "filler").unlink()
+    fill(small_disk, run.stat().st_size + 2048)
+    cli_fails(capsys, ["update", run, small_disk / "next.csv"],
+              r"next.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
+              run)
     assert [p.name for p in small_disk.iterdir() if ".tmp-" in p.name] == []
     (small_disk / "filler").unlink()
     monkeypatch.undo()
