@@ -6,20 +6,25 @@ structural side of Lin et al. (2024): shear buildings, ground motions, filters,
 sparse grids and the SG-EnMCMC identifier.
 """
 
-from . import aies, filters, sparsegrid, structures
+from . import aies, filters, nested, prognostics, reference, sparsegrid, structures
 from .density import GaussianMixture, RunningStatistics, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, MarkovKernel, Static
+from .nested import KalmanInnerFilter, ParticleInnerFilter
+from .prognostics import FirstPassage, time_to_threshold
+from .reference import GridReference, grid_filter
 from .priors import JointPrior
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
 from .selection import ModelComparison, compare
-from .sequential import SEMC, SMC, SamplerConfig, SamplerState, TemperingLimitError, ZeroLikelihoodError, assimilate
+from .sequential import (SEMC, SMC, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
+                         ZeroLikelihoodError, assimilate)
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
 from .config import load_config
 from .store import RunStore, posterior_to_arviz
 
 __version__ = "0.1.0"
-__all__ = ["load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+__all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
+           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",
