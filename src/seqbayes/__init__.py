@@ -16,7 +16,7 @@ from .priors import JointPrior
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
 from .selection import ModelComparison, compare
-from .sequential import (SEMC, SMC, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
+from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
                          ZeroLikelihoodError, assimilate)
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
 from .config import load_config
@@ -24,7 +24,7 @@ from .store import RunStore, posterior_to_arviz
 
 __version__ = "0.1.0"
 __all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
-           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",

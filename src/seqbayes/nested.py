@@ -161,7 +161,7 @@ class ParticleInnerFilter:
             log_increment = np.full(k, -np.inf)
             if inside.any():
                 log_increment[inside] = counter.loglike_on(outer[inside], dataset)
-            return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1))}
+            return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1)), "ess": np.ones(k)}
         x, log_w = cloud["x"], cloud["log_w"]
         if x.shape[1] != m:  # one value per outer particle after the first step: M children each
             x, log_w = np.repeat(x, m, axis=1), np.full((k, m), -np.log(m))
@@ -188,7 +188,8 @@ class ParticleInnerFilter:
             index = _systematic_rows(log_w[rows], rng)
             x[rows] = x[rows[:, None], index]
             log_w[rows] = -np.log(m)
-        return log_increment, {"x": x, "log_w": log_w}
+        # "ess": each inner filter's ESS fraction after weighting, before resampling (a health diagnostic)
+        return log_increment, {"x": x, "log_w": log_w, "ess": np.where(alive, ess, 0.0) / m}
 
     def draws(self, cloud, rng) -> np.ndarray:
         """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
@@ -337,11 +338,14 @@ def start_nested(prior, columns, draws, step_size) -> NestedState:
                        np.zeros(n), (), 0.0, float(step_size), draws)
 
 
-def after_joint_first_step(split, particles, log_weights, components, dataset, log_evidence, step_size,
+def after_joint_first_step(split, n_inner, particles, log_weights, components, dataset, log_evidence, step_size,
                            posterior, predictive) -> NestedState:
     """The state after a first step done jointly over every parameter (``joint_first_step``):
-    ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``."""
-    return NestedState(1, particles, {"x": particles[:, None, split[1]].copy(), "log_w": np.zeros((particles.shape[0], 1))},
+    ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``; each inner filter holds
+    ``n_inner`` copies of its outer particle's drifting values."""
+    n = particles.shape[0]
+    x = np.repeat(particles[:, None, split[1]], n_inner, axis=1)
+    return NestedState(1, particles, {"x": x, "log_w": np.full((n, n_inner), -np.log(n_inner)), "ess": np.ones(n)},
                        log_weights, components[:, 1].copy(), components[:, 0].copy(), (_kept(dataset),),
                        float(log_evidence), float(step_size), posterior, predictive)
 
@@ -464,6 +468,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     datasets = state.datasets + (_kept(dataset),)
     log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
                                          counter, rng)
+    inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
     static, log_weights = state.outer, state.log_weights
     components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
     if not np.isfinite(log_increment).any():
@@ -521,7 +526,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
         n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
         log_evidence_increment_path=float(log_z), evidence_ess=float("nan"), n_independent_accepted=0,
         n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start,
-        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()))
+        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()), inner_ess=inner_ess)
     predictive = problem.kernel.propagate(posterior, rng)
     record = StepRecord(info, posterior, log_weights, predictive)
     new_state = NestedState(step, static, cloud, log_weights, components[:, 1],

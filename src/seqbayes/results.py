@@ -75,6 +75,10 @@ class StepInfo:
         flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
     conflict_parameter : int
         The parameter (column) where it is largest.
+    inner_ess : float
+        SMC^2 with a particle inner filter: the inner filters' mean ESS after weighting, as a
+        fraction of their size (NaN otherwise). Below ~0.02 the likelihood estimates are too
+        noisy for the PMMH moves (raise ``n_inner``; see docs/core.md).
     """
 
     step: int
@@ -100,6 +104,7 @@ class StepInfo:
     wall_time: float
     prior_data_conflict: float = float("nan")
     conflict_parameter: int = 0
+    inner_ess: float = float("nan")
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":

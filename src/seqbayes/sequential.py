@@ -55,7 +55,7 @@ from .transforms import BoxTransform
 from .weights import ess, logsumexp
 
 __all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError",
-           "TemperingLimitError", "PriorDataConflictWarning"]
+           "TemperingLimitError", "PriorDataConflictWarning", "InnerFilterWarning"]
 
 
 class ZeroLikelihoodError(RuntimeError):
@@ -64,6 +64,10 @@ class ZeroLikelihoodError(RuntimeError):
 
 class PriorDataConflictWarning(RuntimeWarning):
     """A step's posterior lies far in the tail of its prior (``StepInfo.prior_data_conflict``)."""
+
+
+class InnerFilterWarning(RuntimeWarning):
+    """SMC^2's inner particle filters are degenerate (``StepInfo.inner_ess`` below 0.05)."""
 
 
 class TemperingLimitError(RuntimeError):
@@ -716,7 +720,8 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         # the first dataset has no dynamics yet: a static problem in every parameter
         joint = SamplerState(0, state.particles, state.log_weights, problem.prior, 0.0, state.step_size)
         _, record, cloud = _assimilate_particles(joint, dataset, problem, config, rng, counter, "joint", start)
-        new_state = after_joint_first_step(nested_split(problem.kernel), cloud.particles, cloud.log_weights,
+        new_state = after_joint_first_step(nested_split(problem.kernel), problem.inner_filter.n_inner,
+                                           cloud.particles, cloud.log_weights,
                                            cloud.components, dataset, record.info.log_evidence,
                                            state.step_size if np.isnan(record.info.step_size) else record.info.step_size,
                                            cloud.particles, record.predictive)
@@ -890,6 +895,13 @@ class _SequentialSampler:
             state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
         self._state = state
         self._records.append(record)
+        if record.info.inner_ess < 0.05:
+            warnings.warn(f"step {record.info.step}: SMC^2's inner particle filters are degenerate (mean ESS "
+                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.config.n_inner}): the data pin the "
+                          f"drifting parameters far more tightly than the kernel's noise, so the likelihood estimates "
+                          f"are noisy and the moves rarely accept. Raise n_inner, declare a KalmanInnerFilter if the "
+                          f"model is linear-Gaussian in them, or for a short run use predictive='transition'",
+                          InnerFilterWarning, stacklevel=2)
         if record.info.prior_data_conflict > self.config.conflict_threshold:
             conflict = prior_data_conflict(*prior, record.posterior, record.log_weights)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)

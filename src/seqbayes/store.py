@@ -93,6 +93,7 @@ from .config import (NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, as
                      check_table, dataset_digest, load_located, locate_module, read_datafile)
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
+from .nested import NestedState, nested_state_arrays, nested_state_from_arrays, start_nested
 from .sequential import SamplerState
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
@@ -243,7 +244,7 @@ class RunStore:
 
     def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
                  rng_states, result: Result, mixtures, step_sizes, digests, sources, log_priors=(), tables=(),
-                 created=None, module_hashes=None):
+                 created=None, module_hashes=None, nested=()):
         self.path = Path(path)
         self.config = config
         self.initial_particles = initial_particles
@@ -253,7 +254,8 @@ class RunStore:
         self.result = result
         self.mixtures = list(mixtures)              # S tuples (centres, bandwidth, log_weights), or none
         self.log_priors = list(log_priors)          # or, with a history prior, S (N,) prior values
-        self.tables = list(tables)                  # and the S datasets it re-evaluates
+        self.tables = list(tables)                  # and the S datasets it re-evaluates (also for SMC^2)
+        self.nested = list(nested)                  # or, with SMC^2, S dicts of state arrays (seqbayes.nested)
         self.step_sizes = list(step_sizes)          # S state step sizes
         self.digests = list(digests)
         self.sources = list(sources)
@@ -357,6 +359,8 @@ class RunStore:
             required += ["posterior", "log_weights", "predictive", "step_info", "dataset_sha256", "dataset_source",
                          "state_step_size"]
             required += (["state_log_prior", "dataset_values", "dataset_rows"] if "state_log_prior" in ds
+                         else ["nested_outer", "nested_scalars", "dataset_values", "dataset_rows"]
+                         if stored.predictive_method == "smc2"
                          else ["mixture_centres", "mixture_bandwidth", "mixture_log_weights"])
         missing = [name for name in required if name not in ds]
         if missing:
@@ -444,11 +448,17 @@ class RunStore:
         if not self.n_steps:
             return data, coords
         data["state_step_size"] = (("step",), np.array(self.step_sizes, dtype=float))
-        if self.log_priors:  # the history prior: its values at the particles and the datasets it re-evaluates
+        if self.tables:  # the datasets the history prior re-evaluates, or SMC^2's PMMH re-runs
             coords["column"] = list(self.config.columns)
-            data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)),
-                        dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
+            data.update(dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
                         dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables])))
+        if self.log_priors:  # the history prior: its values at the particles
+            data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)))
+        elif self.nested:  # SMC^2: outer particles, inner filters, likelihood estimates (seqbayes.nested)
+            for key in self.nested[0]:
+                stacked = np.stack([arrays[key] for arrays in self.nested])
+                dims = ("step",) + tuple(f"nested_{key}_{axis}" for axis in range(1, stacked.ndim))
+                data[f"nested_{key}"] = (dims, stacked)
         else:
             data.update(
                 mixture_centres=(("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
@@ -591,7 +601,14 @@ class RunStore:
         """``(state, records, rng_state)`` after ``step`` datasets, for :meth:`SEMC.restore`."""
         if not 0 <= step <= self.n_steps:
             raise ValueError(f"step: must lie in [0, {self.n_steps}], got {step}")
-        if step == 0:
+        if self.config.predictive_method == "smc2":  # the default inner filter's outer particles hold every column
+            if step == 0:
+                state = start_nested(self.config.build_prior(), np.arange(self.initial_particles.shape[1]),
+                                     self.initial_particles, self.initial_step_size)
+            else:
+                datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
+                state = nested_state_from_arrays(self.nested[step - 1], datasets)
+        elif step == 0:
             state = SamplerState(step=0, particles=self.initial_particles, log_weights=self.initial_log_weights,
                                  prior=self.config.build_prior(), log_evidence=0.0,
                                  step_size=self.initial_step_size)
@@ -613,7 +630,10 @@ class RunStore:
 
     def _store_state(self, base: int, state: SamplerState, rng_state: dict, table) -> None:
         """Keep the sampler state after step ``base + 1`` (the steps after ``base`` are dropped)."""
-        if isinstance(state.prior, HistoryPrior):
+        if isinstance(state, NestedState):
+            self.nested = self.nested[:base] + [nested_state_arrays(state)]
+            self.tables = self.tables[:base] + [table]
+        elif isinstance(state.prior, HistoryPrior):
             self.log_priors = self.log_priors[:base] + [np.array(state.log_prior)]
             self.tables = self.tables[:base] + [table]
         else:
@@ -813,7 +833,8 @@ class RunStore:
             sampler = self.sampler(base, executor=executor, loglike=function if loglike is None else loglike)
             info = sampler.update(as_likelihood_data(table, self.config))
             state, records, rng_state = sampler.snapshot()
-            if not isinstance(state, SamplerState) or not isinstance(state.prior, (GaussianMixture, HistoryPrior)):
+            if not (isinstance(state, NestedState)
+                    or isinstance(state, SamplerState) and isinstance(state.prior, (GaussianMixture, HistoryPrior))):
                 kind = type(state).__name__ if not isinstance(state, SamplerState) else type(state.prior).__name__
                 raise StoreError(f"{self.path}: this seqbayes cannot store a sampler state of type {kind} yet "
                                  f"(predictive = {self.config.predictive_method!r}); set predictive = \"transition\" "
@@ -938,17 +959,23 @@ def _read_state(path: Path, ds, config: RunConfig, n_steps: int) -> dict:
         if not (isinstance(state, dict) and isinstance(state.get("bit_generator"), str)
                 and isinstance(state.get("state"), dict)):
             raise StoreError(f"{path}: damaged run store: rng_state[{i}] is not a numpy generator state")
-    state = {"rng_states": rng_states, "mixtures": [], "log_priors": [], "tables": [], "step_sizes": []}
+    state = {"rng_states": rng_states, "mixtures": [], "log_priors": [], "tables": [], "step_sizes": [],
+             "nested": []}
     if not n_steps:
         return state
     state["step_sizes"] = [float(v) for v in ds["state_step_size"].values]
-    if "state_log_prior" in ds:
+    if "dataset_rows" in ds:
         rows = ds["dataset_rows"].values
         if rows.shape != (n_steps,) or int(rows.sum()) != ds["dataset_values"].shape[0]:
             raise StoreError(f"{path}: inconsistent store (dataset_rows {rows.tolist()} for "
                              f"{ds['dataset_values'].shape[0]} stored data rows)")
-        state["log_priors"] = list(ds["state_log_prior"].values)
         state["tables"] = np.split(ds["dataset_values"].values, np.cumsum(rows)[:-1])
+    nested_keys = [name for name in ds.data_vars if name.startswith("nested_")]
+    if "state_log_prior" in ds:
+        state["log_priors"] = list(ds["state_log_prior"].values)
+    elif nested_keys:
+        state["nested"] = [{name[len("nested_"):]: ds[name].values[i] for name in nested_keys}
+                           for i in range(n_steps)]
     else:
         state["mixtures"] = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
                               ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
@@ -1186,8 +1213,13 @@ def _step_info(values: dict) -> StepInfo:
 
 
 def _check_state(state: SamplerState, record: StepRecord) -> None:
-    same = (np.array_equal(state.particles, record.predictive) and np.array_equal(state.log_weights, record.log_weights)
-            and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
+    if isinstance(state, NestedState):  # SMC^2 keeps its own arrays; its posterior is the record's
+        same = (np.array_equal(state.particles, record.posterior) and np.array_equal(state.log_weights, record.log_weights)
+                and state.log_evidence == record.info.log_evidence)
+    else:
+        same = (np.array_equal(state.particles, record.predictive)
+                and np.array_equal(state.log_weights, record.log_weights)
+                and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
     if not same:  # pragma: no cover - guards the identity state_at relies on
         raise StoreError("the sampler state differs from its step record; the run-store format needs updating")
 

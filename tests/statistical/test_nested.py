@@ -145,3 +145,18 @@ def test_state_arrays_round_trip_resumes_bit_for_bit(problem_and_data):
         resumed.update(y)
     assert np.array_equal(full.steps[-1].posterior, resumed.result.steps[-1].posterior)
     assert full.steps[-1].info.log_evidence == resumed.result.steps[-1].info.log_evidence
+
+
+def test_degenerate_inner_filters_are_reported():
+    """Sharp data on two drifting parameters with a wide kernel noise: a bootstrap inner filter of
+    100 particles keeps ~1 % of its ESS, and the sampler says so (``StepInfo.inner_ess``)."""
+    from seqbayes import InnerFilterWarning
+
+    problem = LinearGaussianStateSpace(LinearGaussianStateSpace.mixed().design, ("drift", "drift", "static", "static"),
+                                       np.zeros(4), (1.0, 1.0, 0.0, 0.0), np.zeros(4), np.ones(4), noise_std=0.05)
+    data, _ = problem.simulate(2, rng=3)
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0, n_inner=100)
+    sampler.update(data[0])
+    with pytest.warns(InnerFilterWarning, match="degenerate"):
+        info = sampler.update(data[1])
+    assert info.inner_ess < 0.05
