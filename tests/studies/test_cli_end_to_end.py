@@ -81,7 +81,8 @@ def test_full_monitoring_session(work, capsys):
     lines = out.splitlines()
     assert "model 'drift'" in lines[0] and "steps: 3" in lines[0]
     for s, path in enumerate(files, start=1):
-        assert any(re.match(rf"\s+{s}\s+{re.escape(path.name)}\s+0\.\d+\s+[\d.]+", line) for line in lines), s
+        # acceptance is nan at a step that moved nothing (SMC^2 moves when the ESS falls)
+        assert any(re.match(rf"\s+{s}\s+{re.escape(path.name)}\s+(0\.\d+|nan)\s+[\d.]+", line) for line in lines), s
         assert any(re.match(rf"\s+{s}\s+A\s", line) for line in lines)
     code, out, _ = run(capsys, "status", work / "drift.nc", "--json", "--level", "0.9")
     status = json.loads(out)
@@ -93,7 +94,7 @@ def test_full_monitoring_session(work, capsys):
         assert abs(p["A"]["mean"] - a_true) < 4 * p["A"]["sd"]
         assert abs(p["b"]["mean"] - TRUTH_B) < 4 * p["b"]["sd"]
         assert p["A"]["lower"] < p["A"]["mean"] < p["A"]["upper"]
-        assert 0.0 < r["acceptance_rate"] < 1.0 and 0.0 < r["ess"] <= 120.0
+        assert (0.0 < r["acceptance_rate"] < 1.0 or r["acceptance_rate"] != r["acceptance_rate"]) and 0.0 < r["ess"] <= 120.0
     increments = [r["log_evidence_increment"] for r in status["steps"]]
     assert status["steps"][-1]["log_evidence"] == pytest.approx(sum(increments), rel=1e-12)
     # the 0.9 interval is narrower than the 0.95 one of the text table
