@@ -825,6 +825,9 @@ class _SequentialSampler:
                                          or blas_threads < 1):
             raise ValueError(f"blas_threads: expected an integer >= 1 or None, got {blas_threads!r}")
         self._blas_threads = blas_threads
+        if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer, float)) \
+                or int(n_samples) != n_samples or n_samples < 2:
+            raise ValueError(f"n_samples: must be an integer >= 2, got {n_samples!r}")
         self._rng = as_generator(rng)
         initial = as_samples(prior.sample(int(n_samples), self._rng), name="prior.sample(n, rng)")
         dim = initial.shape[1]

@@ -278,3 +278,10 @@ def test_result_from_an_older_file_without_newer_diagnostics(tmp_path):
     assert np.isnan(back.steps[0].info.evidence_ess) and back.steps[0].info.n_move_evaluations == 0
     assert back.steps[-1].info.log_evidence == result.steps[-1].info.log_evidence
     np.testing.assert_array_equal(back.steps[-1].posterior, result.steps[-1].posterior)
+
+
+@pytest.mark.parametrize("n_samples", [100.5, True, "100"])
+def test_a_non_integer_sample_count_is_refused(n_samples):
+    prior = seqbayes.JointPrior({"a": stats.norm(0, 1)})
+    with pytest.raises(ValueError, match="n_samples: must be an integer"):
+        SEMC(prior, seqbayes.MarkovKernel([seqbayes.Static()]), lambda t, y: np.zeros(len(t)), n_samples=n_samples)
