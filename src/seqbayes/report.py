@@ -33,7 +33,8 @@ def status_rows(store, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, resampled, log_evidence_increment,
-    log_evidence, step_size, n_loglike_evals, wall_time, parameters`` where
+    log_evidence, step_size, n_loglike_evals, wall_time, prior_data_conflict, conflict_parameter, inner_ess,
+    parameters`` where
     ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
     ``level`` interval).
     """
@@ -50,6 +51,9 @@ def status_rows(store, level: float = 0.95) -> list[dict]:
             "log_evidence_increment": float(info.log_evidence_increment), "log_evidence": float(info.log_evidence),
             "step_size": float(info.step_size), "n_loglike_evals": int(info.n_loglike_evals),
             "wall_time": float(info.wall_time),
+            # posterior-mean shift in prior sds (> 4: prior-data conflict) and its parameter; SMC^2's inner ESS
+            "prior_data_conflict": float(info.prior_data_conflict),
+            "conflict_parameter": store.names[int(info.conflict_parameter)], "inner_ess": float(info.inner_ess),
             "parameters": {name: {"mean": float(mean[j]), "sd": float(sd[j]), "lower": float(q[0, j]),
                                   "upper": float(q[1, j])} for j, name in enumerate(store.names)},
         })
@@ -71,10 +75,13 @@ def format_status(store, level: float = 0.95) -> str:
     rows = status_rows(store, level)
     n = cfg.n_samples
     lines.append("")
-    lines.append(f"{'step':>4}  {'dataset':<24} {'accept':>7} {'ESS':>8} {'ESS/N':>6} {'log Z_s':>11} {'log Z':>11}")
+    lines.append(f"{'step':>4}  {'dataset':<24} {'accept':>7} {'ESS':>8} {'ESS/N':>6} {'log Z_s':>11} {'log Z':>11}"
+                 f" {'conflict':>8}")
     for r in rows:
+        flag = f" (!{r['conflict_parameter']})" if r["prior_data_conflict"] > 4 else ""
         lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {r['acceptance_rate']:7.3f} {r['ess']:8.1f} "
-                     f"{r['ess'] / n:6.3f} {r['log_evidence_increment']:11.4f} {r['log_evidence']:11.4f}")
+                     f"{r['ess'] / n:6.3f} {r['log_evidence_increment']:11.4f} {r['log_evidence']:11.4f}"
+                     f" {r['prior_data_conflict']:8.2f}{flag}")
     previous = rows[0]["likelihood_sha256"]
     for r in rows[1:]:   # an edited likelihood module accepted with --accept-model-change
         if r["likelihood_sha256"] != previous:
