@@ -51,7 +51,8 @@ from .transforms import BoxTransform
 from .weights import logsumexp
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
-           "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays"]
+           "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays",
+           "nested_guide"]
 
 
 def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
@@ -109,10 +110,22 @@ class ParticleInnerFilter:
         acceptance over long histories (the variance of ``log p^(D^{1:s})`` grows like ``s / M``).
     ess_threshold : float
         An inner filter resamples when its ESS falls below this fraction of ``M`` (0.5).
+    guided : bool
+        Draw half of each step's inner particles from a Gaussian guide fitted to the data instead
+        of from the kernel (True). Data that pin the drifting parameters far more tightly than the
+        kernel's noise leave a bootstrap filter with almost no useful particle; the guide is fitted
+        to ``n_pilot`` separate kernel draws weighted by the likelihood, tempered so that their ESS
+        stays at a quarter (``L^beta``, so it covers the posterior with room), and fixed for that
+        step (re-runs use the same guide), so the likelihood estimate stays unbiased: each particle
+        carries ``L T / (T / 2 + G / 2)``.
+    n_pilot : int
+        Pilot draws of the guide (2000).
     """
 
     n_inner: int = 100
     ess_threshold: float = 0.5
+    guided: bool = True
+    n_pilot: int = 2000
 
     #: The outer particles carry the drifting parameters' first value too: the first dataset is then a
     #: static problem in every parameter (tempering, restarts and the importance evidence of the other
@@ -134,7 +147,59 @@ class ParticleInnerFilter:
             raise TypeError("prior: SMC^2 draws the drifting parameters from their own marginals; "
                             "give a seqbayes.JointPrior (independent marginals)")
 
-    def advance(self, problem, split, outer, cloud, dataset, first, counter, rng):
+    def fit_guide(self, problem, split, outer, log_weights, cloud, dataset, counter, rng):
+        """The step's Gaussian guide ``(mean (d_x,), cov (d_x, d_x))``, or ``None`` (not guided, a kernel
+        without noise on a drifting parameter, or too few pilot draws with a non-zero likelihood).
+
+        Pilot: ``n_pilot`` inner particles picked with the outer and inner weights and propagated
+        through the kernel; a Gaussian ``P`` fitted to them stands for the predictive. Then up to
+        four rounds of tempered adaptive importance sampling towards ``L P``: weigh the current
+        draws by ``L^beta P / q`` with ``beta`` the largest exponent keeping a quarter of their ESS,
+        fit the guide (weighted mean, twice the covariance), draw afresh from it; stop once
+        ``beta`` reaches 1. The guide only has to cover the posterior: the particles' own weights
+        use the exact transition density."""
+        from .sequential import _next_increment
+
+        noise = problem.kernel.noise_std[split[1]]
+        if not self.guided or not np.all(noise > 0):
+            return None
+        k, n_pilot, dim = outer.shape[0], int(self.n_pilot), problem.kernel.dim
+        p = np.exp(log_weights - log_weights.max())
+        rows = rng.choice(k, size=n_pilot, p=p / p.sum())
+        cols = _categorical_rows(cloud["log_w"][rows], rng)
+        prev = _joint(outer[rows][:, split[0]], cloud["x"][rows, cols], split, dim)
+        theta = problem.kernel.propagate(prev, rng)
+        x = theta[:, split[1]]
+        mean, cov = x.mean(axis=0), np.cov(x, rowvar=False).reshape(x.shape[1], x.shape[1])
+        cov = cov + np.diag(1e-12 * (1.0 + mean**2))
+        log_predictive = _gaussian_logpdf(x, mean, cov)
+        predictive = (mean, cov)
+        log_proposal = log_predictive
+        support = problem.support
+        for _ in range(4):
+            inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
+            loglike = np.full(n_pilot, -np.inf)
+            if inside.any():
+                loglike[inside] = counter.loglike_on(theta[inside], dataset)
+            if np.count_nonzero(np.isfinite(loglike)) < 2 * split[1].size + 2:
+                return None
+            base = log_predictive - log_proposal
+            beta = _next_increment(base, loglike, 1.0, 0.25, 0.25)
+            log_w = np.where(np.isfinite(loglike), base + beta * np.where(np.isfinite(loglike), loglike, 0.0), -np.inf)
+            w = np.exp(log_w - log_w.max())
+            w /= w.sum()
+            mean = w @ x
+            cov = 2.0 * ((x - mean).T * w) @ (x - mean) + np.diag(1e-12 * (1.0 + mean**2))
+            if beta >= 1.0:
+                break
+            x = mean + rng.standard_normal(x.shape) @ np.linalg.cholesky(cov).T
+            theta = theta.copy()
+            theta[:, split[1]] = x
+            log_proposal = _gaussian_logpdf(x, mean, cov)
+            log_predictive = _gaussian_logpdf(x, *predictive)
+        return mean, cov
+
+    def advance(self, problem, split, outer, cloud, dataset, first, counter, rng, guide=None):
         """One step of every inner filter.
 
         Parameters
@@ -147,6 +212,8 @@ class ParticleInnerFilter:
             The first dataset: its likelihood at the outer particle itself.
         counter : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
             Evaluates (and counts) the user's likelihood.
+        guide : tuple ``(mean, cov)`` or None
+            The step's guide (:meth:`fit_guide`): half the particles are drawn from it.
 
         Returns
         -------
@@ -166,14 +233,28 @@ class ParticleInnerFilter:
         if x.shape[1] != m:  # one value per outer particle after the first step: M children each
             x, log_w = np.repeat(x, m, axis=1), np.full((k, m), -np.log(m))
         phi = np.repeat(outer[:, split[0]], m, axis=0)
-        theta = problem.kernel.propagate(_joint(phi, x.reshape(k * m, -1), split, dim), rng)  # Eq. (A2)
+        previous = _joint(phi, x.reshape(k * m, -1), split, dim)
+        theta = problem.kernel.propagate(previous, rng)  # Eq. (A2)
+        correction = 0.0
+        if guide is not None:  # half from the guide G: weight L T / q with q = T / 2 + G / 2
+            mean, cov = guide
+            chol = np.linalg.cholesky(cov)
+            guided = rng.random(k * m) < 0.5
+            draws = mean + rng.standard_normal((int(guided.sum()), mean.size)) @ chol.T
+            theta[np.ix_(guided, split[1])] = draws
+            nominal = problem.kernel.nominal(previous)[:, split[1]]
+            noise = problem.kernel.noise_std[split[1]]
+            z = (theta[:, split[1]] - nominal) / noise
+            log_t = -0.5 * np.sum(z**2, axis=1) - np.sum(np.log(noise))
+            log_g = _gaussian_logpdf(theta[:, split[1]], mean, cov)
+            correction = (log_t - np.logaddexp(log_t, log_g) + np.log(2.0)).reshape(k, m)
         inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
         loglike = np.full(k * m, -np.inf)
         if inside.all():
             loglike = counter.loglike_on(theta, dataset)
         elif inside.any():
             loglike[inside] = counter.loglike_on(theta[inside], dataset)
-        loglike = loglike.reshape(k, m)
+        loglike = loglike.reshape(k, m) + correction
         with np.errstate(invalid="ignore"):
             joint = log_w + loglike
             peak = np.max(joint, axis=1, keepdims=True)
@@ -195,6 +276,13 @@ class ParticleInnerFilter:
         """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
         index = _categorical_rows(cloud["log_w"], rng)
         return cloud["x"][np.arange(index.size), index]
+
+
+def _gaussian_logpdf(x, mean, cov) -> np.ndarray:
+    """``log N(x; mean, cov)`` up to the ``2 pi`` constant, for ``x (n, k)``."""
+    chol = np.linalg.cholesky(cov)
+    u = np.linalg.solve(chol, (x - mean).T)
+    return -0.5 * np.sum(u**2, axis=0) - np.sum(np.log(np.diag(chol)))
 
 
 def _categorical_rows(log_weights, rng) -> np.ndarray:
@@ -239,7 +327,11 @@ class KalmanInnerFilter:
             if not isinstance(kernel.components[j], (Drift, Decay)):
                 raise ValueError(f"kernel: {prior.names[j]!r} must be Drift or Decay for KalmanInnerFilter")
 
-    def advance(self, problem, split, static, cloud, dataset, first, counter, rng):
+    def fit_guide(self, *args, **kwargs):
+        """The Kalman filter needs no guide."""
+        return None
+
+    def advance(self, problem, split, static, cloud, dataset, first, counter, rng, guide=None):
         """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
         (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
         k, d_x = static.shape[0], split[1].size
@@ -306,6 +398,9 @@ class NestedState:
     predictive : (N, d) array or None
         Those draws propagated through the kernel (the record's predictive), the reference of the
         next step's prior-data conflict diagnostic.
+    guides : tuple
+        Per step, the inner filters' guide ``(mean, cov)`` or ``None`` (:meth:`ParticleInnerFilter.fit_guide`);
+        PMMH re-runs use the same guides, which keeps their likelihood estimates unbiased.
     """
 
     step: int
@@ -319,6 +414,7 @@ class NestedState:
     step_size: float
     particles: np.ndarray = field(default=None)
     predictive: np.ndarray | None = None
+    guides: tuple = ()
 
     @property
     def posterior(self):
@@ -347,7 +443,7 @@ def after_joint_first_step(split, n_inner, particles, log_weights, components, d
     x = np.repeat(particles[:, None, split[1]], n_inner, axis=1)
     return NestedState(1, particles, {"x": x, "log_w": np.full((n, n_inner), -np.log(n_inner)), "ess": np.ones(n)},
                        log_weights, components[:, 1].copy(), components[:, 0].copy(), (_kept(dataset),),
-                       float(log_evidence), float(step_size), posterior, predictive)
+                       float(log_evidence), float(step_size), posterior, predictive, (None,))
 
 
 def _outer_logpdf(prior, columns, outer) -> np.ndarray:
@@ -357,7 +453,7 @@ def _outer_logpdf(prior, columns, outer) -> np.ndarray:
     return total
 
 
-def _pmmh(problem, config, inner, split, datasets, static, cloud, components, beta, step_size, counter, rng):
+def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, counter, rng):
     """Particle-marginal MH sweeps of the static parameters at tempering exponent ``beta``.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
@@ -407,7 +503,7 @@ def _pmmh(problem, config, inner, split, datasets, static, cloud, components, be
             new_cloud = _take(cloud, active)
             if inside.any():
                 rows = np.flatnonzero(inside)
-                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, counter, rng)
+                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, counter, rng)
                 new_components[rows] = np.column_stack([last, _outer_logpdf(problem.prior, columns, phi[rows]), past])
                 for key in new_cloud:
                     new_cloud[key][rows] = rerun[key]
@@ -439,15 +535,15 @@ def _pmmh(problem, config, inner, split, datasets, static, cloud, components, be
     return static, cloud, components, stats, step_size, n_sweeps
 
 
-def _run_inner(problem, inner, split, static, datasets, counter, rng):
-    """Re-run inner filters from the first dataset: ``log p^(D^{1:s-1})``, ``log p^(D^s | D^{1:s-1})``
-    and the final cloud, for ``static (K, d_s)``."""
+def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
+    """Re-run inner filters from the first dataset (with each step's guide): ``log p^(D^{1:s-1})``,
+    ``log p^(D^s | D^{1:s-1})`` and the final cloud, for the outer particles ``static``."""
     past = np.zeros(static.shape[0])
     cloud, last = None, None
     for k, dataset in enumerate(datasets):
         if last is not None:
             past = past + last
-        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, counter, rng)
+        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, counter, rng, guides[k])
     return past, last, cloud
 
 
@@ -466,8 +562,11 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     n = config.n_samples
     split, inner = nested_split(problem.kernel), problem.inner_filter
     datasets = state.datasets + (_kept(dataset),)
+    guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, counter, rng)
+             if step > 1 else None)
+    guides = state.guides + (guide,)
     log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
-                                         counter, rng)
+                                         counter, rng, guide)
     inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
     static, log_weights = state.outer, state.log_weights
     components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
@@ -504,7 +603,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
             static, components, cloud = static[index], components[index], _take(cloud, index)
             log_weights = np.full(n, -np.log(n))
             static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
-                problem, config, inner, split, datasets, static, cloud, components, beta, step_size,
+                problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size,
                 counter, rng)
             stats, n_sweeps = stats + sweep, n_sweeps + sweeps
             if config.move == "stretch":
@@ -531,7 +630,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     record = StepRecord(info, posterior, log_weights, predictive)
     new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
                             components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior,
-                            predictive)
+                            predictive, guides)
     return new_state, record
 
 
@@ -549,16 +648,32 @@ def nested_state_arrays(state: NestedState) -> dict:
            **({"predictive": state.predictive} if state.predictive is not None else {}),
            "scalars": np.array([state.step, state.log_evidence, state.step_size], dtype=float)}
     out.update({f"cloud_{key}": value for key, value in state.cloud.items()})
+    d_x = (state.cloud["x"] if "x" in state.cloud else state.cloud["mean"]).shape[-1]  # drifting parameters
+    guide = state.guides[-1] if state.guides else None
+    out["guide_used"] = np.array(float(guide is not None))  # this step's guide only: the store keeps every step
+    out["guide_mean"] = guide[0] if guide is not None else np.zeros(d_x)
+    out["guide_cov"] = guide[1] if guide is not None else np.zeros((d_x, d_x))
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
 
 
-def nested_state_from_arrays(arrays: dict, datasets: tuple) -> NestedState:
-    """The inverse of :func:`nested_state_arrays`; ``datasets`` are ``D^1 .. D^s``."""
+def nested_guide(arrays: dict):
+    """The guide of the step whose :func:`nested_state_arrays` are ``arrays`` (``None`` if unguided)."""
+    if "guide_used" not in arrays or not float(arrays["guide_used"]):
+        return None
+    return np.array(arrays["guide_mean"]), np.array(arrays["guide_cov"])
+
+
+def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) -> NestedState:
+    """The inverse of :func:`nested_state_arrays`; ``datasets`` are ``D^1 .. D^s`` and ``guides`` the
+    guides of steps ``1 .. s - 1`` (:func:`nested_guide` of their arrays)."""
     step, log_evidence, step_size = np.asarray(arrays["scalars"], dtype=float)
     if int(step) != len(datasets):
         raise ValueError(f"datasets: {len(datasets)} datasets for a state at step {int(step)}")
     cloud = {key[len("cloud_"):]: np.array(value) for key, value in arrays.items() if key.startswith("cloud_")}
+    if len(guides) != int(step) - 1:
+        raise ValueError(f"guides: {len(guides)} guides for a state at step {int(step)} (expected {int(step) - 1})")
     return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
                        np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),
                        float(log_evidence), float(step_size), np.array(arrays["particles"]),
-                       np.array(arrays["predictive"]) if "predictive" in arrays else None)
+                       np.array(arrays["predictive"]) if "predictive" in arrays else None,
+                       tuple(guides) + (nested_guide(arrays),))

@@ -93,7 +93,7 @@ from .config import (NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, as
                      check_table, dataset_digest, load_located, locate_module, read_datafile)
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
-from .nested import NestedState, nested_state_arrays, nested_state_from_arrays, start_nested
+from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
 from .sequential import SamplerState
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
@@ -607,7 +607,8 @@ class RunStore:
                                      self.initial_particles, self.initial_step_size)
             else:
                 datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
-                state = nested_state_from_arrays(self.nested[step - 1], datasets)
+                guides = tuple(nested_guide(arrays) for arrays in self.nested[:step - 1])
+                state = nested_state_from_arrays(self.nested[step - 1], datasets, guides)
         elif step == 0:
             state = SamplerState(step=0, particles=self.initial_particles, log_weights=self.initial_log_weights,
                                  prior=self.config.build_prior(), log_evidence=0.0,
