@@ -893,22 +893,27 @@ class _SequentialSampler:
 
     def update(self, dataset) -> StepInfo:
         """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`."""
-        prior = (self._state.particles, self._state.log_weights)
+        before = self._state  # the step's prior draws: SMC^2 keeps the last posterior and its propagation
+        prior = (before.predictive if isinstance(before, NestedState) and before.predictive is not None
+                 else before.particles, before.log_weights)
         with _blas_limit(self._blas_threads):
             state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
         self._state = state
         self._records.append(record)
         if record.info.inner_ess < 0.05:
             warnings.warn(f"step {record.info.step}: SMC^2's inner particle filters are degenerate (mean ESS "
-                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.config.n_inner}): the data pin the "
-                          f"drifting parameters far more tightly than the kernel's noise, so the likelihood estimates "
-                          f"are noisy and the moves rarely accept. Raise n_inner, declare a KalmanInnerFilter if the "
-                          f"model is linear-Gaussian in them, or for a short run use predictive='transition'",
+                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.config.n_inner}): the data put the "
+                          f"drifting parameters far from where the kernel predicts them, or pin them far more tightly "
+                          f"than its noise, so the likelihood estimates are noisy and the moves rarely accept. A "
+                          f"kernel the data contradict loses evidence anyway; otherwise raise n_inner, declare a "
+                          f"KalmanInnerFilter if the model is linear-Gaussian in them, or for a short run use "
+                          f"predictive='transition'",
                           InnerFilterWarning, stacklevel=2)
         if record.info.prior_data_conflict > self.config.conflict_threshold:
             conflict = prior_data_conflict(*prior, record.posterior, record.log_weights)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
-                            if value > self.config.conflict_threshold)
+                            if value > self.config.conflict_threshold) or \
+                f"{self.names[record.info.conflict_parameter]} {record.info.prior_data_conflict:.1f}"
             warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
                           f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
                           f"kernel too narrow for the data, and the sampler may be unreliable here",
