@@ -35,7 +35,7 @@ def run(args):
             exact = model.load_exact_reference(kernel)
             errs, times = [], []
             for run_index in range(args.runs):
-                settings = {"predictive": args.predictive}
+                settings = {"predictive": args.predictive, "n_independent": args.independent}
                 if args.predictive in ("auto", "smc2"):
                     settings["inner_filter"] = ParticleInnerFilter(args.inner)
                 start = time.perf_counter()
@@ -66,6 +66,7 @@ def main():
     parser.add_argument("--n", type=int, default=1000)
     parser.add_argument("--inner", type=int, default=100, help="inner particles per outer particle (SMC^2)")
     parser.add_argument("--predictive", default="auto")
+    parser.add_argument("--independent", type=int, default=6, help="independence sweeps (the study's 6)")
     parser.add_argument("--seed", type=int, default=2023)
     run(parser.parse_args())
 
