@@ -48,7 +48,6 @@ from .priors import JointPrior
 from .resampling import resample
 from .results import StepInfo, StepRecord, prior_data_conflict
 from .transforms import BoxTransform
-from .weights import logsumexp
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays",
@@ -555,7 +554,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     new_state : NestedState
     record : StepRecord
     """
-    from .sequential import TemperingLimitError, ZeroLikelihoodError, _next_increment, _prior_name, count_distinct
+    from .sequential import ZeroLikelihoodError, _prior_name, count_distinct, reweight_stage
 
     start = time.perf_counter()
     step = state.step + 1
@@ -576,27 +575,10 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     beta, log_z, temperatures = 0.0, 0.0, []
     stats, step_size, n_sweeps, resampled = SweepStats(), state.step_size, 0, False
     while beta < 1.0:
-        if len(temperatures) >= config.max_stages:
-            raise TemperingLimitError(f"step {step}: tempering reached exponent {beta:.3g} after max_stages = "
-                                      f"{config.max_stages} stages; the dataset lies very far from the "
-                                      f"{_prior_name(step)} (check its units and the model), or raise max_stages")
-        remaining = 1.0 - beta
-        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
-                                 config.tempering_threshold) if config.tempering else remaining)
-        if remaining - delta < 1e-12:
-            delta = remaining
-        finite = np.isfinite(components[:, 0])
-        increment = np.where(finite, delta * np.where(finite, components[:, 0], 0.0), -np.inf)
-        stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
-        if not np.isfinite(stage_log_z):
-            raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
-                                      f"{_prior_name(step)} is too far from the data")
+        beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(log_weights, components[:, 0], beta,
+                                                                            len(temperatures), config, step)
         log_z += stage_log_z
-        beta = 1.0 if delta == remaining else beta + delta
         temperatures.append(beta)
-        log_weights = log_weights + increment - stage_log_z
-        weights = np.exp(log_weights)
-        stage_ess = float(1.0 / np.dot(weights, weights))
         resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
         if resampled:  # resample-move (PMMH) only when the ESS has fallen
             index = resample(config.resampling, weights, rng, n)

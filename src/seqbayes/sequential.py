@@ -599,6 +599,46 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
     return _Cloud(particles, log_weights, components), log_restricted_mass, n_found
 
 
+def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
+    """One stage of Eq. (A5): reweight by ``L^delta`` with the next tempering increment ``delta``.
+
+    Parameters
+    ----------
+    log_weights : (N,) array
+        Normalised log-weights before the stage.
+    loglike : (N,) array
+        ``log L`` (or SMC^2's log-likelihood estimates), ``-inf`` allowed.
+    beta : float
+        Exponent reached so far; ``n_stages`` stages done.
+
+    Returns
+    -------
+    beta, stage_log_z, log_weights, weights, ess
+        The new exponent, the stage's log mean weight (Eq. 1), the new normalised log-weights,
+        their weights and ESS.
+    """
+    if n_stages >= config.max_stages:
+        raise TemperingLimitError(
+            f"step {step}: tempering reached exponent {beta:.3g} after max_stages = {config.max_stages} "
+            f"stages; the dataset lies very far from the {_prior_name(step)}"
+            f" (check its units and the model), or raise max_stages")
+    remaining = 1.0 - beta
+    delta = (_next_increment(log_weights, loglike, remaining, config.tempering_ess, config.tempering_threshold)
+             if config.tempering else remaining)
+    if remaining - delta < 1e-12:
+        delta = remaining
+    finite = np.isfinite(loglike)
+    increment = np.where(finite, delta * np.where(finite, loglike, 0.0), -np.inf)
+    stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
+    if not np.isfinite(stage_log_z):  # the particles with a non-zero likelihood all have zero weight
+        raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
+                                  f"{_prior_name(step)} is too far from the data")
+    beta = 1.0 if delta == remaining else beta + delta
+    log_weights = log_weights + increment - stage_log_z  # normalised: the carried weights sum to one
+    weights = np.exp(log_weights)
+    return beta, stage_log_z, log_weights, weights, float(1.0 / np.dot(weights, weights))
+
+
 def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move.
 
@@ -608,28 +648,10 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
     particles, log_weights, components = cloud.particles, cloud.log_weights, cloud.components
     beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
-        if len(temperatures) >= config.max_stages:
-            raise TemperingLimitError(
-                f"step {step}: tempering reached exponent {beta:.3g} after max_stages = {config.max_stages} "
-                f"stages; the dataset lies very far from the {_prior_name(step)}"
-                f" (check its units and the model), or raise max_stages")
-        remaining = 1.0 - beta
-        delta = (_next_increment(log_weights, components[:, 0], remaining, config.tempering_ess,
-                                 config.tempering_threshold) if config.tempering else remaining)
-        if remaining - delta < 1e-12:
-            delta = remaining
-        finite = np.isfinite(components[:, 0])
-        increment = np.where(finite, delta * np.where(finite, components[:, 0], 0.0), -np.inf)
-        stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
-        if not np.isfinite(stage_log_z):  # the particles with a non-zero likelihood all have zero weight
-            raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
-                                      f"{_prior_name(step)} is too far from the data")
+        beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(log_weights, components[:, 0], beta,
+                                                                            len(temperatures), config, step)
         log_z += stage_log_z
-        beta = 1.0 if delta == remaining else beta + delta
         temperatures.append(beta)
-        log_weights = log_weights + increment - stage_log_z  # normalised: the carried weights sum to one
-        weights = np.exp(log_weights)
-        stage_ess = float(1.0 / np.dot(weights, weights))
         resampled = beta < 1.0 or (stage_ess < config.ess_threshold * n and not deferred)
         if resampled:
             index = resample(config.resampling, weights, rng, n)
