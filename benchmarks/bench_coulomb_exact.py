@@ -27,7 +27,7 @@ from seqbayes.nested import ParticleInnerFilter  # noqa: E402
 def run(args):
     data = model.load_experiment()
     print("| sampler | kernel | step | worst mean err / sd | worst sd err | worst log Z err | "
-          f"mean over runs of (mean err / sd) per parameter | all runs within 0.2 sd, 15 % |")
+          "mean over runs of (mean err / sd) per parameter | all runs within 0.2 sd, 15 % |")
     print("|---|---|---|---|---|---|---|---|")
     total_time, n_fail = 0.0, 0
     for cls in (seqbayes.SEMC, seqbayes.SMC):
