@@ -152,7 +152,8 @@ class ParticleInnerFilter:
 
         Pilot: ``n_pilot`` inner particles picked with the outer and inner weights and propagated
         through the kernel; a Gaussian ``P`` fitted to them stands for the predictive. Then up to
-        four rounds of tempered adaptive importance sampling towards ``L P``: weigh the current
+        four rounds of tempered adaptive importance sampling towards ``L P`` (none, and no guide,
+        when the kernel's own draws keep a quarter of their ESS under ``L``): weigh the current
         draws by ``L^beta P / q`` with ``beta`` the largest exponent keeping a quarter of their ESS,
         fit the guide (weighted mean, twice the covariance), draw afresh from it; stop once
         ``beta`` reaches 1. The guide only has to cover the posterior: the particles' own weights
@@ -175,7 +176,7 @@ class ParticleInnerFilter:
         predictive = (mean, cov)
         log_proposal = log_predictive
         support = problem.support
-        for _ in range(4):
+        for round_ in range(4):
             inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
             loglike = np.full(n_pilot, -np.inf)
             if inside.any():
@@ -184,6 +185,8 @@ class ParticleInnerFilter:
                 return None
             base = log_predictive - log_proposal
             beta = _next_increment(base, loglike, 1.0, 0.25, 0.25)
+            if round_ == 0 and beta >= 1.0:  # the kernel's own draws keep a quarter of their ESS: no guide needed
+                return None
             log_w = np.where(np.isfinite(loglike), base + beta * np.where(np.isfinite(loglike), loglike, 0.0), -np.inf)
             w = np.exp(log_w - log_w.max())
             w /= w.sum()
