@@ -505,8 +505,15 @@ class RunStore:
         content = _netcdf_bytes(ds, _encoding(ds), unlimited_dims=[d for d in _GROWING if d in ds.dims])
         _check_free_space(self.path, folder, len(content))
         _fault("before-write")
+        self._replace_with(tmp, folder, mode, lambda path: _write_file(path, content))
+
+    def _replace_with(self, tmp: Path, folder: Path, mode, fill) -> None:
+        """Write the temporary file ``tmp`` with ``fill(tmp)``, give it the store's permission bits
+        ``mode`` and move it over the store (:func:`os.replace`, then ``fsync`` of the folder).
+        On any error ``tmp`` is removed and the store is untouched; an ``OSError`` becomes one
+        :class:`StoreError` line."""
         try:
-            _write_file(tmp, content)
+            fill(tmp)
             if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
                 os.truncate(tmp, os.path.getsize(tmp) // 2)
                 _fault("mid-write")
@@ -547,9 +554,10 @@ class RunStore:
             v.values[self._disk_steps:].nbytes if v.dtype != object else 0 for v in ds.variables.values()
             if v.dims and v.dims[0] == "step") + 1024 * 1024)
         _fault("before-write")
-        try:
-            _copy_file(self.path, tmp)
-            with open(tmp, "r+b") as fh:
+
+        def append_rows(path):
+            _copy_file(self.path, path)
+            with open(path, "r+b") as fh:
                 pending = _PendingWrites(fh)   # HDF5 writes to memory; applied below with plain OS calls
                 with h5netcdf.File(pending, "r+") as f:
                     if not _appendable(f, ds, self._disk_steps):
@@ -563,30 +571,11 @@ class RunStore:
                     for key, value in ds.attrs.items():
                         f.attrs[key] = value
                 pending.apply()
-            if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
-                os.truncate(tmp, os.path.getsize(tmp) // 2)
-                _fault("mid-write")
-            if mode is not None:
-                os.chmod(tmp, mode)
-            _fault("before-replace")
-            os.replace(tmp, self.path)
-        except _NotAppendable:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
+
+        try:
+            self._replace_with(tmp, folder, mode, append_rows)
+        except _NotAppendable:  # the temporary copy is already removed: write the whole file instead
             return False
-        except OSError as err:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise StoreError(f"{self.path}: cannot write the run store: {_os_message(err)}; the previous "
-                             f"store is kept") from None
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise
-        _fsync_dir(folder)
-        self._stamp = _file_stamp(self.path)
-        self._disk_steps = self.n_steps
-        _fault("after-replace")
         return True
 
     # ---------------------------------------------------------------- the state
