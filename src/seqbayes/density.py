@@ -153,6 +153,11 @@ class GaussianMixture:
         return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
 
 
+def kept_copy(dataset):
+    """A copy of a dataset that the sampler keeps (callers reuse their buffers): ``ndarray.copy``, else a deep copy."""
+    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
+
+
 @dataclass(frozen=True, eq=False)
 class RunningStatistics:
     """A likelihood whose product over datasets depends on them only through additive statistics.
@@ -232,7 +237,7 @@ class HistoryPrior:
 
     def extended(self, dataset, log_normaliser) -> "HistoryPrior":
         """The prior after one more dataset (a copy is kept: callers reuse buffers)."""
-        kept = dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
+        kept = kept_copy(dataset)
         summary = self.running.add(self.summary, kept) if self.running is not None else None
         return HistoryPrior(self.initial, self.datasets + (kept,), float(log_normaliser), self.running, summary)
 

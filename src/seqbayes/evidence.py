@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from .density import GaussianMixture, silverman_bandwidth
+from .priors import inside_support
 from .transforms import BoxTransform
 from .moves import metropolis_accept
 from .weights import logsumexp, normalise
@@ -102,7 +103,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
                                 np.atleast_2d(t.rvs(size=n - n_kde, random_state=rng)).reshape(-1, u.shape[1])])
         draws = draws[rng.permutation(n)]  # the two halves in random order: the pairing below is random
         theta = transform.inverse(draws)
-        inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1) & np.isfinite(theta).all(axis=1)
+        inside = inside_support(theta, support) & np.isfinite(theta).all(axis=1)
         new_components = np.full((n, 2), -np.inf)
         log_target = np.full(n, -np.inf)
         if inside.any():

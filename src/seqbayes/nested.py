@@ -44,7 +44,8 @@ import numpy as np
 
 from .kernels import Decay, Drift, MarkovKernel, Static
 from .moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
-from .priors import JointPrior
+from .density import kept_copy
+from .priors import JointPrior, inside_support
 from .resampling import resample
 from .results import StepInfo, StepRecord, prior_data_conflict
 from .transforms import BoxTransform
@@ -75,14 +76,6 @@ def _joint(static, drifting, split, dim) -> np.ndarray:
 
 def _take(cloud: dict, index) -> dict:
     return {key: value[index] for key, value in cloud.items()}
-
-
-def _where(accept, new: dict, old: dict) -> dict:
-    out = {}
-    for key, value in old.items():
-        mask = accept.reshape((-1,) + (1,) * (value.ndim - 1))
-        out[key] = np.where(mask, new[key], value)
-    return out
 
 
 def _systematic_rows(log_weights, rng) -> np.ndarray:
@@ -177,7 +170,7 @@ class ParticleInnerFilter:
         log_proposal = log_predictive
         support = problem.support
         for round_ in range(4):
-            inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
+            inside = inside_support(theta, support)
             loglike = np.full(n_pilot, -np.inf)
             if inside.any():
                 loglike[inside] = counter.loglike_on(theta[inside], dataset)
@@ -226,7 +219,7 @@ class ParticleInnerFilter:
         k, m, dim = outer.shape[0], int(self.n_inner), problem.kernel.dim
         support = problem.support
         if first:  # the outer particle holds the first value of the drifting parameters
-            inside = ((outer >= support[:, 0]) & (outer <= support[:, 1])).all(axis=1)
+            inside = inside_support(outer, support)
             log_increment = np.full(k, -np.inf)
             if inside.any():
                 log_increment[inside] = counter.loglike_on(outer[inside], dataset)
@@ -250,7 +243,7 @@ class ParticleInnerFilter:
             log_t = -0.5 * np.sum(z**2, axis=1) - np.sum(np.log(noise))
             log_g = _gaussian_logpdf(theta[:, split[1]], mean, cov)
             correction = (log_t - np.logaddexp(log_t, log_g) + np.log(2.0)).reshape(k, m)
-        inside = ((theta >= support[:, 0]) & (theta <= support[:, 1])).all(axis=1)
+        inside = inside_support(theta, support)
         loglike = np.full(k * m, -np.inf)
         if inside.all():
             loglike = counter.loglike_on(theta, dataset)
@@ -444,7 +437,7 @@ def after_joint_first_step(split, n_inner, particles, log_weights, components, d
     n = particles.shape[0]
     x = np.repeat(particles[:, None, split[1]], n_inner, axis=1)
     return NestedState(1, particles, {"x": x, "log_w": np.full((n, n_inner), -np.log(n_inner)), "ess": np.ones(n)},
-                       log_weights, components[:, 1].copy(), components[:, 0].copy(), (_kept(dataset),),
+                       log_weights, components[:, 1].copy(), components[:, 0].copy(), (kept_copy(dataset),),
                        float(log_evidence), float(step_size), posterior, predictive, (None,))
 
 
@@ -499,7 +492,7 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
                 proposals, log_hastings = move.propose(position[active], rng)
                 identical = np.zeros(active.size, dtype=bool)
             phi = transform.inverse(proposals) if transform is not None else proposals
-            inside = ~identical & ((phi >= support[:, 0]) & (phi <= support[:, 1])).all(axis=1)
+            inside = ~identical & inside_support(phi, support)
             new_components = np.full((active.size, 3), -np.inf)
             new_jacobian = np.zeros(active.size)
             new_cloud = _take(cloud, active)
@@ -563,7 +556,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     step = state.step + 1
     n = config.n_samples
     split, inner = nested_split(problem.kernel), problem.inner_filter
-    datasets = state.datasets + (_kept(dataset),)
+    datasets = state.datasets + (kept_copy(dataset),)
     guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, counter, rng)
              if step > 1 else None)
     guides = state.guides + (guide,)
@@ -617,12 +610,6 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
                             components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior,
                             predictive, guides)
     return new_state, record
-
-
-def _kept(dataset):
-    import copy
-
-    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
 
 
 def nested_state_arrays(state: NestedState) -> dict:

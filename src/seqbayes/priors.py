@@ -26,6 +26,11 @@ def as_samples(theta, dim: int | None = None, name: str = "theta") -> np.ndarray
     return theta
 
 
+def inside_support(points, support) -> np.ndarray:
+    """``(N,)`` bool: the rows of ``points (N, d)`` inside the ``(d, 2)`` box ``support`` (NaN is outside)."""
+    return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
+
+
 class JointPrior:
     """Independent product prior ``p(theta) = prod_j p_j(theta_j)``.
 

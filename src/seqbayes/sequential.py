@@ -47,7 +47,7 @@ from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, a
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
 from .parallel import evaluate_loglike
-from .priors import as_samples, support_of
+from .priors import as_samples, inside_support, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord, prior_data_conflict
 from .rng import as_generator, generator_from_state, generator_state
@@ -425,29 +425,27 @@ class _Counter:
         """The log-likelihood of any dataset (past ones for :class:`~seqbayes.density.HistoryPrior`)."""
         values = evaluate_loglike(self.problem.loglike, theta, dataset, self.problem.executor,
                                   self.problem.n_chunks)
+        return self._checked(values, theta, "loglike")
+
+    def summary_loglike(self, theta, summary):
+        """``log prod_k L_k(theta)`` over past datasets from their summed statistics (one call; see
+        :class:`~seqbayes.density.RunningStatistics`), counted as one evaluation per row."""
+        return self._checked(np.asarray(self.problem.history.loglike(theta, summary), dtype=float), theta,
+                             "history.loglike")
+
+    def _checked(self, values, theta, name):
+        """``values (N,)`` of the user's function ``name`` at ``theta``, counted; +inf is an error, NaN -inf."""
         if values.shape != (theta.shape[0],):
-            raise ValueError(f"loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
+            raise ValueError(f"{name}: returned shape {values.shape} for theta of shape {theta.shape}; "
                              f"expected ({theta.shape[0]},)")
         self.n_evals += theta.shape[0]
         if (values < np.inf).all():  # the usual case: no NaN, no +inf
             return values
         if np.isposinf(values).any():
-            raise ValueError(f"loglike: returned +inf at step {self.step}")
+            raise ValueError(f"{name}: returned +inf at step {self.step}")
         nan = np.isnan(values)
         self.n_nan += int(nan.sum())
         return np.where(nan, -np.inf, values)
-
-    def summary_loglike(self, theta, summary):
-        """``log prod_k L_k(theta)`` over past datasets from their summed statistics (one call; see
-        :class:`~seqbayes.density.RunningStatistics`), counted as one evaluation per row."""
-        values = np.asarray(self.problem.history.loglike(theta, summary), dtype=float)
-        if values.shape != (theta.shape[0],):
-            raise ValueError(f"history.loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
-                             f"expected ({theta.shape[0]},)")
-        self.n_evals += theta.shape[0]
-        if np.isposinf(values).any():
-            raise ValueError(f"history.loglike: returned +inf at step {self.step}")
-        return np.where(np.isnan(values), -np.inf, values)
 
 
 def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
@@ -498,7 +496,7 @@ def _prior_name(step: int) -> str:
 def _inside(points, support) -> np.ndarray:
     if np.isneginf(support[:, 0]).all() and np.isposinf(support[:, 1]).all():
         return np.ones(points.shape[0], dtype=bool)
-    return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
+    return inside_support(points, support)
 
 
 def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):

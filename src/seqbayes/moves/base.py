@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..priors import inside_support
+
 __all__ = ["metropolis_accept", "SweepStats", "evaluate_inside", "combine"]
 
 
@@ -37,7 +39,7 @@ def evaluate_inside(component_fn, points, support, n_components: int) -> tuple[n
     if support is None:
         return np.asarray(component_fn(points), dtype=float).reshape(points.shape[0], n_components), points.shape[0]
     out = np.full((points.shape[0], n_components), -np.inf)
-    inside = ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
+    inside = inside_support(points, support)
     n_inside = int(np.count_nonzero(inside))
     if n_inside == points.shape[0]:
         out[:] = component_fn(points)
