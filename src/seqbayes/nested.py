@@ -412,6 +412,11 @@ class NestedState:
     guides: tuple = ()
 
     @property
+    def prior_draws(self) -> np.ndarray:
+        """Draws of the next step's prior (the last posterior propagated; the prior before step 1)."""
+        return self.predictive if self.predictive is not None else self.particles
+
+    @property
     def posterior(self):
         return self.particles if self.step else None
 
@@ -592,8 +597,7 @@ def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng
     else:
         posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
     log_evidence = float(state.log_evidence + log_z)
-    prior_draws = state.predictive if state.predictive is not None else state.particles
-    conflict = prior_data_conflict(prior_draws, state.log_weights, posterior, log_weights)
+    conflict = prior_data_conflict(state.prior_draws, state.log_weights, posterior, log_weights)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,
         resampled=bool(resampled), acceptance_rate=stats.acceptance_rate,

@@ -280,6 +280,11 @@ class SamplerState:
     posterior_log_weights: np.ndarray | None = None
     log_prior: np.ndarray | None = None
 
+    @property
+    def prior_draws(self) -> np.ndarray:
+        """Draws of the next step's prior: the particles themselves."""
+        return self.particles
+
 
 @dataclass(frozen=True, eq=False)
 class Problem:
@@ -913,9 +918,7 @@ class _SequentialSampler:
 
     def update(self, dataset) -> StepInfo:
         """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`."""
-        before = self._state  # the step's prior draws: SMC^2 keeps the last posterior and its propagation
-        prior = (before.predictive if isinstance(before, NestedState) and before.predictive is not None
-                 else before.particles, before.log_weights)
+        prior = (self._state.prior_draws, self._state.log_weights)
         with _blas_limit(self._blas_threads):
             state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
         self._state = state
