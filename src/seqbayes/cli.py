@@ -6,11 +6,13 @@ Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
     seqbayes update RUN.nc DATA.csv [...]     # assimilate datasets (CSV or NetCDF), one step each
     seqbayes status RUN.nc                    # per step: mean, sd, credible interval, acceptance, ESS, evidence
     seqbayes predict RUN.nc --steps K         # forecast K steps ahead through the Markov kernel
+    seqbayes predict RUN.nc --steps K --threshold "k<0.7"   # and the time to a threshold
     seqbayes compare RUN1.nc RUN2.nc ...      # model-class selection by evidence
     seqbayes report RUN.nc -o report.html     # HTML page with the figures
 
 Paper studies live in :mod:`seqbayes.studies`; each module there has a
-``main(argv) -> int`` and is reached as ``seqbayes example NAME [options]``.
+``main(argv) -> int`` and is reached as ``seqbayes example NAME [options]``
+(``seqbayes example`` alone lists them).
 
 Errors in user input (config, data file, likelihood, store) print one line
 ``seqbayes COMMAND: error: ...`` naming the file, field or shape, and exit with
@@ -25,29 +27,71 @@ import json
 import sys
 import traceback
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
-#: name -> module with ``main(argv)``; each study module parses its own options.
+#: The command's description in ``seqbayes --help`` (plain text: argparse does not render reST).
+DESCRIPTION = """\
+On-line Bayesian model updating: monitor one's own model, or run the papers' studies.
+
+monitoring (a run is one NetCDF file):
+  seqbayes init CONFIG.toml RUN.nc          a new run from a TOML configuration
+  seqbayes update RUN.nc DATA.csv [...]     assimilate datasets (CSV or NetCDF), one step each
+  seqbayes status RUN.nc                    per step: posterior mean, sd, interval, ESS, evidence
+  seqbayes predict RUN.nc --steps K         forecast K steps ahead through the Markov kernel
+      [--threshold "k<0.7"]                 ... and the distribution of the time to a threshold
+  seqbayes compare RUN1.nc RUN2.nc ...      model-class selection by evidence
+  seqbayes report RUN.nc -o report.html     HTML page with the figures
+
+studies:
+  seqbayes example                          list the papers' studies
+  seqbayes example NAME [options]           run one (NAME --help for its options)
+
+Errors in user input print one line and exit with status 2; --traceback shows the trace."""
+
+#: name -> (module with ``main(argv)``, one line for ``seqbayes example``); each module parses its own options.
 EXAMPLES = {
-    "quickstart": "seqbayes.studies.quickstart",
-    "coulomb": "seqbayes.studies.coulomb",
-    "oscillator": "seqbayes.studies.oscillator",
-    "acceptance": "seqbayes.studies.acceptance",
-    "resampling": "seqbayes.studies.resampling_illustration",
-    "shake-table": "seqbayes.studies.shake_table",
+    "quickstart": ("seqbayes.studies.quickstart",
+                   "one-minute tour: a drifting offset and a fixed slope against the exact Kalman filter"),
+    "coulomb": ("seqbayes.studies.coulomb",
+                "Lye et al. (2023) Sec. 6: Coulomb friction from real measurements, kernels T1 vs T2"),
+    "oscillator": ("seqbayes.studies.oscillator",
+                   "Lye et al. (2023) Sec. 5: damped-oscillator degradation, six candidate kernels"),
+    "acceptance": ("seqbayes.studies.acceptance",
+                   "Lye et al. (2023) Sec. 4, Fig. 2: bounds on the SEMC acceptance rate"),
+    "resampling": ("seqbayes.studies.resampling_illustration",
+                   "Lye et al. (2023) Sec. 2.1, Fig. 1: why reweighting and resampling come before the moves"),
+    "shake-table": ("seqbayes.studies.shake_table",
+                    "Lin et al. (2024): SG-EnMCMC on the two shake-table case studies (synthetic replicas)"),
 }
+
+#: What the ESS printed by ``update``, ``status`` and the report is (one sentence, shown with it).
+ESS_NOTE = ("ESS: effective sample size of the importance weights at the step's last tempering stage, "
+            "before resampling (N for equal weights, 1 when one sample holds all the weight); "
+            "'distinct': distinct samples in the final set, after resampling and moves")
 
 
 class CommandError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
 
 
-def _run_example(name: str, argv: list[str]) -> int:
+def list_examples() -> str:
+    """The ``seqbayes example`` listing: one line per study."""
+    width = max(map(len, EXAMPLES))
+    lines = ["usage: seqbayes example NAME [options]   (NAME --help for a study's options)", "", "examples:"]
+    lines += [f"  {name:<{width}}  {line}" for name, (_, line) in EXAMPLES.items()]
+    return "\n".join(lines)
+
+
+def _run_example(name: str | None, argv: list[str]) -> int:
+    if name is None or name in ("-h", "--help"):
+        print(list_examples())
+        return 0
     if name not in EXAMPLES:
-        print(f"seqbayes example: unknown example {name!r}; choose from {', '.join(sorted(EXAMPLES))}",
-              file=sys.stderr)
+        print(f"seqbayes example: unknown example {name!r}; choose from {', '.join(EXAMPLES)} "
+              f"(run 'seqbayes example' to list them)", file=sys.stderr)
         return 2
-    module = importlib.import_module(EXAMPLES[name])
+    module = importlib.import_module(EXAMPLES[name][0])
     return int(module.main(argv) or 0)
 
 
@@ -111,8 +155,10 @@ def cmd_update(args) -> int:
                 done.append(f"{Path(path).name} (step {info.step})")
                 tqdm.write(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
                            f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
-                           f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f}, {info.n_loglike_evals} likelihood "
-                           f"evaluations in {info.wall_time:.2f} s", file=sys.stdout)
+                           f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f} of N = {store.config.n_samples} "
+                           f"(last tempering stage, before resampling), {info.n_distinct} distinct samples after "
+                           f"the step, {info.n_loglike_evals} likelihood evaluations in {info.wall_time:.2f} s",
+                           file=sys.stdout)
                 for warning in caught:
                     if issubclass(warning.category, BoundWarning):
                         print(f"seqbayes update: warning: {warning.message}", file=sys.stderr)
@@ -198,7 +244,9 @@ def _write_forecast(path, store, draws):
     if path.suffix.lower() == ".csv":
         steps = np.repeat(np.arange(1, draws.shape[0] + 1) + store.n_steps, draws.shape[1])
         table = np.column_stack([steps, draws.reshape(-1, draws.shape[2])])
-        np.savetxt(path, table, delimiter=",", header=",".join(["step", *store.names]), comments="")
+        # integer steps; the draws with 17 significant digits, so they read back bit for bit
+        np.savetxt(path, table, delimiter=",", header=",".join(["step", *store.names]), comments="",
+                   fmt=["%d"] + ["%.17g"] * draws.shape[2])
     else:
         xr.Dataset({"forecast": (("step", "sample", "parameter"), draws)},
                    coords={"step": np.arange(1, draws.shape[0] + 1) + store.n_steps,
@@ -269,8 +317,11 @@ def cmd_report(args) -> int:
 
 # ----------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="seqbayes", description=__doc__.splitlines()[0],
+    from . import __version__
+
+    parser = argparse.ArgumentParser(prog="seqbayes", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"seqbayes {__version__}")
     parser.add_argument("--traceback", action="store_true", help="show the full traceback on errors")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -319,8 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-embed", action="store_true", help="write PNG files next to the page instead of base64")
     p.set_defaults(func=cmd_report)
 
-    p = sub.add_parser("example", help="run one of the papers' studies", add_help=False)
-    p.add_argument("name", help=f"one of: {', '.join(sorted(EXAMPLES))}")
+    p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)
+    p.add_argument("name", nargs="?", help=f"one of: {', '.join(EXAMPLES)}")
     return parser
 
 

@@ -16,6 +16,8 @@ posterior probability of being beyond it already.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +25,7 @@ import numpy as np
 from .priors import as_samples
 from .rng import as_generator
 
-__all__ = ["FirstPassage", "time_to_threshold"]
+__all__ = ["FirstPassage", "Threshold", "parse_threshold", "time_to_threshold"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,70 @@ class FirstPassage:
             raise ValueError(f"q: expected a probability in (0, 1], got {q}")
         hit = np.flatnonzero(self.cumulative >= q)
         return float(hit[0] + 1) if hit.size else float("inf")
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A threshold on one named parameter, as ``seqbayes predict --threshold "k<0.7"`` gives it.
+
+    Attributes
+    ----------
+    name : str
+        The parameter's name.
+    direction : {"below", "above"}
+        ``"below"`` for ``name<value``, ``"above"`` for ``name>value``.
+    value : float
+    """
+
+    name: str
+    direction: str
+    value: float
+
+    def __str__(self) -> str:
+        return f"{self.name} {'<' if self.direction == 'below' else '>'} {self.value:g}"
+
+
+_THRESHOLD = re.compile(r"^\s*(?P<name>[^<>\s]+)\s*(?P<op>[<>])\s*(?P<value>\S+)\s*$")
+
+
+def parse_threshold(text: str, names: Sequence[str]) -> Threshold:
+    """Parse ``"NAME<VALUE"`` or ``"NAME>VALUE"`` (spaces allowed) for one of ``names``.
+
+    Parameters
+    ----------
+    text : str
+        E.g. ``"k<0.7"`` (the event: ``k`` falls below 0.7) or ``"c > 0.05"``.
+    names : sequence of str
+        The run's parameter names.
+
+    Returns
+    -------
+    Threshold
+
+    Raises
+    ------
+    ValueError
+        A malformed expression, an unknown parameter or a value that is not a finite number;
+        the message names the argument ``threshold``.
+
+    Examples
+    --------
+    >>> parse_threshold("k<0.7", ["k", "c"])
+    Threshold(name='k', direction='below', value=0.7)
+    """
+    match = _THRESHOLD.match(str(text))
+    if match is None:
+        raise ValueError(f"threshold: expected NAME<VALUE or NAME>VALUE, e.g. \"k<0.7\", got {text!r}")
+    name = match["name"]
+    if name not in names:
+        raise ValueError(f"threshold: {name!r} is not a parameter of this run; choose from {', '.join(names)}")
+    try:
+        value = float(match["value"])
+    except ValueError:
+        raise ValueError(f"threshold: {match['value']!r} in {text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise ValueError(f"threshold: the value must be finite, got {text!r}")
+    return Threshold(name, "below" if match["op"] == "<" else "above", value)
 
 
 def time_to_threshold(samples, kernel, parameter: int, threshold: float, horizon: int, *,

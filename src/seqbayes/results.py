@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -280,33 +282,142 @@ class Result:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             return cls.from_xarray(ds.load())
 
-    def to_arviz(self, step: int = -1, rng=None):
-        """A step's posterior as :class:`arviz.InferenceData` for ArviZ diagnostics and plots.
+    def to_arviz(self, step: int | None = None, rng: int | np.random.Generator | None = None, *,
+                 prior: Any = None, pointwise_loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None,
+                 dataset: Any = None, loglike_step: int = -1):
+        """The run as :class:`arviz.InferenceData`, with a ``step`` dimension.
 
-        ``posterior`` holds one chain of ``N`` equal-weight draws (systematic resampling of
-        the weighted particles; they are not a Markov chain, so use ArviZ's summaries,
-        densities and pair plots, not R-hat). The group's attributes record the step, its
-        log-evidence, ESS and acceptance rate. Requires the optional ``arviz`` extra.
+        Groups (``chain`` has length 1, ``draw`` length ``N``):
+
+        - ``posterior``: one variable per parameter, ``(chain, draw, step)``: each step's
+          ``N`` equal-weight draws (systematic resampling of the weighted particles). They are
+          not a Markov chain, and draw ``i`` of one step has no link to draw ``i`` of another:
+          use ArviZ's summaries, densities and pair plots per step, not R-hat.
+        - ``prior``: the same layout for each step's prior ``p(theta_s | D^{1:s-1})``: the
+          predictive draws of the step before (Eq. A2-A3); step 1's only when ``prior`` is given.
+        - ``sample_stats``: per step ``(chain, step)``: ``log_evidence``,
+          ``log_evidence_increment``, ``ess`` (importance weights at the last tempering stage,
+          before resampling), ``n_distinct`` (distinct samples after the step),
+          ``acceptance_rate``, ``step_size``, ``n_stages``, ``evidence_ess``,
+          ``prior_data_conflict``; and ``temperatures`` ``(chain, step, stage)`` (the tempering
+          exponents, NaN-padded).
+        - ``log_likelihood`` (only with ``pointwise_loglike`` and ``dataset``): ``y``
+          ``(chain, draw, observation)``, the log-likelihood of each observation of ``dataset``
+          (the dataset assimilated at ``loglike_step``) at that step's posterior draws, so that
+          ``az.loo`` / ``az.waic`` estimate how well the step's posterior predicts each
+          observation of its own dataset left out. A run keeps only each dataset's total
+          log-likelihood, so the per-observation values need the model's help: there is no
+          honest way to split a dataset's likelihood into observations without it.
+
+        With an integer ``step`` the groups hold that step alone (no ``step`` dimension; the
+        posterior's attributes record the step, its log-evidence, ESS and acceptance rate).
+        Requires the optional ``arviz`` extra.
 
         Parameters
         ----------
-        step : int
-            Index into :attr:`steps` (``-1``: the last).
+        step : int, optional
+            Index into :attr:`steps` (``-1``: the last); ``None`` (default): every step.
         rng : int or numpy.random.Generator, optional
             For the resampling (default seed 0, so the conversion is reproducible).
+        prior : array (M, d) or object with ``sample(n, rng)``, optional
+            Step 1's prior: draws, or the prior to draw ``N`` of them from.
+        pointwise_loglike : callable ``(theta (N, d), dataset) -> (N, n_obs)``, optional
+            The model's log-likelihood of each observation (summing over the last axis gives
+            the likelihood the run used).
+        dataset : optional
+            The dataset of ``loglike_step``, as given to the likelihood.
+        loglike_step : int
+            Index into :attr:`steps` of ``dataset`` (``-1``: the last).
+
+        Returns
+        -------
+        arviz.InferenceData
+
+        Raises
+        ------
+        ValueError
+            No steps, a ``step`` or ``loglike_step`` out of range, ``pointwise_loglike`` without
+            ``dataset`` (or the reverse), or a pointwise log-likelihood of the wrong shape.
         """
         try:
             import arviz as az
         except ImportError as err:  # pragma: no cover - depends on the environment
             raise ImportError("to_arviz: install the optional extra, pip install 'seqbayes[arviz]'") from err
+        import xarray as xr
+
         from .rng import as_generator
 
         if not self.steps:
             raise ValueError("result: no steps to convert")
-        record = self.steps[step]
-        draws = record.equal_weight_samples(as_generator(0 if rng is None else rng))
-        info = record.info
-        idata = az.from_dict(posterior={name: draws[None, :, j] for j, name in enumerate(self.names)})
-        idata.posterior.attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
-                                      "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
-        return idata
+        n_total = len(self.steps)
+        for name, value in (("step", step), ("loglike_step", loglike_step)):
+            if value is not None and not -n_total <= int(value) < n_total:
+                raise ValueError(f"{name}: must index one of the {n_total} steps, got {value}")
+        if (pointwise_loglike is None) != (dataset is None):
+            raise ValueError("pointwise_loglike and dataset: give both (the log-likelihood of each observation "
+                             "of that dataset) or neither")
+        rng = as_generator(0 if rng is None else rng)
+        chosen = list(range(n_total)) if step is None else [int(step) % n_total]
+        records = [self.steps[i] for i in chosen]
+        n = records[0].posterior.shape[0]
+        steps = np.array([r.info.step for r in records])
+        draws = np.stack([r.equal_weight_samples(rng) for r in records], axis=1)       # (N, S, d)
+
+        def by_parameter(values, step_coords):                                      # (N, S, d) -> Dataset
+            return xr.Dataset({name: (("chain", "draw", "step"), values[None, :, :, j])
+                               for j, name in enumerate(self.names)},
+                              coords={"chain": [0], "draw": np.arange(values.shape[0]), "step": step_coords})
+
+        groups = {"posterior": by_parameter(draws, steps)}
+        prior_draws, prior_steps = [], []
+        for i in chosen:
+            if i > 0:
+                before = self.steps[i - 1]
+                prior_draws.append(StepRecord(before.info, before.predictive, before.log_weights,
+                                              before.predictive).equal_weight_samples(rng, n))
+            elif prior is not None:
+                first = (np.asarray(prior.sample(n, rng), dtype=float) if hasattr(prior, "sample")
+                         else np.asarray(prior, dtype=float))
+                if first.ndim != 2 or first.shape[1] != len(self.names):
+                    raise ValueError(f"prior: expected draws of shape (M, {len(self.names)}) or an object with "
+                                     f"sample(n, rng), got shape {first.shape}")
+                prior_draws.append(first[np.linspace(0, first.shape[0] - 1, n).round().astype(int)]
+                                   if first.shape[0] != n else first)
+            else:
+                continue
+            prior_steps.append(self.steps[i].info.step)
+        if prior_draws:
+            groups["prior"] = by_parameter(np.stack(prior_draws, axis=1), np.array(prior_steps))
+
+        stats = {}
+        for name in ("log_evidence", "log_evidence_increment", "ess", "n_distinct", "acceptance_rate", "step_size",
+                     "n_stages", "evidence_ess", "prior_data_conflict"):
+            stats[name] = (("chain", "step"), np.array([[getattr(r.info, name) for r in records]]))
+        n_stage = max(len(r.info.temperatures) for r in records)
+        temperatures = np.full((1, len(records), max(n_stage, 1)), np.nan)
+        for k, r in enumerate(records):
+            temperatures[0, k, :len(r.info.temperatures)] = r.info.temperatures
+        stats["temperatures"] = (("chain", "step", "stage"), temperatures)
+        groups["sample_stats"] = xr.Dataset(stats, coords={"chain": [0], "step": steps})
+
+        if pointwise_loglike is not None:
+            at = int(loglike_step) % n_total
+            record = self.steps[at]
+            # the posterior group's draws of that step when it holds them, so both groups describe one sample
+            theta = draws[:, chosen.index(at)] if at in chosen else record.equal_weight_samples(rng, n)
+            values = np.asarray(pointwise_loglike(theta, dataset), dtype=float)
+            if values.ndim != 2 or values.shape[0] != n:
+                raise ValueError(f"pointwise_loglike: returned shape {values.shape} for theta of shape {theta.shape}; "
+                                 f"expected ({n}, n_observations)")
+            groups["log_likelihood"] = xr.Dataset(
+                {"y": (("chain", "draw", "observation"), values[None])},
+                coords={"chain": [0], "draw": np.arange(n), "observation": np.arange(values.shape[1])},
+                attrs={"step": int(record.info.step)})
+        if step is not None:
+            info = records[0].info
+            groups = {key: ds.isel(step=0) if "step" in ds.dims else ds for key, ds in groups.items()}
+            groups["posterior"].attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
+                                              "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
+        for ds in groups.values():
+            ds.attrs.update({"inference_library": "seqbayes", "created_by": "seqbayes.Result.to_arviz"})
+        return az.InferenceData(**groups)

@@ -94,6 +94,7 @@ from .config import (NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, as
 from .density import GaussianMixture, HistoryPrior
 from .results import Result, StepInfo, StepRecord
 from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from .prognostics import FirstPassage, time_to_threshold
 from .sequential import SamplerState
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
@@ -895,9 +896,45 @@ class RunStore:
             raise TypeError(f"n_steps: expected an integer, got {n_steps!r}")
         return self.sampler(loglike=_likelihood_not_needed).predict(int(n_steps))
 
-    def to_arviz(self, step: int = -1, rng=None):
-        """One step's posterior as :class:`arviz.InferenceData` (see :func:`posterior_to_arviz`)."""
-        return posterior_to_arviz(self.result, step, rng)
+    def time_to_threshold(self, parameter: str, threshold: float, horizon: int, *, direction: str = "below",
+                          paths_per_sample: int = 1) -> FirstPassage:
+        """Distribution of the first future step at which ``parameter`` crosses ``threshold``.
+
+        The last posterior's equal-weight draws are propagated through the run's kernel
+        (:func:`seqbayes.prognostics.time_to_threshold`); reproducible like :meth:`predict`
+        (the generator is the one stored after the last step) and runs no user code.
+
+        Parameters
+        ----------
+        parameter : str
+            A parameter name (see :attr:`names`).
+        threshold : float
+        horizon : int
+            Future steps simulated, ``>= 1``.
+        direction : {"below", "above"}
+        paths_per_sample : int
+            Kernel paths per posterior draw.
+
+        Returns
+        -------
+        FirstPassage
+            ``probability (horizon,)`` of a first crossing at each future step, its cumulative
+            distribution and their Monte Carlo standard errors.
+        """
+        if parameter not in self.names:
+            raise ValueError(f"parameter: {parameter!r} is not a parameter of this run; choose from "
+                             f"{', '.join(self.names)}")
+        if not self.n_steps:
+            raise ValueError(f"{self.path}: no dataset assimilated yet; nothing to forecast from")
+        sampler = self.sampler(loglike=_likelihood_not_needed)
+        samples = sampler.result.steps[-1].equal_weight_samples(sampler.rng)
+        return time_to_threshold(samples, sampler.problem.kernel, self.names.index(parameter), threshold, horizon,
+                                 direction=direction, rng=sampler.rng, paths_per_sample=paths_per_sample)
+
+    def to_arviz(self, step: int | None = None, rng=None, **kwargs):
+        """The run as :class:`arviz.InferenceData` (:meth:`seqbayes.Result.to_arviz`; step 1's prior
+        draws are the run's own initial draws)."""
+        return self.result.to_arviz(step, rng, prior=self.initial_particles, **kwargs)
 
 
 def _likelihood_not_needed(theta, data):  # pragma: no cover - a sampler built only to draw or forecast
@@ -1214,6 +1251,7 @@ def _check_state(state: SamplerState, record: StepRecord) -> None:
         raise StoreError("the sampler state differs from its step record; the run-store format needs updating")
 
 
-def posterior_to_arviz(result: Result, step: int = -1, rng=None):
-    """A step's posterior as :class:`arviz.InferenceData`: :meth:`seqbayes.Result.to_arviz`."""
-    return result.to_arviz(step, rng)
+def posterior_to_arviz(result: Result, step: int | None = -1, rng=None, **kwargs):
+    """A step's posterior (``step=None``: every step) as :class:`arviz.InferenceData`:
+    :meth:`seqbayes.Result.to_arviz`."""
+    return result.to_arviz(step, rng, **kwargs)
