@@ -36,9 +36,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .priors import as_samples
-from .weights import normalise
+from .weights import logsumexp, normalise
 
-__all__ = ["GaussianMixture", "HistoryPrior", "RunningStatistics", "silverman_bandwidth", "predictive_density", "PREDICTIVE_METHODS"]
+__all__ = ["GaussianMixture", "MixtureSum", "HistoryPrior", "RunningStatistics", "silverman_bandwidth", "predictive_density", "PREDICTIVE_METHODS"]
 
 #: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, ``"smc2"`` (nested
 #: filters, :mod:`seqbayes.nested`) for one with static and drifting components, else ``"transition"``.
@@ -151,6 +151,73 @@ class GaussianMixture:
     def draw_one_per_component(self, rng: np.random.Generator) -> np.ndarray:
         """One draw from each component, ``(N, d)``: a stratified draw of the mixture."""
         return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
+
+
+@dataclass(frozen=True, eq=False)
+class MixtureSum:
+    """``sum_c V_c p_c(theta)``: a weighted sum of :class:`GaussianMixture` s over the same ancestors.
+
+    The predictive prior of Eq. (A3) under a kernel with jump components
+    (:class:`~seqbayes.kernels.Jump`): one mixture per branch combination ``c`` of the
+    transition, ``p_c(theta) = sum_i W_i N(theta; Gamma(theta_i) + shift_c, diag(h_c^2))``,
+    weighted by the branch probabilities ``V_c``.
+
+    Parameters
+    ----------
+    mixtures : sequence of C GaussianMixture
+        Each with the same number ``N`` of centres (centre ``i`` of every mixture belongs to
+        ancestor ``i``) and the same weights.
+    log_weights : (C,) array
+        Unnormalised log branch weights ``log V_c``.
+    """
+
+    mixtures: tuple
+    log_weights: np.ndarray
+
+    def __post_init__(self):
+        mixtures = tuple(self.mixtures)
+        if not mixtures or not all(isinstance(m, GaussianMixture) for m in mixtures):
+            raise TypeError("mixtures: expected a non-empty sequence of GaussianMixture")
+        n, d = mixtures[0].centres.shape
+        for c, m in enumerate(mixtures):
+            if m.centres.shape != (n, d):
+                raise ValueError(f"mixtures[{c}]: {m.centres.shape} centres, mixtures[0] has {(n, d)}")
+        log_w = normalise(np.atleast_1d(np.asarray(self.log_weights, dtype=float)))
+        if log_w.shape != (len(mixtures),):
+            raise ValueError(f"log_weights: expected shape ({len(mixtures)},), got {log_w.shape}")
+        object.__setattr__(self, "mixtures", mixtures)
+        object.__setattr__(self, "log_weights", log_w)
+
+    @property
+    def dim(self) -> int:
+        return self.mixtures[0].dim
+
+    def component_logpdfs(self, theta) -> np.ndarray:
+        """``log V_c + log p_c(theta)`` for each branch, ``(m, d) -> (m, C)``."""
+        theta = as_samples(theta, self.dim)
+        return np.column_stack([lw + m.logpdf(theta) for lw, m in zip(self.log_weights, self.mixtures)])
+
+    def logpdf(self, theta) -> np.ndarray:
+        """Log density at ``theta (m, d)`` (log-sum-exp over the branches), returns ``(m,)``."""
+        return logsumexp(self.component_logpdfs(theta), axis=1)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` draws, shape ``(n, d)``: a branch per draw, then a draw of that branch's mixture."""
+        branch = rng.choice(len(self.mixtures), size=int(n), p=np.exp(self.log_weights))
+        out = np.empty((int(n), self.dim))
+        for c, mixture in enumerate(self.mixtures):   # a loop over the few branches, not over samples
+            rows = branch == c
+            out[rows] = mixture.sample(int(rows.sum()), rng)
+        return out
+
+    def draw_one_per_component(self, rng: np.random.Generator) -> np.ndarray:
+        """One draw per ancestor ``i``, ``(N, d)``: its branch ``c_i ~ V``, then ``N(centre_ci, h_ci^2)``
+        (a draw of the transition from every ancestor)."""
+        branch = rng.choice(len(self.mixtures), size=self.mixtures[0].centres.shape[0], p=np.exp(self.log_weights))
+        centres = np.stack([m.centres for m in self.mixtures])            # (C, N, d)
+        widths = np.stack([m.bandwidth for m in self.mixtures])           # (C, d)
+        rows = np.arange(branch.size)
+        return centres[branch, rows] + rng.standard_normal(centres.shape[1:]) * widths[branch]
 
 
 def kept_copy(dataset):
@@ -288,8 +355,8 @@ def predictive_density(posterior, log_weights, kernel, rng: np.random.Generator,
 
     Returns
     -------
-    density : GaussianMixture
-        The prior density for step ``s + 1``.
+    density : GaussianMixture or MixtureSum
+        The prior density for step ``s + 1`` (a :class:`MixtureSum` for a kernel with jumps, ``"transition"``).
     samples : (N, d) array
         Predictive samples; their log-weights are ``log_weights`` (carried over).
     """
@@ -309,5 +376,14 @@ def predictive_density(posterior, log_weights, kernel, rng: np.random.Generator,
             a = np.sqrt(np.clip(1.0 - h**2 / np.maximum(var, 1e-300), 0.0, 1.0))
             centres[:, static] = mean + a * (centres[:, static] - mean)
         bandwidth[static] = h
-    density = GaussianMixture(centres, bandwidth, log_weights)
+    if getattr(kernel, "has_jumps", False):  # Eq. (A3) with a mixture transition: one mixture per branch
+        branches, noisy = kernel.branches, ~static
+        mixtures = []
+        for shift, sd in zip(branches.shifts, branches.sds):
+            width = bandwidth.copy()
+            width[noisy] = sd[noisy]
+            mixtures.append(GaussianMixture(centres + shift, width, log_weights))
+        density = MixtureSum(mixtures, branches.log_weights)
+    else:
+        density = GaussianMixture(centres, bandwidth, log_weights)
     return density, density.draw_one_per_component(rng)
