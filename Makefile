@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test bench docs check-install clean
+.PHONY: run test bench docs docs-regen check-install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,9 @@ bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy, pocomc (
 
 docs: $(STAMP)        ## the documentation site (API reference from docstrings), strict
 	$(VENV)/bin/mkdocs build --strict --site-dir site
+
+docs-regen: $(STAMP)  ## rewrite the guide's outputs and the docs' generated tables and figures from a rerun
+	OPENBLAS_NUM_THREADS=1 $(PY) tools/docgen.py --write
 
 check-install:       ## a clean venv with only the built wheel (no extras) runs examples and a run-store cycle
 	bash .ci/clean_install
