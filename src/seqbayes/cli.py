@@ -214,7 +214,8 @@ def cmd_status(args) -> int:
 
 
 def cmd_predict(args) -> int:
-    from .report import forecast_rows, format_forecast
+    from .prognostics import parse_threshold
+    from .report import first_passage_json, forecast_rows, format_first_passage, format_forecast
     from .store import RunStore
 
     store = RunStore.open(args.run)
@@ -225,15 +226,25 @@ def cmd_predict(args) -> int:
     if args.output and Path(args.output).is_dir():
         raise CommandError(f"{args.output}: is a folder; give the forecast's file name, e.g. "
                            f"{Path(args.output) / 'forecast.csv'}")
+    thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
     draws = store.predict(args.steps)
     rows = forecast_rows(store, args.steps, args.level, draws)
+    passages = [(t, store.time_to_threshold(t.name, t.value, args.steps, direction=t.direction))
+                for t in thresholds]
     if args.output:
         _write_forecast(Path(args.output), store, draws)
     if args.json:
-        print(json.dumps(rows, indent=1))
+        if passages:  # with thresholds the output is an object; without, the forecast rows as before
+            print(json.dumps({"forecast": rows, "thresholds": [first_passage_json(store, t, p) for t, p in passages]},
+                             indent=1))
+        else:
+            print(json.dumps(rows, indent=1))
     else:
         print(f"forecast from step {store.n_steps} of {args.run} ({store.config.name!r}), {draws.shape[1]} draws")
         print(format_forecast(rows, args.level))
+        for threshold, passage in passages:
+            print()
+            print(format_first_passage(store, threshold, passage))
     return 0
 
 
@@ -295,6 +306,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_report(args) -> int:
+    from .prognostics import parse_threshold
     from .report import write_report
     from .store import RunStore
 
@@ -307,8 +319,9 @@ def cmd_report(args) -> int:
     if output.is_dir():
         raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
     try:
+        thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
         write_report(store, output, others=others, forecast_steps=args.forecast, level=args.level,
-                     embed=not args.no_embed)
+                     embed=not args.no_embed, thresholds=thresholds, horizon=args.horizon)
     except ValueError as err:
         raise CommandError(str(err)) from err
     print(f"report written to {output}")
@@ -354,6 +367,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--level", type=float, default=0.95)
     p.add_argument("--json", action="store_true")
     p.add_argument("--output", "-o", help="also write the forecast draws (.csv or .nc)")
+    p.add_argument("--threshold", action="append", metavar="EXPR",
+                   help='time to a threshold over the K steps: "NAME<VALUE" (the parameter falls below VALUE) or '
+                        '"NAME>VALUE"; repeat for several. Quote it: < and > are shell redirections')
     p.set_defaults(func=cmd_predict)
 
     p = sub.add_parser("compare", help="model-class selection between runs on the same datasets")
@@ -368,6 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--forecast", type=int, default=3, metavar="K", help="forecast horizon (default 3, 0: none)")
     p.add_argument("--level", type=float, default=0.95)
     p.add_argument("--no-embed", action="store_true", help="write PNG files next to the page instead of base64")
+    p.add_argument("--threshold", action="append", metavar="EXPR",
+                   help='add the time to a threshold, "NAME<VALUE" or "NAME>VALUE" (repeatable)')
+    p.add_argument("--horizon", type=int, default=20, metavar="H",
+                   help="steps ahead for the time to a threshold (default 20)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)

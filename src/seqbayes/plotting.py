@@ -17,7 +17,8 @@ import io
 import numpy as np
 
 __all__ = ["new_figure", "integer_steps", "to_png", "to_data_uri", "save", "band", "credible_bands", "plot_parameter_evolution",
-           "plot_sampler_diagnostics", "plot_evidence", "plot_model_probabilities", "COLORS"]
+           "plot_sampler_diagnostics", "plot_evidence", "plot_model_probabilities", "plot_first_passage",
+           "plot_data_fit", "COLORS"]
 
 #: Colour cycle (matplotlib's tab10), one per run/model.
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
@@ -137,7 +138,9 @@ def plot_sampler_diagnostics(results: dict, *, target_acceptance=None):
     if target_acceptance is not None:
         axes[0, 0].axhline(target_acceptance, color="k", linestyle=":", label="target")
     axes[0, 0].set_ylabel("acceptance rate")
-    axes[1, 0].set_ylabel("ESS / N")
+    axes[1, 0].set_ylabel("ESS / N (last stage)")
+    # fixed limits: an auto-scaled axis would zoom into the step-to-step noise of a steady rate
+    axes[0, 0].set_ylim(0, 1)
     axes[1, 0].set_ylim(0, 1.05)
     _finish_step_column(axes)
     return fig
@@ -170,4 +173,69 @@ def plot_model_probabilities(comparison):
     integer_steps(axes)
     ax.set_xlabel("step (dataset)")
     ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def plot_first_passage(passages, *, start_step: int = 0, n_se: float = 2.0):
+    """Cumulative distribution of the time to a threshold, with its Monte Carlo error.
+
+    Parameters
+    ----------
+    passages : sequence of (str, FirstPassage)
+        A label and a :class:`~seqbayes.prognostics.FirstPassage` per threshold.
+    start_step : int
+        The step the forecast starts from (the x axis shows ``start_step + h``).
+    n_se : float
+        Half-width of the shaded band in Monte Carlo standard errors (2: about 95 %).
+    """
+    fig, axes = new_figure(1, 1, row_height=3.0)
+    ax = axes[0, 0]
+    for i, (label, passage) in enumerate(passages):
+        h = start_step + np.arange(1, passage.horizon + 1)
+        c, se = passage.cumulative, passage.cumulative_standard_error
+        color = COLORS[i % len(COLORS)]
+        ax.fill_between(h, np.clip(c - n_se * se, 0, 1), np.clip(c + n_se * se, 0, 1), step="post", color=color,
+                        alpha=0.25, linewidth=0)
+        ax.step(h, c, where="post", color=color, label=f"P({label} by step)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_ylabel("P(crossed by step)")
+    ax.set_xlabel(f"step (band: +-{n_se:g} Monte Carlo standard errors)")
+    ax.grid(alpha=0.3)
+    integer_steps(axes)
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def plot_data_fit(x, observed, predicted, *, level: float = 0.95, title=None):
+    """Data against the posterior-predictive fit: observations as dots, the predictive mean and band.
+
+    Parameters
+    ----------
+    x : (n,) array
+        Abscissa of the observations (e.g. time).
+    observed : (n,) or (n, m) array
+        The dataset's observations (``m`` channels).
+    predicted : (N, n) or (N, n, m) array
+        The model's prediction at ``N`` posterior draws.
+    level : float
+        Credible level of the band.
+    """
+    x = np.asarray(x, dtype=float)
+    observed = np.asarray(observed, dtype=float).reshape(x.size, -1)
+    predicted = np.asarray(predicted, dtype=float).reshape(-1, x.size, observed.shape[1])
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level: must lie in (0, 1), got {level}")
+    tail = 0.5 * (1.0 - level)
+    lower, upper = np.quantile(predicted, [tail, 1.0 - tail], axis=0)
+    fig, axes = new_figure(observed.shape[1], 1)
+    order = np.argsort(x)
+    for j in range(observed.shape[1]):
+        ax = axes[j, 0]
+        band(ax, x[order], predicted[:, order, j].mean(axis=0), lower[order, j], upper[order, j], color=COLORS[0],
+             marker="", label=f"posterior predictive mean, {level:.0%} band")
+        ax.plot(x, observed[:, j], "k.", markersize=4, label="data")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="small")
+    if title:
+        fig.suptitle(title)
     return fig

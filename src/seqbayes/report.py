@@ -10,7 +10,8 @@ anywhere without network access and without JavaScript).
 from __future__ import annotations
 
 import html
-import json
+import math
+import textwrap
 import urllib.parse
 from pathlib import Path
 
@@ -19,7 +20,13 @@ import numpy as np
 from . import plotting
 
 __all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
-           "write_report", "render_report"]
+           "first_passage_rows", "first_passage_json", "format_first_passage", "describe_prior", "describe_kernel",
+           "write_report", "render_report", "ESS_NOTE"]
+
+#: What the ESS shown by ``status``, ``update`` and the report is.
+ESS_NOTE = ("ESS: effective sample size (sum w)^2 / sum w^2 of the importance weights at the step's last "
+            "tempering stage, before resampling (N for equal weights, 1 when one sample holds all the weight). "
+            "distinct: distinct samples in the step's final set, after resampling and moves.")
 
 
 def _tails(level):
@@ -32,7 +39,7 @@ def _tails(level):
 def status_rows(store, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
-    Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, resampled, log_evidence_increment,
+    Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
     log_evidence, step_size, n_loglike_evals, wall_time, prior_data_conflict, conflict_parameter, inner_ess,
     parameters`` where
     ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
@@ -47,7 +54,7 @@ def status_rows(store, level: float = 0.95) -> list[dict]:
             "step": int(info.step), "dataset": store.sources[i],
             "likelihood_sha256": store.module_hashes[i] if i < len(getattr(store, "module_hashes", ())) else "",
             "acceptance_rate": float(info.acceptance_rate),
-            "ess": float(info.ess), "resampled": bool(info.resampled),
+            "ess": float(info.ess), "n_distinct": int(info.n_distinct), "resampled": bool(info.resampled),
             "log_evidence_increment": float(info.log_evidence_increment), "log_evidence": float(info.log_evidence),
             "step_size": float(info.step_size), "n_loglike_evals": int(info.n_loglike_evals),
             "wall_time": float(info.wall_time),
@@ -75,13 +82,14 @@ def format_status(store, level: float = 0.95) -> str:
     rows = status_rows(store, level)
     n = cfg.n_samples
     lines.append("")
-    lines.append(f"{'step':>4}  {'dataset':<24} {'accept':>7} {'ESS':>8} {'ESS/N':>6} {'log Z_s':>11} {'log Z':>11}"
-                 f" {'conflict':>8}")
+    lines.append(f"{'step':>4}  {'dataset':<24} {'accept':>7} {'ESS':>8} {'ESS/N':>6} {'distinct':>8} {'log Z_s':>11}"
+                 f" {'log Z':>11} {'conflict':>8}")
     for r in rows:
         flag = f" (!{r['conflict_parameter']})" if r["prior_data_conflict"] > 4 else ""
         lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {r['acceptance_rate']:7.3f} {r['ess']:8.1f} "
-                     f"{r['ess'] / n:6.3f} {r['log_evidence_increment']:11.4f} {r['log_evidence']:11.4f}"
-                     f" {r['prior_data_conflict']:8.2f}{flag}")
+                     f"{r['ess'] / n:6.3f} {r['n_distinct']:8d} {r['log_evidence_increment']:11.4f} "
+                     f"{r['log_evidence']:11.4f} {r['prior_data_conflict']:8.2f}{flag}")
+    lines += textwrap.wrap(f"({ESS_NOTE} conflict: posterior-mean shift in prior sds, flagged above 4.)", 100)
     previous = rows[0]["likelihood_sha256"]
     for r in rows[1:]:   # an edited likelihood module accepted with --accept-model-change
         if r["likelihood_sha256"] != previous:
@@ -119,6 +127,115 @@ def format_forecast(rows, level: float = 0.95) -> str:
     for r in rows:
         lines.append(f"{r['step']:>4} {r['ahead']:>5}  {r['parameter'][:14]:<14} {_fmt(r['mean']):>11} "
                      f"{_fmt(r['sd']):>11} {_fmt(r['lower']):>11} {_fmt(r['upper']):>11}")
+    return "\n".join(lines)
+
+
+def _num(x) -> str:
+    return f"{x:.4g}"
+
+
+def describe_prior(spec: dict) -> str:
+    """A configuration's prior ``{"dist", "args", "kwds"}`` in the usual notation.
+
+    ``uniform`` -> ``U(lower, upper)``, ``norm`` -> ``N(mean, sd)``, ``lognorm`` ->
+    ``LogN(mu, sigma)`` (of the logarithm), ``truncnorm`` -> ``N(mean, sd) on [a, b]``,
+    ``expon``, ``gamma``, ``beta``, ``halfnorm``; any other scipy.stats name as
+    ``name(shape=..., loc=..., scale=...)``.
+
+    Examples
+    --------
+    >>> describe_prior({"dist": "uniform", "args": [], "kwds": {"loc": 0.0, "scale": 5.0}})
+    'U(0, 5)'
+    >>> describe_prior({"dist": "norm", "args": [1.0, 0.2], "kwds": {}})
+    'N(1, 0.2)'
+    """
+    from scipy import stats
+
+    name = spec["dist"]
+    dist = getattr(stats, name, None)
+    shapes = [p.strip() for p in (getattr(dist, "shapes", None) or "").split(",") if p.strip()]
+    values = dict(zip([*shapes, "loc", "scale"], spec.get("args", ())))
+    values.update(spec.get("kwds", {}))
+    loc, scale = float(values.pop("loc", 0.0)), float(values.pop("scale", 1.0))
+    if name == "uniform" and not values:
+        return f"U({_num(loc)}, {_num(loc + scale)})"
+    if name == "norm" and not values:
+        return f"N({_num(loc)}, {_num(scale)})"
+    if name == "lognorm" and set(values) == {"s"} and loc == 0.0:
+        return f"LogN({_num(math.log(scale))}, {_num(values['s'])})"
+    if name == "truncnorm" and set(values) == {"a", "b"}:
+        return (f"N({_num(loc)}, {_num(scale)}) on [{_num(loc + values['a'] * scale)}, "
+                f"{_num(loc + values['b'] * scale)}]")
+    if name == "halfnorm" and not values and loc == 0.0:
+        return f"HalfN({_num(scale)})"
+    if name == "expon" and not values and loc == 0.0:
+        return f"Exp(mean {_num(scale)})"
+    if name == "gamma" and set(values) == {"a"} and loc == 0.0:
+        return f"Gamma({_num(values['a'])}, scale {_num(scale)})"
+    if name == "beta" and set(values) == {"a", "b"} and (loc, scale) == (0.0, 1.0):
+        return f"Beta({_num(values['a'])}, {_num(values['b'])})"
+    parts = [f"{k}={_num(float(v))}" for k, v in values.items()]
+    parts += [f"loc={_num(loc)}"] * (loc != 0.0) + [f"scale={_num(scale)}"] * (scale != 1.0)
+    return f"{name}({', '.join(parts)})"
+
+
+def describe_kernel(spec: dict) -> str:
+    """A configuration's kernel entry ``{"type", "rate", "noise_std"}`` as its transition.
+
+    Examples
+    --------
+    >>> describe_kernel({"type": "drift", "rate": -0.05, "noise_std": 0.02})
+    'x - 0.05 + N(0, 0.02)'
+    >>> describe_kernel({"type": "static", "rate": 0.0, "noise_std": 0.0})
+    'static'
+    """
+    kind, rate, noise = spec["type"], float(spec.get("rate", 0.0)), float(spec.get("noise_std", 0.0))
+    if kind == "static":
+        return "static"
+    if kind == "drift":
+        base = f"x {'-' if rate < 0 else '+'} {_num(abs(rate))}"
+    elif kind == "decay":
+        base = f"exp(-{_num(rate)}) x"
+    else:
+        base = f"{kind}(rate {_num(rate)})"
+    return f"{base} + N(0, {_num(noise)})" if noise > 0 else base
+
+
+def first_passage_rows(store, threshold, passage) -> list[dict]:
+    """Per future step ``h``: the step, ``P(first crossing at h)``, ``P(crossed by h)`` and their Monte
+    Carlo standard errors."""
+    return [{"step": store.n_steps + h + 1, "ahead": h + 1, "probability": float(passage.probability[h]),
+             "standard_error": float(passage.standard_error[h]), "cumulative": float(passage.cumulative[h]),
+             "cumulative_standard_error": float(passage.cumulative_standard_error[h])}
+            for h in range(passage.horizon)]
+
+
+def first_passage_json(store, threshold, passage) -> dict:
+    """The time to ``threshold`` (a :class:`~seqbayes.prognostics.Threshold`) as a JSON-able dict."""
+    median = passage.quantile(0.5)
+    return {"parameter": threshold.name, "direction": threshold.direction, "threshold": threshold.value,
+            "from_step": store.n_steps, "beyond_now": passage.beyond_now, "not_crossed": passage.not_crossed,
+            "not_crossed_standard_error": passage.not_crossed_standard_error, "n_paths": passage.n_paths,
+            "median_step": None if math.isinf(median) else store.n_steps + int(median),
+            "steps": first_passage_rows(store, threshold, passage)}
+
+
+def _passage_summary(store, threshold, passage) -> str:
+    median = passage.quantile(0.5)
+    when = (f"median first crossing at step {store.n_steps + int(median)}" if math.isfinite(median)
+            else f"median first crossing after step {store.n_steps + passage.horizon}")
+    return (f"time to {threshold} from step {store.n_steps} ({passage.n_paths} kernel paths): {when}; "
+            f"P(not crossed by step {store.n_steps + passage.horizon}) = {passage.not_crossed:.4f} +- "
+            f"{passage.not_crossed_standard_error:.4f}; already beyond now: {passage.beyond_now:.4f}")
+
+
+def format_first_passage(store, threshold, passage) -> str:
+    """The ``predict --threshold`` plain-text table (``+-`` one Monte Carlo standard error)."""
+    lines = [_passage_summary(store, threshold, passage),
+             f"{'step':>4} {'ahead':>5} {'P(first at step)':>18} {'+-':>7} {'P(crossed by step)':>19} {'+-':>7}"]
+    for r in first_passage_rows(store, threshold, passage):
+        lines.append(f"{r['step']:>4} {r['ahead']:>5} {r['probability']:18.4f} {r['standard_error']:7.4f} "
+                     f"{r['cumulative']:19.4f} {r['cumulative_standard_error']:7.4f}")
     return "\n".join(lines)
 
 
@@ -167,7 +284,27 @@ def _figure_html(fig, caption, fig_id, image_dir=None):
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0.95, image_dir=None) -> str:
+def _threshold_section(store, thresholds, horizon, image_dir) -> str:
+    """The report's time-to-threshold section: a summary and a table per threshold, one CDF figure."""
+    passages = [(t, store.time_to_threshold(t.name, t.value, horizon, direction=t.direction)) for t in thresholds]
+    out = ["<h2>Time to a threshold</h2>",
+           f"<p>The last posterior propagated {horizon} steps through the kernel: the probability that the "
+           f"parameter first crosses the threshold at each future step, and that it has crossed by then, "
+           f"+- one Monte Carlo standard error (the band in the figure is +- 2).</p>"]
+    out.append(_figure_html(plotting.plot_first_passage([(str(t), p) for t, p in passages], start_step=store.n_steps),
+                            "Time to a threshold: P(crossed by step) with +- 2 Monte Carlo standard errors",
+                            "fig-threshold", image_dir))
+    for threshold, passage in passages:
+        out.append(f"<p>{html.escape(_passage_summary(store, threshold, passage))}</p>")
+        out.append(_table_html(["step", "ahead", "P(first at step)", "+-", "P(crossed by step)", "+-"],
+                               [[r["step"], r["ahead"], f"{r['probability']:.4f}", f"{r['standard_error']:.4f}",
+                                 f"{r['cumulative']:.4f}", f"{r['cumulative_standard_error']:.4f}"]
+                                for r in first_passage_rows(store, threshold, passage)], left=()))
+    return "\n".join(out)
+
+
+def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0.95, image_dir=None,
+                  thresholds=(), horizon: int = 20) -> str:
     """The HTML text of the report for ``store`` (and, for model comparison, ``others``).
 
     Parameters
@@ -181,6 +318,10 @@ def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0
         Credible level of the bands and intervals.
     image_dir : pathlib.Path, optional
         Write figures as PNG files there instead of embedding them as base64.
+    thresholds : sequence of Threshold
+        Add the time to each threshold (:func:`seqbayes.prognostics.parse_threshold`).
+    horizon : int
+        Steps ahead simulated for the time to a threshold.
     """
     from .selection import compare
 
@@ -193,10 +334,12 @@ def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0
     parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: likelihood <code>{html.escape(cfg.likelihood)}"
                  f"</code>, sampler {cfg.sampler} with N = {cfg.n_samples}, seed {cfg.seed}; {store.n_steps} "
                  f"dataset(s) assimilated. Model fingerprint <code>{cfg.fingerprint()[:12]}</code>.</p>")
-    kernel_rows = [[n, cfg.priors[n]["dist"], json.dumps(cfg.priors[n]["args"]), json.dumps(cfg.priors[n]["kwds"]),
-                    cfg.kernel[n]["type"], cfg.kernel[n]["rate"], cfg.kernel[n]["noise_std"]] for n in cfg.names]
-    parts.append("<h2>Model</h2>" + _table_html(
-        ["parameter", "prior", "args", "keywords", "kernel", "rate", "noise std"], kernel_rows, left=(0, 1, 2, 3, 4)))
+    kernel_rows = [[n, describe_prior(cfg.priors[n]), describe_kernel(cfg.kernel[n])] for n in cfg.names]
+    parts.append("<h2>Model</h2>" + _table_html(["parameter", "prior", "evolution between steps"], kernel_rows,
+                                                left=(0, 1, 2)))
+    parts.append("<p>U(lower, upper): uniform; N(mean, sd): normal; LogN(mu, sigma): log-normal, "
+                 "mu and sigma of the logarithm. Evolution: x is the parameter at the step before; "
+                 "N(0, sd) the kernel's process noise.</p>")
 
     forecast = store.predict(forecast_steps) if forecast_steps > 0 else None
     parts.append("<h2>Parameter evolution</h2>")
@@ -217,6 +360,8 @@ def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0
         parts.append(_table_html(["step", "ahead", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
                                  [[r["step"], r["ahead"], r["parameter"], _fmt(r["mean"]), _fmt(r["sd"]),
                                    _fmt(r["lower"]), _fmt(r["upper"])] for r in frows], left=(2,)))
+    if thresholds:
+        parts.append(_threshold_section(store, thresholds, horizon, image_dir))
 
     runs = {store.config.name: store.result}
     for other in others:
@@ -229,12 +374,13 @@ def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0
     if target is None and cfg.sampler == "SEMC":
         target = 0.21 / len(cfg.names) + 0.23  # Eq. (10), the sampler's default
     parts.append(_figure_html(plotting.plot_sampler_diagnostics(runs, target_acceptance=target),
-                              "Acceptance rate and effective sample size (ESS / N) per step", "fig-diagnostics",
-                              image_dir))
-    parts.append(_table_html(["step", "dataset", "acceptance", "ESS", "log Z_s", "log Z"],
+                              "Acceptance rate and effective sample size (ESS / N, last tempering stage, before "
+                              "resampling) per step", "fig-diagnostics", image_dir))
+    parts.append(_table_html(["step", "dataset", "acceptance", "ESS", "distinct", "log Z_s", "log Z"],
                              [[r["step"], r["dataset"], f"{r['acceptance_rate']:.3f}", f"{r['ess']:.1f}",
-                               f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
-                             left=(1,)))
+                               r["n_distinct"], f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"]
+                              for r in rows], left=(1,)))
+    parts.append(f"<p>{html.escape(ESS_NOTE)} N = {cfg.n_samples}.</p>")
     parts.append("<h2>Evidence and model probabilities</h2>")
     parts.append(_figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
                               "fig-evidence", image_dir))

@@ -73,6 +73,9 @@ def test_full_monitoring_session(work, capsys):
             match = re.search(rf"step {s} from {path.name}: log-evidence increment (-?[\d.]+), cumulative (-?[\d.]+)",
                               out)
             assert match, out
+            # the ESS says what it is, with the final set's distinct count beside it
+            assert re.search(r"ESS [\d.]+ of N = 120 \(last tempering stage, before resampling\), \d+ distinct "
+                             r"samples after the step", out), out
             assert err == ""   # no progress bar when stderr is not a terminal
 
     # ---- status: the table's content
@@ -122,10 +125,32 @@ def test_full_monitoring_session(work, capsys):
             assert abs(r["mean"] - last["b"]["mean"]) < 5 * last["b"]["sd"] / np.sqrt(120)
     draws = np.loadtxt(work / "forecast.csv", delimiter=",", skiprows=1)
     assert draws.shape == (2 * 120, 3) and set(draws[:, 0]) == {4.0, 5.0}
+    steps_column = [line.split(",")[0] for line in (work / "forecast.csv").read_text().splitlines()[1:]]
+    assert set(steps_column) == {"4", "5"}           # integer steps, not 4.000000000000000000e+00
     code, again, _ = run(capsys, "predict", work / "drift.nc", "--steps", "2", "--json")
     assert again == out                             # a forecast is reproducible and does not change the store
     code, text, _ = run(capsys, "predict", work / "drift.nc", "--steps", "1")
     assert "forecast from step 3" in text and re.search(r"\n\s+4\s+1\s+A\s", text)
+
+    # ---- time to a threshold: A drifts down 0.15 per step from ~1.5; the run's own kernel and posterior
+    threshold = round(last["A"]["mean"] - 0.6, 3)     # about four steps of drift below the last mean
+    code, out, _ = run(capsys, "predict", work / "drift.nc", "--steps", "8", "--json", "--threshold", f"A<{threshold}")
+    assert code == 0
+    passage = json.loads(out)["thresholds"][0]
+    assert (passage["parameter"], passage["direction"], passage["threshold"]) == ("A", "below", threshold)
+    probability = np.array([r["probability"] for r in passage["steps"]])
+    assert [r["step"] for r in passage["steps"]] == list(range(4, 12))
+    assert abs(probability.sum() + passage["not_crossed"] - 1.0) < 1e-12
+    # the mean path crosses after 0.6 / 0.15 = 4 steps; the spread (posterior sd ~0.02, kernel noise 0.02 per
+    # step, so ~0.05 after 4 steps, a third of a step's drift) puts nearly all the mass at steps 3-5 ahead
+    assert probability[2:5].sum() > 0.95 and passage["median_step"] in (6, 7, 8)
+    assert run(capsys, "predict", work / "drift.nc", "--steps", "8", "--json", "--threshold", f"A<{threshold}")[1] == out
+    code, text, _ = run(capsys, "predict", work / "drift.nc", "--steps", "3", "--threshold", "b > 0.9")
+    assert code == 0 and "time to b > 0.9 from step 3" in text and "P(not crossed by step 6) = 1.0000" in text
+    for bad, message in [("Q<1", r"threshold: 'Q' is not a parameter of this run; choose from A, b"),
+                         ("A<<1", r"threshold: '<1' in 'A<<1' is not a number"), ("A=1", "NAME<VALUE")]:
+        code, _, err = run(capsys, "predict", work / "drift.nc", "--steps", "3", "--threshold", bad)
+        assert code == 2 and re.search(message, err), err
 
     # ---- compare: the drifting model explains the degrading amplitude
     code, out, _ = run(capsys, "compare", work / "drift.nc", work / "static.nc", "--json")
@@ -143,18 +168,26 @@ def test_full_monitoring_session(work, capsys):
 
     # ---- report: an HTML page with every figure embedded
     code, out, _ = run(capsys, "report", work / "drift.nc", "--compare", work / "static.nc",
-                       "-o", work / "report.html")
+                       "-o", work / "report.html", "--threshold", f"A<{threshold}", "--horizon", "8")
     assert code == 0 and "report written" in out
     page = (work / "report.html").read_text()
     images = re.findall(r"<img src='data:image/png;base64,([A-Za-z0-9+/=]+)' alt='([^']*)'>", page)
-    assert len(images) == 4
+    assert len(images) == 5
     for data, _alt in images:
         png = base64.b64decode(data)
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
         width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
         assert width >= 400 and height >= 200
-    for fig_id in ("fig-parameters", "fig-diagnostics", "fig-evidence", "fig-probabilities"):
+    for fig_id in ("fig-parameters", "fig-diagnostics", "fig-evidence", "fig-probabilities", "fig-threshold"):
         assert f"id='{fig_id}'" in page
+    # the model table in the usual notation, not raw JSON
+    assert "<td class='l'>U(0.5, 2.5)</td>" in page and "<td class='l'>x - 0.15 + N(0, 0.02)</td>" in page
+    assert '"loc"' not in page and "{&quot;" not in page
+    # the time to a threshold: the same numbers as predict --threshold (same stored generator state)
+    assert "<h2>Time to a threshold</h2>" in page
+    first = passage["steps"][3]
+    assert f"<td class=''>{first['step']}</td><td class=''>4</td><td class=''>{first['probability']:.4f}</td>" in page
+    assert "last tempering stage, before resampling" in page
     assert "3-step forecast" in page and "Most probable model after step 3: <strong>drift</strong>" in page
     for path in files:
         assert f"<td class='l'>{path.name}</td>" in page
@@ -169,6 +202,20 @@ def test_full_monitoring_session(work, capsys):
     assert "src='r_figures/fig-parameters.png'" in (work / "files" / "r.html").read_text()
 
     assert run(capsys, "example", "no-such-study")[0] == 2   # the studies' dispatch is still there
+    # `seqbayes example` alone lists the studies, one line each; --version; help without reST markup
+    code, out, _ = run(capsys, "example")
+    assert code == 0 and all(re.search(rf"^  {re.escape(name)} +\S", out, re.M) for name in cli.EXAMPLES)
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["--version"])
+    assert exit_.value.code == 0
+    from seqbayes import __version__
+
+    assert capsys.readouterr().out.strip() == f"seqbayes {__version__}"
+    for command in ([], ["init"], ["update"], ["status"], ["predict"], ["compare"], ["report"]):
+        with pytest.raises(SystemExit):
+            cli.main([*command, "--help"])
+        help_text = capsys.readouterr().out
+        assert "usage: seqbayes" in help_text and "``" not in help_text and ":mod:" not in help_text
 
     # (the console entry point in a fresh interpreter is exercised by tests/unit/test_kill_resume.py)
 
