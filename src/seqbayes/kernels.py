@@ -28,7 +28,7 @@ from .priors import as_samples
 from .weights import logsumexp, normalise
 
 __all__ = ["Static", "Drift", "Decay", "Custom", "Jump", "MarkovKernel", "Branches", "JumpPosterior",
-           "jump_posterior", "HEAVY_TAIL_SCALES", "HEAVY_TAIL_WEIGHTS"]
+           "jump_posterior", "jump_step_fields", "HEAVY_TAIL_SCALES", "HEAVY_TAIL_WEIGHTS"]
 
 #: The heavy-tailed slab of :meth:`Jump.heavy_tailed`: the drop fraction is
 #: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)``, a discrete scale mixture of
@@ -190,7 +190,9 @@ class Jump(_Component):
         if weights.shape != scales.shape or not np.all(np.isfinite(weights)) or not np.all(weights > 0):
             raise ValueError(f"scale_weights: expected {scales.size} positive weights, got {self.scale_weights!r}")
         object.__setattr__(self, "scales", tuple(scales.tolist()))
-        object.__setattr__(self, "scale_weights", tuple((weights / weights.sum()).tolist()))
+        if abs(weights.sum() - 1.0) > 1e-12:   # normalised (weights that sum to one are kept as written)
+            weights = weights / weights.sum()
+        object.__setattr__(self, "scale_weights", tuple(weights.tolist()))
 
     @classmethod
     def heavy_tailed(cls, base, p: float, drop_mean: float, drop_sd: float, reference: float) -> "Jump":
@@ -507,3 +509,14 @@ def jump_posterior(kernel: MarkovKernel, prior, posterior, log_weights) -> JumpP
             size_mean[j] = first / mass[jumped].sum()
             size_sd[j] = np.sqrt(max(second / mass[jumped].sum() - size_mean[j] ** 2, 0.0))
     return JumpPosterior(probability, min(float(mass[table.jumped.any(axis=1)].sum()), 1.0), size_mean, size_sd)
+
+
+def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dict:
+    """The :class:`~seqbayes.results.StepInfo` fields of :func:`jump_posterior` (``jump_probability``,
+    ``jump_parameter``, ``jump_size``, ``jump_size_sd``) when ``prior`` is the step's
+    :class:`~seqbayes.density.MixtureSum` of a jump kernel; ``{}`` otherwise (step 1, no jumps)."""
+    from .density import MixtureSum
+
+    if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
+        return {}
+    return jump_posterior(kernel, prior, posterior, log_weights).step_fields()
