@@ -11,7 +11,9 @@ right. This module estimates the same increment from the final posterior:
 
 with ``q`` fitted to the posterior particles in unconstrained coordinates ``u``
 (:class:`~seqbayes.transforms.BoxTransform`): half a Gaussian kernel density of
-the distinct particles (follows several modes), half a multivariate Student t
+the distinct particles (follows several modes; beyond ``MAX_PROPOSAL_COMPONENTS`` = 1000
+distinct particles, of 1000 of them chosen by systematic selection, so that the cost stays
+``O(N)``: the proposal need not be exact, only the target), half a multivariate Student t
 (nu = 4) with twice the posterior covariance (heavy tails, so the weights have
 finite variance). The effective sample size of the importance weights is
 returned as a diagnostic.
@@ -40,14 +42,37 @@ __all__ = ["importance_step"]
 
 _T_DOF = 4.0
 
+#: Most kernel-density components of the proposal (see docs/core.md, "Cost per update").
+MAX_PROPOSAL_COMPONENTS = 1000
 
-def _proposal(u, log_weights):
+
+def _thinned(points, log_weights, n_components):
+    """At most ``n_components`` weighted centres representing the weighted ``points (N, d)``.
+
+    Systematic selection with the fixed offset 1/2 (deterministic: no random draw, so the run's
+    random stream does not depend on it), duplicates merged into their counts. With at most
+    ``n_components`` points they are returned as they are.
+    """
+    if points.shape[0] <= n_components:
+        return points, log_weights
+    w = np.exp(normalise(log_weights))
+    cumulative = np.cumsum(w)
+    cumulative[-1] = 1.0
+    index = np.searchsorted(cumulative, (np.arange(n_components) + 0.5) / n_components)
+    index, counts = np.unique(index, return_counts=True)
+    return points[index], np.log(counts.astype(float))
+
+
+def _proposal(u, log_weights, n_components=None):
+    """The defensive proposal's two halves, fitted to ``u (N, d)``: a kernel density of at most
+    ``n_components`` distinct particles (``O(N n_components)`` to evaluate at N draws, where the
+    kernel density of all N particles cost ``O(N^2)``) and a multivariate Student t."""
     w = np.exp(normalise(log_weights))
     distinct, inverse = np.unique(u, axis=0, return_inverse=True)
     inverse = np.asarray(inverse).reshape(-1)
     summed = np.bincount(inverse, weights=w, minlength=distinct.shape[0])
     keep = summed > 0
-    distinct, log_w = distinct[keep], np.log(summed[keep])
+    distinct, log_w = _thinned(distinct[keep], np.log(summed[keep]), n_components or MAX_PROPOSAL_COMPONENTS)
     mean = w @ u
     cov = ((u - mean) * w[:, None]).T @ (u - mean)
     scale = np.maximum(np.diag(cov), 1e-24 * (1.0 + mean**2))

@@ -1,0 +1,108 @@
+"""Cost of one update per particle as N grows (issue 14, item 1).
+
+d = 4 parameters, a cheap Gaussian likelihood (5 observations of every parameter per
+dataset, noise sd 0.5, prior N(0, 1)), static parameters (default predictive: the
+exact history prior) and drifting ones (random walk, noise sd 0.1: the exact
+transition mixture of Eq. A3). For each N, one sampler assimilates a first dataset
+(untimed: its prior is the initial one) and then ``--steps`` more, each timed. The
+sizes are run round-robin, ``--rounds`` times, in one process; the figure is the
+median over rounds and steps of the time per update divided by N, and the ratio to
+N = 1000's.
+
+``--compare`` also runs, interleaved with it, the evidence proposal of the earlier
+code (a kernel density of every distinct particle, ``MAX_PROPOSAL_COMPONENTS``
+unlimited), so that the ratio old / new comes from the same load.
+
+    .venv/bin/python benchmarks/bench_scale.py                       # N = 1000 4000 16000
+    .venv/bin/python benchmarks/bench_scale.py --kinds static --compare
+    .venv/bin/python benchmarks/bench_scale.py --sizes 500 2000 --rounds 1   # quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+from scipy import stats
+
+from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
+from seqbayes import evidence
+
+DIM = 4
+NOISE = 0.5
+
+
+def loglike(theta, y):
+    """``y (5, d)``: five observations of every parameter, noise sd 0.5."""
+    return -0.5 * np.sum((y[None, :, :] - theta[:, None, :]) ** 2, axis=(1, 2)) / NOISE**2
+
+
+def datasets(n_steps, seed=0):
+    rng = np.random.default_rng(seed)
+    truth = rng.normal(size=DIM)
+    out = []
+    for _ in range(n_steps):
+        out.append(truth + NOISE * rng.standard_normal((5, DIM)))
+        truth = truth + 0.1 * rng.standard_normal(DIM)
+    return out
+
+
+def run(kind, n, steps, sampler, components):
+    """Seconds per update of steps 2 .. steps + 1 (list), with the proposal capped at ``components``."""
+    prior = JointPrior({f"theta_{j}": stats.norm(0, 1) for j in range(DIM)})
+    kernel = MarkovKernel([Static()] * DIM if kind == "static" else [Drift(0.0, noise_std=0.1)] * DIM)
+    cls = SMC if sampler == "smc" else SEMC
+    saved = evidence.MAX_PROPOSAL_COMPONENTS
+    evidence.MAX_PROPOSAL_COMPONENTS = components
+    try:
+        s = cls(prior, kernel, loglike, n_samples=n, rng=1)
+        data = datasets(steps + 1)
+        s.update(data[0])
+        times = []
+        for y in data[1:]:
+            start = time.perf_counter()
+            s.update(y)
+            times.append(time.perf_counter() - start)
+    finally:
+        evidence.MAX_PROPOSAL_COMPONENTS = saved
+    return times
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 4000, 16000])
+    parser.add_argument("--kinds", nargs="+", choices=("static", "drifting"), default=["static", "drifting"])
+    parser.add_argument("--sampler", choices=("smc", "semc"), default="smc")
+    parser.add_argument("--steps", type=int, default=3, help="timed updates per run (after an untimed first)")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--compare", action="store_true", help="interleave the all-particle proposal (old code)")
+    args = parser.parse_args(argv)
+    variants = [("new", evidence.MAX_PROPOSAL_COMPONENTS)] + ([("old", 10**9)] if args.compare else [])
+    times = {}
+    for _ in range(args.rounds):
+        for kind in args.kinds:
+            for n in args.sizes:
+                for name, components in variants:
+                    times.setdefault((kind, n, name), []).extend(run(kind, n, args.steps, args.sampler, components))
+    print(f"\n{args.sampler.upper()}, d = {DIM}, {args.steps} timed updates x {args.rounds} rounds per cell, "
+          f"sizes round-robin in one process; load average {os.getloadavg()[0]:.1f}\n")
+    header = "| parameters | N | s per update | us per particle | ratio to N = {0} |".format(args.sizes[0])
+    if args.compare:
+        header += " old code, us per particle | old / new |"
+    print(header + "\n|" + "---|" * (header.count("|") - 1))
+    for kind in args.kinds:
+        base = np.median(times[(kind, args.sizes[0], "new")]) / args.sizes[0]
+        for n in args.sizes:
+            t = np.median(times[(kind, n, "new")])
+            row = f"| {kind} | {n} | {t:.3f} | {1e6 * t / n:.1f} | {t / n / base:.2f} |"
+            if args.compare:
+                old = np.median(times[(kind, n, "old")])
+                row += f" {1e6 * old / n:.1f} | {old / t:.2f} |"
+            print(row)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
