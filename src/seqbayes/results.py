@@ -81,6 +81,15 @@ class StepInfo:
         SMC^2 with a particle inner filter: the inner filters' mean ESS after weighting, as a
         fraction of their size (NaN otherwise). Below ~0.02 the likelihood estimates are too
         noisy for the PMMH moves (raise ``n_inner``; see docs/core.md).
+    ancestor_ess : float
+        How many of the previous posterior's particles carry this step's posterior through the
+        exact transition (``1 / sum_j a_j^2``, :func:`~seqbayes.sequential.ancestor_draws`; NaN at
+        step 1 and where the conflict remedy does not apply). Small values mean the posterior
+        lies in the far tail of the predictive mixture, which N particles do not represent.
+    path_steps : int
+        0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
+        assimilated it on the path space of the last ``L`` states (the exact target;
+        :func:`~seqbayes.sequential.assimilate_paths`).
     """
 
     step: int
@@ -107,6 +116,8 @@ class StepInfo:
     prior_data_conflict: float = float("nan")
     conflict_parameter: int = 0
     inner_ess: float = float("nan")
+    ancestor_ess: float = float("nan")
+    path_steps: int = 0
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":

@@ -47,6 +47,7 @@ from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, a
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
 from .parallel import evaluate_loglike
+from .density import kept_copy
 from .priors import as_samples, inside_support, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord, prior_data_conflict
@@ -151,6 +152,19 @@ class SamplerConfig:
     conflict_threshold : float
         A :class:`PriorDataConflictWarning` is issued when a step's posterior mean lies more than
         this many prior sds from its prior mean (``StepInfo.prior_data_conflict``; 4).
+    conflict_remedy : bool
+        The exact remedy for prior-data conflict (issue 11; on by default). A step whose posterior
+        is carried by the far tail of the predictive mixture (``StepInfo.ancestor_ess`` below
+        ``remedy_ess * N``, or ``StepInfo.prior_data_conflict`` above ``conflict_threshold``) is
+        assimilated again on the path space of the last ``remedy_lag`` steps, whose target is the
+        model's exact one (see :func:`assimilate_paths`); ``StepInfo.path_steps`` records it.
+        Applies to the ``"transition"`` and ``"kde"`` predictives of kernels in which every
+        parameter moves; ``"history"`` is exact already, and ``"smc2"`` is not covered.
+    remedy_ess : float
+        Fraction of N below which the ancestor ESS triggers the remedy (0.05).
+    remedy_lag : int
+        Steps kept for the path-space target (10): exact when the run has at most that many steps,
+        else the window's first state takes the (mixture) prior that step used.
     n_inner : int
         SMC^2 (static and drifting parameters): particles of the default inner filter
         (:class:`~seqbayes.nested.ParticleInnerFilter`) per outer particle (100).
@@ -198,6 +212,10 @@ class SamplerConfig:
     max_refits: int = 5
     n_inner: int = 100
     conflict_threshold: float = 4.0
+    conflict_remedy: bool = True
+    remedy_ess: float = 0.05
+    remedy_lag: int = 10
+
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -240,6 +258,10 @@ class SamplerConfig:
             raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
         if not self.conflict_threshold > 0:
             raise ValueError(f"conflict_threshold: must be positive, got {self.conflict_threshold}")
+        if not 0.0 <= self.remedy_ess <= 1.0:
+            raise ValueError(f"remedy_ess: must lie in [0, 1], got {self.remedy_ess}")
+        if isinstance(self.remedy_lag, bool) or int(self.remedy_lag) != self.remedy_lag or self.remedy_lag < 2:
+            raise ValueError(f"remedy_lag: must be an integer >= 2, got {self.remedy_lag}")
         if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
             raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
 
@@ -268,6 +290,11 @@ class SamplerState:
     log_prior : (N,) array or None
         ``prior.logpdf(particles)`` when known (a :class:`~seqbayes.density.HistoryPrior` at
         the last posterior: its target values, so the past datasets are not re-evaluated).
+    window : tuple of PastStep
+        The last ``remedy_lag`` steps (datasets, priors, posteriors) for the conflict remedy.
+    paths : (N, L, d) array or None
+        After a path-space step: the paths over the last ``L`` steps of the posterior particles
+        (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
     """
 
     step: int
@@ -279,6 +306,8 @@ class SamplerState:
     posterior: np.ndarray | None = None
     posterior_log_weights: np.ndarray | None = None
     log_prior: np.ndarray | None = None
+    window: tuple = ()
+    paths: np.ndarray | None = None
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -720,6 +749,244 @@ def _propagate(state, cloud, dataset, log_increment, log_evidence, method, probl
     return density, predictive, None
 
 
+@dataclass(frozen=True, eq=False)
+class PastStep:
+    """One assimilated step, kept for the path-space target of the conflict remedy.
+
+    Attributes
+    ----------
+    dataset : object
+        The step's dataset (a kept copy).
+    prior : object with ``logpdf``
+        The prior the step used (the initial prior at step 1, else the predictive mixture).
+    posterior : (N, d) array
+    log_weights : (N,) array
+        The step's posterior particles and their normalised log-weights.
+    log_evidence_increment : float
+        ``log p(D^s | D^{1:s-1})`` as estimated at the step.
+    """
+
+    dataset: object
+    prior: object
+    posterior: np.ndarray
+    log_weights: np.ndarray
+    log_evidence_increment: float
+
+
+def _remedy_applies(config, method, kernel) -> bool:
+    """The path-space remedy needs a transition density in every parameter (no static ones)."""
+    return config.conflict_remedy and method in ("transition", "kde") and not kernel.static_mask.any()
+
+
+#: Most (query, ancestor) pairs of the transition density evaluated at once.
+_PAIR_BLOCK = 250_000
+
+
+def ancestor_draws(kernel, later, earlier, earlier_log_weights, rng=None, later_log_weights=None):
+    """Ancestors of ``later`` among the weighted particles ``earlier`` under the exact transition.
+
+    With ``p(theta) = sum_j W_j T(theta | earlier_j)`` (Eq. A3 with the kernel's own density), the
+    ancestor of a point ``theta_i`` is ``j`` with probability ``r_ij = W_j T(theta_i | earlier_j) / p(theta_i)``.
+    Evaluated in blocks of rows (memory ``O(block x M)``), sampled by the Gumbel-max trick.
+
+    Parameters
+    ----------
+    kernel : MarkovKernel
+        Its ``logpdf(new, old)`` is the transition density.
+    later : (N, d) array
+    earlier : (M, d) array
+    earlier_log_weights : (M,) array
+        Normalised log-weights ``log W_j``.
+    rng : numpy.random.Generator, optional
+        When given, one ancestor index per row of ``later`` is drawn.
+    later_log_weights : (N,) array, optional
+        When given, the ancestor ESS ``1 / sum_j a_j^2`` with ``a_j = sum_i v_i r_ij`` is returned:
+        how many of the earlier particles carry the later (posterior) distribution.
+
+    Returns
+    -------
+    index : (N,) int array or None
+    ancestor_ess : float
+        NaN without ``later_log_weights``.
+    """
+    n, m = later.shape[0], earlier.shape[0]
+    block = max(1, _PAIR_BLOCK // m)
+    index = np.empty(n, dtype=np.intp) if rng is not None else None
+    mass = np.zeros(m) if later_log_weights is not None else None
+    for start in range(0, n, block):
+        rows = later[start:start + block]
+        b = rows.shape[0]
+        log_r = kernel.logpdf(np.repeat(rows, m, axis=0), np.tile(earlier, (b, 1))).reshape(b, m)
+        log_r += earlier_log_weights[None, :]
+        peak = np.max(log_r, axis=1, keepdims=True)
+        peak[~np.isfinite(peak)] = 0.0
+        if rng is not None:
+            index[start:start + b] = np.argmax(log_r + rng.gumbel(size=(b, m)), axis=1)
+        if mass is not None:
+            r = np.exp(log_r - peak)
+            r /= np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
+            mass += np.exp(later_log_weights[start:start + b]) @ r
+    return index, (float(1.0 / np.dot(mass, mass)) if mass is not None else float("nan"))
+
+
+def _start_paths(state, kernel, length, rng):
+    """``(N, length, d)`` paths over the window's steps ending at the posterior particles: the last
+    path-space step's paths where kept, extended backwards by drawing ancestors (backward simulation
+    with the exact transition) among the window's stored posteriors."""
+    window = state.window[-length:]
+    n, d = state.posterior.shape
+    paths = np.empty((n, length, d))
+    known = 0 if state.paths is None else min(length, state.paths.shape[1])
+    if known:
+        paths[:, length - known:] = state.paths[:, -known:]
+    else:
+        paths[:, -1] = state.posterior
+        known = 1
+    for t in range(length - known - 1, -1, -1):
+        index, _ = ancestor_draws(kernel, paths[:, t + 1], window[t].posterior, window[t].log_weights, rng)
+        paths[:, t] = window[t].posterior[index]
+    return paths
+
+
+@dataclass(frozen=True, eq=False)
+class _PathPredictive:
+    """Draws of ``(theta_{w:s-1}, theta_s)``: a weighted path, extended by the kernel (for restarts)."""
+
+    paths: np.ndarray
+    log_weights: np.ndarray
+    kernel: MarkovKernel
+    dim: int
+
+    def sample(self, n, rng):
+        index = rng.choice(self.paths.shape[0], size=int(n), p=np.exp(self.log_weights - logsumexp(self.log_weights)))
+        last = self.paths[index, -self.dim:]
+        return np.concatenate([self.paths[index], self.kernel.propagate(last, rng)], axis=1)
+
+
+class _PathCounter:
+    """The step's likelihood counter seen from the path space: ``loglike`` reads the last state."""
+
+    def __init__(self, counter, dim):
+        self.counter, self.dim, self.step = counter, dim, counter.step
+
+    def loglike(self, walkers):
+        return self.counter.loglike(walkers[:, -self.dim:])
+
+
+def _path_prior(window, kernel, counter, dim):
+    """``log p(theta_{w:s-1} | D^{w:s-1}) + log T(theta_s | theta_{s-1})`` for flattened paths ``(M, L d)``.
+
+    The window's first state has the prior its step used (exact from step 1 on), every later one
+    the exact transition, every past state its dataset's likelihood; the log of the window's evidence
+    ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior)."""
+    normaliser = sum(past.log_evidence_increment for past in window)
+
+    def logpdf(walkers):
+        states = walkers.reshape(walkers.shape[0], -1, dim)
+        out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
+        for t in range(1, states.shape[1]):  # transitions into steps w+1..s
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            out[alive] += kernel.logpdf(states[alive, t], states[alive, t - 1])
+        for t, past in enumerate(window):  # the past datasets' likelihood
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            out[alive] += counter.loglike_on(states[alive, t], past.dataset)
+        return out
+
+    return logpdf
+
+
+def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, counter,
+                     method: str, start: float) -> tuple[SamplerState, StepRecord, _Cloud]:
+    """The exact remedy for prior-data conflict: assimilate ``dataset`` on the path space.
+
+    The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
+    posterior's particles are: a posterior that lies several predictive sds out is made of that
+    posterior's far tail, which N particles do not hold (on run 9 of the oscillator study the
+    mixture's own posterior of ``k`` at step 3 is 2.7 exact sds low at N = 1000 and 1.4 at 16000).
+    Here the target is the joint posterior of the last ``L`` states (Eq. A2-A3 unrolled),
+
+        p(theta_{w:s} | D^{1:s}) prop. to p_w(theta_w) prod_{t=w}^{s} L_t(theta_t) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}),
+
+    whose marginal in ``theta_s`` is the model's exact posterior (``p_w`` is the initial prior when
+    the window reaches step 1). The particles start from the previous posterior's paths (kept from
+    the last path-space step, or drawn backwards with the exact transition), are extended by
+    ``theta_s ~ T(. | theta_{s-1})``, tempered in ``L_s`` (Eq. A5) and moved by the sampler's own
+    MCMC move on the whole path, which carries the earlier states into the tails the data call for.
+    The evidence increment is Eq. (1) or the importance estimate of :mod:`seqbayes.evidence` on
+    the path space; the cost of a move is one likelihood call per state of the window.
+
+    Returns the new state (with the paths), the record (``StepInfo.path_steps = L``) and the cloud.
+    """
+    step = state.step + 1
+    kernel, d = problem.kernel, problem.kernel.dim
+    length = min(len(state.window), config.remedy_lag - 1)
+    window = state.window[-length:]
+    paths = _start_paths(state, kernel, length, rng)
+    walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
+        paths.shape[0], -1)
+    path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
+                           problem.executor, problem.n_chunks)
+    path_counter = _PathCounter(counter, d)
+    prior_logpdf = _path_prior(window, kernel, counter, d)
+    n = config.n_samples
+    log_weights, log_restricted_mass, n_found = state.posterior_log_weights, 0.0, n
+    loglike = np.full(n, -np.inf)
+    inside = _inside(walkers, path_problem.support)
+    loglike[inside] = path_counter.loglike(walkers[inside])
+    valid = np.isfinite(loglike)
+    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+        # as _weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
+        extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
+        walkers, loglike, log_restricted_mass, n_found = _restricted_draws(extended, path_problem.support, n, rng,
+                                                                           step, path_counter)
+        log_weights = np.full(n, -np.log(n))
+    components = np.column_stack([loglike, np.full(n, -np.inf)])
+    carried = np.isfinite(loglike)
+    components[carried, 1] = prior_logpdf(walkers[carried])
+    cloud = _Cloud(walkers, log_weights, components)
+    moves = _Moves(step_size=state.step_size)
+    cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
+        cloud, path_problem, config, path_counter, prior_logpdf, moves, True, False, rng)
+    log_z = log_z + log_restricted_mass
+    cloud, log_increment, evidence_ess, n_independent = _evidence(
+        cloud, log_z, n_found, path_problem, config, path_counter, prior_logpdf, config.evidence == "importance",
+        rng)
+    log_evidence = float(state.log_evidence + log_increment)
+    posterior = cloud.particles[:, -d:]
+    marginal = _Cloud(posterior, cloud.log_weights, cloud.components)
+    density, predictive, _ = _propagate(state, marginal, dataset, log_increment, log_evidence, method, problem,
+                                        config, rng)
+    conflict = prior_data_conflict(state.particles, state.log_weights, posterior, cloud.log_weights)
+    _, ancestors = ancestor_draws(kernel, posterior, state.posterior, state.posterior_log_weights,
+                                  later_log_weights=cloud.log_weights)
+    step_size = moves.step_size if config.move == "stretch" else float("nan")
+    info = StepInfo(
+        step=step, log_evidence_increment=float(log_increment), log_evidence=log_evidence, ess=float(stage_ess),
+        resampled=bool(resampled), acceptance_rate=moves.stats.acceptance_rate, step_size=float(step_size),
+        n_virtual=moves.n_virtual, n_stages=len(temperatures), temperatures=temperatures,
+        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(posterior),
+        n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
+        n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(log_z),
+        evidence_ess=evidence_ess, n_independent_accepted=n_independent,
+        n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start,
+        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
+        ancestor_ess=ancestors, path_steps=length + 1)
+    record = StepRecord(info, posterior, cloud.log_weights, predictive)
+    past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment))
+    keep = config.remedy_lag - 1
+    new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
+                             log_evidence=log_evidence,
+                             step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                             posterior=posterior, posterior_log_weights=cloud.log_weights,
+                             window=(state.window + (past,))[-keep:],
+                             paths=cloud.particles.reshape(n, length + 1, d)[:, -keep:])
+    return new_state, record, marginal
+
+
 def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
                rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
     """Assimilate one dataset (pure; ``state`` is not modified): weigh the prior particles, temper,
@@ -753,6 +1020,14 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
         return new_state, record
     method = resolve_predictive(config.predictive, problem.kernel)
     new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
+    info = record.info
+    if state.window and _remedy_applies(config, method, problem.kernel) and (
+            info.ancestor_ess < config.remedy_ess * config.n_samples
+            or info.prior_data_conflict > config.conflict_threshold):
+        try:
+            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start)
+        except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
+            pass
     return new_state, record
 
 
@@ -789,6 +1064,17 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
                                                      problem, config, rng)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
     conflict = prior_data_conflict(prior_particles, prior_log_weights, cloud.particles, cloud.log_weights)
+    ancestors, window, paths = float("nan"), (), None
+    if _remedy_applies(config, method, problem.kernel):  # keep what the path-space remedy needs
+        keep = config.remedy_lag - 1
+        if state.window:
+            index, ancestors = ancestor_draws(problem.kernel, cloud.particles, state.posterior,
+                                              state.posterior_log_weights, None if state.paths is None else rng,
+                                              cloud.log_weights)
+            if state.paths is not None:
+                paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
+        window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
+                                           float(log_increment)),))[-keep:]
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
@@ -800,13 +1086,13 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
         n_independent_accepted=n_independent, n_move_evaluations=moves.stats.n_evaluations,
         wall_time=time.perf_counter() - start, prior_data_conflict=float(conflict.max()),
-        conflict_parameter=int(conflict.argmax()))
+        conflict_parameter=int(conflict.argmax()), ancestor_ess=ancestors)
     record = StepRecord(info, cloud.particles, cloud.log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
                              log_evidence=log_evidence,
                              step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                              posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
-                             log_prior=next_log_prior)
+                             log_prior=next_log_prior, window=window, paths=paths)
     return new_state, record, cloud
 
 
