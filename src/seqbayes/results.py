@@ -90,6 +90,15 @@ class StepInfo:
         0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
         assimilated it on the path space of the last ``L`` states (the exact target;
         :func:`~seqbayes.sequential.assimilate_paths`).
+    jump_probability : float
+        With a kernel with :class:`~seqbayes.kernels.Jump` components: the posterior probability
+        that some parameter jumped between the previous step and this one (NaN at step 1 and
+        without jumps; :func:`~seqbayes.kernels.jump_posterior`).
+    jump_parameter : int
+        The jump parameter (column) most likely to have jumped.
+    jump_size, jump_size_sd : float
+        Posterior mean and sd of its drop fraction given that it jumped (the drop is
+        ``jump_size * reference``).
     """
 
     step: int
@@ -118,6 +127,10 @@ class StepInfo:
     inner_ess: float = float("nan")
     ancestor_ess: float = float("nan")
     path_steps: int = 0
+    jump_probability: float = float("nan")
+    jump_parameter: int = 0
+    jump_size: float = float("nan")
+    jump_size_sd: float = float("nan")
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":
