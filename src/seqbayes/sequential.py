@@ -41,7 +41,7 @@ import numpy as np
 
 from .density import PREDICTIVE_METHODS, HistoryPrior, RunningStatistics, predictive_density
 from .evidence import importance_step
-from .kernels import MarkovKernel
+from .kernels import MarkovKernel, jump_step_fields
 from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, assimilate_nested, nested_split,
                      start_nested)
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
@@ -484,7 +484,11 @@ class _Counter:
 
 def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
     """The predictive construction to use: ``"auto"`` is ``"history"`` for a static kernel, ``"smc2"`` for
-    one with both static and drifting components, else ``"transition"``."""
+    one with both static and drifting components, else ``"transition"`` (always for a kernel with jumps)."""
+    if kernel.has_jumps and method in ("auto", "smc2"):  # SMC^2's inner filters assume a Gaussian transition
+        if method == "smc2":
+            raise ValueError("predictive: 'smc2' does not support Jump components; use 'transition'")
+        return "transition"
     if method == "auto":
         return "history" if kernel.is_static else "smc2" if nested_split(kernel) is not None else "transition"
     if method == "smc2" and nested_split(kernel) is None:
@@ -974,7 +978,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         evidence_ess=evidence_ess, n_independent_accepted=n_independent,
         n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start,
         prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-        ancestor_ess=ancestors, path_steps=length + 1)
+        ancestor_ess=ancestors, path_steps=length + 1,
+        **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
     record = StepRecord(info, posterior, cloud.log_weights, predictive)
     past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment))
     keep = config.remedy_lag - 1
@@ -1086,7 +1091,8 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
         n_independent_accepted=n_independent, n_move_evaluations=moves.stats.n_evaluations,
         wall_time=time.perf_counter() - start, prior_data_conflict=float(conflict.max()),
-        conflict_parameter=int(conflict.argmax()), ancestor_ess=ancestors)
+        conflict_parameter=int(conflict.argmax()), ancestor_ess=ancestors,
+        **jump_step_fields(problem.kernel, state.prior, cloud.particles, cloud.log_weights))
     record = StepRecord(info, cloud.particles, cloud.log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
                              log_evidence=log_evidence,
