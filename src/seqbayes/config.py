@@ -20,6 +20,10 @@ A run is described by one TOML file::
     k = { type = "drift", rate = -0.05, noise_std = 0.02 }   # k_{s+1} = k_s - 0.05 + nu
     c = { type = "static" }            # parameters not listed are static
     # also: { type = "decay", rate = 0.1, noise_std = 0.01 }  (x_{s+1} = exp(-rate) x_s + nu)
+    # sudden damage: the base's drift/decay with prob 1 - p, a drop by f * reference with
+    # f ~ N(drop_mean, drop_sd^2) with prob p (tail = "heavy": a scale mixture; docs/jump_kernels.md)
+    # { type = "jump", base = "decay", rate = 0.02, noise_std = 0.02, p = 0.05,
+    #   drop_mean = 0.3, drop_sd = 0.1, reference = 3.0 }
 
     [sampler]
     type = "SEMC"                      # or "SMC"
@@ -61,7 +65,10 @@ __all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config
 #: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
 SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
 SMC_ONLY = ("proposal_scale", "max_moves")
-KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",)}
+KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",),
+                "jump": ("base", "rate", "p", "drop_mean", "drop_sd", "reference")}
+#: Optional settings of a jump kernel entry (``tail``: "gaussian" or "heavy"; or explicit ``scales``).
+JUMP_OPTIONAL = ("tail", "scales", "scale_weights")
 EXECUTORS = ("serial", "processes", "dask")
 #: RunConfig fields that do not define the model (not in :meth:`RunConfig.fingerprint`).
 NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "likelihood_file",
@@ -177,17 +184,20 @@ class RunConfig:
 
     def build_kernel(self):
         """The :class:`~seqbayes.kernels.MarkovKernel`, one component per parameter."""
-        from .kernels import Decay, Drift, MarkovKernel, Static
+        from .kernels import Decay, Drift, Jump, MarkovKernel, Static
 
         parts = []
         for name in self.names:
             spec = self.kernel[name]
-            if spec["type"] == "static":
-                parts.append(Static())
-            elif spec["type"] == "drift":
-                parts.append(Drift(spec["rate"], noise_std=spec["noise_std"]))
+            kind = spec["base"] if spec["type"] == "jump" else spec["type"]
+            if kind == "static":
+                part = Static()
             else:
-                parts.append(Decay(spec["rate"], noise_std=spec["noise_std"]))
+                part = (Drift if kind == "drift" else Decay)(spec["rate"], noise_std=spec["noise_std"])
+            if spec["type"] == "jump":
+                part = Jump(part, spec["p"], spec["drop_mean"], spec["drop_sd"], spec["reference"],
+                            tuple(spec["scales"]), tuple(spec["scale_weights"]))
+            parts.append(part)
         return MarkovKernel(parts)
 
     @property
@@ -368,7 +378,7 @@ def _parse_kernel(name, raw, source):
     kind = raw.get("type")
     if kind not in KERNEL_TYPES:
         _fail(source, f"{prefix}.type", f"expected one of {', '.join(KERNEL_TYPES)}, got {kind!r}")
-    allowed = {"type", "noise_std", *KERNEL_TYPES[kind]}
+    allowed = {"type", "noise_std", *KERNEL_TYPES[kind], *(JUMP_OPTIONAL if kind == "jump" else ())}
     _check_keys(raw, allowed, source, prefix)
     for key in KERNEL_TYPES[kind]:
         if key not in raw:
@@ -380,7 +390,46 @@ def _parse_kernel(name, raw, source):
         _fail(source, f"{prefix}.noise_std", "a static parameter has no process noise; use type = \"drift\" "
                                              "with rate = 0 for a random walk")
     rate = _number(raw["rate"], source, f"{prefix}.rate") if "rate" in raw else 0.0
+    if kind == "jump":
+        return _parse_jump(prefix, raw, rate, noise, source)
     return {"type": kind, "rate": rate, "noise_std": noise}
+
+
+def _parse_jump(prefix, raw, rate, noise, source):
+    """A ``type = "jump"`` entry (:class:`~seqbayes.kernels.Jump`): its base, spike noise and slab."""
+    from .kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS
+
+    if raw["base"] not in ("drift", "decay"):
+        _fail(source, f"{prefix}.base", f"expected \"drift\" or \"decay\" (the no-jump evolution), got {raw['base']!r}")
+    if noise <= 0:
+        _fail(source, f"{prefix}.noise_std", "a jump kernel needs the base's noise_std > 0 (the no-jump branch "
+                                             "is a Gaussian)")
+    p = _number(raw["p"], source, f"{prefix}.p")
+    if not 0.0 < p < 1.0:
+        _fail(source, f"{prefix}.p", f"the jump probability must lie in (0, 1), got {p}")
+    drop_mean = _number(raw["drop_mean"], source, f"{prefix}.drop_mean")
+    drop_sd = _number(raw["drop_sd"], source, f"{prefix}.drop_sd", positive=True)
+    reference = _number(raw["reference"], source, f"{prefix}.reference", positive=True)
+    tail = raw.get("tail", "gaussian")
+    if tail not in ("gaussian", "heavy"):
+        _fail(source, f"{prefix}.tail", f"expected \"gaussian\" or \"heavy\", got {tail!r}")
+    if ("scales" in raw) != ("scale_weights" in raw) or ("scales" in raw and "tail" in raw):
+        _fail(source, f"{prefix}.scales", "give scales and scale_weights together, and not with tail")
+    if "scales" in raw:
+        lists = {}
+        for key in ("scales", "scale_weights"):
+            value = raw[key]
+            if not isinstance(value, list) or not value:
+                _fail(source, f"{prefix}.{key}", f"expected a non-empty list of positive numbers, got {value!r}")
+            lists[key] = [_number(v, source, f"{prefix}.{key}", positive=True) for v in value]
+        if len(lists["scales"]) != len(lists["scale_weights"]):
+            _fail(source, f"{prefix}.scale_weights", f"expected {len(lists['scales'])} weights (one per scale), "
+                                                     f"got {len(lists['scale_weights'])}")
+        scales, weights = lists["scales"], lists["scale_weights"]
+    else:
+        scales, weights = (list(HEAVY_TAIL_SCALES), list(HEAVY_TAIL_WEIGHTS)) if tail == "heavy" else ([1.0], [1.0])
+    return {"type": "jump", "base": raw["base"], "rate": rate, "noise_std": noise, "p": p, "drop_mean": drop_mean,
+            "drop_sd": drop_sd, "reference": reference, "scales": scales, "scale_weights": weights}
 
 
 # ------------------------------------------------------------------ likelihood
