@@ -39,7 +39,8 @@ from ..models import oscillator as osc
 from ..rng import as_generator
 
 __all__ = ["N_STEPS", "DROP_STEP", "DROP_FRACTION", "DECAY_RATE", "PROCESS_STD", "LIKELIHOOD_SCALE",
-           "AbruptDropData", "simulate"]
+           "JUMP_P", "DROP_MEAN", "DROP_SD", "AbruptDropData", "simulate", "candidate_kernels", "JumpReference",
+           "exact_reference"]
 
 N_STEPS = 8                   #: inspections (months 1..8)
 DROP_STEP = 5                 #: the inspection (1-based) at which the stiffness has dropped
@@ -47,6 +48,8 @@ DROP_FRACTION = 0.3           #: k loses this fraction at the drop
 DECAY_RATE = (0.02, 0.02)     #: r_k, r_c per month: k, c *= exp(-r) each month
 PROCESS_STD = (0.02, 0.005)   #: q_k [N/m], q_c [Ns/m]: the monthly random wander of k, c
 LIKELIHOOD_SCALE = 1.0        #: likelihood std = this x the record's RMSE (the paper's study: 7)
+JUMP_P = 0.05                 #: candidate jump kernels: jump probability per step
+DROP_MEAN, DROP_SD = 0.3, 0.1  #: and the drop fraction's mean and sd (of k0)
 
 
 @dataclass(frozen=True)
@@ -146,3 +149,170 @@ def simulate(rng, *, n_steps: int = N_STEPS, drop_step: int | None = DROP_STEP,
         raise ValueError(f"likelihood_scale: must be > 0, got {likelihood_scale}")
     datasets = osc.simulate_inspections(data.path, rng, times=times, likelihood_scale=float(likelihood_scale))
     return AbruptDropData(truth, datasets, data.drop_step, data.drop_fraction, rate, noise)
+
+
+def candidate_kernels(decay_rate=DECAY_RATE, process_std=PROCESS_STD, *, p: float = JUMP_P,
+                      drop_mean: float = DROP_MEAN, drop_sd: float = DROP_SD, k0: float = osc.K0,
+                      c0: float = osc.C0) -> dict:
+    """The kernels compared on this problem, each moving ``k`` and ``c`` (``c`` always by the smooth decay).
+
+    - ``"decay"``: ``theta *= exp(-r) + N(0, q^2)``, the smooth truth without the drop;
+    - ``"drift"``: ``theta -= theta_0 (1 - exp(-r)) + N(0, q^2)``, the same first-month loss, additive;
+    - ``"jump"``: ``k``'s decay with probability ``1 - p``, a drop by ``f k0`` with
+      ``f ~ N(drop_mean, drop_sd^2)`` with probability ``p`` (:class:`~seqbayes.kernels.Jump`);
+    - ``"jump-heavy"``: the same with the heavy-tailed slab (:meth:`~seqbayes.kernels.Jump.heavy_tailed`).
+
+    Returns
+    -------
+    dict name -> MarkovKernel
+    """
+    from ..kernels import Decay, Drift, Jump, MarkovKernel
+
+    (rk, rc), (qk, qc) = np.asarray(decay_rate, dtype=float), np.asarray(process_std, dtype=float)
+    decay_k, decay_c = Decay(rk, noise_std=qk), Decay(rc, noise_std=qc)
+    return {
+        "decay": MarkovKernel([decay_k, decay_c]),
+        "drift": MarkovKernel([Drift(-k0 * -np.expm1(-rk), noise_std=qk), Drift(-c0 * -np.expm1(-rc), noise_std=qc)]),
+        "jump": MarkovKernel([Jump(decay_k, p, drop_mean, drop_sd, k0), decay_c]),
+        "jump-heavy": MarkovKernel([Jump.heavy_tailed(decay_k, p, drop_mean, drop_sd, k0), decay_c]),
+    }
+
+
+# ------------------------------------------------------------ exact reference with a jump kernel
+
+def _axis_transition(new_axis, old_axis, component, slab_only: bool = False) -> np.ndarray:
+    """``M[i, l] = sum_b P_b N(new_i; Gamma(old_l) + shift_b, sd_b^2) w_l`` for one parameter's component,
+    ``w`` the Simpson weights of ``old_axis`` (the per-axis convolution of Eq. A3); ``slab_only`` keeps
+    the jump branches of a :class:`~seqbayes.kernels.Jump`."""
+    from ..kernels import Jump
+    from ..reference import simpson_weights
+
+    if isinstance(component, Jump):
+        log_p, shift, sd = component.branches()
+    else:
+        log_p, shift, sd = np.zeros(1), np.zeros(1), np.array([component.noise_std])
+    if slab_only:
+        log_p, shift, sd = log_p[1:], shift[1:], sd[1:]
+    mean = np.asarray(component.nominal(np.asarray(old_axis, dtype=float)), dtype=float)
+    out = np.zeros((new_axis.size, old_axis.size))
+    for lp, b, s in zip(log_p, shift, sd):      # a few branches
+        z = (new_axis[:, None] - mean[None, :] - b) / s
+        out += np.exp(lp - 0.5 * z * z) / (s * np.sqrt(2.0 * np.pi))
+    return out * simpson_weights(old_axis)[None, :]
+
+
+def _propagate(log_density, old_axes, new_axes, components, slab_axis=None) -> np.ndarray:
+    """Log predictive density on ``new_axes`` (the transition acts on each axis separately)."""
+    from ..reference import _clean
+
+    log_density = _clean(log_density)
+    shift = np.max(log_density)
+    values = np.exp(log_density - shift)
+    for j, component in enumerate(components):
+        matrix = _axis_transition(np.asarray(new_axes[j]), np.asarray(old_axes[j]), component, j == slab_axis)
+        values = np.moveaxis(np.tensordot(matrix, values, axes=([1], [j])), 0, j)
+    with np.errstate(divide="ignore"):
+        return np.log(values) + shift
+
+
+@dataclass(frozen=True)
+class JumpReference:
+    """Exact per-step summaries of one dataset sequence under one kernel (:func:`exact_reference`).
+
+    Attributes
+    ----------
+    grid : seqbayes.reference.GridReference
+        Posterior ``mean``, ``std`` ``(S, 2)`` and cumulative ``log_evidence (S,)``.
+    jump_probability : (S, 2) array
+        Posterior probability that ``k`` (column 0) or ``c`` jumped into each step (NaN at step 1 and
+        for components that are not jumps).
+    """
+
+    grid: object
+    jump_probability: np.ndarray
+
+
+def exact_reference(datasets, kernel, *, n_points: int = 201, points_per_sd: float = 5.0,
+                    tail_mass: float = 1e-40, n_coarse: int = 201, max_points: int = 1201,
+                    widen: float = 20.0) -> JumpReference:
+    """Exact posterior moments, cumulative log-evidence and jump probabilities of ``(k, c)`` at every step.
+
+    The grid filter of :mod:`seqbayes.reference` (Eq. 12's likelihood on an adaptive tensor grid,
+    the uniform box prior of :mod:`seqbayes.models.oscillator`, Simpson quadrature) with the
+    transition of any kernel whose components act on one parameter each, including
+    :class:`~seqbayes.kernels.Jump`'s Gaussian mixture: the predictive of Eq. (A3) is the
+    convolution of the last grid posterior with each axis's mixture. The probability that
+    parameter ``j`` jumped into step ``s`` is ``int L_s pi_s^{slab j} / Z_s``, ``pi_s^{slab j}``
+    the predictive with only the jump branches of ``j`` (times their probability).
+
+    Step 1's grid is centred on the likelihood's mode (``+- 60`` of its sds, within the box; the
+    likelihood there is sharper than the paper's by 7 x, see the module doc).
+
+    Parameters
+    ----------
+    datasets : sequence of OscillatorDataset
+    kernel : MarkovKernel
+        Two components (``k``, ``c``), each with process noise.
+    n_points, points_per_sd, tail_mass, n_coarse, max_points
+        As :func:`seqbayes.reference.adaptive_axes`.
+    widen : float
+        A later step's window is the previous grid carried through each branch, widened by
+        ``widen`` of that branch's sds.
+
+    Returns
+    -------
+    JumpReference
+    """
+    from .. import reference
+    from ..kernels import Jump, MarkovKernel
+
+    datasets = tuple(datasets)
+    if not isinstance(kernel, MarkovKernel) or len(kernel.components) != 2 or np.any(kernel.noise_std == 0):
+        raise ValueError("kernel: expected a MarkovKernel with two components (k, c), both with noise")
+    components = kernel.components
+    box = np.array([osc.PRIOR_BOUNDS["k"], osc.PRIOR_BOUNDS["c"]])
+    log_volume = float(np.sum(np.log(box[:, 1] - box[:, 0])))
+
+    def grid_loglike(axes, dataset):
+        kk, cc = np.meshgrid(axes[0], axes[1], indexing="ij")
+        return osc.log_likelihood(np.column_stack([kk.ravel(), cc.ravel()]), dataset).reshape(kk.shape)
+
+    branches = [c.branches() if isinstance(c, Jump) else (np.zeros(1), np.zeros(1), np.array([c.noise_std]))
+                for c in components]
+    scales = np.empty(2)
+    for j, c in enumerate(components):
+        ends = np.asarray(c.nominal(box[j]), dtype=float)
+        scales[j] = c.noise_std * (box[j, 1] - box[j, 0]) / abs(ends[1] - ends[0])
+    settings = dict(n_coarse=n_coarse, tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
+                    max_points=max_points, log_axes=(True, True))
+    steps, jumps = [], np.full((len(datasets), 2), np.nan)
+    for s, dataset in enumerate(datasets):
+        if s == 0:
+            mode, sd, _ = osc._likelihood_mode(dataset)
+            window = np.column_stack([np.maximum(mode - 60 * sd, box[:, 0]), np.minimum(mode + 60 * sd, box[:, 1])])
+
+            def log_target(axes, dataset=dataset):
+                return grid_loglike(axes, dataset) - log_volume
+        else:
+            prev = steps[-1]
+            window = np.empty((2, 2))
+            for j, c in enumerate(components):
+                ends = np.asarray(c.nominal(prev.axes[j][[0, -1]]), dtype=float)
+                _, shift, sd = branches[j]
+                window[j] = (ends.min() + np.min(shift - widen * sd), ends.max() + np.max(shift + widen * sd))
+
+            def log_target(axes, dataset=dataset, prev=prev):
+                return _propagate(prev.log_density, prev.axes, axes, components) + grid_loglike(axes, dataset)
+        step = reference.grid_update(log_target, window, n_points, hard=box, **settings)
+        if s > 0:
+            for j, c in enumerate(components):
+                if isinstance(c, Jump):
+                    slab = _propagate(prev.log_density, prev.axes, step.axes, components, slab_axis=j)
+                    log_mass = reference.log_integral(slab + grid_loglike(step.axes, dataset), step.axes)
+                    jumps[s, j] = np.exp(log_mass - step.log_evidence_increment)
+        steps.append(step)
+    grid = reference.reference_from_steps(steps, osc.PARAMETER_NAMES, len(datasets),
+                                          {"n_points": n_points, "points_per_sd": points_per_sd,
+                                           "tail_mass": tail_mass, "kernel": kernel.describe()})
+    jumps.setflags(write=False)
+    return JumpReference(grid, jumps)
