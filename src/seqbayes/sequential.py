@@ -35,7 +35,7 @@ from __future__ import annotations
 import contextlib
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -1122,8 +1122,27 @@ def _blas_limit(n_threads):
     return _THREADPOOLS[0].limit(limits=int(n_threads), user_api="blas")
 
 
+class _CountedLikelihood:
+    """The likelihood, advancing a progress bar by the samples it evaluates (serial runs)."""
+
+    def __init__(self, loglike, bar):
+        self.loglike, self.bar = loglike, bar
+
+    def __call__(self, theta, dataset):
+        out = self.loglike(theta, dataset)
+        self.bar.update(len(theta))
+        return out
+
+
+def _settings(values: dict) -> dict:
+    """The :class:`SamplerConfig` fields among a driver's keyword arguments."""
+    names = {f.name for f in fields(SamplerConfig)} - {"move", "n_samples"}
+    return {k: v for k, v in values.items() if k in names}
+
+
 class _SequentialSampler:
-    """Driver: holds the state, calls :func:`assimilate`, keeps the records."""
+    """Driver: holds the state, calls :func:`assimilate`, keeps the records. The public
+    classes :class:`SEMC` and :class:`SMC` spell their settings out as keyword arguments."""
 
     _move = ""
 
@@ -1208,11 +1227,32 @@ class _SequentialSampler:
     def rng(self) -> np.random.Generator:
         return self._rng
 
-    def update(self, dataset) -> StepInfo:
-        """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`."""
+    def update(self, dataset, *, progress: bool = False) -> StepInfo:
+        """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`.
+
+        With ``progress=True`` a tqdm bar counts the step's likelihood evaluations (the number of
+        tempering stages is adaptive, so a single step has no total; :meth:`run` shows one over
+        the datasets) and ends with the step's ESS and log-evidence. Not with an ``executor``,
+        whose workers evaluate the likelihood elsewhere.
+        """
+        return self._update(dataset, progress, leave=True)
+
+    def _update(self, dataset, progress: bool, leave: bool) -> StepInfo:
         prior = (self._state.prior_draws, self._state.log_weights)
-        with _blas_limit(self._blas_threads):
-            state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng)
+        problem, bar = self.problem, None
+        if progress and self.problem.executor is None:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(desc=f"step {self._state.step + 1}", unit="eval", leave=leave)
+            problem = replace(problem, loglike=_CountedLikelihood(problem.loglike, bar))
+        try:
+            with _blas_limit(self._blas_threads):
+                state, record = assimilate(self._state, dataset, problem, self.config, self._rng)
+            if bar is not None:
+                bar.set_postfix(ESS=f"{record.info.ess:.0f}", logZ=f"{record.info.log_evidence:.2f}")
+        finally:
+            if bar is not None:
+                bar.close()
         self._state = state
         self._records.append(record)
         if record.info.inner_ess < 0.05:
@@ -1235,10 +1275,25 @@ class _SequentialSampler:
                           PriorDataConflictWarning, stacklevel=2)
         return record.info
 
-    def run(self, datasets) -> Result:
-        """Assimilate each dataset in turn; returns :attr:`result`."""
-        for dataset in datasets:
-            self.update(dataset)
+    def run(self, datasets, *, progress: bool = False) -> Result:
+        """Assimilate each dataset in turn; returns :attr:`result`.
+
+        With ``progress=True`` (as emcee's ``run_mcmc``) a tqdm bar over the datasets shows the
+        total, the elapsed time, the ETA from the mean time per step so far and, after each step,
+        its ESS, acceptance rate and cumulative log-evidence.
+        """
+        if not progress:
+            for dataset in datasets:
+                self.update(dataset)
+            return self.result
+        from tqdm.auto import tqdm
+
+        total = len(datasets) if hasattr(datasets, "__len__") else None
+        with tqdm(datasets, total=total, desc=type(self).__name__, unit="step") as bar:
+            for dataset in bar:
+                info = self._update(dataset, True, leave=False)
+                bar.set_postfix(ESS=f"{info.ess:.0f}", accept=f"{info.acceptance_rate:.2f}",
+                                logZ=f"{info.log_evidence:.2f}")
         return self.result
 
     def predict(self, n_steps: int) -> np.ndarray:
@@ -1290,9 +1345,18 @@ class SEMC(_SequentialSampler):
     blas_threads : int or None
         BLAS threads inside :meth:`update` (1: the hot products have an inner dimension of d,
         where threads cost 3x; ``None`` leaves BLAS as it is).
-    **settings
-        Fields of :class:`SamplerConfig`: ``tempering``, ``target_acceptance`` (default Eq. 10),
-        ``step_size`` (2), ``max_virtual``, ``resampling``, ``predictive``, ...
+    target_acceptance : float, optional
+        SEMC's target acceptance rate ``alpha_tr`` (default: Eq. 10, ``0.21 / d + 0.23``).
+    step_size : float
+        Initial stretch-move step size ``u`` (2).
+    max_virtual, virtual_tolerance : int, float
+        Cap on virtual iterations (sweeps) per stage and their stopping tolerance.
+    tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
+predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
+move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
+conflict_remedy, remedy_ess, remedy_lag
+        The fields of :class:`SamplerConfig` of the same names, with its defaults and
+        validation (see there for what each does).
 
     Examples
     --------
@@ -1309,20 +1373,52 @@ class SEMC(_SequentialSampler):
 
     _move = "stretch"
 
+    def __init__(self, prior, kernel, loglike, n_samples: int = 1000,
+                 rng: int | np.random.Generator | None = None, *, executor=None, n_chunks: int | None = None,
+                 history: RunningStatistics | None = None, inner_filter=None, blas_threads: int | None = 1,
+                 target_acceptance: float | None = None, step_size: float = 2.0, max_virtual: int = 30,
+                 virtual_tolerance: float = 0.1, tempering: bool = True, tempering_ess: float = 0.5,
+                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
+                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
+                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
+                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
+                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
+                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
+                 remedy_lag: int = 10):
+        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
+                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
+                         **_settings(locals()))
+
 
 class SMC(_SequentialSampler):
     """Sequential Monte Carlo (Algorithm 4): Gaussian random-walk MH with the weighted covariance.
 
-    Parameters as :class:`SEMC`; ``proposal_scale`` is ``gamma`` of Eq. (A7) (1), ``n_moves``
-    the MH steps per stage (3; the paper uses 1).
+    Parameters as :class:`SEMC`, without its stretch-move settings (``target_acceptance``,
+    ``step_size``, ``max_virtual``, ``virtual_tolerance``), and:
+
+    Parameters
+    ----------
+    proposal_scale : float
+        ``gamma`` of Eq. (A7) (1).
+    max_moves : int
+        Cap on MH steps per stage (30); ``n_moves`` is the minimum (3; the paper uses 1).
     """
 
     _move = "gaussian"
 
-    def __init__(self, prior, kernel, loglike, n_samples: int = 1000, rng=None, **settings):
-        for name in ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance"):
-            if name in settings:
-                raise TypeError(f"{name}: not a setting of SMC (it belongs to SEMC)")
-        super().__init__(prior, kernel, loglike, n_samples, rng, **settings)
+    def __init__(self, prior, kernel, loglike, n_samples: int = 1000,
+                 rng: int | np.random.Generator | None = None, *, executor=None, n_chunks: int | None = None,
+                 history: RunningStatistics | None = None, inner_filter=None, blas_threads: int | None = 1,
+                 proposal_scale: float = 1.0, max_moves: int = 30, tempering: bool = True, tempering_ess: float = 0.5,
+                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
+                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
+                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
+                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
+                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
+                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
+                 remedy_lag: int = 10):
+        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
+                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
+                         **_settings(locals()))
 
 

@@ -1,6 +1,8 @@
 """The on-line samplers' contract: input validation, NaN handling, errors that name
 the argument or step, reproducibility, results I/O and model comparison."""
 
+import re
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -351,3 +353,49 @@ def test_a_non_integer_sample_count_is_refused(n_samples):
     prior = seqbayes.JointPrior({"a": stats.norm(0, 1)})
     with pytest.raises(ValueError, match="n_samples: must be an integer"):
         SEMC(prior, seqbayes.MarkovKernel([seqbayes.Static()]), lambda t, y: np.zeros(len(t)), n_samples=n_samples)
+
+
+@pytest.mark.parametrize("cls", [SEMC, SMC])
+def test_settings_are_explicit_keyword_arguments_with_sampler_config_defaults(cls):
+    import dataclasses
+    import inspect
+
+    from seqbayes.config import SEMC_ONLY, SMC_ONLY
+
+    parameters = inspect.signature(cls).parameters
+    assert not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())   # no **settings
+    other = SMC_ONLY if cls is SEMC else SEMC_ONLY
+    for field in dataclasses.fields(seqbayes.SamplerConfig):
+        if field.name == "n_samples":
+            assert parameters["n_samples"].default == field.default
+            continue
+        if field.name == "move" or field.name in other:
+            assert field.name not in parameters
+            continue
+        assert parameters[field.name].kind is inspect.Parameter.KEYWORD_ONLY, field.name
+        default = None if field.name == "target_acceptance" else field.default   # None: Eq. (10)
+        assert parameters[field.name].default == default, field.name
+    # validation is SamplerConfig's, naming the argument
+    with pytest.raises(ValueError, match="tempering_ess"):
+        make(cls, tempering_ess=1.5)
+    with pytest.raises(TypeError, match="proposal_scale" if cls is SEMC else "step_size"):
+        make(cls, **({"proposal_scale": 2.0} if cls is SEMC else {"step_size": 3.0}))
+
+
+def test_progress_bars_change_nothing_but_stderr(capsys):
+    quiet = make(SMC, seed=4).run(DATA)
+    loud_sampler = make(SMC, seed=4)
+    loud = loud_sampler.run(list(DATA), progress=True)
+    err = capsys.readouterr().err
+    for a, b in zip(quiet.steps, loud.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        assert a.info.log_evidence == b.info.log_evidence
+    assert "SMC: 100%" in err and "3/3" in err and "logZ=" in err      # a total, and each step's numbers
+    # a generator has no length: the bar counts without a total
+    make(SMC, seed=4).run((d for d in DATA), progress=True)
+    assert "3step" in capsys.readouterr().err.replace(" ", "")
+    # one step: the likelihood evaluations counted, the same numbers again
+    one = make(SMC, seed=4)
+    info = one.update(DATA[0], progress=True)
+    assert info.log_evidence == quiet.steps[0].info.log_evidence
+    assert re.search(rf"step 1: {info.n_loglike_evals}eval .*ESS=\d+, logZ=", capsys.readouterr().err)
