@@ -17,20 +17,10 @@ import numpy as np
 import pytest
 
 from seqbayes import SEMC, SMC
-from seqbayes.models.linear_gaussian import LinearGaussianProblem, kalman_filter
+from seqbayes.models.linear_gaussian import LinearGaussianProblem, errors_against, kalman_filter
 
 N_SAMPLES = 2000
 MEAN_TOLERANCE = np.maximum(0.1, 3 * np.sqrt((np.arange(1, 6) + 1) / (2 * N_SAMPLES)))
-
-
-def errors(result, exact):
-    """Per step: max |mean error| / sd, max |std / exact std - 1|, |log-evidence error|."""
-    out = []
-    for record, step in zip(result.steps, exact):
-        sd = np.sqrt(np.diag(step.cov))
-        out.append((np.max(np.abs(record.mean() - step.mean) / sd), np.max(np.abs(record.std() / sd - 1)),
-                    abs(record.info.log_evidence - step.log_evidence)))
-    return np.array(out)
 
 
 def assert_within(err, mean, evidence):
@@ -57,7 +47,7 @@ def test_matches_kalman_filter(cls, seed):
     problem, data = problem_and_data()
     exact = kalman_filter(problem, data)
     result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=N_SAMPLES, rng=seed).run(data)
-    err = errors(result, exact)
+    err = errors_against(result, exact)
     assert_within(err, MEAN_TOLERANCE, evidence=0.25)
 
 
@@ -67,7 +57,7 @@ def test_tempered_default_with_a_ten_times_wider_prior(cls):
     exact = kalman_filter(problem, data)
     result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=N_SAMPLES, rng=3).run(data)
     assert result.steps[0].info.n_stages > 1  # the first dataset needed bridging
-    err = errors(result, exact)
+    err = errors_against(result, exact)
     assert_within(err, MEAN_TOLERANCE, evidence=0.25)
 
 
@@ -86,5 +76,5 @@ def test_static_parameters_use_the_exact_history_prior(cls):
     sampler = cls(problem.prior, MarkovKernel([Static(), Static()]), problem.loglike, n_samples=N_SAMPLES, rng=4)
     result = sampler.run(data)
     assert isinstance(sampler.state.prior, HistoryPrior)
-    err = errors(result, exact)
+    err = errors_against(result, exact)
     assert_within(err, 0.1, evidence=0.05)

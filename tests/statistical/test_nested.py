@@ -11,17 +11,8 @@ import numpy as np
 import pytest
 
 from seqbayes import SEMC, SMC
-from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
+from seqbayes.models.linear_gaussian import LinearGaussianStateSpace, errors_against
 from seqbayes.nested import KalmanInnerFilter, NestedState, ParticleInnerFilter
-
-
-def errors(result, exact):
-    out = []
-    for record, step in zip(result.steps, exact):
-        sd = np.sqrt(np.diag(step.cov))
-        out.append((np.max(np.abs(record.mean() - step.mean) / sd), np.max(np.abs(record.std() / sd - 1)),
-                    abs(record.info.log_evidence - step.log_evidence)))
-    return np.array(out)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +30,7 @@ def test_kalman_inner_filter_matches_the_kalman_filter_at_every_step(cls, proble
     assert sampler.config.predictive == "smc2"
     result = sampler.run(data)
     assert isinstance(sampler.state, NestedState)
-    err = errors(result, exact)
+    err = errors_against(result, exact)
     assert np.all(err[:, 0] < 0.3), err
     assert np.all(err[:, 1] < 0.15), err
     assert np.all(err[:, 2] < 0.5), err
@@ -51,7 +42,7 @@ def test_particle_inner_filter_matches_the_kalman_filter(cls, problem_and_data):
     problem, data, exact = problem_and_data
     result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=6,
                  inner_filter=ParticleInnerFilter(50)).run(data[:8])
-    err = errors(result, exact[:8])
+    err = errors_against(result, exact[:8])
     assert np.all(err[:, 0] < 0.3), err
     assert np.all(err[:, 1] < 0.15), err
     assert np.all(err[:, 2] < 0.5), err
@@ -119,7 +110,7 @@ def test_running_statistics_give_the_same_posterior_in_one_call(cls):
     moved = [(a.info.n_loglike_evals, b.info.n_loglike_evals) for a, b in zip(plain.steps, running.steps)
              if a.info.n_proposed and a.info.step > 3]
     assert all(b < a for a, b in moved)  # the past costs one call, not one per dataset
-    err = errors(running, exact)
+    err = errors_against(running, exact)
     assert np.all(err[:, 0] < 0.3) and np.all(err[:, 1] < 0.15) and np.all(err[:, 2] < 0.5), err
 
 
@@ -178,7 +169,7 @@ def test_the_guided_inner_filter_is_exact_where_the_bootstrap_one_degenerates(cl
     exact = problem.exact(data)
     result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=1).run(data)
     assert min(r.info.inner_ess for r in result.steps[1:]) > 0.1
-    err = errors(result, exact)
+    err = errors_against(result, exact)
     assert np.all(err[:, 0] < 0.3), err
     assert np.all(err[:, 1] < 0.15), err
     assert np.all(err[:, 2] < 0.5), err

@@ -18,7 +18,7 @@ from ..kernels import Drift, MarkovKernel, Static
 from ..priors import JointPrior
 from ..rng import as_generator
 
-__all__ = ["LinearGaussianProblem", "LinearGaussianStateSpace", "kalman_filter", "KalmanStep"]
+__all__ = ["LinearGaussianProblem", "LinearGaussianStateSpace", "kalman_filter", "KalmanStep", "errors_against"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,30 @@ class KalmanStep:
     cov: np.ndarray         # (2, 2)
     log_evidence_increment: float
     log_evidence: float
+
+
+def errors_against(result, exact: list[KalmanStep]) -> np.ndarray:
+    """A sampler's run against the exact filter, per step.
+
+    Parameters
+    ----------
+    result : seqbayes.Result
+        The run (its first ``len(exact)`` steps are compared).
+    exact : list of KalmanStep
+        The exact posterior of each step (:func:`kalman_filter`, :meth:`LinearGaussianStateSpace.exact`).
+
+    Returns
+    -------
+    (S, 3) array
+        Per step: the largest |mean error| in exact posterior sds, the largest |std / exact std - 1|,
+        and |log-evidence error| in nats.
+    """
+    out = []
+    for record, step in zip(result.steps, exact):
+        sd = np.sqrt(np.diag(step.cov))
+        out.append((np.max(np.abs(record.mean() - step.mean) / sd), np.max(np.abs(record.std() / sd - 1)),
+                    abs(record.info.log_evidence - step.log_evidence)))
+    return np.array(out)
 
 
 @dataclass(frozen=True, eq=False)
