@@ -112,7 +112,7 @@ class _CountingLikelihood:
 
 
 # --------------------------------------------------------------------- commands
-def cmd_init(args) -> int:
+def cmd_init(args: argparse.Namespace) -> int:
     from .config import load_config
     from .store import RunStore
 
@@ -123,7 +123,7 @@ def cmd_init(args) -> int:
     return 0
 
 
-def cmd_update(args) -> int:
+def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
     from .config import read_datafile
@@ -200,7 +200,7 @@ def _describe(err, store, done=()) -> str:
             f"{unchanged}")
 
 
-def cmd_status(args) -> int:
+def cmd_status(args: argparse.Namespace) -> int:
     from .report import format_status, status_rows
     from .store import RunStore
 
@@ -213,7 +213,7 @@ def cmd_status(args) -> int:
     return 0
 
 
-def cmd_predict(args) -> int:
+def cmd_predict(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .report import first_passage_json, forecast_rows, format_first_passage, format_forecast
     from .store import RunStore
@@ -285,7 +285,7 @@ def _open_for_comparison(paths):
     return stores, names, n_common
 
 
-def cmd_compare(args) -> int:
+def cmd_compare(args: argparse.Namespace) -> int:
     from .report import comparison_rows
     from .selection import compare
 
@@ -305,7 +305,7 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def cmd_report(args) -> int:
+def cmd_report(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .report import write_report
     from .store import RunStore

@@ -13,8 +13,20 @@ from __future__ import annotations
 
 import base64
 import io
+import os
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from .prognostics import FirstPassage
+    from .results import Result
+    from .selection import ModelComparison
 
 __all__ = ["new_figure", "integer_steps", "to_png", "to_data_uri", "save", "band", "credible_bands", "plot_parameter_evolution",
            "plot_sampler_diagnostics", "plot_evidence", "plot_model_probabilities", "plot_first_passage",
@@ -25,7 +37,7 @@ COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e3
 
 
 def new_figure(n_rows: int = 1, n_cols: int = 1, *, width: float = 7.0, row_height: float = 2.6,
-               sharex: bool = True, squeeze: bool = False):
+               sharex: bool = True, squeeze: bool = False) -> tuple[Figure, np.ndarray]:
     """A figure with an Agg canvas and its axes array ``(n_rows, n_cols)``."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -36,7 +48,7 @@ def new_figure(n_rows: int = 1, n_cols: int = 1, *, width: float = 7.0, row_heig
     return fig, axes
 
 
-def integer_steps(axes) -> None:
+def integer_steps(axes: Axes | np.ndarray) -> None:
     """Integer ticks on the x axis (steps) of every axes in ``axes``."""
     from matplotlib.ticker import MaxNLocator
 
@@ -44,7 +56,7 @@ def integer_steps(axes) -> None:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
-def _finish_step_column(axes) -> None:
+def _finish_step_column(axes: np.ndarray) -> None:
     """A column of step-indexed axes: integer ticks, x label at the bottom, grids, legend on top."""
     integer_steps(axes)
     axes[-1, 0].set_xlabel("step (dataset)")
@@ -53,30 +65,31 @@ def _finish_step_column(axes) -> None:
     axes[0, 0].legend(loc="best", fontsize="small")
 
 
-def to_png(fig, dpi: int = 100) -> bytes:
+def to_png(fig: Figure, dpi: int = 100) -> bytes:
     """PNG bytes of a figure."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)
     return buffer.getvalue()
 
 
-def to_data_uri(fig, dpi: int = 100) -> str:
+def to_data_uri(fig: Figure, dpi: int = 100) -> str:
     """``data:image/png;base64,...`` for embedding in HTML."""
     return "data:image/png;base64," + base64.b64encode(to_png(fig, dpi)).decode("ascii")
 
 
-def save(fig, path, dpi: int = 120) -> None:
+def save(fig: Figure, path: str | os.PathLike, dpi: int = 120) -> None:
     """Write a figure to ``path`` (format from the suffix)."""
     fig.savefig(path, dpi=dpi)
 
 
-def band(ax, x, centre, lower, upper, *, color=COLORS[0], label=None, linestyle="-", alpha=0.25, marker="o"):
+def band(ax: Axes, x: ArrayLike, centre: ArrayLike, lower: ArrayLike, upper: ArrayLike, *, color: str = COLORS[0],
+         label: str | None = None, linestyle: str = "-", alpha: float = 0.25, marker: str = "o") -> None:
     """A line with a shaded band between ``lower`` and ``upper`` (all ``(S,)``)."""
     ax.fill_between(x, lower, upper, color=color, alpha=alpha, linewidth=0)
     ax.plot(x, centre, color=color, linestyle=linestyle, marker=marker, markersize=3.5, label=label)
 
 
-def credible_bands(result, level: float = 0.95):
+def credible_bands(result: Result, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Posterior mean and central credible interval per step: three ``(S, d)`` arrays."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: must lie in (0, 1), got {level}")
@@ -86,7 +99,8 @@ def credible_bands(result, level: float = 0.95):
     return means, quantiles[:, 0, :], quantiles[:, 1, :]
 
 
-def plot_parameter_evolution(result, *, level: float = 0.95, forecast=None, truth=None, title=None):
+def plot_parameter_evolution(result: Result, *, level: float = 0.95, forecast: np.ndarray | None = None,
+                             truth: ArrayLike | None = None, title: str | None = None) -> Figure:
     """Posterior mean and credible band of every parameter against the step, with an optional forecast.
 
     Parameters
@@ -126,7 +140,7 @@ def plot_parameter_evolution(result, *, level: float = 0.95, forecast=None, trut
     return fig
 
 
-def plot_sampler_diagnostics(results: dict, *, target_acceptance=None):
+def plot_sampler_diagnostics(results: Mapping[str, Result], *, target_acceptance: float | None = None) -> Figure:
     """Acceptance rate and ESS / N per step for one or more runs (``name -> Result``)."""
     fig, axes = new_figure(2, 1)
     for i, (name, result) in enumerate(results.items()):
@@ -146,7 +160,7 @@ def plot_sampler_diagnostics(results: dict, *, target_acceptance=None):
     return fig
 
 
-def plot_evidence(results: dict):
+def plot_evidence(results: Mapping[str, Result]) -> Figure:
     """Cumulative log-evidence and per-step increments for one or more runs (``name -> Result``)."""
     fig, axes = new_figure(2, 1)
     for i, (name, result) in enumerate(results.items()):
@@ -160,7 +174,7 @@ def plot_evidence(results: dict):
     return fig
 
 
-def plot_model_probabilities(comparison):
+def plot_model_probabilities(comparison: ModelComparison) -> Figure:
     """Posterior model probabilities per step (stacked areas) from a :class:`~seqbayes.ModelComparison`."""
     fig, axes = new_figure(1, 1, row_height=3.0)
     ax = axes[0, 0]
@@ -176,7 +190,8 @@ def plot_model_probabilities(comparison):
     return fig
 
 
-def plot_first_passage(passages, *, start_step: int = 0, n_se: float = 2.0):
+def plot_first_passage(passages: Sequence[tuple[str, FirstPassage]], *, start_step: int = 0,
+                       n_se: float = 2.0) -> Figure:
     """Cumulative distribution of the time to a threshold, with its Monte Carlo error.
 
     Parameters
@@ -206,7 +221,8 @@ def plot_first_passage(passages, *, start_step: int = 0, n_se: float = 2.0):
     return fig
 
 
-def plot_data_fit(x, observed, predicted, *, level: float = 0.95, title=None):
+def plot_data_fit(x: ArrayLike, observed: ArrayLike, predicted: ArrayLike, *, level: float = 0.95,
+                  title: str | None = None) -> Figure:
     """Data against the posterior-predictive fit: observations as dots, the predictive mean and band.
 
     Parameters

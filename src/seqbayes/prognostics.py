@@ -19,8 +19,10 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .priors import as_samples
 from .rng import as_generator
@@ -142,8 +144,9 @@ def parse_threshold(text: str, names: Sequence[str]) -> Threshold:
     return Threshold(name, "below" if match["op"] == "<" else "above", value)
 
 
-def time_to_threshold(samples, kernel, parameter: int, threshold: float, horizon: int, *,
-                      direction: str = "below", rng=None, paths_per_sample: int = 1) -> FirstPassage:
+def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold: float, horizon: int, *,
+                      direction: str = "below", rng: int | np.random.Generator | None = None,
+                      paths_per_sample: int = 1) -> FirstPassage:
     """Distribution of the first future step at which ``theta[:, parameter]`` crosses ``threshold``.
 
     Parameters

@@ -13,11 +13,20 @@ import html
 import math
 import textwrap
 import urllib.parse
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import plotting
+
+if TYPE_CHECKING:
+    import os
+
+    from .prognostics import FirstPassage, Threshold
+    from .selection import ModelComparison
+    from .store import RunStore
 
 __all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
            "first_passage_rows", "first_passage_json", "format_first_passage", "describe_prior", "describe_kernel",
@@ -36,7 +45,7 @@ def _tails(level):
     return tail, 1.0 - tail
 
 
-def status_rows(store, level: float = 0.95) -> list[dict]:
+def status_rows(store: RunStore, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
@@ -71,7 +80,7 @@ def _fmt(x):
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
-def format_status(store, level: float = 0.95) -> str:
+def format_status(store: RunStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables."""
     cfg = store.config
     lines = [f"run {store.path}  model {cfg.name!r}  likelihood {cfg.likelihood}  sampler {cfg.sampler} "
@@ -106,7 +115,8 @@ def format_status(store, level: float = 0.95) -> str:
     return "\n".join(lines)
 
 
-def forecast_rows(store, n_steps: int, level: float = 0.95, forecast=None) -> list[dict]:
+def forecast_rows(store: RunStore, n_steps: int, level: float = 0.95,
+                  forecast: np.ndarray | None = None) -> list[dict]:
     """Forecast summary ``K`` steps ahead: one dict per (ahead, parameter) with mean, sd, interval."""
     lo, hi = _tails(level)
     draws = store.predict(n_steps) if forecast is None else forecast
@@ -120,7 +130,7 @@ def forecast_rows(store, n_steps: int, level: float = 0.95, forecast=None) -> li
     return rows
 
 
-def format_forecast(rows, level: float = 0.95) -> str:
+def format_forecast(rows: Sequence[dict], level: float = 0.95) -> str:
     pct = f"{level:.0%}"
     lines = [f"{'step':>4} {'ahead':>5}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} "
              f"{pct + ' upper':>11}"]
@@ -201,7 +211,7 @@ def describe_kernel(spec: dict) -> str:
     return f"{base} + N(0, {_num(noise)})" if noise > 0 else base
 
 
-def first_passage_rows(store, threshold, passage) -> list[dict]:
+def first_passage_rows(store: RunStore, threshold: Threshold, passage: FirstPassage) -> list[dict]:
     """Per future step ``h``: the step, ``P(first crossing at h)``, ``P(crossed by h)`` and their Monte
     Carlo standard errors."""
     return [{"step": store.n_steps + h + 1, "ahead": h + 1, "probability": float(passage.probability[h]),
@@ -210,7 +220,7 @@ def first_passage_rows(store, threshold, passage) -> list[dict]:
             for h in range(passage.horizon)]
 
 
-def first_passage_json(store, threshold, passage) -> dict:
+def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPassage) -> dict:
     """The time to ``threshold`` (a :class:`~seqbayes.prognostics.Threshold`) as a JSON-able dict."""
     median = passage.quantile(0.5)
     return {"parameter": threshold.name, "direction": threshold.direction, "threshold": threshold.value,
@@ -220,7 +230,7 @@ def first_passage_json(store, threshold, passage) -> dict:
             "steps": first_passage_rows(store, threshold, passage)}
 
 
-def _passage_summary(store, threshold, passage) -> str:
+def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
     median = passage.quantile(0.5)
     when = (f"median first crossing at step {store.n_steps + int(median)}" if math.isfinite(median)
             else f"median first crossing after step {store.n_steps + passage.horizon}")
@@ -229,7 +239,7 @@ def _passage_summary(store, threshold, passage) -> str:
             f"{passage.not_crossed_standard_error:.4f}; already beyond now: {passage.beyond_now:.4f}")
 
 
-def format_first_passage(store, threshold, passage) -> str:
+def format_first_passage(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
     """The ``predict --threshold`` plain-text table (``+-`` one Monte Carlo standard error)."""
     lines = [_passage_summary(store, threshold, passage),
              f"{'step':>4} {'ahead':>5} {'P(first at step)':>18} {'+-':>7} {'P(crossed by step)':>19} {'+-':>7}"]
@@ -239,7 +249,7 @@ def format_first_passage(store, threshold, passage) -> str:
     return "\n".join(lines)
 
 
-def comparison_rows(comparison) -> list[dict]:
+def comparison_rows(comparison: ModelComparison) -> list[dict]:
     """Per step and model: cumulative log-evidence, increment, probability."""
     rows = []
     for s in range(comparison.log_evidence.shape[0]):
@@ -303,8 +313,9 @@ def _threshold_section(store, thresholds, horizon, image_dir) -> str:
     return "\n".join(out)
 
 
-def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0.95, image_dir=None,
-                  thresholds=(), horizon: int = 20) -> str:
+def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_steps: int = 3,
+                  level: float = 0.95, image_dir: Path | None = None,
+                  thresholds: Sequence[Threshold] = (), horizon: int = 20) -> str:
     """The HTML text of the report for ``store`` (and, for model comparison, ``others``).
 
     Parameters
@@ -397,7 +408,7 @@ def render_report(store, *, others=(), forecast_steps: int = 3, level: float = 0
     return "\n".join(parts)
 
 
-def write_report(store, output, **kwargs) -> Path:
+def write_report(store: RunStore, output: str | os.PathLike, **kwargs: Any) -> Path:
     """Write :func:`render_report` to ``output`` (an ``.html`` file); returns its path.
 
     With ``embed=False`` the figures go to ``<output stem>_figures/`` next to the page.

@@ -11,11 +11,18 @@ import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .weights import normalise
+
+if TYPE_CHECKING:
+    import os
+
+    import arviz as az
+    import xarray as xr
 
 __all__ = ["StepInfo", "StepRecord", "Result", "weighted_quantile", "prior_data_conflict"]
 
@@ -146,7 +153,8 @@ class StepInfo:
         return cls(**kwargs)
 
 
-def prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weights) -> np.ndarray:
+def prior_data_conflict(prior: np.ndarray, prior_log_weights: np.ndarray, posterior: np.ndarray,
+                        posterior_log_weights: np.ndarray) -> np.ndarray:
     """``|posterior mean - prior mean| / prior sd`` per parameter, ``(d,)``.
 
     Parameters
@@ -161,7 +169,7 @@ def prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weigh
     return np.abs(w1 @ posterior - mean0) / sd0
 
 
-def weighted_quantile(samples, log_weights, q) -> np.ndarray:
+def weighted_quantile(samples: ArrayLike, log_weights: ArrayLike, q: ArrayLike) -> np.ndarray:
     """Weighted quantiles ``(len(q), d)`` of ``samples (N, d)``."""
     samples = np.asarray(samples, dtype=float)
     q = np.atleast_1d(np.asarray(q, dtype=float))
@@ -207,7 +215,7 @@ class StepRecord:
         """Weighted posterior standard deviation, ``(d,)``."""
         return np.sqrt(self._w() @ (self.posterior - self.mean()) ** 2)
 
-    def quantile(self, q) -> np.ndarray:
+    def quantile(self, q: ArrayLike) -> np.ndarray:
         """Weighted posterior quantiles, ``(len(q), d)``."""
         return weighted_quantile(self.posterior, self.log_weights, q)
 
@@ -256,7 +264,7 @@ class Result:
         """Posterior standard deviations per step, ``(S, d)``."""
         return np.array([r.std() for r in self.steps])
 
-    def to_xarray(self):
+    def to_xarray(self) -> xr.Dataset:
         """An :class:`xarray.Dataset` with dims ``(step, sample, parameter)``."""
         import xarray as xr
 
@@ -282,7 +290,7 @@ class Result:
         return ds
 
     @classmethod
-    def from_xarray(cls, ds) -> "Result":
+    def from_xarray(cls, ds: xr.Dataset) -> Result:
         """Inverse of :meth:`to_xarray`."""
         if ds.attrs.get("seqbayes_result_version") != 1:
             raise ValueError("dataset: not a seqbayes Result (missing or unknown seqbayes_result_version)")
@@ -295,12 +303,12 @@ class Result:
                                       ds["log_weights"].values[i], ds["predictive"].values[i]))
         return cls(tuple(str(n) for n in ds["parameter"].values), tuple(records), json.loads(ds.attrs["meta"]))
 
-    def to_netcdf(self, path) -> None:
+    def to_netcdf(self, path: str | os.PathLike) -> None:
         """Write to NetCDF-4 (HDF5) via xarray and h5netcdf."""
         self.to_xarray().to_netcdf(path, engine="h5netcdf")
 
     @classmethod
-    def from_netcdf(cls, path) -> "Result":
+    def from_netcdf(cls, path: str | os.PathLike) -> Result:
         import xarray as xr
 
         with xr.open_dataset(path, engine="h5netcdf") as ds:
@@ -308,7 +316,7 @@ class Result:
 
     def to_arviz(self, step: int | None = None, rng: int | np.random.Generator | None = None, *,
                  prior: Any = None, pointwise_loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None,
-                 dataset: Any = None, loglike_step: int = -1):
+                 dataset: Any = None, loglike_step: int = -1) -> az.InferenceData:
         """The run as :class:`arviz.InferenceData`, with a ``step`` dimension.
 
         Groups (``chain`` has length 1, ``draw`` length ``N``):
