@@ -50,7 +50,7 @@ def status_rows(store: RunStore, level: float = 0.95) -> list[dict]:
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
     log_evidence, step_size, n_loglike_evals, wall_time, prior_data_conflict, conflict_parameter, inner_ess,
-    parameters`` where
+    jump_probability, jump_parameter, jump_size, jump_size_sd, parameters`` where
     ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
     ``level`` interval).
     """
@@ -70,6 +70,9 @@ def status_rows(store: RunStore, level: float = 0.95) -> list[dict]:
             # posterior-mean shift in prior sds (> 4: prior-data conflict) and its parameter; SMC^2's inner ESS
             "prior_data_conflict": float(info.prior_data_conflict),
             "conflict_parameter": store.names[int(info.conflict_parameter)], "inner_ess": float(info.inner_ess),
+            # jump kernels: P(a jump into this step), the parameter, its drop fraction (NaN without jumps)
+            "jump_probability": float(info.jump_probability), "jump_parameter": store.names[int(info.jump_parameter)],
+            "jump_size": float(info.jump_size), "jump_size_sd": float(info.jump_size_sd),
             "parameters": {name: {"mean": float(mean[j]), "sd": float(sd[j]), "lower": float(q[0, j]),
                                   "upper": float(q[1, j])} for j, name in enumerate(store.names)},
         })
@@ -198,8 +201,16 @@ def describe_kernel(spec: dict) -> str:
     'x - 0.05 + N(0, 0.02)'
     >>> describe_kernel({"type": "static", "rate": 0.0, "noise_std": 0.0})
     'static'
+    >>> describe_kernel({"type": "jump", "base": "decay", "rate": 0.02, "noise_std": 0.02, "p": 0.05,
+    ...                  "drop_mean": 0.3, "drop_sd": 0.1, "reference": 3.0, "scales": [1.0], "scale_weights": [1.0]})
+    'exp(-0.02) x + N(0, 0.02); w.p. 0.05 minus 3 x N(0.3, 0.1)'
     """
     kind, rate, noise = spec["type"], float(spec.get("rate", 0.0)), float(spec.get("noise_std", 0.0))
+    if kind == "jump":   # the base's transition, and the drop with its probability
+        tail = "" if list(spec["scales"]) == [1.0] else f", slab sds x {list(spec['scales'])} w {list(spec['scale_weights'])}"
+        return (describe_kernel({"type": spec["base"], "rate": rate, "noise_std": noise})
+                + f"; w.p. {_num(spec['p'])} minus {_num(spec['reference'])} x N({_num(spec['drop_mean'])}, "
+                  f"{_num(spec['drop_sd'])}){tail}")
     if kind == "static":
         return "static"
     if kind == "drift":
