@@ -1,0 +1,579 @@
+"""On-line detection of a storey stiffness drop during the shaking, and its
+attribution to a storey by the evidence (issue 12, item 2 and acceptance bullet 3).
+
+Lin et al. (2024) identify constant stiffness ratios. Here the record is
+monitored block by block (:meth:`StiffnessDropMonitor.update`) and compared
+on-line between ``d + 1`` model classes of the linear shear building:
+
+``M_0`` (no change)
+    ``theta`` constant, uniform prior on the box ``[lower, upper]`` (as
+    :class:`~seqbayes.sgenmcmc.SGEnMCMC`).
+``M_j``, ``j = 1..d`` (a drop in storey ``j``)
+    ``theta`` constant except that at an unknown change time ``tau`` storey
+    ``j``'s ratio drops to ``theta_j (1 - delta)``: the jump kernel
+
+        ``theta_k = theta_{k-1} (1 - delta e_j)`` with probability ``h`` at each change boundary, if not yet dropped;
+        ``theta_k = theta_{k-1}`` otherwise,
+
+    with ``delta ~ U(drop_range)``, change boundaries every ``change_every``
+    steps, ``h = change_rate * change_every * dt`` (``change_rate``: prior
+    changes per second), so ``P(tau = b-th boundary) = h (1 - h)^(b - 1)``. At
+    most one drop per class. The structure's state is continuous through the
+    change: the new stiffness acts from the transition into step ``tau`` on
+    (and on the accelerometers, whose ``H`` depends on ``theta``, from step
+    ``tau``).
+
+Prior over classes: ``P(M_0) = prior_no_change``, ``P(M_j) = (1 - prior_no_change) / d``.
+
+Per class, a resample-move SMC sampler over ``(theta, delta, tau)`` with an exact
+Kalman filter per particle (the state integrated out; the Rao-Blackwellised
+form of a particle filter for the jump kernel), the same scheme as the default
+sampler of :mod:`seqbayes.sgenmcmc`:
+
+1. At a change boundary ``k``, every particle that has not dropped yet drops
+   with probability ``q = jump_proposal`` (more often than the prior ``h``, so
+   that a few particles try each boundary), with ``delta`` from its prior; the
+   weights get the importance ratio ``h / q`` (dropped) or ``(1 - h) / (1 - q)``
+   (kept). The dropped particles' filters continue from their state with the
+   new matrices.
+2. Reweight by ``phi p(y_k | y_{0:k-1}, path_i)`` (exact Kalman predictive
+   density), ``phi`` tempered so the ESS stays at ``ess_threshold * N``.
+3. When ``phi < 1``: resample, and Metropolis-Hastings sweeps targeting the
+   (tempered) posterior of the path given all data so far: ``theta`` of the
+   particles that have not dropped, ``(theta, delta)`` of those that have, at
+   their fixed ``tau`` (a kernel on each part of the space leaves the joint
+   posterior invariant). A candidate's likelihood re-filters the history with
+   its own switch at ``tau`` (:func:`path_log_likelihood`).
+
+The evidence of each class is the product of the stage normalisers
+``sum_i W_i r_i``; the per-block increments are reported. The probability that
+a change has happened by step ``k``:
+
+    ``P(changed | y_{0:k}) = sum_j P(M_j | y_{0:k}) P(tau <= k | M_j, y_{0:k})``
+
+and a change is *detected* at the end of the first block where it exceeds
+``threshold``; it is *attributed* to the storey of the most probable change
+class.
+
+Pruning (``prune_below``): a class whose posterior probability falls below
+``prune_below`` after a step stops being updated (its log-evidence is
+kept as it was) and is left out of the class probabilities from then on, the
+beam pruning of multiple-model trackers. Without it, after a drop the wrong
+classes keep re-fitting data they cannot explain, which is most of the cost
+(measured in benchmarks/bench_drop.py); with ``prune_below=0`` every class runs
+to the end. Validated against the exact evidence (quadrature over ``theta`` and
+``delta`` and a sum over the change boundaries, each term an exact Kalman
+likelihood) in ``tests/statistical/test_stiffness_drop.py``; detection and
+false alarms measured in ``benchmarks/bench_drop.py`` (docs/shake_table.md).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
+from .resampling import resample
+from .rng import as_generator
+from .sgenmcmc import _blas_limit, _next_exponent
+from .structures.shear_building import DiscreteModel, ShearBuilding, discretise, simulate
+from .weights import logsumexp, normalise
+
+__all__ = ["StiffnessDropMonitor", "DropBlock", "path_log_likelihood", "simulate_drop"]
+
+
+@dataclass(frozen=True)
+class DropBlock:
+    """The monitor's summary at the end of one block of the record (``C = d + 1`` classes:
+    index 0 is no change, index ``j`` a drop in storey ``j``).
+
+    Attributes
+    ----------
+    stop : int
+        Steps processed so far (the block ended at step ``stop - 1``).
+    time : float
+        Record time of the block's last sample, ``(stop - 1) dt`` [s].
+    log_evidence : (C,) array
+        ``log p(y_{0:stop-1} | M_c)``.
+    log_evidence_increments : (C,) array
+        Of this block: ``log p(y_block | y_before, M_c)``.
+    class_probabilities : (C,) array
+        ``P(M_c | y_{0:stop-1})``.
+    changed : (C,) array
+        ``P(tau <= stop - 1 | M_c, y)`` (0 for ``M_0``).
+    change_probability : float
+        ``P(changed by now | y)``, the detection statistic.
+    detected : bool
+        ``change_probability > threshold`` at this block.
+    storey : int
+        1-based storey of the most probable change class.
+    drop_mean, change_time_mean : (C,) arrays
+        Posterior mean of ``delta`` and of the change time ``tau dt`` [s] given
+        a change has happened (NaN where no particle has changed; NaN for ``M_0``).
+    theta_mean : (C, d) array
+        Posterior mean of the *current* stiffness ratios per class.
+    active : (C,) bool array
+        Classes still updated (the others were pruned; probability 0 here).
+    seconds : float
+        Wall time of the block's update.
+    """
+
+    stop: int
+    time: float
+    log_evidence: np.ndarray
+    log_evidence_increments: np.ndarray
+    class_probabilities: np.ndarray
+    changed: np.ndarray
+    change_probability: float
+    detected: bool
+    storey: int
+    drop_mean: np.ndarray
+    change_time_mean: np.ndarray
+    theta_mean: np.ndarray
+    active: np.ndarray
+    seconds: float
+
+
+@dataclass(frozen=True)
+class _ClassState:
+    """One class's particles: ``theta (N, d)`` before any drop, ``delta (N,)``,
+    change step ``tau (N,)`` (``-1``: not dropped), their Kalman filters (``bank``,
+    filtered ``mean (N, m)``, ``cov (N, m, m)`` at the last step), running
+    ``past (N,)`` log-likelihoods, log-weights and the class's log-evidence."""
+
+    storey: int
+    theta: np.ndarray
+    delta: np.ndarray
+    tau: np.ndarray
+    bank: KalmanBank
+    mean: np.ndarray
+    cov: np.ndarray
+    past: np.ndarray
+    logw: np.ndarray
+    log_evidence: float
+    events: int
+
+
+def effective_theta(theta, delta, tau, storey: int) -> np.ndarray:
+    """The stiffness ratios acting after the change: ``theta (N, d)`` with
+    ``theta_j (1 - delta)`` for the particles that have dropped (``tau >= 0``)."""
+    theta = np.array(theta, float)
+    if storey > 0:
+        dropped = np.asarray(tau) >= 0
+        theta[dropped, storey - 1] *= 1.0 - np.asarray(delta)[dropped]
+    return theta
+
+
+def path_log_likelihood(building: ShearBuilding, dt: float, theta, delta, tau, storey: int, ground_acceleration,
+                        measurements, measurement_noise, process_noise_std: float = 0.0,
+                        channels: str = "absolute_acceleration", return_state: bool = False):
+    """Exact ``log p(y_{0:T-1} | theta, delta, tau)`` of a stiffness path per member.
+
+    Member ``i`` has ratios ``theta_i`` up to step ``tau_i - 1`` and
+    ``theta_i (1 - delta_i e_storey)`` from the transition into step ``tau_i`` on
+    (``tau_i < 0`` or ``>= T``: no change). Members are grouped by change step;
+    each group is one batched Kalman pass before the change
+    (:func:`~seqbayes.filters.kalman.kalman_log_likelihood`, from rest) and one
+    after it, started from the filtered state predicted through the new matrices.
+
+    Parameters
+    ----------
+    building : ShearBuilding
+    dt : float
+    theta : (M, d) array
+    delta : (M,) array
+    tau : (M,) int array
+    storey : int
+        1-based storey of the drop (0: no change for anyone).
+    ground_acceleration : (T,) array
+    measurements : (T, p) array
+    measurement_noise, process_noise_std, channels
+        As :class:`~seqbayes.sgenmcmc.SGEnMCMC`.
+    return_state : bool
+        Also return the filtered mean ``(M, m)`` and covariance ``(M, m, m)`` at ``T - 1``.
+
+    Returns
+    -------
+    log_likelihood : (M,) array
+    """
+    theta = np.atleast_2d(np.asarray(theta, float))
+    M = theta.shape[0]
+    delta = np.broadcast_to(np.asarray(delta, float), (M,))
+    tau = np.broadcast_to(np.asarray(tau, int), (M,))
+    u = np.asarray(ground_acceleration, float)
+    y = np.asarray(measurements, float)
+    T = u.size
+    if not 0 <= storey <= building.n_storeys:
+        raise ValueError(f"storey: expected 0..{building.n_storeys}, got {storey}")
+    tau = np.where((tau < 0) | (tau >= T) | (storey == 0), -1, tau)
+    if np.any(tau == 0):
+        raise ValueError("tau: a change at step 0 is the same as a different initial theta; use tau >= 1")
+    after = discretise(building, effective_theta(theta, delta, tau, storey), dt, channels=channels)
+    m = after.A.shape[1]
+    loglik, mean, cov = np.empty(M), np.empty((M, m)), np.empty((M, m, m))
+    for t in np.unique(tau):  # loop over distinct change steps (groups), not members
+        idx = np.flatnonzero(tau == t)
+        model = after.take(idx)
+        if t < 0:
+            out = kalman_log_likelihood(model, u, y, measurement_noise, process_noise_std, return_state=True)
+        else:
+            before = discretise(building, theta[idx], dt, channels=channels)
+            ll, m0, P0 = kalman_log_likelihood(before, u[:t], y[:t], measurement_noise, process_noise_std,
+                                               return_state=True)
+            b = model.B0 + model.B1
+            x0 = np.einsum("nij,nj->ni", model.A, m0) + model.B0 * u[t - 1] + model.B1 * u[t]
+            P_pred = model.A @ P0 @ np.swapaxes(model.A, 1, 2) + process_noise_std**2 * b[:, :, None] * b[:, None, :]
+            out = kalman_log_likelihood(model, u[t:], y[t:], measurement_noise, process_noise_std, x0=x0,
+                                        P0=0.5 * (P_pred + np.swapaxes(P_pred, 1, 2)), return_state=True)
+            out = (out[0] + ll,) + tuple(out[1:])
+        loglik[idx], mean[idx], cov[idx] = out
+    return (loglik, mean, cov) if return_state else loglik
+
+
+def simulate_drop(building: ShearBuilding, dt: float, theta, storey: int, fraction: float, drop_step: int,
+                  ground_acceleration, process_noise_std: float = 0.0, rng=None,
+                  channels: str = "absolute_acceleration"):
+    """Response of ``building`` whose storey ``storey`` (1-based) loses ``fraction`` of
+    its stiffness from the transition into step ``drop_step`` on, the state continuous
+    through the change (the model of :class:`StiffnessDropMonitor`).
+
+    Returns
+    -------
+    y : (T, p) array
+        Clean channels.
+    drifts : (T, n) array
+        Inter-storey drifts.
+    """
+    theta = np.asarray(theta, float)
+    u = np.asarray(ground_acceleration, float)
+    if not 1 <= drop_step < u.size:
+        raise ValueError(f"drop_step: expected 1..{u.size - 1}, got {drop_step}")
+    if not 1 <= storey <= building.n_storeys:
+        raise ValueError(f"storey: expected 1..{building.n_storeys}, got {storey}")
+    if not 0 <= fraction < 1:
+        raise ValueError(f"fraction: expected [0, 1), got {fraction}")
+    rng = as_generator(rng)
+    after = theta.copy()
+    after[storey - 1] *= 1 - fraction
+    drift_H = building.observation_matrix(theta, "drift")
+    pre = discretise(building, theta, dt, channels=channels)
+    post = discretise(building, after, dt, channels=channels)
+    y1, X1, d1 = simulate(pre, u[:drop_step], process_noise_std=process_noise_std, rng=rng,
+                          extra_observations=[drift_H])
+    # continue from the last pre-change state through the new matrices (one step of u[drop_step - 1 : ])
+    y2, X2, d2 = simulate(post, u[drop_step - 1:], x0=X1[0, -1], process_noise_std=process_noise_std, rng=rng,
+                          extra_observations=[drift_H])
+    return np.concatenate([y1[0], y2[0, 1:]]), np.concatenate([d1[0], d2[0, 1:]])
+
+
+class StiffnessDropMonitor:
+    """On-line stiffness-drop detection and storey attribution (module docstring).
+
+    Parameters
+    ----------
+    building : ShearBuilding
+    dt : float
+        Sampling step [s].
+    lower, upper : float or (d,) arrays
+        Uniform prior box of the stiffness ratios before any change.
+    measurement_noise : (p,) stds or (p, p) covariance
+    process_noise_std : float
+        Std of the unmeasured ground-acceleration noise (m/s^2).
+    n_particles : int
+        Particles per class.
+    drop_range : (2,) tuple
+        Uniform prior of the drop fraction ``delta``.
+    change_rate : float
+        Prior rate of a drop per second (per change class).
+    change_every : int
+        Steps between change boundaries (the resolution of ``tau``).
+    jump_proposal : float or None
+        Per-boundary probability with which a particle tries a drop (default
+        ``max(h, 4 / n_particles)``: about four particles per boundary).
+    prior_no_change : float
+        ``P(M_0)``.
+    threshold : float
+        Detection threshold on ``P(changed | y)``.
+    prune_below : float
+        Classes below this posterior probability after a step stop being updated
+        (module docstring; 0: never).
+    ess_threshold, moves_per_particle, max_sweeps, resampling, blas_threads
+        As :class:`~seqbayes.sgenmcmc.SGEnMCMC`.
+    channels : str
+    """
+
+    def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
+                 process_noise_std: float = 0.0, n_particles: int = 300, drop_range=(0.02, 0.5),
+                 change_rate: float = 0.01, change_every: int = 5, jump_proposal: float | None = None,
+                 prior_no_change: float = 0.5, threshold: float = 0.99, prune_below: float = 1e-10,
+                 ess_threshold: float = 0.3,
+                 moves_per_particle: float = 1.0, max_sweeps: int = 10, resampling: str = "systematic",
+                 channels: str = "absolute_acceleration", blas_threads: int | None = 1):
+        d = building.n_storeys
+        self.building, self.dt, self.channels = building, float(dt), channels
+        self.lower = np.broadcast_to(np.asarray(lower, float), (d,)).copy()
+        self.upper = np.broadcast_to(np.asarray(upper, float), (d,)).copy()
+        if np.any(self.lower <= 0) or np.any(self.upper <= self.lower):
+            raise ValueError(f"lower, upper: need 0 < lower < upper, got {self.lower}, {self.upper}")
+        if not isinstance(n_particles, (int, np.integer)) or n_particles < 4 * (d + 1):
+            raise ValueError(f"n_particles: expected an integer >= {4 * (d + 1)}, got {n_particles!r}")
+        lo, hi = (float(x) for x in drop_range)
+        if not 0 <= lo < hi < 1:
+            raise ValueError(f"drop_range: need 0 <= low < high < 1, got {drop_range}")
+        if not isinstance(change_every, (int, np.integer)) or change_every < 1:
+            raise ValueError(f"change_every: expected a positive integer, got {change_every!r}")
+        hazard = float(change_rate) * int(change_every) * self.dt
+        if not 0 < hazard < 1:
+            raise ValueError(f"change_rate: change_rate * change_every * dt must be in (0, 1), got {hazard}")
+        q = max(hazard, 4.0 / n_particles) if jump_proposal is None else float(jump_proposal)
+        if not 0 < q < 1:
+            raise ValueError(f"jump_proposal: must be in (0, 1), got {jump_proposal}")
+        if not 0 < prior_no_change < 1:
+            raise ValueError(f"prior_no_change: must be in (0, 1), got {prior_no_change}")
+        if not 0 < threshold < 1:
+            raise ValueError(f"threshold: must be in (0, 1), got {threshold}")
+        if not 0 <= prune_below < 1 / (d + 1):
+            raise ValueError(f"prune_below: must be in [0, 1 / {d + 1}), got {prune_below}")
+        if not 0 < ess_threshold <= 1:
+            raise ValueError(f"ess_threshold: must be in (0, 1], got {ess_threshold}")
+        if not moves_per_particle > 0:
+            raise ValueError(f"moves_per_particle: must be positive, got {moves_per_particle}")
+        if not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
+            raise ValueError(f"max_sweeps: expected an integer >= 1, got {max_sweeps!r}")
+        if process_noise_std < 0:
+            raise ValueError(f"process_noise_std: must be non-negative, got {process_noise_std}")
+        self.measurement_noise, self.process_noise_std = measurement_noise, float(process_noise_std)
+        self.n_particles, self.drop_range = int(n_particles), (lo, hi)
+        self.hazard, self.jump_proposal, self.change_every = hazard, q, int(change_every)
+        self.prior_no_change, self.threshold = float(prior_no_change), float(threshold)
+        self.prune_below = float(prune_below)
+        self.ess_threshold, self.moves_per_particle, self.max_sweeps = float(ess_threshold), float(
+            moves_per_particle), int(max_sweeps)
+        self.resampling, self.blas_threads = resampling, blas_threads
+        self.log_prior_classes = np.log(np.concatenate([[prior_no_change], np.full(d, (1 - prior_no_change) / d)]))
+        self._run = None
+
+    # ------------------------------------------------------------------ driver
+    def reset(self, rng=None) -> None:
+        """Start monitoring: every class's particles from the prior, structure at rest."""
+        rng = as_generator(rng)
+        N, d = self.n_particles, self.lower.size
+        probe = discretise(self.building, self.lower, self.dt, channels=self.channels)
+        R = measurement_covariance(self.measurement_noise, probe.H.shape[1])
+        classes = []
+        for storey in range(d + 1):
+            theta = self.lower + (self.upper - self.lower) * rng.random((N, d))
+            bank = KalmanBank(self._model(theta), R, self.process_noise_std)
+            mean, cov = bank.initial_state()
+            classes.append(_ClassState(storey, theta, np.zeros(N), np.full(N, -1), bank, mean, cov, np.zeros(N),
+                                       np.zeros(N), 0.0, 0))
+        self._run = {"rng": rng, "R": R, "probe": probe, "u": np.zeros(0), "y": np.zeros((0, R.shape[0])),
+                     "classes": classes, "active": np.ones(d + 1, bool), "history": []}
+
+    def update(self, ground_acceleration, measurements) -> DropBlock:
+        """Process the next block ``measurements (n, p)`` under ``ground_acceleration (n,)``;
+        returns (and records in :attr:`history`) the block's :class:`DropBlock`."""
+        run = self._run
+        if run is None:
+            raise ValueError("update: call reset() first")
+        u_new, y_new = check_filter_inputs(run["probe"], ground_acceleration, measurements)
+        started = time.perf_counter()
+        first = run["u"].size
+        run["u"] = np.concatenate([run["u"], u_new])
+        run["y"] = np.concatenate([run["y"], y_new])
+        before = np.array([c.log_evidence for c in run["classes"]])
+        with _blas_limit(self.blas_threads):
+            for k in range(first, run["u"].size):  # loop over time only
+                run["classes"] = [self._class_step(c, k, run) if on else c
+                                  for c, on in zip(run["classes"], run["active"])]
+                if self.prune_below > 0:
+                    run["active"] = run["active"] & (np.exp(self._log_class_probabilities(run)) >= self.prune_below)
+        block = self._summary(run, before, time.perf_counter() - started)
+        run["history"].append(block)
+        return block
+
+    @property
+    def history(self) -> tuple:
+        """The :class:`DropBlock` of every block so far."""
+        return tuple(self._run["history"]) if self._run is not None else ()
+
+    def detection(self) -> DropBlock | None:
+        """The first block at which a change was detected (None if none yet)."""
+        return next((b for b in self.history if b.detected), None)
+
+    def _summary(self, run, before, seconds) -> DropBlock:
+        classes = run["classes"]
+        C = len(classes)
+        log_z = np.array([c.log_evidence for c in classes])
+        active = run["active"].copy()
+        probs = np.exp(self._log_class_probabilities(run))
+        changed, drop_mean, time_mean = np.zeros(C), np.full(C, np.nan), np.full(C, np.nan)
+        theta_mean = np.empty((C, self.lower.size))
+        for c, st in enumerate(classes):
+            w = np.exp(normalise(st.logw))
+            theta_mean[c] = w @ effective_theta(st.theta, st.delta, st.tau, st.storey)
+            dropped = st.tau >= 0
+            changed[c] = w[dropped].sum()
+            if c > 0 and changed[c] > 0:
+                wd = w[dropped] / changed[c]
+                drop_mean[c] = wd @ st.delta[dropped]
+                time_mean[c] = wd @ st.tau[dropped] * self.dt
+        p_change = float(probs @ changed)
+        stop = run["u"].size
+        return DropBlock(stop=stop, time=(stop - 1) * self.dt, log_evidence=log_z, log_evidence_increments=log_z - before,
+                         class_probabilities=probs, changed=changed, change_probability=p_change,
+                         detected=p_change > self.threshold, storey=int(np.argmax(probs[1:])) + 1,
+                         drop_mean=drop_mean, change_time_mean=time_mean, theta_mean=theta_mean, active=active, seconds=seconds)
+
+    def _log_class_probabilities(self, run) -> np.ndarray:
+        """``log P(M_c | y)`` among the active classes (``-inf`` for pruned ones)."""
+        log_z = np.array([c.log_evidence for c in run["classes"]])
+        return normalise(np.where(run["active"], self.log_prior_classes + log_z, -np.inf))
+
+    # --------------------------------------------------------------- the step
+    def _model(self, theta) -> DiscreteModel:
+        return discretise(self.building, theta, self.dt, channels=self.channels)
+
+    def _class_step(self, st: _ClassState, k: int, run: dict) -> _ClassState:
+        """One step of one class's resample-move sampler (module docstring); returns the new state."""
+        rng, R, u, y = run["rng"], run["R"], run["u"], run["y"]
+        N = self.n_particles
+        theta, delta, tau, logw, bank = st.theta, st.delta, st.tau, st.logw, st.bank
+        evidence = st.log_evidence
+        if st.storey > 0 and k > 0 and k % self.change_every == 0:  # (1) jump proposal at a change boundary
+            free = tau < 0
+            jump = free & (rng.random(N) < self.jump_proposal)
+            correction = np.where(jump, np.log(self.hazard / self.jump_proposal),
+                                  np.log1p(-self.hazard) - np.log1p(-self.jump_proposal))
+            correction = np.where(free, correction, 0.0)
+            evidence += logsumexp(normalise(logw) + correction)
+            logw = logw + correction
+            if jump.any():
+                delta, tau = delta.copy(), tau.copy()
+                delta[jump] = rng.uniform(*self.drop_range, size=int(jump.sum()))
+                tau[jump] = k
+                bank = self._replace_members(bank, jump, effective_theta(theta[jump], delta[jump], tau[jump],
+                                                                         st.storey), R)
+        inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
+        mean_k, cov_k, inc = bank.step(st.mean, st.cov, y[k], *inputs)
+        past = st.past
+        phi, events = 0.0, st.events
+        target_ess = self.ess_threshold * N
+        while phi < 1.0:  # (2) tempering of step k's data
+            new_phi = _next_exponent(logw, inc, phi, target_ess)
+            evidence += logsumexp(normalise(logw) + (new_phi - phi) * inc)  # log sum_i W_i exp(dphi l_i)
+            logw = logw + (new_phi - phi) * inc
+            phi = new_phi
+            if phi >= 1.0:
+                break
+            # (3) resample and move: MH targeting p(path | y_{0:k-1}) p(y_k | y_{0:k-1}, path)^phi
+            w = np.exp(normalise(logw))
+            fits = self._fits(theta, delta, tau, w)
+            idx = resample(self.resampling, w, rng, N)
+            theta, delta, tau, past, inc = theta[idx], delta[idx], tau[idx], past[idx], inc[idx]
+            mean_k, cov_k = mean_k[idx], cov_k[idx]
+            theta, delta, past, inc, mean_k, cov_k = self._move(st.storey, theta, delta, tau, past, inc, mean_k,
+                                                                cov_k, phi, k, u, y, fits, rng)
+            bank = KalmanBank(self._model(effective_theta(theta, delta, tau, st.storey)), R, self.process_noise_std)
+            logw = np.zeros(N)
+            events += 1
+        return replace(st, theta=theta, delta=delta, tau=tau, bank=bank, mean=mean_k, cov=cov_k, past=past + inc,
+                       logw=logw, log_evidence=evidence, events=events)
+
+    def _replace_members(self, bank: KalmanBank, which, theta_new, R) -> KalmanBank:
+        """The bank with the matrices of members ``which`` replaced by those at ``theta_new``."""
+        model, new = bank.model, self._model(theta_new)
+        fields = {}
+        for name in ("A", "B0", "B1", "H"):
+            array = getattr(model, name).copy()
+            array[which] = getattr(new, name)
+            fields[name] = array
+        return KalmanBank(DiscreteModel(dt=model.dt, hold=model.hold, **fields), R, self.process_noise_std)
+
+    def _fits(self, theta, delta, tau, w):
+        """Weighted Gaussian fits (mean, Cholesky factor) of the particles that have not
+        dropped (over ``theta``) and of those that have (over ``[theta, delta]``), for the
+        proposals; ``None`` for an empty part."""
+        fits = []
+        for part, x in ((tau < 0, theta), (tau >= 0, np.column_stack([theta, delta]))):
+            wp = w[part]
+            if wp.sum() <= 0:
+                fits.append(None)
+                continue
+            wp = wp / wp.sum()
+            xs = x[part]
+            mean = wp @ xs
+            centred = xs - mean
+            cov = (centred * wp[:, None]).T @ centred / max(1.0 - float(wp @ wp), 1e-3)
+            width = np.concatenate([self.upper - self.lower, [self.drop_range[1] - self.drop_range[0]]])[: x.shape[1]]
+            cov = cov + np.diag((1e-4 * width) ** 2)  # floor: a part with few distinct particles
+            fits.append((mean, np.linalg.cholesky(cov)))
+        return fits
+
+    def _move(self, storey, theta, delta, tau, past, inc, mean_k, cov_k, phi, k, u, y, fits, rng):
+        """Metropolis-Hastings sweeps on all particles at once: independent Gaussian or
+        random-walk proposal (probability 1/2 each) from the fit of the particle's part."""
+        N, d = theta.shape
+        lo, hi = self.drop_range
+        acceptance_total, sweeps = 0.0, 0
+        while acceptance_total < self.moves_per_particle and sweeps < self.max_sweeps:
+            x = np.column_stack([theta, delta])
+            candidate = x.copy()
+            log_hastings = np.zeros(N)
+            independent = rng.random(N) < 0.5
+            z_all = rng.standard_normal((N, d + 1))
+            for part, dim, fit in ((tau < 0, d, fits[0]), (tau >= 0, d + 1, fits[1])):
+                if fit is None or not part.any():
+                    continue
+                mean, chol = fit
+                step = z_all[part, :dim] @ chol.T
+                ind = independent[part]
+                current = x[part, :dim]
+                proposed = np.where(ind[:, None], mean + step, current + 2.38 / np.sqrt(dim) * step)
+                chol_inv = np.linalg.inv(chol)
+
+                def log_q(v):
+                    z = (v - mean) @ chol_inv.T
+                    return -0.5 * np.einsum("nd,nd->n", z, z)
+
+                log_hastings[part] = np.where(ind, log_q(current) - log_q(proposed), 0.0)
+                candidate[np.ix_(np.flatnonzero(part), np.arange(dim))] = proposed
+            c_theta, c_delta = candidate[:, :d], candidate[:, d]
+            inside = np.all((c_theta > self.lower) & (c_theta < self.upper), axis=1)
+            inside &= (tau < 0) | ((c_delta > lo) & (c_delta < hi))  # uniform priors
+            log_u = np.log(rng.random(N))
+            accept = np.zeros(N, bool)
+            if inside.any():
+                where_in = np.flatnonzero(inside)
+                c_past, c_inc, c_mean, c_cov = self._candidate_terms(storey, c_theta[inside], c_delta[inside],
+                                                                      tau[inside], k, u, y)
+                log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
+                ok = log_u[inside] < log_ratio
+                where = where_in[ok]
+                accept[where] = True
+                theta, delta = theta.copy(), delta.copy()
+                past, inc, mean_k, cov_k = past.copy(), inc.copy(), mean_k.copy(), cov_k.copy()
+                theta[where], delta[where] = c_theta[where], c_delta[where]
+                past[where], inc[where], mean_k[where], cov_k[where] = c_past[ok], c_inc[ok], c_mean[ok], c_cov[ok]
+            acceptance_total += float(accept.mean())
+            sweeps += 1
+        return theta, delta, past, inc, mean_k, cov_k
+
+    def _candidate_terms(self, storey, theta, delta, tau, k, u, y):
+        """``log p(y_{0:k-1} | path)``, the increment of step ``k``, and the filtered
+        mean and covariance at ``k`` for candidate paths (one re-filter of the history)."""
+        R = self._run["R"]
+        now = KalmanBank(self._model(effective_theta(theta, delta, tau, storey)), R, self.process_noise_std)
+        if k == 0:
+            mean, cov = now.initial_state()
+            mean_k, cov_k, inc = now.step(mean, cov, y[0])
+            return np.zeros(theta.shape[0]), inc, mean_k, cov_k
+        # a change at step k acts on the prediction into k: the history y_{0:k-1} has none
+        tau_past = np.where(tau < k, tau, -1)
+        past, mean, cov = path_log_likelihood(self.building, self.dt, theta, delta, tau_past, storey, u[:k], y[:k],
+                                              R, self.process_noise_std, self.channels, return_state=True)
+        mean_k, cov_k, inc = now.step(mean, cov, y[k], u[k - 1], u[k])
+        return past, inc, mean_k, cov_k
