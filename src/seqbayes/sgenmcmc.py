@@ -175,7 +175,7 @@ from .filters.enkf import EnKFBank, enkf_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
 from .resampling import resample
 from .results import weighted_quantile
-from .rng import as_generator
+from .rng import as_generator, generator_from_state, generator_state
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 from .weights import logsumexp, normalise
 
@@ -743,6 +743,75 @@ class SGEnMCMC:
         drift_var = np.einsum("ij,njk,ik->ni", drift_op, state_cov[:, :n, :n], drift_op)
         state.stats.record(k, w, float(1.0 / (w @ w)), w @ state_mean, w @ drifts, w @ (drifts**2 + drift_var))
         state.theta, state.past, state.logw, state.bank, state.mean, state.cov = theta, past, logw, bank, mean_k, cov_k
+
+    _HISTORY_ARRAYS = ("mean", "var", "mpv", "quantiles", "ess", "state_mean", "drift_mean", "drift_std")
+
+    def snapshot(self) -> dict:
+        """The on-line run's state as plain named arrays plus the generator's state
+        (what a run store writes): :meth:`restore` on an identifier built with the
+        same arguments continues bit for bit as this one would.
+
+        Returns
+        -------
+        dict
+            ``theta (N, d)``, ``filter_mean``, ``filter_cov`` (the particles' filtered
+            moments; an ensemble ``(N, M, m)`` with the EnKF likelihood), ``past (N,)``,
+            ``log_weights (N,)``, ``frozen`` (the Kalman bank is in its steady
+            state, rebuilt from ``filter_cov``), the record so far ``u (T,)``,
+            ``y (T, p)``, ``log_evidence_increments (T,)``, ``resampled (T,)``,
+            ``events (E, 4)``, ``elapsed``, the histories ``history_<name>`` and the
+            buffered stage ``buffer_steps (L,)``, ``buffer_weights (L, N)``, and
+            ``rng_state`` (a dict, :func:`seqbayes.rng.generator_state`). The
+            arrays are copies.
+        """
+        state = getattr(self, "_online", None)
+        if state is None:
+            raise ValueError("snapshot: nothing to snapshot; call reset() and update() first")
+        stats = state.stats
+        out = {"theta": state.theta, "filter_mean": state.mean, "filter_cov": state.cov, "past": state.past,
+               "log_weights": state.logw, "frozen": np.array(state.bank.frozen is not None), "u": state.u,
+               "y": state.y, "log_evidence_increments": state.evid, "resampled": state.resampled,
+               "events": np.array(state.events, dtype=float).reshape(-1, 4), "elapsed": np.array(state.elapsed),
+               "buffer_steps": np.array(stats.steps, dtype=int),
+               "buffer_weights": np.array(stats.weights, dtype=float).reshape(-1, self.n_members)}
+        out.update({f"history_{name}": getattr(stats, name) for name in self._HISTORY_ARRAYS})
+        out = {key: np.array(value, copy=True) for key, value in out.items()}
+        out["rng_state"] = generator_state(state.rng)
+        return out
+
+    def restore(self, snapshot: dict) -> None:
+        """Continue the on-line run whose :meth:`snapshot` is given (bit for bit)."""
+        missing = [key for key in ("theta", "filter_mean", "filter_cov", "past", "log_weights", "frozen", "u", "y",
+                                   "rng_state") if key not in snapshot]
+        if missing:
+            raise ValueError(f"snapshot: missing {missing}")
+        if self.sampler != "resample-move":
+            raise ValueError("restore: the on-line interface needs sampler='resample-move'")
+        theta = np.array(snapshot["theta"], float)
+        if theta.shape != (self.n_members, self.lower.size):
+            raise ValueError(f"snapshot: theta has shape {theta.shape}, this identifier expects "
+                             f"({self.n_members}, {self.lower.size})")
+        rng = generator_from_state(snapshot["rng_state"])
+        probe = self.transition(self.lower[None, :])
+        p, m = probe.H.shape[1], probe.A.shape[1]
+        R = measurement_covariance(self.measurement_noise, p)
+        cov = np.array(snapshot["filter_cov"], float)
+        bank = self._bank(theta, R, rng)
+        if bool(snapshot["frozen"]):
+            bank = bank.freeze(cov)
+        stats = _Histories(0, self.lower.size, m, self.building.n_storeys, self.lower, self.upper)
+        for name in self._HISTORY_ARRAYS:
+            setattr(stats, name, np.array(snapshot[f"history_{name}"], float))
+        stats.steps = [int(k) for k in snapshot["buffer_steps"]]
+        stats.weights = [np.array(w, float) for w in snapshot["buffer_weights"]]
+        self._online = _Online(
+            rng=rng, R=R, probe=probe, theta=theta, bank=bank, mean=np.array(snapshot["filter_mean"], float),
+            cov=cov, past=np.array(snapshot["past"], float), logw=np.array(snapshot["log_weights"], float),
+            u=np.array(snapshot["u"], float), y=np.array(snapshot["y"], float).reshape(-1, p), stats=stats,
+            evid=np.array(snapshot["log_evidence_increments"], float),
+            resampled=np.array(snapshot["resampled"], bool),
+            events=[tuple(row) for row in np.asarray(snapshot["events"], float).reshape(-1, 4).tolist()],
+            elapsed=float(snapshot["elapsed"]))
 
     def result(self) -> SGEnMCMCResult:
         """Histories of the on-line identification so far (after :meth:`update`).
