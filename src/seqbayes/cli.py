@@ -126,7 +126,7 @@ def cmd_init(args: argparse.Namespace) -> int:
 def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from .config import read_datafile
+    from .datasets import read_datafile
     from .store import BoundWarning, RunStore, store_lock
 
     show = _progress_enabled() and not args.quiet
@@ -176,7 +176,8 @@ def _raised_in(err, files) -> bool:
 
 def _describe(err, store, done=()) -> str:
     """One line for an update that failed, saying what the run store holds now."""
-    from .config import ConfigError, DataError
+    from .config import ConfigError
+    from .datasets import DataError
     from .store import StoreError
 
     if done:
@@ -403,7 +404,8 @@ def main(argv: list[str] | None = None) -> int:
         return _run_example(args.name, rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    from .config import ConfigError, DataError
+    from .config import ConfigError
+    from .datasets import DataError
     from .store import StoreError
 
     try:

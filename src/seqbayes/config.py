@@ -44,7 +44,6 @@ raises :class:`ConfigError` with a message such as
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import importlib
 import importlib.machinery
@@ -58,9 +57,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ConfigError", "DataError", "RunConfig", "load_config", "parse_config", "read_datafile",
-           "dataset_digest", "load_likelihood", "locate_module", "load_located", "ModuleSource", "file_sha256",
-           "check_table"]
+__all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
+           "load_located", "ModuleSource", "file_sha256"]
 
 #: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
 SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
@@ -77,10 +75,6 @@ NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "l
 
 class ConfigError(ValueError):
     """A run configuration is invalid; the message names the file and the field."""
-
-
-class DataError(ValueError):
-    """A data file cannot be assimilated; the message names the file, the column or the shape."""
 
 
 def _fail(source, field_name, message):
@@ -738,140 +732,3 @@ def load_config(path, check_likelihood: bool = True) -> RunConfig:
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: invalid TOML: {err}") from None
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
-
-
-# ---------------------------------------------------------------------- data files
-def read_datafile(path, config: RunConfig) -> np.ndarray:
-    """Read one dataset (CSV with a header row, or NetCDF) as an ``(n_rows, n_columns)`` float array.
-
-    Columns are taken by name in the order of ``config.columns`` (extra columns are
-    ignored). A NetCDF file holds each column as a 1-D variable.
-
-    Raises
-    ------
-    DataError
-        Naming the file and the column, row or shape at fault: missing file or
-        column, non-numeric or NaN/inf value, a column that is not 1-D, columns
-        of different lengths, the wrong number of rows, or an empty file.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise DataError(f"{path}: is a folder, not a data file")
-    if not path.is_file():
-        raise DataError(f"{path}: no such file")
-    suffix = path.suffix.lower()
-    try:
-        if suffix in (".nc", ".nc4", ".netcdf", ".h5", ".hdf5"):
-            table = _read_netcdf(path, config.columns)
-        else:
-            table = _read_csv(path, config.columns)
-    except OSError as err:  # unreadable (permissions, I/O error)
-        raise DataError(f"{path}: cannot read: {err.strerror or err}") from None
-    return check_table(table, config, str(path))
-
-
-def check_table(table, config: RunConfig, source: str = "table") -> np.ndarray:
-    """Validate one dataset given as an array and return it as ``(n_rows, n_columns)`` float64.
-
-    Raises
-    ------
-    DataError
-        Naming ``source`` and the column, row or shape at fault: complex or non-numeric
-        values, the wrong shape or number of rows, no rows, NaN or inf.
-    """
-    array = np.asarray(table)
-    if np.iscomplexobj(array):
-        raise DataError(f"{source}: complex values; a dataset must be real")
-    if array.dtype.kind not in "fiu":
-        raise DataError(f"{source}: expected numbers, got an array of dtype {array.dtype}")
-    array = array.astype(float)
-    if array.ndim != 2 or array.shape[1] != len(config.columns):
-        raise DataError(f"{source}: expected shape (n_rows, {len(config.columns)}) for columns "
-                        f"{list(config.columns)}, got {array.shape}")
-    if array.shape[0] == 0:
-        raise DataError(f"{source}: no data rows")
-    bad = ~np.isfinite(array)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        count = int(bad[:, col].sum())
-        raise DataError(f"{source}: column {config.columns[col]!r} has {count} NaN/inf value(s), "
-                        f"first at data row {row + 1}")
-    if config.rows is not None and array.shape[0] != config.rows:
-        raise DataError(f"{source}: expected {config.rows} rows (data.rows), got shape {array.shape}")
-    return array
-
-
-def _read_csv(path, columns):
-    try:
-        with open(path, newline="") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            rows = [r for r in reader if r and any(cell.strip() for cell in r)]
-    except UnicodeDecodeError:
-        raise DataError(f"{path}: not a text CSV file") from None
-    if header is None:
-        raise DataError(f"{path}: empty file (expected a header row with columns {', '.join(columns)})")
-    header = [h.strip() for h in header]
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise DataError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; "
-                        f"the header has {', '.join(map(repr, header))}")
-    index = [header.index(c) for c in columns]
-    out = np.empty((len(rows), len(columns)))
-    for i, row in enumerate(rows):
-        if len(row) != len(header):
-            raise DataError(f"{path}: line {i + 2} has {len(row)} fields, the header has {len(header)}")
-        for j, k in enumerate(index):
-            cell = row[k].strip()
-            try:
-                out[i, j] = float(cell) if cell else np.nan
-            except ValueError:
-                raise DataError(f"{path}: column {columns[j]!r}, line {i + 2}: not a number: {cell!r}") from None
-    return out
-
-
-def _read_netcdf(path, columns):
-    import xarray as xr
-
-    with open(path, "rb") as fh:
-        classic = fh.read(4) in (b"CDF\x01", b"CDF\x02")   # NetCDF-3 (64-bit offsets too): scipy reads it
-    try:
-        ds = xr.open_dataset(path, engine="scipy" if classic else "h5netcdf")
-    except Exception as err:
-        kind = "NetCDF-3" if classic else "NetCDF-4/HDF5"
-        raise DataError(f"{path}: cannot read as {kind}: {type(err).__name__}: {err}") from None
-    with ds:
-        missing = [c for c in columns if c not in ds.variables]
-        if missing:
-            raise DataError(f"{path}: missing variable(s) {', '.join(map(repr, missing))}; "
-                            f"the file has {', '.join(map(repr, map(str, ds.variables)))}")
-        arrays = []
-        for c in columns:
-            values = np.asarray(ds[c].values)
-            if values.ndim != 1:
-                raise DataError(f"{path}: variable {c!r} has shape {values.shape} (dims {ds[c].dims}); "
-                                f"expected a 1-D column")
-            if not np.issubdtype(values.dtype, np.number):
-                raise DataError(f"{path}: variable {c!r} is not numeric (dtype {values.dtype})")
-            arrays.append(values.astype(float))
-    lengths = {a.shape[0] for a in arrays}
-    if len(lengths) != 1:
-        shapes = ", ".join(f"{c}: {a.shape}" for c, a in zip(columns, arrays))
-        raise DataError(f"{path}: columns have different lengths ({shapes})")
-    return np.column_stack(arrays)
-
-
-def as_likelihood_data(table: np.ndarray, config: RunConfig):
-    """The object handed to the likelihood: the table, or a dict column -> (n,) array."""
-    if config.data_format == "columns":
-        return {c: table[:, j].copy() for j, c in enumerate(config.columns)}
-    return table
-
-
-def dataset_digest(table: np.ndarray, columns) -> str:
-    """SHA-256 of a dataset's content (column names, shape and float64 values), independent of the file format."""
-    table = np.ascontiguousarray(table, dtype="<f8")
-    h = hashlib.sha256()
-    h.update(json.dumps([list(columns), list(table.shape)]).encode())
-    h.update(table.tobytes())
-    return h.hexdigest()

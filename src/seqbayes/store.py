@@ -3,63 +3,69 @@
 One run is one NetCDF-4 file. After every completed step it holds the whole
 sampler state: the posterior and predictive samples of every step with their
 weights and diagnostics (the :class:`~seqbayes.results.Result` layout), the
-next step's prior (the Gaussian-mixture density of Eq. A3 or, for static
-parameters, the exact history prior's values at the particles and the
-assimilated datasets themselves, which it re-evaluates), the
-stretch-move step size, the cumulative log-evidence, the random generator's
-state after each step, the initial prior draws, the validated configuration
-(prior, kernel, likelihood ``module:function``, sampler settings), a format
-version, a model fingerprint and a content hash of every assimilated dataset.
-A new process that opens the store and assimilates the next dataset gives
-bit-for-bit the numbers of an uninterrupted run with the same seed, because the
-sampler is rebuilt from the stored configuration and then
-:meth:`~seqbayes.sequential.SEMC.restore`-d to the stored state and generator.
+arrays the sampler needs to resume (:mod:`seqbayes.snapshot`: the next step's prior
+density, or the values and datasets it re-evaluates), the stretch-move step size,
+the cumulative log-evidence, the random generator's state after each step, the initial
+prior draws, the validated configuration (prior, kernel, likelihood ``module:function``,
+sampler settings), a format version, a model fingerprint and a content hash of every
+assimilated dataset. A new process that opens the store and assimilates the next
+dataset gives bit-for-bit the numbers of an uninterrupted run with the same seed,
+because the sampler is rebuilt from the stored configuration and then
+:meth:`~seqbayes.sequential.SEMC.restore`-d to the stored state and generator. The
+store does not know what the sampler's state is made of: :func:`seqbayes.snapshot.state_arrays`
+turns it into named arrays, which the store writes per step, and
+:func:`seqbayes.snapshot.state_from_arrays` turns them back.
 
-Keeping every step's state (not only the last) costs one ``(N, d)`` mixture (or
-one ``(N,)`` vector and the dataset) per step and allows :meth:`RunStore.assimilate` with ``replace_last=True``: the run
-is rolled back to the step before and the new dataset assimilated in its place.
+Keeping every step's state (not only the last) allows :meth:`RunStore.assimilate` with
+``replace_last=True``: the run is rolled back to the step before and the new dataset
+assimilated in its place.
 
-Writes are atomic: a new step is appended to a copy of the file that the kernel
-makes (``copy_file_range``, a reflink where the filesystem shares extents), so the
-bytes HDF5 writes per step do not grow with the run; a new layout (the first step,
-``replace_last``, an older store) is written whole by HDF5 to memory and then to the
-temporary file with plain OS calls. Either way the temporary file in the same folder
-(``.RUN.tmp-PID``) is ``fsync``-ed and moved over the old one with :func:`os.replace`
-(atomic on POSIX) keeping the old file's permission bits, and the folder is
-``fsync``-ed; readers see the old file or the new one. A
-crash or ``SIGKILL`` at any point leaves either the previous store or the new
-one, never a mixture; a leftover temporary file of this store (exactly that
-name) is removed by the next write. A full disk or a read-only folder is one
-:class:`StoreError`, the previous store kept. Every read-modify-write
-(:meth:`RunStore.assimilate`, :meth:`RunStore.write`) holds an advisory lock on
-``RUN.lock``; an object that opened the store before another process stored a
-step takes that step in first, so concurrent updates are all kept.
+Writes are atomic, and an update writes only what it adds. A new step is appended
+in place, through a redo journal: HDF5 appends the step's rows to an in-memory overlay
+of the file (:class:`_PendingWrites`), the changed pages are written to the journal
+``.RUN.journal`` with their SHA-256 and ``fsync``-ed (from then on the step is
+committed), written into the store under an exclusive lock on it, and the journal is
+removed. A crash before the journal is complete leaves the store as it was (an
+incomplete journal is ignored and removed); a crash after it leaves a complete journal,
+which readers lay over the file and the next writer applies (writing pages is
+idempotent). Readers hold a shared lock on the file while they read it, so they see the
+store before or after a step, never between. A new layout (the first step,
+``replace_last``, an older store) is written whole by HDF5 to memory, then to a
+temporary file in the same folder (``.RUN.tmp-PID``) with plain OS calls, ``fsync``-ed and
+moved over the old one with :func:`os.replace` keeping the old file's permission bits. A
+full disk or a read-only folder is one :class:`StoreError`. Every read-modify-write
+(:meth:`RunStore.assimilate`, :meth:`RunStore.write`) holds an exclusive lock on
+``RUN.lock``; an object that opened the store before another process stored a step
+takes that step in first, so concurrent updates are all kept. The locks are ``flock``
+on POSIX and ``msvcrt.locking`` on Windows (:func:`lock_file`).
 
 Trust: a store is trusted like code (it names the module the likelihood comes
 from), but runs only a module file whose SHA-256 it recorded
 (:meth:`RunStore.load_likelihood`), imported by file path without touching
 ``sys.path``; opening, ``predict`` and reports run no user code. The numeric
-arrays carry HDF5 Fletcher-32 checksums and the configuration and text records a
-SHA-256 (``content_sha256``), verified by :meth:`RunStore.open`, which also
-refuses NaN samples and missing or inconsistent variables.
+arrays carry HDF5 Fletcher-32 checksums, verified as they are read. The text records
+of each step (its :class:`~seqbayes.results.StepInfo`, generator state, dataset and module
+hashes, file name) have a SHA-256 (``record_sha256``), and the configuration and those
+per-step hashes a SHA-256 (``content_sha256``), all verified by :meth:`RunStore.open`,
+which also refuses NaN samples and missing or inconsistent variables; a step appended
+hashes only its own records.
 
 Layout: ``posterior``, ``predictive`` ``(step, sample, parameter)``, ``log_weights``
-``(step, sample)``, ``mixture_centres``/``_bandwidth``/``_log_weights`` or
-``state_log_prior (step, sample)`` with ``dataset_values (dataset_row, column)``
-and ``dataset_rows (step)``,
+``(step, sample)``, the state arrays of :mod:`seqbayes.snapshot` (e.g.
+``mixture_centres (step, sample, parameter)``), with ``dataset_values (dataset_row, column)``
+and ``dataset_rows (step)`` when the state needs the datasets,
 ``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
 any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
-as JSON), ``dataset_sha256``, ``dataset_source``, ``state_step_size``,
-``initial_particles``, ``rng_state (rng_index)``, ``likelihood_sha256 (step)``;
+as JSON), ``dataset_sha256``, ``dataset_source``, ``likelihood_sha256``, ``record_sha256``,
+``state_step_size``, ``initial_particles``, ``initial_log_weights``, ``rng_state (rng_index)``;
 attributes ``config`` (with the likelihood module's file and hash), ``model_fingerprint``,
-``content_sha256``, ``seqbayes_store_format``. The per-step sampler state is written by
-:meth:`RunStore._state_variables`, read by :func:`_read_state` and rebuilt by
-:meth:`RunStore.state_at` (with :meth:`RunStore._store_state` keeping it after a step).
-Few variables keep a write fast (HDF5 pays per variable).
+``content_sha256``, ``seqbayes_store_format``. The growing dimensions (``step``,
+``rng_index``, ``dataset_row``) are unlimited, in chunks of a few steps. Few variables keep
+a write fast (HDF5 pays per variable).
 
-Why NetCDF (HDF5 underneath, through xarray and h5netcdf): the content is a set
-of labelled float64 arrays ``(step, sample, parameter)`` plus small metadata,
-which is exactly NetCDF's model; float64 values round-trip bit for bit (needed
+Why NetCDF (HDF5 underneath, written through h5netcdf, appended and read through h5py):
+the content is a set of labelled float64 arrays ``(step, sample, parameter)`` plus small
+metadata, which is exactly NetCDF's model; float64 values round-trip bit for bit (needed
 for exact resumption); the file is self-describing and readable without
 seqbayes (``xarray.open_dataset``, ``ncdump``, MATLAB, R), which matters for a
 monitoring record kept for years; xarray and h5netcdf are already required by
@@ -81,34 +87,37 @@ import json
 import os
 import shutil
 import signal
+import struct
 import sys
 import threading
+import time
 import warnings
 from dataclasses import replace as _replace
 from pathlib import Path
 
 import numpy as np
 
-from .config import (NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, as_likelihood_data,
-                     check_table, dataset_digest, load_located, locate_module, read_datafile)
-from .density import GaussianMixture, HistoryPrior
-from .results import Result, StepInfo, StepRecord
-from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from . import snapshot
+from .config import NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, load_located, locate_module
+from .datasets import as_likelihood_data, check_table, dataset_digest, read_datafile
 from .prognostics import FirstPassage, time_to_threshold
-from .sequential import SamplerState
+from .results import Result, StepInfo, StepRecord
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
-           "FORMAT_VERSION", "store_lock"]
+           "FORMAT_VERSION", "store_lock", "lock_file"]
 
 #: Version of the on-disk layout; a store of another version is refused. Version 2 added the
 #: history prior of static kernels, version 3 the likelihood module's hash per step, the
-#: content hash of the text variables and HDF5 checksums; versions 1 and 2 are still read.
-FORMAT_VERSION = 3
-_READABLE_VERSIONS = (1, 2, 3)
+#: content hash of the text variables and HDF5 checksums, version 4 the per-step record
+#: hashes (so that an appended step hashes only its own records). Versions 1 to 3 are still
+#: read; the next update rewrites them in version 4.
+FORMAT_VERSION = 4
+_READABLE_VERSIONS = (1, 2, 3, 4)
 
 #: Environment variable naming a fault-injection point (tests only): the process
-#: SIGKILLs itself there. One of ``before-write``, ``mid-write``, ``before-replace``,
-#: ``after-replace``.
+#: SIGKILLs itself there. One of ``before-write``, ``mid-write`` (the temporary file or the
+#: journal half written), ``before-replace`` (complete, not yet in place), ``mid-apply`` (half
+#: the journal's pages written into the store), ``after-replace``.
 FAULT_ENV = "SEQBAYES_STORE_FAULT"
 
 
@@ -133,24 +142,61 @@ def _fault(point: str) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-_LOCKS: dict = {}                      # resolved lock path -> [threading.RLock, depth]
+# ------------------------------------------------------------------------- locks
+def lock_file(fh, exclusive: bool = True) -> None:
+    """Block until this process holds an advisory lock on the open file ``fh``.
+
+    POSIX: ``flock`` (shared or exclusive, released when ``fh`` is closed or by
+    :func:`unlock_file`). Windows: ``msvcrt.locking`` of one byte far beyond any
+    run store's end (Windows locks are mandatory, so a lock on the content would block
+    readers of it), always exclusive, retried every 10 ms.
+    """
+    if os.name == "nt":  # pragma: no cover - exercised on Windows only
+        import msvcrt
+
+        fh.seek(_WINDOWS_LOCK_OFFSET)
+        while True:
+            try:
+                msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)
+                return
+            except OSError:
+                time.sleep(0.01)
+    import fcntl
+
+    fcntl.flock(fh.fileno(), fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+
+
+def unlock_file(fh) -> None:
+    """Release :func:`lock_file`'s lock on ``fh``."""
+    if os.name == "nt":  # pragma: no cover - exercised on Windows only
+        import msvcrt
+
+        fh.seek(_WINDOWS_LOCK_OFFSET)
+        msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
+        return
+    import fcntl
+
+    fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+_WINDOWS_LOCK_OFFSET = 2 ** 40
+_LOCKS: dict = {}                      # resolved lock path -> [threading.RLock, depth, open lock file]
 _LOCKS_GUARD = threading.Lock()
 
 
 @contextlib.contextmanager
 def store_lock(path):
-    """Advisory exclusive lock on ``<path>.lock`` (POSIX ``flock``), held for a read-modify-write.
+    """Exclusive advisory lock on ``<path>.lock`` (:func:`lock_file`), held for a read-modify-write.
 
     Re-entrant within a process (the CLI holds it around :meth:`RunStore.assimilate`, which
-    takes it too) and exclusive between threads and between processes.
+    takes it too) and exclusive between threads and between processes. The lock file
+    stays (removing it would let two processes lock two different files).
 
     Raises
     ------
     StoreError
         The lock file cannot be created (a read-only folder, ...).
     """
-    import fcntl
-
     lock_path = str(path) + ".lock"
     key = os.path.abspath(lock_path)
     with _LOCKS_GUARD:
@@ -158,10 +204,10 @@ def store_lock(path):
     with entry[0]:
         if entry[1] == 0:
             try:
-                fh = open(lock_path, "a")
+                fh = open(lock_path, "a+b")
             except OSError as err:
                 raise StoreError(f"{path}: cannot take the lock {lock_path}: {_os_message(err)}") from None
-            fcntl.flock(fh, fcntl.LOCK_EX)
+            lock_file(fh)
             entry[2] = fh
         entry[1] += 1
         try:
@@ -170,7 +216,7 @@ def store_lock(path):
             entry[1] -= 1
             if entry[1] == 0:
                 fh, entry[2] = entry[2], None
-                fcntl.flock(fh, fcntl.LOCK_UN)
+                unlock_file(fh)
                 fh.close()
 
 
@@ -178,15 +224,6 @@ def _os_message(err: OSError) -> str:
     """``strerror`` (and the file, when the error names one) of an OS error, for one-line messages."""
     text = err.strerror or str(err)
     return f"{text} ({err.filename})" if err.filename else text
-
-
-def _file_stamp(path):
-    """What changes when the file is replaced or rewritten: inode, size, modification time."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _now() -> str:
@@ -220,6 +257,54 @@ def _config_diff(a: RunConfig, b: RunConfig) -> list[str]:
     return out
 
 
+# ------------------------------------------------------------------ content hashes
+#: Attributes covered by the store's content hash (the numeric arrays carry HDF5 Fletcher-32 checksums).
+_HASHED_ATTRS = ("config", "model_fingerprint", "n_steps", "initial_step_size", "result_meta")
+#: A step's text records, in the order its record hash takes them (``rng_state`` of the step is
+#: the generator state after it).
+_RECORD_TEXT = ("step_info", "rng_state", "dataset_sha256", "dataset_source", "likelihood_sha256")
+
+
+def _record_hash(texts) -> str:
+    """SHA-256 of one step's text records (:data:`_RECORD_TEXT`, in that order)."""
+    return hashlib.sha256(json.dumps([str(t) for t in texts]).encode()).hexdigest()
+
+
+def _content_hash(attrs: dict, initial_rng: str, record_hashes) -> str:
+    """The store's content hash (format 4): its key attributes, the generator state before the
+    first step and the record hash of every step. A step appended adds one record hash."""
+    h = hashlib.sha256()
+    for key in _HASHED_ATTRS:
+        h.update(json.dumps([key, str(attrs.get(key))]).encode())
+    h.update(json.dumps(["rng_state", str(initial_rng)]).encode())
+    h.update("".join(record_hashes).encode())
+    return h.hexdigest()
+
+
+def _rehash(ds) -> None:
+    """Redo the record and content hashes of a store as an :class:`xarray.Dataset` (what a writer
+    does): tests use it to make an edit consistent and check what else catches it."""
+    rng = [str(v) for v in ds["rng_state"].values]
+    n_steps = int(ds.attrs["n_steps"])
+    hashes = []
+    if n_steps:
+        columns = [rng[1:] if name == "rng_state" else [str(v) for v in ds[name].values] for name in _RECORD_TEXT]
+        hashes = [_record_hash(texts) for texts in zip(*columns)]
+        ds["record_sha256"] = (("step",), np.array(hashes, dtype=object))
+    ds.attrs["content_sha256"] = _content_hash(ds.attrs, rng[0], hashes)
+
+
+def _content_hash_v3(attrs: dict, variables: dict) -> str:
+    """The content hash of format 3 stores (all text records hashed together), to verify them on open."""
+    h = hashlib.sha256()
+    for key in _HASHED_ATTRS:
+        h.update(json.dumps([key, str(attrs.get(key))]).encode())
+    for name in _RECORD_TEXT:
+        if name in variables:
+            h.update(json.dumps([name, [str(v) for v in variables[name]]]).encode())
+    return h.hexdigest()
+
+
 class RunStore:
     """A persistent on-line run (one NetCDF file); see the module docstring.
 
@@ -232,6 +317,10 @@ class RunStore:
     config : RunConfig
     result : Result
         Every completed step.
+    states : list of dict
+        Per step, the sampler's state arrays (:func:`seqbayes.snapshot.state_arrays`).
+    tables : list of (n_rows, n_columns) arrays
+        The assimilated datasets, kept when the state needs them (:func:`seqbayes.snapshot.needs_datasets`).
     digests : list of str
         SHA-256 of each assimilated dataset's content.
     sources : list of str
@@ -244,8 +333,8 @@ class RunStore:
     """
 
     def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
-                 rng_states, result: Result, mixtures, step_sizes, digests, sources, log_priors=(), tables=(),
-                 created=None, module_hashes=None, nested=()):
+                 rng_states, result: Result, states, step_sizes, digests, sources, tables=(), created=None,
+                 module_hashes=None, record_hashes=None):
         self.path = Path(path)
         self.config = config
         self.initial_particles = initial_particles
@@ -253,17 +342,17 @@ class RunStore:
         self.initial_step_size = float(initial_step_size)
         self.rng_states = list(rng_states)          # S + 1 generator states (after step 0, 1, ..., S)
         self.result = result
-        self.mixtures = list(mixtures)              # S tuples (centres, bandwidth, log_weights), or none
-        self.log_priors = list(log_priors)          # or, with a history prior, S (N,) prior values
-        self.tables = list(tables)                  # and the S datasets it re-evaluates (also for SMC^2)
-        self.nested = list(nested)                  # or, with SMC^2, S dicts of state arrays (seqbayes.nested)
+        self.states = list(states)                  # S dicts of state arrays (seqbayes.snapshot)
+        self.tables = list(tables)                  # the S datasets, when the state needs them
         self.step_sizes = list(step_sizes)          # S state step sizes
         self.digests = list(digests)
         self.sources = list(sources)
         # SHA-256 of the likelihood module each step ran ("" for steps written before they were recorded)
         self.module_hashes = list(module_hashes) if module_hashes is not None else [""] * len(self.digests)
         self.created = created or _now()
-        self._stamp = None                          # the file as last read or written (see _reload_if_changed)
+        # record hash of each step's text (verified ones from the file; new steps hash when written)
+        self._record_hashes = list(record_hashes or ())
+        self._token = None                          # (content hash, n_steps) of the file as last read or written
         self._disk_steps = 0                        # leading steps the file holds exactly as this object does
 
     # ----------------------------------------------------------------- creation
@@ -292,7 +381,7 @@ class RunStore:
             state, records, rng_state = sampler.snapshot()
             store = cls(path, config, initial_particles=np.array(state.particles),
                         initial_log_weights=np.array(state.log_weights), initial_step_size=state.step_size,
-                        rng_states=[rng_state], result=Result(sampler.names, (), {}), mixtures=[], step_sizes=[],
+                        rng_states=[rng_state], result=Result(sampler.names, (), {}), states=[], step_sizes=[],
                         digests=[], sources=[])
             store.write()
         return store
@@ -301,6 +390,9 @@ class RunStore:
     @classmethod
     def open(cls, path, config: RunConfig | None = None) -> "RunStore":
         """Load a run store (this runs no user code).
+
+        Reads the file under a shared lock (so never between the two halves of a step
+        another process appends), laying a committed journal over it, and verifies it.
 
         Parameters
         ----------
@@ -317,78 +409,110 @@ class RunStore:
             content hash mismatch, missing or inconsistent variables, NaN samples).
         """
         path = Path(path)
-        stamp = _file_stamp(path)
-        ds = _read_dataset(path)
+        attrs, variables = _read_file(path)
         try:
-            store = cls._from_dataset(path, ds, config)
+            store = cls._from_file(path, attrs, variables, config)
         except StoreError:
             raise
         except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
             what = (f"missing variable or attribute {err}" if isinstance(err, KeyError)
                     else f"{type(err).__name__}: {err}")
             raise StoreError(f"{path}: damaged or inconsistent run store ({what})") from None
-        store._stamp = stamp
+        store._token = (attrs.get("content_sha256"), store.n_steps)
         store._disk_steps = store.n_steps
         return store
 
     @classmethod
-    def _from_dataset(cls, path: Path, ds, config: RunConfig | None) -> "RunStore":
-        version = ds.attrs.get("seqbayes_store_format")
+    def _from_file(cls, path: Path, attrs: dict, variables: dict, config: RunConfig | None) -> "RunStore":
+        version = attrs.get("seqbayes_store_format")
         if version is None:
             raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
         if int(version) not in _READABLE_VERSIONS:
-            raise StoreError(f"{path}: run-store format version {int(version)}, but this seqbayes reads version "
-                             f"{FORMAT_VERSION}; use the seqbayes version that wrote it (it says "
-                             f"{ds.attrs.get('seqbayes_version', '?')})")
-        if int(version) >= 3 and ds.attrs.get("content_sha256") != _content_hash(ds):
+            raise StoreError(f"{path}: run-store format version {int(version)}, but this seqbayes reads versions "
+                             f"{', '.join(map(str, _READABLE_VERSIONS))}; use the seqbayes version that wrote it "
+                             f"(it says {attrs.get('seqbayes_version', '?')})")
+        version = int(version)
+        if "n_steps" not in attrs or "rng_state" not in variables:
+            raise StoreError(f"{path}: damaged run store: missing {'n_steps' if 'n_steps' not in attrs else 'rng_state'}")
+        n_steps = int(attrs["n_steps"])
+        text = {name: [str(v) for v in variables[name]] for name in _RECORD_TEXT + ("record_sha256",)
+                if name in variables}
+        rng_text = text["rng_state"]
+        if not (len(rng_text) == n_steps + 1 and all(len(text.get(name, ())) == n_steps for name in _RECORD_TEXT
+                                                     if name not in ("rng_state", "likelihood_sha256") and n_steps)):
+            raise StoreError(f"{path}: inconsistent store ({len(text.get('step_info', ()))} steps, {len(rng_text)} "
+                             f"generator states, {len(text.get('dataset_sha256', ()))} dataset hashes, n_steps = "
+                             f"{n_steps})")
+        module_hashes = text.get("likelihood_sha256", [""] * n_steps)
+        per_step = list(zip(text.get("step_info", ()), rng_text[1:], text.get("dataset_sha256", ()),
+                            text.get("dataset_source", ()), module_hashes))
+        record_hashes = [_record_hash(texts) for texts in per_step]
+        if version >= 4:
+            if n_steps and "record_sha256" not in variables:
+                raise StoreError(f"{path}: damaged run store: missing variable(s) record_sha256")
+            bad = [i + 1 for i, (a, b) in enumerate(zip(text.get("record_sha256", []), record_hashes)) if a != b]
+            if bad or attrs.get("content_sha256") != _content_hash(attrs, rng_text[0], record_hashes):
+                where = f" (the records of step {bad[0]})" if bad else ""
+                raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records "
+                                 f"does not match{where} (the file was edited or corrupted)")
+        if version == 3 and attrs.get("content_sha256") != _content_hash_v3(attrs, variables):
             raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records "
                              f"does not match (the file was edited or corrupted)")
         try:
-            stored = RunConfig.from_dict(json.loads(ds.attrs["config"]))
+            stored = RunConfig.from_dict(json.loads(attrs["config"]))
         except (json.JSONDecodeError, TypeError) as err:
             raise StoreError(f"{path}: damaged run store: unreadable config attribute ({err})") from None
-        if stored.fingerprint() != ds.attrs.get("model_fingerprint"):
+        if stored.fingerprint() != attrs.get("model_fingerprint"):
             raise StoreError(f"{path}: model fingerprint does not match the stored configuration "
                              f"(the file was edited or written by an incompatible seqbayes)")
         if config is not None and config.fingerprint() != stored.fingerprint():
             fields = ", ".join(_config_diff(stored, config)) or "?"
             raise StoreError(f"{path}: the run was created for another model (fingerprint "
                              f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]}); differing fields: {fields}")
-        n_steps = int(ds.attrs["n_steps"])
-        required = ["initial_particles", "initial_log_weights", "rng_state"]
+        state_names = [name for name in variables if snapshot.is_state_variable(name)]
+        required = ["initial_particles", "initial_log_weights"]
         if n_steps:
             required += ["posterior", "log_weights", "predictive", "step_info", "dataset_sha256", "dataset_source",
                          "state_step_size"]
-            required += (["state_log_prior", "dataset_values", "dataset_rows"] if "state_log_prior" in ds
-                         else ["nested_outer", "nested_scalars", "dataset_values", "dataset_rows"]
-                         if stored.predictive_method == "smc2"
-                         else ["mixture_centres", "mixture_bandwidth", "mixture_log_weights"])
-        missing = [name for name in required if name not in ds]
+            if not state_names:
+                required.append("mixture_centres" if stored.predictive_method != "smc2" else "nested_outer")
+        missing = [name for name in required if name not in variables]
         if missing:
             raise StoreError(f"{path}: damaged run store: missing variable(s) {', '.join(missing)}")
-        if n_steps:
-            records = []
-            for i in range(n_steps):
-                info = _step_info(_json(ds["step_info"].values[i], path, f"step_info[{i}]"))
-                records.append(StepRecord(info, ds["posterior"].values[i], ds["log_weights"].values[i],
-                                          ds["predictive"].values[i]))
-            result = Result(stored.names, tuple(records), _json(ds.attrs.get("result_meta", "{}"), path, "result_meta"))
-            digests = [str(v) for v in ds["dataset_sha256"].values]
-            sources = [str(v) for v in ds["dataset_source"].values]
-            module_hashes = ([str(v) for v in ds["likelihood_sha256"].values] if "likelihood_sha256" in ds
-                             else [""] * n_steps)
-        else:
-            result, digests, sources, module_hashes = Result(stored.names, (), {}), [], [], []
-        state = _read_state(path, ds, stored, n_steps)
-        if not (len(state["rng_states"]) == n_steps + 1 and len(result.steps) == n_steps == len(digests)
-                == len(sources) == len(module_hashes) == len(state["step_sizes"])):
-            raise StoreError(f"{path}: inconsistent store ({len(result.steps)} steps, {len(state['rng_states'])} "
-                             f"generator states, {len(digests)} dataset hashes, n_steps = {n_steps})")
-        _check_finite(path, ds)
-        return cls(path, stored, initial_particles=ds["initial_particles"].values,
-                   initial_log_weights=ds["initial_log_weights"].values,
-                   initial_step_size=float(ds.attrs["initial_step_size"]), result=result, digests=digests,
-                   sources=sources, created=ds.attrs.get("created"), module_hashes=module_hashes, **state)
+        rng_states = [_json(v, path, f"rng_state[{i}]") for i, v in enumerate(rng_text)]
+        for i, state in enumerate(rng_states):
+            if not (isinstance(state, dict) and isinstance(state.get("bit_generator"), str)
+                    and isinstance(state.get("state"), dict)):
+                raise StoreError(f"{path}: damaged run store: rng_state[{i}] is not a numpy generator state")
+        records = [StepRecord(_step_info(_json(info, path, f"step_info[{i}]")), variables["posterior"][i],
+                              variables["log_weights"][i], variables["predictive"][i])
+                   for i, info in enumerate(text.get("step_info", ()))]
+        result = Result(stored.names, tuple(records), _json(attrs.get("result_meta", "{}"), path, "result_meta"))
+        states = [{name: variables[name][i] for name in state_names} for i in range(n_steps)]
+        if n_steps and snapshot.state_kind(states[0]) == "mixture" and stored.predictive_method == "history":
+            raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
+                             f"kernel-density prior; this version uses their exact history prior. Re-create "
+                             f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
+                             f"the seqbayes version that wrote it ({attrs.get('seqbayes_version', '?')})")
+        tables = []
+        if n_steps and "dataset_rows" in variables:
+            rows, values = variables["dataset_rows"], variables["dataset_values"]
+            if rows.shape != (n_steps,) or int(rows.sum()) != values.shape[0]:
+                raise StoreError(f"{path}: inconsistent store (dataset_rows {rows.tolist()} for "
+                                 f"{values.shape[0]} stored data rows)")
+            tables = np.split(values, np.cumsum(rows)[:-1])
+        if n_steps and snapshot.needs_datasets(states[0]) and len(tables) != n_steps:
+            raise StoreError(f"{path}: damaged run store: missing variable(s) dataset_values, dataset_rows")
+        step_sizes = [float(v) for v in variables["state_step_size"]] if n_steps else []
+        if len(step_sizes) != n_steps:
+            raise StoreError(f"{path}: inconsistent store ({len(step_sizes)} step sizes, n_steps = {n_steps})")
+        _check_finite(path, variables)
+        return cls(path, stored, initial_particles=variables["initial_particles"],
+                   initial_log_weights=variables["initial_log_weights"],
+                   initial_step_size=float(attrs["initial_step_size"]), rng_states=rng_states, result=result,
+                   states=states, step_sizes=step_sizes, digests=text.get("dataset_sha256", []),
+                   sources=text.get("dataset_source", []), tables=tables, created=attrs.get("created"),
+                   module_hashes=module_hashes, record_hashes=record_hashes)
 
     @property
     def n_steps(self) -> int:
@@ -400,78 +524,85 @@ class RunStore:
         return tuple(self.config.names)
 
     # ------------------------------------------------------------------ writing
+    def _step_texts(self, k: int) -> tuple:
+        """Step ``k``'s (0-based) text records, in the order of :data:`_RECORD_TEXT`."""
+        return (json.dumps(dataclasses.asdict(self.result.steps[k].info)), json.dumps(self.rng_states[k + 1]),
+                self.digests[k], self.sources[k], self.module_hashes[k])
+
+    def _attrs(self, record_hashes) -> dict:
+        """The file's attributes, with the content hash over ``record_hashes``."""
+        from . import __version__
+
+        attrs = {"result_meta": json.dumps(self.result.meta, default=str),
+                 "seqbayes_store_format": FORMAT_VERSION, "seqbayes_version": __version__,
+                 "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),
+                 "model_name": self.config.name, "n_steps": self.n_steps, "initial_step_size": self.initial_step_size,
+                 "created": self.created, "updated": _now()}
+        attrs["content_sha256"] = _content_hash(attrs, json.dumps(self.rng_states[0]), record_hashes)
+        return attrs
+
+    def _rows(self, start: int) -> tuple[dict, dict, list]:
+        """``(data_vars, coords, texts)`` of steps ``start ..`` (0-based) along the growing dimensions,
+        for :meth:`to_xarray` (``start = 0``) and the append of :meth:`write`; ``texts`` are the steps'
+        :meth:`_step_texts`."""
+        steps = self.result.steps[start:]
+        texts = [self._step_texts(k) for k in range(start, self.n_steps)]
+        rng_from = 0 if start == 0 else start + 1
+        data = {"rng_state": (("rng_index",), np.array([json.dumps(s) for s in self.rng_states[rng_from:]],
+                                                      dtype=object))}
+        coords = {}
+        if not steps:
+            return data, coords, texts
+        infos = [dataclasses.asdict(r.info) for r in steps]
+        numeric = [k for k, v in infos[0].items() if isinstance(v, (int, float)) and k != "step"]
+        coords.update(step=np.array([r.info.step for r in steps]), diagnostic=numeric)
+        columns = list(zip(*texts))
+        data.update({
+            "posterior": (("step", "sample", "parameter"), np.stack([r.posterior for r in steps])),
+            "log_weights": (("step", "sample"), np.stack([r.log_weights for r in steps])),
+            "predictive": (("step", "sample", "parameter"), np.stack([r.predictive for r in steps])),
+            # for readers without seqbayes; step_info holds the exact records
+            "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
+            "step_info": (("step",), np.array(columns[0], dtype=object)),
+            "dataset_sha256": (("step",), np.array(columns[2], dtype=object)),
+            "dataset_source": (("step",), np.array(columns[3], dtype=object)),
+            "likelihood_sha256": (("step",), np.array(columns[4], dtype=object)),
+            "record_sha256": (("step",), np.array([_record_hash(t) for t in texts], dtype=object)),
+            "state_step_size": (("step",), np.array(self.step_sizes[start:], dtype=float)),
+        })
+        for name in self.states[start]:
+            stacked = np.stack([arrays[name] for arrays in self.states[start:]])
+            data[name] = (("step",) + snapshot.state_dims(name, stacked.ndim - 1), stacked)
+        if self.tables:  # the datasets the state needs (history prior, SMC^2)
+            coords["column"] = list(self.config.columns)
+            data.update(dataset_values=(("dataset_row", "column"), np.concatenate(self.tables[start:])),
+                        dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables[start:]])))
+        return data, coords, texts
+
+    def _hashes_through(self, texts, start: int) -> list:
+        """Record hashes of every step: the known ones before ``start``, the others from ``texts``."""
+        known = self._record_hashes[:start]
+        if len(known) < start:  # steps read from a format 1-3 file: hash them now
+            known += [_record_hash(self._step_texts(k)) for k in range(len(known), start)]
+        return known + [_record_hash(t) for t in texts]
+
     def to_xarray(self):
         """The store's content as an :class:`xarray.Dataset` (what :meth:`write` saves)."""
         import xarray as xr
 
-        from . import __version__
-
-        coords = {"sample": np.arange(self.initial_particles.shape[0]), "parameter": list(self.names)}
-        data = {}
-        if self.n_steps:
-            steps = self.result.steps
-            infos = [dataclasses.asdict(r.info) for r in steps]
-            numeric = [k for k, v in infos[0].items() if isinstance(v, (int, float)) and k != "step"]
-            coords.update(step=np.array([r.info.step for r in steps]), diagnostic=numeric)
-            data = {
-                "posterior": (("step", "sample", "parameter"), np.stack([r.posterior for r in steps])),
-                "log_weights": (("step", "sample"), np.stack([r.log_weights for r in steps])),
-                "predictive": (("step", "sample", "parameter"), np.stack([r.predictive for r in steps])),
-                # for readers without seqbayes; step_info holds the exact records
-                "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
-                "step_info": (("step",), np.array([json.dumps(i) for i in infos], dtype=object)),
-                "dataset_sha256": (("step",), np.array(self.digests, dtype=object)),
-                "dataset_source": (("step",), np.array(self.sources, dtype=object)),
-                "likelihood_sha256": (("step",), np.array(self.module_hashes, dtype=object)),
-            }
-        state_data, state_coords = self._state_variables()
-        data.update(state_data)
-        coords.update(state_coords)
+        data, coords, texts = self._rows(0)
+        coords.update(sample=np.arange(self.initial_particles.shape[0]), parameter=list(self.names))
         ds = xr.Dataset(data, coords=coords)
-        ds.attrs["result_meta"] = json.dumps(self.result.meta, default=str)
         ds["initial_particles"] = (("sample", "parameter"), self.initial_particles)
         ds["initial_log_weights"] = (("sample",), self.initial_log_weights)
-        ds.attrs.update({
-            "seqbayes_store_format": FORMAT_VERSION, "seqbayes_version": __version__,
-            "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),
-            "model_name": self.config.name, "n_steps": self.n_steps, "initial_step_size": self.initial_step_size,
-            "created": self.created, "updated": _now(),
-        })
-        ds.attrs["content_sha256"] = _content_hash(ds)
+        ds.attrs.update(self._attrs(self._hashes_through(texts, 0)))
         return ds
 
-    # The sampler's state, per step: what SEMC.restore needs besides the step records. Reading
-    # (_read_state), writing (_state_variables) and rebuilding (state_at) live here together.
-    def _state_variables(self) -> tuple[dict, dict]:
-        """``(data_vars, coords)`` of the per-step sampler state for :meth:`to_xarray`."""
-        data = {"rng_state": (("rng_index",), np.array([json.dumps(s) for s in self.rng_states], dtype=object))}
-        coords = {}
-        if not self.n_steps:
-            return data, coords
-        data["state_step_size"] = (("step",), np.array(self.step_sizes, dtype=float))
-        if self.tables:  # the datasets the history prior re-evaluates, or SMC^2's PMMH re-runs
-            coords["column"] = list(self.config.columns)
-            data.update(dataset_values=(("dataset_row", "column"), np.concatenate(self.tables)),
-                        dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables])))
-        if self.log_priors:  # the history prior: its values at the particles
-            data.update(state_log_prior=(("step", "sample"), np.stack(self.log_priors)))
-        elif self.nested:  # SMC^2: outer particles, inner filters, likelihood estimates (seqbayes.nested)
-            for key in self.nested[0]:
-                stacked = np.stack([arrays[key] for arrays in self.nested])
-                dims = ("step",) + tuple(f"nested_{key}_{axis}" for axis in range(1, stacked.ndim))
-                data[f"nested_{key}"] = (dims, stacked)
-        else:
-            data.update(
-                mixture_centres=(("step", "sample", "parameter"), np.stack([m[0] for m in self.mixtures])),
-                mixture_bandwidth=(("step", "parameter"), np.stack([m[1] for m in self.mixtures])),
-                mixture_log_weights=(("step", "sample"), np.stack([m[2] for m in self.mixtures])))
-        return data, coords
-
     def write(self) -> None:
-        """Write the store atomically (temporary file in the same folder, fsync, :func:`os.replace`).
+        """Write the store atomically: append the new steps through the journal, or write it whole.
 
         Holds the store's lock. The file keeps its permission bits. Refused up front
-        when the folder lacks the free space the file needs.
+        when the folder lacks the free space the write needs.
 
         Raises
         ------
@@ -494,29 +625,23 @@ class RunStore:
                         os.remove(folder / entry)
         except OSError as err:
             raise StoreError(f"{self.path}: cannot write in {folder}: {_os_message(err)}") from None
+        _recover_journal(self.path)
+        if self._append():
+            return
         ds = self.to_xarray()
         mode = None
         with contextlib.suppress(OSError):
             mode = os.stat(self.path).st_mode & 0o7777
-        tmp = folder / f"{prefix}{os.getpid()}"
-        if self._append_to_copy(ds, folder, tmp, mode):
-            return
         # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
         # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
         content = _netcdf_bytes(ds, _encoding(ds), unlimited_dims=[d for d in _GROWING if d in ds.dims])
         _check_free_space(self.path, folder, len(content))
         _fault("before-write")
-        self._replace_with(tmp, folder, mode, lambda path: _write_file(path, content))
-
-    def _replace_with(self, tmp: Path, folder: Path, mode, fill) -> None:
-        """Write the temporary file ``tmp`` with ``fill(tmp)``, give it the store's permission bits
-        ``mode`` and move it over the store (:func:`os.replace`, then ``fsync`` of the folder).
-        On any error ``tmp`` is removed and the store is untouched; an ``OSError`` becomes one
-        :class:`StoreError` line."""
+        tmp = folder / f"{prefix}{os.getpid()}"
         try:
-            fill(tmp)
+            _write_file(tmp, content)
             if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
-                os.truncate(tmp, os.path.getsize(tmp) // 2)
+                os.truncate(tmp, len(content) // 2)
                 _fault("mid-write")
             if mode is not None:
                 os.chmod(tmp, mode)
@@ -532,106 +657,69 @@ class RunStore:
                 os.remove(tmp)
             raise
         _fsync_dir(folder)
-        self._stamp = _file_stamp(self.path)
-        self._disk_steps = self.n_steps
+        self._written(ds.attrs["content_sha256"], [str(h) for h in ds["record_sha256"].values] if self.n_steps else [])
         _fault("after-replace")
 
-    def _append_to_copy(self, ds, folder: Path, tmp: Path, mode) -> bool:
-        """Write by appending: copy the file (in the kernel; a reflink where the filesystem has them),
-        append the new steps' rows to the copy, ``fsync`` and :func:`os.replace` it.
+    def _written(self, content_hash: str, record_hashes: list) -> None:
+        self._record_hashes = list(record_hashes)
+        self._token = (content_hash, self.n_steps)
+        self._disk_steps = self.n_steps
 
-        Used when the file on disk holds this object's first steps unchanged (no
-        ``replace_last`` since) in the appendable layout; returns False (nothing written)
-        otherwise, and the caller writes the whole file. Readers see the old file or the
-        new one, as with a whole write.
+    def _append(self) -> bool:
+        """Append the steps after ``_disk_steps`` in place, through the journal (module docstring).
+
+        Used when the file holds this object's first steps unchanged (no ``replace_last``
+        since, no other writer) in the format-4 layout; returns False (nothing written)
+        otherwise, and the caller writes the whole file.
         """
-        import h5netcdf
+        import h5py
 
-        if not (self._disk_steps and self._disk_steps < self.n_steps and self._stamp is not None
-                and _file_stamp(self.path) == self._stamp):
+        start = self._disk_steps
+        if not (0 < start < self.n_steps and self._token is not None and _read_token(self.path) == self._token):
             return False
-        old_size = os.path.getsize(self.path)
-        _check_free_space(self.path, folder, old_size + 4 * sum(
-            v.values[self._disk_steps:].nbytes if v.dtype != object else 0 for v in ds.variables.values()
-            if v.dims and v.dims[0] == "step") + 1024 * 1024)
-        _fault("before-write")
-
-        def append_rows(path):
-            _copy_file(self.path, path)
-            with open(path, "r+b") as fh:
-                pending = _PendingWrites(fh)   # HDF5 writes to memory; applied below with plain OS calls
-                with h5netcdf.File(pending, "r+") as f:
-                    if not _appendable(f, ds, self._disk_steps):
-                        raise _NotAppendable
-                    old = {dim: f.dimensions[dim].size for dim in _GROWING if dim in ds.dims}
-                    for dim in old:
-                        f.resize_dimension(dim, ds.sizes[dim])
-                    for name, var in ds.variables.items():
-                        if var.dims and var.dims[0] in old:
-                            f.variables[name][old[var.dims[0]]:] = var.values[old[var.dims[0]]:]
-                    for key, value in ds.attrs.items():
-                        f.attrs[key] = value
-                pending.apply()
-
+        rows, coords, texts = self._rows(start)
+        record_hashes = self._hashes_through(texts, start)
+        attrs = self._attrs(record_hashes)
+        data = {name: values for name, (dims, values) in rows.items()}
+        data["step"] = coords["step"]
         try:
-            self._replace_with(tmp, folder, mode, append_rows)
-        except _NotAppendable:  # the temporary copy is already removed: write the whole file instead
-            return False
+            with open(self.path, "rb") as fh:
+                pending = _PendingWrites(fh)   # HDF5 writes to memory; applied below with plain OS calls
+                with h5py.File(pending, "r+") as f:
+                    if not _appendable(f, data, start, len(self.config.columns)):
+                        return False
+                    for name, values in data.items():
+                        if name == "dataset_values":
+                            _extend(f["dataset_row"], len(values))
+                        elif name == "rng_state":
+                            _extend(f["rng_index"], len(values))
+                        _extend(f[name], len(values), values)
+                    for key, value in attrs.items():
+                        f.attrs[key] = value
+                journal = (pending.on_disk, pending.size, pending.changes())
+        except OSError as err:
+            raise StoreError(f"{self.path}: cannot read the run store to append: {_os_message(err)}; the "
+                             f"previous store is kept") from None
+        _apply_with_journal(self.path, journal)
+        self._written(attrs["content_sha256"], record_hashes)
+        _fault("after-replace")
         return True
 
     # ---------------------------------------------------------------- the state
-    def _mixture(self, i) -> GaussianMixture:
-        centres, bandwidth, log_weights = self.mixtures[i]
-        mixture = GaussianMixture(centres, bandwidth, log_weights)
-        # keep the stored normalised weights bit for bit (normalising twice may move the last ulp)
-        object.__setattr__(mixture, "log_weights", np.asarray(log_weights, dtype=float))
-        return mixture
-
-    def state_at(self, step: int) -> tuple[SamplerState, tuple, dict]:
-        """``(state, records, rng_state)`` after ``step`` datasets, for :meth:`SEMC.restore`."""
+    def state_at(self, step: int) -> tuple:
+        """``(state, records, rng_state)`` after ``step`` datasets, for :meth:`SEMC.restore`
+        (the state from :func:`seqbayes.snapshot.state_from_arrays`)."""
         if not 0 <= step <= self.n_steps:
             raise ValueError(f"step: must lie in [0, {self.n_steps}], got {step}")
-        if self.config.predictive_method == "smc2":  # the default inner filter's outer particles hold every column
-            if step == 0:
-                state = start_nested(self.config.build_prior(), np.arange(self.initial_particles.shape[1]),
-                                     self.initial_particles, self.initial_step_size)
-            else:
-                datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
-                guides = tuple(nested_guide(arrays) for arrays in self.nested[:step - 1])
-                state = nested_state_from_arrays(self.nested[step - 1], datasets, guides)
-        elif step == 0:
-            state = SamplerState(step=0, particles=self.initial_particles, log_weights=self.initial_log_weights,
-                                 prior=self.config.build_prior(), log_evidence=0.0,
-                                 step_size=self.initial_step_size)
+        prior = self.config.build_prior()
+        if step == 0:
+            state = snapshot.initial_state(self.config.predictive_method, prior, self.initial_particles,
+                                           self.initial_log_weights, self.initial_step_size)
         else:
-            rec = self.result.steps[step - 1]
-            # the sampler's state after a step is built from the step's record (sequential.assimilate);
-            # _check_state verifies this identity whenever a state is stored
-            if self.log_priors:
-                datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
-                prior, log_prior = (HistoryPrior(self.config.build_prior(), datasets, rec.info.log_evidence),
-                                    self.log_priors[step - 1])
-            else:
-                prior, log_prior = self._mixture(step - 1), None
-            state = SamplerState(step=step, particles=rec.predictive, log_weights=rec.log_weights,
-                                 prior=prior, log_evidence=rec.info.log_evidence,
-                                 step_size=self.step_sizes[step - 1], posterior=rec.posterior,
-                                 posterior_log_weights=rec.log_weights, log_prior=log_prior)
+            datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
+            state = snapshot.state_from_arrays(self.states[:step], self.result.steps[step - 1],
+                                               self.step_sizes[step - 1], prior, datasets)
         return state, tuple(self.result.steps[:step]), self.rng_states[step]
-
-    def _store_state(self, base: int, state: SamplerState, rng_state: dict, table) -> None:
-        """Keep the sampler state after step ``base + 1`` (the steps after ``base`` are dropped)."""
-        if isinstance(state, NestedState):
-            self.nested = self.nested[:base] + [nested_state_arrays(state)]
-            self.tables = self.tables[:base] + [table]
-        elif isinstance(state.prior, HistoryPrior):
-            self.log_priors = self.log_priors[:base] + [np.array(state.log_prior)]
-            self.tables = self.tables[:base] + [table]
-        else:
-            self.mixtures = self.mixtures[:base] + [(np.array(state.prior.centres), np.array(state.prior.bandwidth),
-                                                     np.array(state.prior.log_weights))]
-        self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
-        self.rng_states = self.rng_states[:base + 1] + [rng_state]
 
     # ------------------------------------------------------------ the likelihood
     def likelihood_candidates(self) -> list[ModuleSource]:
@@ -752,7 +840,7 @@ class RunStore:
 
     def _reload_if_changed(self, replace_last: bool) -> None:
         """Under the lock: take in the steps another process (or object) stored since this one read the file."""
-        if self._stamp is None or _file_stamp(self.path) == self._stamp:
+        if self._token is None or _read_token(self.path) == self._token:
             return
         if replace_last:
             raise StoreError(f"{self.path}: the run store changed since it was opened (another update); open it "
@@ -795,7 +883,7 @@ class RunStore:
 
         Raises
         ------
-        seqbayes.config.DataError
+        seqbayes.datasets.DataError
             Complex, non-numeric, NaN/inf values or the wrong shape.
         DuplicateDatasetError
             Already assimilated.
@@ -813,27 +901,32 @@ class RunStore:
         digest = dataset_digest(table, self.config.columns)
         with store_lock(self.path) if write else contextlib.nullcontext():
             if write:
+                _recover_journal(self.path)
                 self._reload_if_changed(replace_last)
             if replace_last and self.n_steps == 0:
                 raise StoreError(f"{self.path}: replace_last: no step to replace")
             self.check_new_dataset(digest, replace_last)
             base = self.n_steps - 1 if replace_last else self.n_steps
-            self._disk_steps = min(self._disk_steps, base)
             function, module = self._verified_likelihood(accept_model_change)
             self.share_likelihood(executor, module)
             sampler = self.sampler(base, executor=executor, loglike=function if loglike is None else loglike)
             info = sampler.update(as_likelihood_data(table, self.config))
             state, records, rng_state = sampler.snapshot()
-            if not (isinstance(state, NestedState)
-                    or isinstance(state, SamplerState) and isinstance(state.prior, (GaussianMixture, HistoryPrior))):
-                kind = type(state).__name__ if not isinstance(state, SamplerState) else type(state.prior).__name__
-                raise StoreError(f"{self.path}: this seqbayes cannot store a sampler state of type {kind} yet "
-                                 f"(predictive = {self.config.predictive_method!r}); set predictive = \"transition\" "
-                                 f"under [sampler]; the run store is unchanged")
-            _check_state(state, records[-1])
+            try:
+                arrays = snapshot.state_arrays(state)
+                snapshot.check_state(state, records[-1])
+            except (snapshot.UnsupportedState, ValueError) as err:
+                raise StoreError(f"{self.path}: this seqbayes cannot store the sampler's state ({err}; predictive = "
+                                 f"{self.config.predictive_method!r}); the run store is unchanged") from None
             # commit to memory only now that the step succeeded
+            self._disk_steps = min(self._disk_steps, base)
+            self._record_hashes = self._record_hashes[:base]
             self.result = _replace(sampler.result, steps=tuple(records))
-            self._store_state(base, state, rng_state, table)
+            self.states = self.states[:base] + [arrays]
+            if snapshot.needs_datasets(arrays):
+                self.tables = self.tables[:base] + [table]
+            self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
+            self.rng_states = self.rng_states[:base + 1] + [rng_state]
             self.digests = self.digests[:base] + [digest]
             self.sources = self.sources[:base] + [str(source)]
             self.module_hashes = self.module_hashes[:base] + [module.sha256]
@@ -847,7 +940,7 @@ class RunStore:
 
     def update(self, datafile, *, replace_last: bool = False, executor=None, loglike=None,
                accept_model_change: bool = False):
-        """Read a CSV/NetCDF data file (:func:`~seqbayes.config.read_datafile`) and :meth:`assimilate` it."""
+        """Read a CSV/NetCDF data file (:func:`~seqbayes.datasets.read_datafile`) and :meth:`assimilate` it."""
         table = read_datafile(datafile, self.config)
         return self.assimilate(table, Path(datafile).name, replace_last=replace_last, executor=executor,
                                loglike=loglike, accept_model_change=accept_model_change)
@@ -937,17 +1030,31 @@ class RunStore:
         return self.result.to_arviz(step, rng, prior=self.initial_particles, **kwargs)
 
 
+
 def _likelihood_not_needed(theta, data):  # pragma: no cover - a sampler built only to draw or forecast
     raise RuntimeError("the likelihood is not loaded for forecasts and new runs")
 
 
+# -------------------------------------------------------------------------- reading
 _NETCDF3 = (b"CDF\x01", b"CDF\x02", b"CDF\x05")
 _HDF5 = b"\x89HDF\r\n\x1a\n"
+_BARE_DIMENSION = b"This is a netCDF dimension but not a netCDF variable"
 
 
-def _read_dataset(path: Path):
-    """The store's :class:`xarray.Dataset`, loaded; a :class:`StoreError` for anything that is not one."""
-    import xarray as xr
+def _plain(value):
+    """An HDF5 attribute as a Python value (text attributes may come back as bytes)."""
+    if isinstance(value, (bytes, np.bytes_)):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.ndarray) and value.shape == (1,):   # h5netcdf writes numbers as 1-element arrays
+        return value[0]
+    return value
+
+
+def _read_file(path: Path) -> tuple[dict, dict]:
+    """``(attributes, variables)`` of the store: every variable read whole (text as ``str``), under a
+    shared lock on the file and through a committed journal; a :class:`StoreError` for anything that
+    is not a readable run store."""
+    import h5py
 
     if path.is_dir():
         raise StoreError(f"{path}: is a folder, not a run store")
@@ -956,20 +1063,59 @@ def _read_dataset(path: Path):
     try:
         with open(path, "rb") as fh:
             head = fh.read(8)
+            if head[:4] in _NETCDF3:
+                raise StoreError(f"{path}: a NetCDF-3 (classic) file; run stores are NetCDF-4 (HDF5) files written "
+                                 f"by `seqbayes init`, so this is not a run store")
+            if head != _HDF5:
+                raise StoreError(f"{path}: not a run store (not a NetCDF-4/HDF5 file)")
+            with contextlib.suppress(OSError):   # a filesystem without locks: read unlocked
+                lock_file(fh, exclusive=False)
+            journal = _read_journal(path)
+            source = _PendingWrites(fh, journal) if journal is not None else fh
+            with h5py.File(source, "r") as f:
+                attrs = {key: _plain(value) for key, value in f.attrs.items()}
+                variables = {}
+                for name, obj in f.items():
+                    if not isinstance(obj, h5py.Dataset) or _plain(obj.attrs.get("NAME", b"")).startswith(
+                            _BARE_DIMENSION.decode()):
+                        continue
+                    variables[name] = obj.asstr()[()] if h5py.check_string_dtype(obj.dtype) else obj[()]
+    except StoreError:
+        raise
     except OSError as err:
-        raise StoreError(f"{path}: cannot read the run store: {_os_message(err)}") from None
-    if head[:4] in _NETCDF3:
-        raise StoreError(f"{path}: a NetCDF-3 (classic) file; run stores are NetCDF-4 (HDF5) files written by "
-                         f"`seqbayes init`, so this is not a run store")
-    if head != _HDF5:
-        raise StoreError(f"{path}: not a run store (not a NetCDF-4/HDF5 file)")
-    try:
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            return ds.load()
+        if err.errno is not None:
+            raise StoreError(f"{path}: cannot read the run store: {_os_message(err)}") from None
+        raise StoreError(f"{path}: cannot read the run store: {err}{_checksum_hint(err)}") from None
     except Exception as err:
-        hint = ("; a checksum failed: the file is corrupted" if "filter" in str(err).lower()
-                or "checksum" in str(err).lower() else "")
-        raise StoreError(f"{path}: cannot read the run store: {type(err).__name__}: {err}{hint}") from None
+        raise StoreError(f"{path}: cannot read the run store: {type(err).__name__}: {err}{_checksum_hint(err)}") from None
+    return attrs, variables
+
+
+def _checksum_hint(err) -> str:
+    text = str(err).lower()
+    return "; a checksum failed: the file is corrupted" if "filter" in text or "checksum" in text else ""
+
+
+def _read_token(path: Path):
+    """``(content hash, n_steps)`` of the file as it is on disk (``None`` if it cannot be read)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return _plain(f.attrs.get("content_sha256")), int(_plain(f.attrs["n_steps"]))
+    except Exception:
+        return None
+
+
+_STEP_INFO_FIELDS = {f.name: f.type for f in dataclasses.fields(StepInfo)}
+
+
+def _step_info(values: dict) -> StepInfo:
+    """A :class:`StepInfo` from its stored dict: directly when it has this version's fields (what
+    this version wrote; 4x faster, which counts at 500 steps), else by :meth:`StepInfo.from_dict`."""
+    if isinstance(values, dict) and values.keys() == _STEP_INFO_FIELDS.keys():
+        return StepInfo(**{**values, "temperatures": tuple(values["temperatures"])})
+    return StepInfo.from_dict(values)
 
 
 def _json(text, path, what):
@@ -979,82 +1125,25 @@ def _json(text, path, what):
         raise StoreError(f"{path}: damaged run store: {what} is not valid JSON ({err})") from None
 
 
-def _read_state(path: Path, ds, config: RunConfig, n_steps: int) -> dict:
-    """The per-step sampler state (see :meth:`RunStore._state_variables`) as :class:`RunStore` keywords."""
-    rng_states = [_json(v, path, f"rng_state[{i}]") for i, v in enumerate(ds["rng_state"].values)]
-    for i, state in enumerate(rng_states):
-        if not (isinstance(state, dict) and isinstance(state.get("bit_generator"), str)
-                and isinstance(state.get("state"), dict)):
-            raise StoreError(f"{path}: damaged run store: rng_state[{i}] is not a numpy generator state")
-    state = {"rng_states": rng_states, "mixtures": [], "log_priors": [], "tables": [], "step_sizes": [],
-             "nested": []}
-    if not n_steps:
-        return state
-    state["step_sizes"] = [float(v) for v in ds["state_step_size"].values]
-    if "dataset_rows" in ds:
-        rows = ds["dataset_rows"].values
-        if rows.shape != (n_steps,) or int(rows.sum()) != ds["dataset_values"].shape[0]:
-            raise StoreError(f"{path}: inconsistent store (dataset_rows {rows.tolist()} for "
-                             f"{ds['dataset_values'].shape[0]} stored data rows)")
-        state["tables"] = np.split(ds["dataset_values"].values, np.cumsum(rows)[:-1])
-    nested_keys = [name for name in ds.data_vars if name.startswith("nested_")]
-    if "state_log_prior" in ds:
-        state["log_priors"] = list(ds["state_log_prior"].values)
-    elif nested_keys:
-        state["nested"] = [{name[len("nested_"):]: ds[name].values[i] for name in nested_keys}
-                           for i in range(n_steps)]
-    else:
-        state["mixtures"] = [(ds["mixture_centres"].values[i], ds["mixture_bandwidth"].values[i],
-                              ds["mixture_log_weights"].values[i]) for i in range(n_steps)]
-        if config.predictive_method == "history":
-            raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
-                             f"kernel-density prior; this version uses their exact history prior. Re-create "
-                             f"the run (seqbayes init --force) and assimilate its datasets again, or keep "
-                             f"the seqbayes version that wrote it ({ds.attrs.get('seqbayes_version', '?')})")
-    return state
+def _check_finite(path: Path, variables: dict) -> None:
+    """Refuse NaN anywhere in the numbers, and inf in samples and data: a store holding them cannot be resumed."""
+    finite = ("posterior", "predictive", "initial_particles", "dataset_values")
+    for name, values in variables.items():
+        if values.dtype.kind != "f" or name == "diagnostics":   # a diagnostic may be NaN (not computed)
+            continue
+        bad = ~np.isfinite(values) if name in finite else np.isnan(values)
+        if name == "log_weights":
+            bad |= values == np.inf
+        if bad.any():
+            where = np.argwhere(bad)[0]
+            raise StoreError(f"{path}: damaged run store: {name} holds {int(bad.sum())} NaN/inf value(s), "
+                             f"first at index {tuple(int(i) for i in where)}")
 
 
-def _check_finite(path: Path, ds) -> None:
-    """Refuse NaN (or inf) samples and NaN weights: a store holding them cannot be resumed."""
-    finite = ("posterior", "predictive", "initial_particles", "mixture_centres", "mixture_bandwidth",
-              "dataset_values")
-    not_nan = ("log_weights", "initial_log_weights", "mixture_log_weights", "state_log_prior")
-    for name in finite + not_nan:
-        if name in ds:
-            values = ds[name].values
-            bad = np.isnan(values) if name in not_nan else ~np.isfinite(values)
-            if bad.any():
-                where = np.argwhere(bad)[0]
-                raise StoreError(f"{path}: damaged run store: {name} holds {int(bad.sum())} NaN/inf value(s), "
-                                 f"first at index {tuple(int(i) for i in where)}")
-    if "log_weights" in ds and (ds["log_weights"].values == np.inf).any():
-        raise StoreError(f"{path}: damaged run store: log_weights holds +inf")
-
-
-#: Text variables and attributes covered by the store's content hash (the numeric arrays carry
-#: HDF5 Fletcher-32 checksums).
-_HASHED_TEXT = ("step_info", "rng_state", "dataset_sha256", "dataset_source", "likelihood_sha256")
-_HASHED_ATTRS = ("config", "model_fingerprint", "n_steps", "initial_step_size", "result_meta")
-
-
-def _content_hash(ds) -> str:
-    """SHA-256 of the store's text records and key attributes (see :data:`_HASHED_TEXT`)."""
-    h = hashlib.sha256()
-    for key in _HASHED_ATTRS:
-        h.update(json.dumps([key, str(ds.attrs.get(key))]).encode())
-    for name in _HASHED_TEXT:
-        if name in ds:
-            h.update(json.dumps([name, [str(v) for v in ds[name].values]]).encode())
-    return h.hexdigest()
-
-
+# -------------------------------------------------------------------------- writing
 #: Dimensions that grow with the run (unlimited in the file, so that a step can be appended),
 #: with the chunk length along them.
 _GROWING = {"step": 8, "rng_index": 8, "dataset_row": 256}
-
-
-class _NotAppendable(Exception):
-    """The file on disk cannot take the new steps by appending (another layout or content)."""
 
 
 def _encoding(ds) -> dict:
@@ -1072,34 +1161,52 @@ def _encoding(ds) -> dict:
     return encoding
 
 
-def _appendable(f, ds, disk_steps: int) -> bool:
-    """Whether the open file ``f`` is ``ds`` minus the rows after ``disk_steps`` steps."""
-    if int(f.attrs.get("n_steps", -1)) != disk_steps or set(f.variables) != set(ds.variables):
+def _appendable(f, data: dict, disk_steps: int, n_columns: int) -> bool:
+    """Whether the open file ``f`` is the format-4 store of ``disk_steps`` steps that ``data`` (the
+    rows of the steps after them, :meth:`RunStore._rows`) extends: the same growing variables,
+    each of the expected length and with the same trailing shape."""
+    if (int(_plain(f.attrs.get("seqbayes_store_format", 0))) != FORMAT_VERSION
+            or int(_plain(f.attrs.get("n_steps", -1))) != disk_steps):
         return False
-    for dim, size in ds.sizes.items():
-        if dim not in f.dimensions:
+    growing = {name for name, obj in f.items() if obj.shape and obj.maxshape[0] is None
+               and not str(_plain(obj.attrs.get("NAME", b""))).startswith(_BARE_DIMENSION.decode())}
+    if growing != set(data):
+        return False
+    lengths = {"rng_state": disk_steps + 1,
+               "dataset_values": int(f["dataset_rows"][()].sum()) if "dataset_rows" in f else 0}
+    for name, values in data.items():
+        dataset = f[name]
+        if dataset.shape[0] != lengths.get(name, disk_steps) or dataset.shape[1:] != np.shape(values)[1:]:
             return False
-        if dim in _GROWING:
-            if not f.dimensions[dim].isunlimited() or f.dimensions[dim].size > size:
-                return False
-        elif f.dimensions[dim].size != size:
-            return False
-    return all(tuple(f.variables[name].dimensions) == tuple(var.dims) for name, var in ds.variables.items())
+    return "dataset_values" not in data or f["dataset_values"].shape[1] == n_columns
+
+
+def _extend(dataset, n: int, values=None) -> None:
+    """Grow an HDF5 dataset by ``n`` rows along its first axis and write ``values`` there."""
+    old = dataset.shape[0]
+    dataset.resize(old + n, axis=0)
+    if values is not None:
+        dataset[old:] = values
 
 
 class _PendingWrites(io.RawIOBase):
-    """The file HDF5 appends to: reads come from the file with the pending writes laid over them,
-    writes stay in memory until :meth:`apply` writes them with plain OS calls. So a full disk or an
-    I/O error is an OSError raised here, never inside HDF5 (where ENOSPC crashed the process)."""
+    """The file HDF5 appends to, or reads: reads come from the file with pending pages laid over
+    them, writes stay in memory (the pages then go to the journal, :func:`_apply_with_journal`).
+    So a full disk or an I/O error is an OSError raised by plain OS calls, never inside HDF5
+    (where ENOSPC crashed the process). With ``journal`` (:func:`_read_journal`) it is the file as a
+    committed journal makes it."""
 
-    PAGE = 1 << 16
+    PAGE = 1 << 12                              # the journal holds whole pages: small ones keep it small
 
-    def __init__(self, fh):
+    def __init__(self, fh, journal=None):
         self.fd = fh.fileno()
         self.size = os.fstat(self.fd).st_size       # the logical size
         self.on_disk = self.size                    # bytes of the file below which the disk content is valid
         self.pages = {}
         self.pos = 0
+        if journal is not None:
+            self.on_disk, self.size, pages = journal
+            self.pages = {offset // self.PAGE: bytearray(data.ljust(self.PAGE, b"\0")) for offset, data in pages}
 
     def readable(self):
         return True
@@ -1166,36 +1273,131 @@ class _PendingWrites(io.RawIOBase):
     def flush(self):
         pass
 
-    def apply(self) -> None:
-        """Write the pending pages, set the size and ``fsync``."""
-        for index in sorted(self.pages):
-            start = index * self.PAGE
-            if start < self.size:
-                view = memoryview(self.pages[index])[:min(self.PAGE, self.size - start)]
-                while view:
-                    written = os.pwrite(self.fd, view, start)
-                    view, start = view[written:], start + written
-        os.ftruncate(self.fd, self.size)
-        os.fsync(self.fd)
+    def changes(self) -> list:
+        """``[(offset, bytes)]``: every page whose content differs from the file's, within the new size
+        (a page below the old size that a truncation zeroed counts too)."""
+        old_size = os.fstat(self.fd).st_size
+        for index in range(self.on_disk // self.PAGE, (min(old_size, self.size) + self.PAGE - 1) // self.PAGE):
+            if index not in self.pages:             # zeros where the file still holds old bytes
+                self.pages[index] = bytearray(self._disk(index * self.PAGE, self.PAGE))
+        return [(index * self.PAGE, bytes(self.pages[index][:min(self.PAGE, self.size - index * self.PAGE)]))
+                for index in sorted(self.pages) if index * self.PAGE < self.size]
 
 
-def _copy_file(source: Path, target: Path) -> None:
-    """Copy a file in the kernel (``copy_file_range``: a reflink on filesystems that share extents)."""
-    with open(source, "rb") as fin, open(target, "wb") as fout:
-        remaining = os.fstat(fin.fileno()).st_size
-        try:
-            while remaining > 0:
-                copied = os.copy_file_range(fin.fileno(), fout.fileno(), remaining)
-                if copied == 0:
-                    break
-                remaining -= copied
-        except OSError as err:
-            if err.errno not in (errno.EXDEV, errno.ENOSYS, errno.EOPNOTSUPP, errno.EINVAL):
-                raise
-            fin.seek(0)
-            fout.seek(0)
-            fout.truncate()
-            shutil.copyfileobj(fin, fout)
+# ------------------------------------------------------------------------ the journal
+_JOURNAL_MAGIC = b"seqbayes run-store journal 1\n"
+
+
+def _journal_path(path: Path) -> Path:
+    return path.parent / f".{path.name}.journal"
+
+
+def _encode_journal(old_size: int, new_size: int, pages) -> bytes:
+    """The journal: magic, ``(old size, new size, page count)``, ``(offset, length, bytes)`` per page, SHA-256."""
+    parts = [_JOURNAL_MAGIC, struct.pack("<QQQ", old_size, new_size, len(pages))]
+    for offset, data in pages:
+        parts += [struct.pack("<QQ", offset, len(data)), data]
+    body = b"".join(parts)
+    return body + hashlib.sha256(body).digest()
+
+
+def _read_journal(path: Path):
+    """``(old size, new size, [(offset, bytes)])`` of a complete journal of the store ``path``, or
+    ``None`` when there is none or it is incomplete (torn by a crash while it was written: then the
+    store was not touched)."""
+    try:
+        content = _journal_path(path).read_bytes()
+    except OSError:
+        return None
+    body, digest = content[:-32], content[-32:]
+    if not body.startswith(_JOURNAL_MAGIC) or hashlib.sha256(body).digest() != digest:
+        return None
+    pos = len(_JOURNAL_MAGIC)
+    old_size, new_size, count = struct.unpack_from("<QQQ", body, pos)
+    pos += 24
+    pages = []
+    for _ in range(count):
+        offset, length = struct.unpack_from("<QQ", body, pos)
+        pos += 16
+        pages.append((offset, body[pos:pos + length]))
+        pos += length
+    return old_size, new_size, pages
+
+
+def _apply_pages(path: Path, journal, fault: bool = False) -> None:
+    """Write a journal's pages into the store and set its size, under an exclusive lock on it, then
+    ``fsync`` (idempotent: a second application after a crash in the first gives the same file)."""
+    _, new_size, pages = journal
+    with open(path, "r+b") as fh:
+        lock_file(fh, exclusive=True)
+        fd = fh.fileno()
+        for i, (offset, data) in enumerate(pages):
+            if fault and i == len(pages) // 2:
+                _fault("mid-apply")
+            view = memoryview(data)
+            while view:
+                written = os.pwrite(fd, view, offset)
+                view, offset = view[written:], offset + written
+        os.ftruncate(fd, new_size)
+        os.fsync(fd)
+        # the journal goes while readers are still locked out: they never see the store half written
+        os.remove(_journal_path(path))
+        _fsync_dir(path.resolve().parent)
+
+
+def _recover_journal(path: Path) -> None:
+    """Under the store's lock: finish a step a crash left in a complete journal, or drop an incomplete one."""
+    journal_file = _journal_path(path)
+    if not journal_file.exists():
+        return
+    journal = _read_journal(path)
+    try:
+        if journal is None or not path.exists():
+            os.remove(journal_file)
+        else:
+            _apply_pages(path, journal)
+    except OSError as err:
+        raise StoreError(f"{path}: cannot complete the step left in {journal_file.name} by an interrupted update: "
+                         f"{_os_message(err)}; readers still see it") from None
+
+
+def _apply_with_journal(path: Path, journal) -> None:
+    """Commit the appended pages ``journal = (old size, new size, [(offset, bytes)])``
+    (:meth:`_PendingWrites.changes`): the store's new size is allocated (``posix_fallocate``,
+    so that writing the pages cannot meet a full disk), the journal is written and
+    ``fsync``-ed (the step is committed), then its pages are written into the store
+    (:func:`_apply_pages`). A failure before the commit restores the store's size: the
+    store stays byte-identical."""
+    content = _encode_journal(*journal)
+    folder = path.resolve().parent
+    old_size = os.path.getsize(path)
+    _check_free_space(path, folder, len(content) + max(0, journal[1] - old_size))
+    _fault("before-write")
+    journal_file = _journal_path(path)
+    try:
+        if journal[1] > old_size and hasattr(os, "posix_fallocate"):
+            with open(path, "r+b") as fh:
+                os.posix_fallocate(fh.fileno(), 0, journal[1])   # beyond HDF5's end of file: readers ignore it
+        if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn journal
+            _write_file(journal_file, content[:len(content) // 2])
+            _fault("mid-write")
+        _write_file(journal_file, content)
+        _fsync_dir(folder)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            os.remove(journal_file)
+        with contextlib.suppress(OSError):
+            if os.path.getsize(path) != old_size:
+                os.truncate(path, old_size)
+        raise StoreError(f"{path}: cannot write the run store: {_os_message(err)}; the previous store is "
+                         f"kept") from None
+    _fault("before-replace")
+    try:
+        _apply_pages(path, journal, fault=True)
+    except OSError as err:  # an I/O error, not a full disk (the space was allocated)
+        raise StoreError(f"{path}: the new step is committed in {journal_file.name} but could not be written into "
+                         f"the store: {_os_message(err)}; readers see the step, and the next update completes the "
+                         f"store once the cause is fixed") from None
 
 
 def _netcdf_bytes(ds, encoding, unlimited_dims=()):
@@ -1232,23 +1434,6 @@ def _check_free_space(path: Path, folder: Path, needed: int) -> None:
     if free < needed:
         raise StoreError(f"{path}: not enough free space in {folder}: about {needed // 1024} KiB needed, "
                          f"{free // 1024} KiB free ({os.strerror(errno.ENOSPC)}); the previous store is kept")
-
-
-def _step_info(values: dict) -> StepInfo:
-    """A :class:`StepInfo` from its stored dict (see :meth:`StepInfo.from_dict`)."""
-    return StepInfo.from_dict(values)
-
-
-def _check_state(state: SamplerState, record: StepRecord) -> None:
-    if isinstance(state, NestedState):  # SMC^2 keeps its own arrays; its posterior is the record's
-        same = (np.array_equal(state.particles, record.posterior) and np.array_equal(state.log_weights, record.log_weights)
-                and state.log_evidence == record.info.log_evidence)
-    else:
-        same = (np.array_equal(state.particles, record.predictive)
-                and np.array_equal(state.log_weights, record.log_weights)
-                and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
-    if not same:  # pragma: no cover - guards the identity state_at relies on
-        raise StoreError("the sampler state differs from its step record; the run-store format needs updating")
 
 
 def posterior_to_arviz(result: Result, step: int | None = -1, rng=None, **kwargs):

@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from seqbayes import Decay, Drift, Static
-from seqbayes.config import ConfigError, DataError, load_config, parse_config, read_datafile, dataset_digest
+from seqbayes.config import ConfigError, load_config, parse_config
+from seqbayes.datasets import DataError, dataset_digest, read_datafile
 
 from _user_model import write_model
 
@@ -80,7 +81,7 @@ def test_fingerprint_ignores_name_and_executor_but_not_the_model(tmp_path):
      r"model.likelihood: module 'cfgmodel' has no attribute 'missing'"),
     ('likelihood = "cfgmodel:loglike"', 'likelihood = "cfgmodel:not_callable"', r"is not callable"),
     ('likelihood = "cfgmodel:loglike"', 'likelihood = "cfgmodel.loglike"', r"model.likelihood: expected \"module:function\""),
-    ('type = "drift"', 'type = "drfit"', r"kernel.a.type: expected one of static, drift, decay, got 'drfit'"),
+    ('type = "drift"', 'type = "drfit"', r"kernel.a.type: expected one of static, drift, decay, jump, got 'drfit'"),
     ('rate = -0.05, noise_std = 0.02', 'noise_std = 0.02', r"kernel.a.rate: missing"),
     ('noise_std = 0.02', 'noise_std = -0.02', r"kernel.a.noise_std: must be >= 0"),
     ('[sampler]', '[sampler]\nstep_sise = 2.0', r"sampler.step_sise: unknown setting"),
@@ -115,7 +116,7 @@ def test_missing_file_and_bad_toml(tmp_path):
 
 
 def test_columns_format_hands_a_dict_to_the_likelihood(tmp_path):
-    from seqbayes.config import as_likelihood_data
+    from seqbayes.datasets import as_likelihood_data
 
     cfg = load_config(write(tmp_path, CONFIG.replace('columns = ["t", "y"]', 'columns = ["t", "y"]\nformat = "columns"')))
     table = np.array([[0.0, 1.0], [1.0, 2.0]])

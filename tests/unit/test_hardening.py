@@ -19,7 +19,8 @@ import sys
 import numpy as np
 import pytest
 
-from seqbayes.config import DataError, load_config
+from seqbayes.config import load_config
+from seqbayes.datasets import DataError
 from seqbayes.store import ModelChangedError, RunStore, StoreError
 
 from _user_model import decay_tables, write_config, write_model
@@ -309,12 +310,12 @@ def rewrite(store_path, edit, target):
     """Write ``target``: the store at ``store_path`` changed by ``edit(ds)``, its content hash redone."""
     import xarray as xr
 
-    from seqbayes.store import _content_hash
+    from seqbayes.store import _rehash
 
     with xr.open_dataset(store_path, engine="h5netcdf") as ds:
         ds = ds.load()
     edit(ds)
-    ds.attrs["content_sha256"] = _content_hash(ds)
+    _rehash(ds)
     ds.to_netcdf(target, engine="h5netcdf")
     return target
 
@@ -342,7 +343,8 @@ def test_damaged_stores_get_one_line_naming_the_file(tmp_path, capsys):
         ds["posterior"] = (ds["posterior"].dims, values)
 
     cases = {
-        "steps.nc": (set_attr("n_steps", 3), r"steps.nc: damaged or inconsistent run store \(IndexError"),
+        "steps.nc": (set_attr("n_steps", 3), r"steps.nc: inconsistent store \(2 steps, 3 generator states, 2 "
+                                             r"dataset hashes, n_steps = 3\)"),
         "dropped.nc": (lambda ds: ds.__delitem__("predictive"),
                        r"dropped.nc: damaged run store: missing variable\(s\) predictive"),
         "config.nc": (set_attr("config", '{"name": '), r"config.nc: damaged run store: unreadable config attribute"),
@@ -519,25 +521,28 @@ def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monk
     make_run(small_disk, "diskmodel", n_steps=1)
     run = small_disk / "run.nc"
     np.savetxt(small_disk / "next.csv", tables(2)[1], delimiter=",", header="t,y", comments="")
+    np.savetxt(small_disk / "d1.csv", tables(1)[0], delimiter=",", header="t,y", comments="")
     fill(small_disk, 8 * 1024)
     cli_fails(capsys, ["update", run, small_disk / "next.csv"],
               r"next.csv: .*run.nc: not enough free space in .*disk: about \d+ KiB needed, \d+ KiB free", run)
-    # and when the space runs out during the write itself (the check bypassed): an OS error, no crash
+    # and when the space runs out during the write itself (the check bypassed): an OS error, no crash.
+    # An appended step: the store's growth is allocated before the journal is written
     monkeypatch.setattr(store_module, "_check_free_space", lambda *args: None)
-    cli_fails(capsys, ["update", run, small_disk / "next.csv"],
-              r"next.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
-              run)
-    # room for the kernel's copy of the file but not for the appended step: still one line, no crash
     (small_disk / "filler").unlink()
-    fill(small_disk, run.stat().st_size + 2048)
+    fill(small_disk, 0)
     cli_fails(capsys, ["update", run, small_disk / "next.csv"],
               r"next.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
               run)
-    assert [p.name for p in small_disk.iterdir() if ".tmp-" in p.name] == []
+    # a whole write (replacing the last step): the temporary file
+    cli_fails(capsys, ["update", run, small_disk / "d1.csv", "--replace-last"],
+              r"d1.csv: .*run.nc: cannot write the run store: No space left on device; the previous store is kept",
+              run)
+    assert [p.name for p in small_disk.iterdir() if ".tmp-" in p.name or p.name.endswith(".journal")] == []
     (small_disk / "filler").unlink()
     monkeypatch.undo()
     assert RunStore.open(run).n_steps == 1
     RunStore.open(run).update(small_disk / "next.csv")   # room again: the run goes on
+    assert RunStore.open(run).n_steps == 2
 
 
 def test_a_read_only_folder_gives_one_line(small_disk, capsys):
@@ -559,7 +564,7 @@ def test_a_read_only_folder_gives_one_line(small_disk, capsys):
 def test_netcdf3_data_files_are_read(tmp_path):
     import xarray as xr
 
-    from seqbayes.config import read_datafile
+    from seqbayes.datasets import read_datafile
 
     store = make_run(tmp_path, "classicmodel", n_steps=0)
     table = tables(1)[0]
@@ -570,27 +575,35 @@ def test_netcdf3_data_files_are_read(tmp_path):
 
 
 # ------------------------------------------------------------------ item 7: a step is appended, not the whole file
-def test_a_step_is_appended_to_a_copy_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
+def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
     import seqbayes.store as store_module
 
     calls = []
-    original = RunStore._append_to_copy
+    original = RunStore._append
 
-    def spy(self, *args):
-        calls.append(original(self, *args))
+    def spy(self):
+        calls.append(original(self))
         return calls[-1]
 
-    monkeypatch.setattr(RunStore, "_append_to_copy", spy)
+    monkeypatch.setattr(RunStore, "_append", spy)
     store = make_run(tmp_path, "appendmodel", n_steps=3)
     assert calls == [False, False, True, True]     # creation and the first step write it whole; then appends
+    journal_bytes = []
+    apply = store_module._apply_with_journal
+    monkeypatch.setattr(store_module, "_apply_with_journal",
+                        lambda path, journal: journal_bytes.append(sum(len(p) for _, p in journal[2])) or apply(path, journal))
     sizes = []
+    inode = (tmp_path / "run.nc").stat().st_ino
     for table in tables(6)[3:]:
         before = (tmp_path / "run.nc").stat().st_size
         store.assimilate(table)
         sizes.append((tmp_path / "run.nc").stat().st_size - before)
     assert calls[-3:] == [True, True, True]
+    assert (tmp_path / "run.nc").stat().st_ino == inode   # written in place, not replaced
     one_step = 3 * 40 * 2 * 8 + 40 * 8 * 2           # posterior, predictive, centres; two weight vectors
     assert max(sizes) < 4 * one_step + 8192, sizes     # the file grows by about one step, not by a rewrite
+    # what an append writes (the journal's pages, then the same pages in the store) does not grow with the run
+    assert len(journal_bytes) == 3 and max(journal_bytes) <= 1.2 * min(journal_bytes), journal_bytes
     appended = RunStore.open(tmp_path / "run.nc")
     whole = RunStore.open(tmp_path / "run.nc")
     whole.path, whole._disk_steps = tmp_path / "whole.nc", 0

@@ -3,7 +3,9 @@
 * Resume equivalence: 4 updates in 4 separate processes give bit-identical samples,
   weights, evidence, mixture densities and generator states to 4 updates in one process.
 * SIGKILL during ``update``, several times: at each fault-injection point of the write
-  (before writing, a torn temporary file, before the rename, after the rename) and at
+  (an append through the journal: before writing, a torn journal, before applying it, half
+  applied, after; a whole write: before writing, a torn temporary file, before the rename,
+  after the rename) and at
   random times drawn from a seeded generator. After every kill the store loads, holds
   every completed step (bit-identical to the uninterrupted run), and rerunning
   ``update`` completes the run with the uninterrupted run's numbers.
@@ -88,10 +90,10 @@ def assert_prefix_of_reference(store, reference):
         np.testing.assert_array_equal(a.log_weights, b.log_weights)
         np.testing.assert_array_equal(a.predictive, b.predictive)
         assert a.info.log_evidence == b.info.log_evidence
-    for (c1, h1, w1), (c2, h2, w2) in zip(store.mixtures, reference.mixtures):
-        np.testing.assert_array_equal(c1, c2)
-        np.testing.assert_array_equal(h1, h2)
-        np.testing.assert_array_equal(w1, w2)
+    for mine, theirs in zip(store.states, reference.states):
+        assert set(mine) == set(theirs)
+        for name in mine:
+            np.testing.assert_array_equal(mine[name], theirs[name])
     assert store.rng_states == reference.rng_states[:store.n_steps + 1]
     assert store.step_sizes == reference.step_sizes[:store.n_steps]
 
@@ -112,25 +114,42 @@ def test_four_updates_in_four_processes_equal_four_in_one(workdir):
 
 def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir):
     run = workdir / "faults.nc"
+    journal = workdir / f".{run.name}.journal"
     reference = RunStore.open(workdir / "reference.nc")
     assert cli.main(["init", str(workdir / "run.toml"), str(run)]) == 0
     assert cli.main(["update", str(run), str(workdir / "d1.csv")]) == 0
-    update_d2 = ["update", str(run), str(workdir / "d2.csv")]
-    for point in ("before-write", "mid-write", "before-replace", "after-replace"):  # four kills in a row
-        assert wait(fork_cli(update_d2, fault=point)) == -signal.SIGKILL
+
+    def killed(args, point, steps, journal_left):
+        assert wait(fork_cli(args, fault=point)) == -signal.SIGKILL
         store = RunStore.open(run)                        # still loads
-        completed = point == "after-replace"
-        assert store.n_steps == (2 if completed else 1), point   # every completed step, nothing torn
+        assert store.n_steps == steps, point              # every completed step, nothing torn
         assert_prefix_of_reference(store, reference)
+        assert journal.exists() == journal_left, point
+
+    # a step is appended through the journal: killed before the journal is complete (before-write,
+    # a torn journal) the store is unchanged; once it is complete the step is committed, and readers
+    # lay the journal over the store until the next writer applies it
+    update = [["update", str(run), str(workdir / f"d{s}.csv")] for s in range(5)]
+    killed(update[2], "before-write", 1, False)
+    killed(update[2], "mid-write", 1, True)
+    killed(update[2], "before-replace", 2, True)
+    assert cli.main(update[2]) == 2                       # a duplicate: refused, the journal applied
+    assert not journal.exists()
+    killed(update[3], "mid-apply", 3, True)               # half its pages written into the store
+    assert cli.main(update[3]) == 2 and not journal.exists()
+    killed(update[4], "after-replace", 4, False)
+    # a whole write (here: replacing the last step) goes through a temporary file and os.replace
+    replace_d4 = update[4] + ["--replace-last"]
+    for point in ("before-write", "mid-write", "before-replace", "after-replace"):
+        killed(replace_d4, point, 4, False)
         leftover = [p for p in workdir.iterdir() if p.name.startswith(f".{run.name}.tmp-")]
         assert len(leftover) == (1 if point in ("mid-write", "before-replace") else 0), point
-    # rerunning the update of d2 refuses the duplicate (it had completed just before the kill) ...
-    assert cli.main(update_d2) == 2
-    # ... and the run goes on with the uninterrupted run's numbers
-    assert cli.main(["update", str(run), str(workdir / "d3.csv"), str(workdir / "d4.csv")]) == 0
+    # the run ends with the uninterrupted run's numbers
+    assert cli.main(update[4]) == 2
     final = RunStore.open(run)
     assert final.n_steps == 4
     assert_prefix_of_reference(final, reference)
+    assert sorted(p.name for p in workdir.iterdir() if p.name.startswith(f".{run.name}")) == []
 
 
 def test_sigkill_at_random_times(workdir):

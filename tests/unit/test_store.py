@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from seqbayes.config import load_config
-from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _content_hash, posterior_to_arviz
+from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _rehash, posterior_to_arviz
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -92,10 +92,10 @@ def test_history_prior_run_resumes_bit_for_bit_and_replaces_last(tmp_path, sampl
         RunStore.open(tmp_path / "run.nc").assimilate(d, f"d{i}")
     store = RunStore.open(tmp_path / "run.nc")
     assert_same_steps(reference.result.steps, store.result.steps)
-    assert store.mixtures == [] and len(store.log_priors) == 4
+    assert [set(arrays) for arrays in store.states] == [{"state_log_prior", "state_log_evidence_variance"}] * 4
     for stored, d in zip(store.tables, data):
         np.testing.assert_array_equal(stored, d)
-    np.testing.assert_array_equal(store.log_priors[-1], reference.state.log_prior)
+    np.testing.assert_array_equal(store.states[-1]["state_log_prior"], reference.state.log_prior)
     state = store.state_at(4)[0]
     assert isinstance(state.prior, HistoryPrior) and state.prior.log_normaliser == reference.state.log_evidence
     # one more dataset from the reopened store == one more in the uninterrupted run
@@ -132,8 +132,9 @@ def test_exact_round_trip_of_every_stored_array(tmp_path):
     assert loaded.config == store.config
     np.testing.assert_array_equal(loaded.initial_particles, store.initial_particles)
     # a drifting and a static parameter: SMC^2, whose state is a dict of arrays per step
-    assert len(loaded.nested) == len(store.nested) == 2 and not loaded.mixtures
-    for a, b in zip(loaded.nested, store.nested):
+    assert len(loaded.states) == len(store.states) == 2
+    assert all(name.startswith("nested_") for arrays in loaded.states for name in arrays)
+    for a, b in zip(loaded.states, store.states):
         assert set(a) == set(b)
         for key in a:
             np.testing.assert_array_equal(a[key], b[key])
@@ -144,8 +145,8 @@ def test_exact_round_trip_of_every_stored_array(tmp_path):
     state, records, rng_state = loaded.state_at(2)
     assert state.step == 2 and len(records) == 2
     assert state.log_evidence == store.result.steps[-1].info.log_evidence
-    np.testing.assert_array_equal(state.log_weights, store.nested[-1]["log_weights"])
-    np.testing.assert_array_equal(state.cloud["x"], store.nested[-1]["cloud_x"])
+    np.testing.assert_array_equal(state.log_weights, store.states[-1]["nested_log_weights"])
+    np.testing.assert_array_equal(state.cloud["x"], store.states[-1]["nested_cloud_x"])
 
 
 def test_duplicate_dataset_refused_and_replace_last(tmp_path):
@@ -197,7 +198,7 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     ds.attrs["seqbayes_store_format"] = FORMAT_VERSION + 1
     ds.to_netcdf(tmp_path / "future.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match=rf"future.nc: run-store format version {FORMAT_VERSION + 1}, but this "
-                                         rf"seqbayes reads version {FORMAT_VERSION}"):
+                                         rf"seqbayes reads versions 1, 2, 3, {FORMAT_VERSION}"):
         RunStore.open(tmp_path / "future.nc")
     other = config(tmp_path, sampler="SMC", name="other.toml")
     with pytest.raises(StoreError, match=r"run.nc: the run was created for another model .*differing fields: "
@@ -208,7 +209,7 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match="edited.nc: damaged run store: the content hash .* does not match"):
         RunStore.open(tmp_path / "edited.nc")
-    ds.attrs["content_sha256"] = _content_hash(ds)       # an edit that also redoes the content hash
+    _rehash(ds)       # an edit that also redoes the content hash
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match="edited.nc: model fingerprint does not match"):
         RunStore.open(tmp_path / "edited.nc")
@@ -269,7 +270,7 @@ def test_a_store_with_older_or_newer_diagnostics_still_opens(tmp_path):
     info.pop("n_nan")                        # a diagnostic the writer did not have yet
     info["from_the_future"] = 1.5            # one this reader does not know
     ds["step_info"] = (("step",), np.array([json.dumps(info)], dtype=object))
-    ds.attrs["content_sha256"] = _content_hash(ds)       # as that writer would have
+    _rehash(ds)       # as that writer would have
     ds.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
     loaded = RunStore.open(tmp_path / "other.nc")
     assert loaded.result.steps[0].info.n_nan == 0

@@ -1,0 +1,245 @@
+"""The sequential samplers' state as named arrays, and back: what the run store writes and resumes from.
+
+The run store (:mod:`seqbayes.store`) keeps, per step, the arrays :func:`state_arrays`
+returns and hands them back to :func:`state_from_arrays`; it does not know what a
+:class:`~seqbayes.density.GaussianMixture`, a :class:`~seqbayes.density.MixtureSum`, a
+:class:`~seqbayes.density.HistoryPrior` or SMC^2's :class:`~seqbayes.nested.NestedState` is.
+Only the step's prior density (or SMC^2's nested state) needs arrays of its own: the
+particles, weights, posterior and log-evidence of the state after a step are the
+step's :class:`~seqbayes.results.StepRecord` (:func:`check_state` verifies this identity
+whenever a state is stored).
+
+Each kind of state has one pair of functions in :data:`_KINDS` (``to_arrays``,
+``from_arrays``) and a prefix its array names share, so a new predictive density
+(another mixture, ...) is one more entry. Array names are the run store's variable
+names; :func:`state_dims` names their dimensions after ``step``.
+
+=================  =======================================================  ==================
+kind               arrays (after the ``step`` dimension)                    needs the datasets
+=================  =======================================================  ==================
+``mixture``        ``mixture_centres (N, d)``, ``mixture_bandwidth (d,)``,  no
+                   ``mixture_log_weights (N,)`` (Eq. A3)
+``mixture_sum``    ``mixsum_centres (C, N, d)``, ``mixsum_bandwidth         no
+                   (C, d)``, ``mixsum_component_log_weights (C, N)``,
+                   ``mixsum_log_weights (C,)``
+``history``        ``state_log_prior (N,)``: the exact history prior's      yes
+                   values at the particles
+``nested``         ``nested_*``: SMC^2's outer particles, inner filters,    yes
+                   likelihood estimates (:func:`~seqbayes.nested.nested_state_arrays`)
+=================  =======================================================  ==================
+
+Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
+the cumulative log-evidence (absent from stores written before it: 0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .density import GaussianMixture, HistoryPrior, MixtureSum
+from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from .results import StepRecord
+from .sequential import SamplerState
+
+__all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
+           "check_state", "is_state_variable", "UnsupportedState"]
+
+
+class UnsupportedState(TypeError):
+    """A sampler state this version cannot turn into arrays (a predictive density it does not know)."""
+
+
+def _exact_mixture(centres, bandwidth, log_weights) -> GaussianMixture:
+    """A :class:`GaussianMixture` with the stored normalised weights kept bit for bit (normalising
+    twice may move the last ulp)."""
+    mixture = GaussianMixture(np.array(centres), np.array(bandwidth), log_weights)
+    object.__setattr__(mixture, "log_weights", np.array(log_weights, dtype=float))
+    return mixture
+
+
+# ------------------------------------------------------------------ one pair per kind
+def _mixture_arrays(prior: GaussianMixture, log_prior) -> dict:
+    return {"mixture_centres": prior.centres, "mixture_bandwidth": prior.bandwidth,
+            "mixture_log_weights": prior.log_weights}
+
+
+def _mixture_prior(arrays: dict, context: dict):
+    return _exact_mixture(arrays["mixture_centres"], arrays["mixture_bandwidth"], arrays["mixture_log_weights"]), None
+
+
+def _mixture_sum_arrays(prior: MixtureSum, log_prior) -> dict:
+    return {"mixsum_centres": np.stack([m.centres for m in prior.mixtures]),
+            "mixsum_bandwidth": np.stack([m.bandwidth for m in prior.mixtures]),
+            "mixsum_component_log_weights": np.stack([m.log_weights for m in prior.mixtures]),
+            "mixsum_log_weights": prior.log_weights}
+
+
+def _mixture_sum_prior(arrays: dict, context: dict):
+    mixtures = tuple(_exact_mixture(c, h, w) for c, h, w in zip(
+        arrays["mixsum_centres"], arrays["mixsum_bandwidth"], arrays["mixsum_component_log_weights"]))
+    prior = MixtureSum(mixtures, arrays["mixsum_log_weights"])
+    object.__setattr__(prior, "log_weights", np.array(arrays["mixsum_log_weights"], dtype=float))
+    return prior, None
+
+
+def _history_arrays(prior: HistoryPrior, log_prior) -> dict:
+    return {"state_log_prior": log_prior}
+
+
+def _history_prior(arrays: dict, context: dict):
+    return (HistoryPrior(context["initial_prior"], tuple(context["datasets"]), context["log_evidence"]),
+            np.array(arrays["state_log_prior"]))
+
+
+#: kind -> (the prefix of its array names, the prior's type, (prior, log_prior) -> arrays, arrays -> (prior, log_prior),
+#: whether resuming needs the assimilated datasets). SMC^2's nested state is handled apart (it is not a
+#: SamplerState with a prior density).
+_KINDS = {
+    "mixture": ("mixture_", GaussianMixture, _mixture_arrays, _mixture_prior, False),
+    "mixture_sum": ("mixsum_", MixtureSum, _mixture_sum_arrays, _mixture_sum_prior, False),
+    "history": ("state_log_prior", HistoryPrior, _history_arrays, _history_prior, True),
+}
+_NESTED = "nested_"
+#: Arrays every SamplerState kind has besides its prior's: the variance estimate of the cumulative
+#: log-evidence (its standard error carries over the steps).
+_COMMON = ("state_log_evidence_variance",)
+
+#: Dimension names (after ``step``) of the arrays whose axes have a meaning a NetCDF reader can use.
+_DIMS = {"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
+         "mixture_log_weights": ("sample",), "state_log_prior": ("sample",),
+         "mixsum_centres": ("branch", "sample", "parameter"), "mixsum_bandwidth": ("branch", "parameter"),
+         "mixsum_component_log_weights": ("branch", "sample"), "mixsum_log_weights": ("branch",)}
+
+
+def state_arrays(state) -> dict:
+    """The arrays (float64) that, with the step's record and (for some kinds) the datasets, rebuild ``state``.
+
+    Parameters
+    ----------
+    state : SamplerState or NestedState
+        The state after a step (``state.step >= 1``).
+
+    Returns
+    -------
+    dict of str -> ndarray
+        Names as in the module's table.
+
+    Raises
+    ------
+    UnsupportedState
+        The state's prior is a density this module does not know.
+    """
+    if isinstance(state, NestedState):
+        return {_NESTED + key: value for key, value in nested_state_arrays(state).items()}
+    if isinstance(state, SamplerState):
+        for _, cls, to_arrays, _, _ in _KINDS.values():
+            if type(state.prior) is cls:
+                arrays = {**to_arrays(state.prior, state.log_prior),
+                          "state_log_evidence_variance": state.log_evidence_variance}
+                return {name: np.array(value, dtype=float) for name, value in arrays.items()}
+    kind = type(state.prior).__name__ if isinstance(state, SamplerState) else type(state).__name__
+    raise UnsupportedState(f"state: cannot store a sampler state whose prior is a {kind}")
+
+
+def is_state_variable(name: str) -> bool:
+    """Whether a run-store variable ``name`` is one of :func:`state_arrays`' arrays."""
+    return (name in _COMMON or name.startswith(_NESTED)
+            or any(name.startswith(prefix) for prefix, *_ in _KINDS.values()))
+
+
+def state_kind(arrays) -> str:
+    """``"mixture"``, ``"mixture_sum"``, ``"history"`` or ``"nested"``, from the names of ``arrays``.
+
+    Raises
+    ------
+    ValueError
+        The names match no kind, or more than one.
+    """
+    names = [name for name in arrays if name not in _COMMON]
+    kinds = {kind for kind, (prefix, *_) in _KINDS.items() for name in names if name.startswith(prefix)}
+    if any(name.startswith(_NESTED) for name in names):
+        kinds.add("nested")
+    if len(kinds) != 1:
+        raise ValueError(f"state arrays {sorted(names)}: expected the arrays of one kind of state, found "
+                         f"{sorted(kinds) or 'none'}")
+    return kinds.pop()
+
+
+def needs_datasets(arrays) -> bool:
+    """Whether resuming from ``arrays`` needs the assimilated datasets (the history prior re-evaluates
+    them; SMC^2 re-runs its inner filters on them)."""
+    kind = state_kind(arrays)
+    return kind == "nested" or _KINDS[kind][4]
+
+
+def state_dims(name: str, ndim: int) -> tuple:
+    """Dimension names of array ``name`` (``ndim`` axes, after ``step``) in the run store."""
+    dims = _DIMS.get(name)
+    return dims if dims is not None and len(dims) == ndim else tuple(f"{name}_{axis}" for axis in range(1, ndim + 1))
+
+
+def initial_state(predictive_method: str, prior, particles, log_weights, step_size):
+    """The state before the first dataset, from the initial prior's draws ``particles (N, d)``.
+
+    ``predictive_method`` is the sampler's resolved predictive (SMC^2 keeps its own state).
+    """
+    if predictive_method == "smc2":  # the default inner filter's outer particles hold every column
+        return start_nested(prior, np.arange(particles.shape[1]), particles, step_size)
+    return SamplerState(step=0, particles=particles, log_weights=log_weights, prior=prior, log_evidence=0.0,
+                        step_size=step_size)
+
+
+def state_from_arrays(arrays_by_step, record: StepRecord, step_size: float, initial_prior, datasets=()):
+    """The inverse of :func:`state_arrays`: the state after step ``s = len(arrays_by_step)``.
+
+    Parameters
+    ----------
+    arrays_by_step : sequence of dict
+        :func:`state_arrays` of steps ``1 .. s`` (SMC^2 takes its earlier guides from them).
+    record : StepRecord
+        Step ``s``'s record.
+    step_size : float
+        The state's stretch step size.
+    initial_prior : object with ``logpdf``
+        The run's initial prior ``p_0``.
+    datasets : tuple
+        ``D^1 .. D^s`` as the likelihood takes them, when :func:`needs_datasets`.
+
+    Returns
+    -------
+    SamplerState or NestedState
+    """
+    arrays = arrays_by_step[-1]
+    kind = state_kind(arrays)
+    if kind != "nested" and _KINDS[kind][4] and len(datasets) != len(arrays_by_step):
+        raise ValueError(f"datasets: {len(datasets)} datasets for a state at step {len(arrays_by_step)}")
+    if kind == "nested":
+        def strip(a):
+            return {key[len(_NESTED):]: value for key, value in a.items()}
+        guides = tuple(nested_guide(strip(a)) for a in arrays_by_step[:-1])
+        return nested_state_from_arrays(strip(arrays), tuple(datasets), guides)
+    context = {"initial_prior": initial_prior, "datasets": datasets, "log_evidence": record.info.log_evidence}
+    prior, log_prior = _KINDS[kind][3](arrays, context)
+    return SamplerState(step=len(arrays_by_step), particles=record.predictive, log_weights=record.log_weights,
+                        prior=prior, log_evidence=record.info.log_evidence, step_size=float(step_size),
+                        posterior=record.posterior, posterior_log_weights=record.log_weights, log_prior=log_prior,
+                        log_evidence_variance=float(arrays.get("state_log_evidence_variance", 0.0)))
+
+
+def check_state(state, record: StepRecord) -> None:
+    """Verify that ``state`` is what :func:`state_from_arrays` rebuilds from ``record``.
+
+    Raises
+    ------
+    ValueError
+        The state's particles, weights, posterior or log-evidence differ from the record's.
+    """
+    if isinstance(state, NestedState):  # SMC^2 keeps its own arrays; its posterior is the record's
+        same = (np.array_equal(state.particles, record.posterior) and np.array_equal(state.log_weights, record.log_weights)
+                and state.log_evidence == record.info.log_evidence)
+    else:
+        same = (np.array_equal(state.particles, record.predictive)
+                and np.array_equal(state.log_weights, record.log_weights)
+                and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
+    if not same:  # pragma: no cover - guards the identity state_from_arrays relies on
+        raise ValueError("state: differs from its step record; seqbayes.snapshot needs updating")
