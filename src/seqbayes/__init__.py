@@ -7,8 +7,8 @@ sparse grids and the SG-EnMCMC identifier.
 """
 
 from . import aies, filters, nested, prognostics, reference, sparsegrid, structures
-from .density import GaussianMixture, RunningStatistics, predictive_density, silverman_bandwidth
-from .kernels import Custom, Decay, Drift, MarkovKernel, Static
+from .density import GaussianMixture, MixtureSum, RunningStatistics, predictive_density, silverman_bandwidth
+from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
 from .nested import KalmanInnerFilter, ParticleInnerFilter
 from .prognostics import FirstPassage, time_to_threshold
 from .reference import GridReference, grid_filter
@@ -24,7 +24,7 @@ from .store import RunStore, posterior_to_arviz
 
 __version__ = "0.1.0"
 __all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
-           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift",
+           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",
