@@ -165,6 +165,40 @@ class GaussianMixture:
                                         - 0.5 * np.einsum("ij,ij->i", xb, xb))
         return out
 
+    def ancestor_ess(self, theta, log_weights=None) -> float:
+        """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
+
+        ``a_i = sum_k v_k r_ki`` is the mass that the points (weights ``v``) give to component ``i``,
+        ``r_ki = W_i N(theta_k; c_i, h^2) / p(theta_k)`` its responsibility for point ``k``. For a
+        posterior under the predictive prior of Eq. (A3), ``a_i`` is the posterior probability of
+        ancestor ``i`` and ``1 / ESS_a - 1 / N`` the relative variance of the evidence that the N
+        ancestors carry (:func:`~seqbayes.evidence.increment_variance`). ``O(m N)``, in blocks.
+
+        Parameters
+        ----------
+        theta : (m, d) array
+        log_weights : (m,) array, optional
+            The points' log-weights (equal if omitted).
+
+        Returns
+        -------
+        float
+        """
+        theta = as_samples(theta, self.dim)
+        m, n = theta.shape[0], self.centres.shape[0]
+        v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
+        x = (theta - self._shift) / self.bandwidth
+        mass = np.zeros(n)
+        block = max(1, _BLOCK_FLOATS // max(1, n))
+        for start in range(0, m, block):  # blocks of points, never m x N at once
+            exponent = x[start:start + block] @ self._scaled_centres.astype(float)
+            exponent += self._offset
+            exponent -= exponent.max(axis=1, keepdims=True)
+            np.exp(exponent, out=exponent)
+            exponent /= exponent.sum(axis=1, keepdims=True)
+            mass += v[start:start + block] @ exponent
+        return float(1.0 / np.dot(mass, mass))
+
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` draws, shape ``(n, d)``."""
         index = rng.choice(self.centres.shape[0], size=int(n), p=np.exp(self.log_weights))

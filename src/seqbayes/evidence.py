@@ -38,7 +38,7 @@ from .transforms import BoxTransform
 from .moves import metropolis_accept
 from .weights import logsumexp, normalise
 
-__all__ = ["importance_step"]
+__all__ = ["importance_step", "step_standard_errors"]
 
 _T_DOF = 4.0
 
@@ -150,3 +150,80 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
         current[accept] = log_terms[accept]
         n_accepted += int(accept.sum())
     return log_evidence, ess, posterior, components, n_accepted
+
+
+
+
+def step_standard_errors(previous_variance: float, n_samples: int, importance: bool, evidence_ess: float,
+                         weights_before, log_weights_after, n_stages: int, resampled: bool, ancestor_ess: float,
+                         method: str) -> tuple[float, float, float]:
+    """Standard errors of one step's log-evidence increment and of the cumulative log-evidence.
+
+    Delta method: an average ``Z_hat = sum_i W_i l_i`` of independent terms has
+    ``var(log Z_hat) ~ sum_i W_i^2 (l_i / Z_hat - 1)^2``. Hence:
+
+    * the importance-sampling increment (N independent draws from the fitted proposal, equal
+      weights): ``1 / ESS - 1 / N`` with ``ESS = evidence_ess``;
+    * an increment from the carried weights ``W`` in one stage without resampling: with ``W'`` the
+      weights after the step's reweighting, ``W'_i = W_i l_i / Z_hat``, the variance is
+      ``sum_i (W'_i - W_i)^2``;
+    * a prior that is a mixture over the last posterior's N particles (Eq. A3, ``"transition"``
+      or ``"kde"``) adds to the importance increment the error of that particle approximation:
+      ``Z_s = sum_j W_j g_j`` (``g_j`` the evidence through ancestor ``j``) has relative variance
+      ``sum_j W_j^2 (g_j / Z_s - 1)^2 ~ 1 / ESS_a - 1 / N``, with ``ESS_a = 1 / sum_j a_j^2`` and
+      ``a_j = W_j g_j / Z_s`` the posterior probability of ancestor ``j``
+      (:meth:`~seqbayes.density.GaussianMixture.ancestor_ess`). (The carried-weights increment
+      already contains it: each prior particle is a draw through its own ancestor.)
+
+    The cumulative variance adds the increments', except with the history prior
+    (``"history"``, the exact prior ``p_0 prod_{k<s} L_k / Z_hat_{1:s-1}``): an importance step
+    estimates the whole ``Z_{1:s}`` afresh (``Z_hat_{1:s-1}`` cancels), so the cumulative variance
+    restarts from its own (and the increment's is its own plus the previous cumulative one); the
+    reweighting steps after it form with it one importance estimate with the accumulated weights,
+    whose variance grows by ``1 / ESS' - 1 / ESS`` per step. A multi-stage tempering path
+    (``evidence="path"``) is not covered (NaN), nor is SMC^2.
+
+    Parameters
+    ----------
+    previous_variance : float
+        The cumulative variance before the step (0 before the first).
+    n_samples : int
+    importance : bool
+        Whether the increment came from the importance sampler.
+    evidence_ess : float
+        ESS of the importance weights.
+    weights_before : (N,) array
+        The carried normalised weights ``W`` before the step's reweighting.
+    log_weights_after : (N,) array
+        The normalised log-weights at the end of the step.
+    n_stages : int
+    resampled : bool
+        Whether the step's last stage resampled.
+    ancestor_ess : float
+        NaN for a prior that is not a mixture over the last posterior's particles.
+    method : str
+        The resolved predictive.
+
+    Returns
+    -------
+    increment_se, cumulative_se, cumulative_variance : float
+        The variance is what the next step continues from (``SamplerState.log_evidence_variance``).
+    """
+    n = float(n_samples)
+    history = method == "history"
+    if importance:
+        variance = max(1.0 / evidence_ess - 1.0 / n, 0.0)
+        if history:
+            increment, cumulative = variance + previous_variance, variance
+        else:
+            if np.isfinite(ancestor_ess) and ancestor_ess > 0:
+                variance += max(1.0 / ancestor_ess - 1.0 / n, 0.0)
+            increment, cumulative = variance, previous_variance + variance
+    elif n_stages == 1 and not resampled:
+        before, after = np.asarray(weights_before, dtype=float), np.exp(log_weights_after)
+        increment = float(np.sum((after - before) ** 2))
+        # history: the accumulated weights' variance 1 / ESS - 1 / N replaces the one before
+        cumulative = previous_variance + (np.dot(after, after) - np.dot(before, before) if history else increment)
+    else:
+        return float("nan"), float("nan"), float("nan")
+    return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)

@@ -106,6 +106,9 @@ class StepInfo:
     jump_size, jump_size_sd : float
         Posterior mean and sd of its drop fraction given that it jumped (the drop is
         ``jump_size * reference``).
+    log_evidence_increment_se, log_evidence_se : float
+        Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
+        (:func:`~seqbayes.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
     """
 
     step: int
@@ -138,6 +141,8 @@ class StepInfo:
     jump_parameter: int = 0
     jump_size: float = float("nan")
     jump_size_sd: float = float("nan")
+    log_evidence_increment_se: float = float("nan")
+    log_evidence_se: float = float("nan")
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":
@@ -251,6 +256,11 @@ class Result:
     def log_evidence(self) -> np.ndarray:
         """Cumulative log-evidence per step, ``(S,)``."""
         return np.array([r.info.log_evidence for r in self.steps])
+
+    @property
+    def log_evidence_se(self) -> np.ndarray:
+        """Standard error of the cumulative log-evidence at every step (``StepInfo.log_evidence_se``)."""
+        return np.array([r.info.log_evidence_se for r in self.steps])
 
     @property
     def log_evidence_increments(self) -> np.ndarray:

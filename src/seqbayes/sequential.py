@@ -39,8 +39,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from .density import PREDICTIVE_METHODS, HistoryPrior, RunningStatistics, predictive_density
-from .evidence import importance_step
+from .density import PREDICTIVE_METHODS, GaussianMixture, HistoryPrior, RunningStatistics, predictive_density
+from .evidence import importance_step, step_standard_errors
 from .kernels import MarkovKernel, jump_step_fields
 from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, assimilate_nested, nested_split,
                      start_nested)
@@ -295,6 +295,8 @@ class SamplerState:
     paths : (N, L, d) array or None
         After a path-space step: the paths over the last ``L`` steps of the posterior particles
         (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
+    log_evidence_variance : float
+        Estimated variance of ``log_evidence`` (:func:`~seqbayes.evidence.step_standard_errors`).
     """
 
     step: int
@@ -308,6 +310,7 @@ class SamplerState:
     log_prior: np.ndarray | None = None
     window: tuple = ()
     paths: np.ndarray | None = None
+    log_evidence_variance: float = 0.0
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -967,6 +970,9 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     conflict = prior_data_conflict(state.particles, state.log_weights, posterior, cloud.log_weights)
     _, ancestors = ancestor_draws(kernel, posterior, state.posterior, state.posterior_log_weights,
                                   later_log_weights=cloud.log_weights)
+    increment_se, evidence_se, evidence_variance = step_standard_errors(
+        state.log_evidence_variance, n, config.evidence == "importance" and log_increment != log_z, evidence_ess,
+        np.exp(log_weights), cloud.log_weights, len(temperatures), resampled, ancestors, method)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment), log_evidence=log_evidence, ess=float(stage_ess),
@@ -979,6 +985,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start,
         prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
         ancestor_ess=ancestors, path_steps=length + 1,
+        log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
         **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
     record = StepRecord(info, posterior, cloud.log_weights, predictive)
     past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment))
@@ -988,7 +995,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
                              step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                              posterior=posterior, posterior_log_weights=cloud.log_weights,
                              window=(state.window + (past,))[-keep:],
-                             paths=cloud.particles.reshape(n, length + 1, d)[:, -keep:])
+                             paths=cloud.particles.reshape(n, length + 1, d)[:, -keep:],
+                             log_evidence_variance=evidence_variance)
     return new_state, record, marginal
 
 
@@ -1056,6 +1064,7 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     prior_particles, prior_log_weights = particles, log_weights
     cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config,
                                                  counter, prior_logpdf, rng)
+    weights_before = np.exp(cloud.log_weights)
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
         cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng)
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
@@ -1065,6 +1074,11 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     cloud, log_increment, evidence_ess, n_independent = _evidence(
         cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng)
     log_evidence = float(state.log_evidence + log_increment)
+    carriers = state.prior.ancestor_ess(cloud.particles, cloud.log_weights) \
+        if isinstance(state.prior, GaussianMixture) else float("nan")  # Eq. (A3)'s N ancestors carry Z_s
+    increment_se, evidence_se, evidence_variance = step_standard_errors(
+        state.log_evidence_variance, config.n_samples, use_importance and log_increment != log_increment_path,
+        evidence_ess, weights_before, cloud.log_weights, len(temperatures), resampled, carriers, method)
     density, predictive, next_log_prior = _propagate(state, cloud, dataset, log_increment, log_evidence, method,
                                                      problem, config, rng)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
@@ -1092,13 +1106,15 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         n_independent_accepted=n_independent, n_move_evaluations=moves.stats.n_evaluations,
         wall_time=time.perf_counter() - start, prior_data_conflict=float(conflict.max()),
         conflict_parameter=int(conflict.argmax()), ancestor_ess=ancestors,
+        log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
         **jump_step_fields(problem.kernel, state.prior, cloud.particles, cloud.log_weights))
     record = StepRecord(info, cloud.particles, cloud.log_weights, predictive)
     new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
                              log_evidence=log_evidence,
                              step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                              posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
-                             log_prior=next_log_prior, window=window, paths=paths)
+                             log_prior=next_log_prior, window=window, paths=paths,
+                             log_evidence_variance=evidence_variance)
     return new_state, record, cloud
 
 
