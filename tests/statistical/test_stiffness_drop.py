@@ -97,8 +97,9 @@ def test_path_log_likelihood_equals_the_switched_kalman_filter():
             P0 = post.A[0] @ first.filtered_covariances[0] @ post.A[0].T + sw**2 * np.outer(bb[0], bb[0])
             ref = first.log_likelihood[0] + kalman_filter(post, u[tau[i]:], y[tau[i]:], R, sw, x0=x0,
                                                           P0=P0).log_likelihood[0]
-        # the fast filter freezes the gain once the covariance is steady (relative change 1e-11): ~1e-8 here
-        assert abs(ours[i] - ref) < 1e-6, (i, ours[i], ref)
+        # the fast filter freezes the gain once the covariance is steady (relative change 1e-11): measured
+        # relative differences up to 2.3e-9 here (as kalman_log_likelihood against kalman_filter)
+        assert abs(ours[i] - ref) < 1e-8 * abs(ref), (i, ours[i], ref)
 
 
 def test_simulate_drop_continues_the_state_through_the_new_matrices():
@@ -116,10 +117,11 @@ def test_simulate_drop_continues_the_state_through_the_new_matrices():
 
 def test_block_evidence_matches_the_exact_evidence():
     # 1 storey, a 30 % drop at step 100 of 200, change boundaries every 25 steps (h = 0.1), blocks of 25 steps.
-    # Measured over 10 sampler seeds (200 particles): M_1 (the true class) within 0.5 nats of the exact
-    # log-evidence at every block (sd over seeds <= 0.25); M_0 within 0.3 nats until the drop; after the
-    # drop M_0 is ~400 nats below M_1 and its SMC estimate is low by 1-5 nats (a static model tracking an
-    # abrupt change). Bounds: 1.2 nats (M_1 everywhere, M_0 before the drop) = ~5 sd; M_0 after: 8 nats.
+    # Measured over 10 sampler seeds (200 particles; seeds 0-9): M_1 (the true class) error against the exact
+    # log-evidence sd <= 0.23 nats per block until the drop (worst 0.40), 0.50 after it (mean -0.10, worst
+    # -1.09); M_0 sd <= 0.10 until the drop (worst 0.17); after the drop M_0 is ~400 nats below M_1 and its
+    # SMC estimate is low by 0.3-6.4 nats (mean -4.3, sd 1.3: a static model chasing an abrupt change, its
+    # weights degenerate at every step). Bounds ~4 sd: 1.0 / 2.0 nats (M_1), 0.5 / 10 nats (M_0).
     b, u, y, std, sw = one_storey_case()
     ends = np.arange(24, 200, 25)
     z0, z1 = exact_log_evidence(b, u, y, std, sw, ends, every=25, hazard=0.1)
@@ -131,10 +133,10 @@ def test_block_evidence_matches_the_exact_evidence():
         for start in range(0, 200, 25):
             mon.update(u[start : start + 25], y[start : start + 25])
         log_z = np.array([blk.log_evidence for blk in mon.history])  # (blocks, 2)
-        assert np.all(np.abs(log_z[:, 1] - z1) < 1.2), log_z[:, 1] - z1
         before = ends < 100
-        assert np.all(np.abs(log_z[before, 0] - z0[before]) < 1.2), log_z[:, 0] - z0
-        assert np.all(np.abs(log_z[~before, 0] - z0[~before]) < 8.0), log_z[:, 0] - z0
+        error = log_z - np.column_stack([z0, z1])
+        assert np.all(np.abs(error[before, 1]) < 1.0) and np.all(np.abs(error[~before, 1]) < 2.0), error[:, 1]
+        assert np.all(np.abs(error[before, 0]) < 0.5) and np.all(np.abs(error[~before, 0]) < 10.0), error[:, 0]
         increments = np.array([blk.log_evidence_increments for blk in mon.history])
         np.testing.assert_allclose(np.cumsum(increments, axis=0), log_z, atol=1e-9)
 
