@@ -127,15 +127,15 @@ def _read_csv(path, columns) -> np.ndarray:
     """
     header, index = _csv_header(path, columns)
     raw = Path(path).read_bytes()
-    if b'"' not in raw and b"\r" not in raw:
-        body = raw.split(b"\n", 1)[1] if b"\n" in raw else b""
+    if b'"' not in raw:                        # quoted fields: the csv module reads them
+        body = raw[raw.index(b"\n") + 1:] if b"\n" in raw else b""
         chars = np.frombuffer(body, dtype=np.uint8)
         ends = np.flatnonzero(chars == ord("\n"))
         if chars.size and chars[-1] != ord("\n"):
             ends = np.append(ends, chars.size)
-        separators = np.concatenate([[0], np.cumsum(chars == ord(","))])[ends]   # commas before each line end
+        # fields per line: the commas before each line's end, counted by line
+        fields = np.bincount(np.searchsorted(ends, np.flatnonzero(chars == ord(","))), minlength=ends.size)[:ends.size] + 1
         starts = np.concatenate([[0], ends[:-1] + 1])
-        fields = np.diff(np.concatenate([[0], separators])) + 1
         blank = starts >= ends                                                # empty lines are skipped
         if np.all(fields[~blank] == len(header)) and (~blank).any():
             try:

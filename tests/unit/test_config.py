@@ -141,6 +141,37 @@ def test_csv_and_netcdf_give_the_same_table_and_digest(tmp_path):
     assert dataset_digest(a, cfg.columns) != dataset_digest(a[:-1], cfg.columns)
 
 
+def test_the_fast_csv_reader_gives_the_cell_readers_numbers(tmp_path, monkeypatch):
+    """The numpy path of the CSV reader (separators counted, numbers by loadtxt) and the cell-by-cell
+    path give the same arrays bit for bit, whichever the file's shape; files the fast path refuses
+    (quotes, ragged or blank-celled lines) go to the cell reader."""
+    import seqbayes.datasets as datasets
+
+    cfg = load_config(write(tmp_path, CONFIG))
+    files = {
+        "plain.csv": "t,y\n0,1.5\n1,2.25e-3\n2,-3\n",
+        "crlf.csv": "t,y\r\n0,1.5\r\n1,2\r\n",
+        "extra.csv": "y,note,t\n1.5,abc,0\n2,x,1\n",           # a text column that is not read
+        "blank_lines.csv": "t,y\n0,1\n\n1,2\n\n",
+        "no_final_newline.csv": "t,y\n0,1\n1, 2 ",
+        "quoted.csv": 't,y\n"0",1\n1,"2"\n',
+        "commas_only.csv": "t,y\n0,1\n,\n1,2\n",
+    }
+    fallbacks = []
+    cells = datasets._read_csv_cells
+    monkeypatch.setattr(datasets, "_read_csv_cells", lambda *a: fallbacks.append(a[0].name) or cells(*a))
+    for name, text in files.items():
+        (tmp_path / name).write_bytes(text.encode())
+        header, index = datasets._csv_header(tmp_path / name, cfg.columns)
+        expected = cells(tmp_path / name, cfg.columns, header, index)
+        np.testing.assert_array_equal(read_datafile(tmp_path / name, cfg), expected)
+    assert sorted(fallbacks) == ["commas_only.csv", "quoted.csv"]
+    np.testing.assert_array_equal(read_datafile(tmp_path / "extra.csv", cfg), [[0, 1.5], [1, 2]])
+    (tmp_path / "wide.csv").write_text("t,y\n0,1\n1,2,3\n")
+    with pytest.raises(DataError, match=r"wide.csv: line 3 has 3 fields, the header has 2"):
+        read_datafile(tmp_path / "wide.csv", cfg)
+
+
 def test_bad_data_files_name_file_column_and_shape(tmp_path):
     import xarray as xr
 
