@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from .priors import as_samples
 from .rng import as_generator
 
-__all__ = ["FirstPassage", "Threshold", "parse_threshold", "time_to_threshold"]
+__all__ = ["FirstPassage", "Threshold", "parse_threshold", "time_to_threshold", "gaussian_first_passage"]
 
 
 @dataclass(frozen=True)
@@ -234,3 +234,52 @@ def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold
                         not_crossed_standard_error=float(se[0]), cumulative=c, cumulative_standard_error=c_se,
                         beyond_now=float(np.mean(beyond(theta))), parameter=int(parameter), threshold=threshold,
                         direction=direction, n_paths=int(n * paths_per_sample))
+
+
+def gaussian_first_passage(mean: float, sd: float, drift: float, noise_std: float, threshold: float, horizon: int, *,
+                           direction: str = "below", n_grid: int = 1501, width: float = 10.0) -> np.ndarray:
+    """Exact first-passage probabilities of a Gaussian random walk from a Gaussian start (a reference).
+
+    ``a_0 ~ N(mean, sd^2)``, ``a_h = a_{h-1} + drift + N(0, noise_std^2)``: returns
+    ``P(first h >= 1 with a_h beyond threshold)`` for ``h = 1..horizon``, ``(horizon,)``. This is the
+    time to a threshold of a linear-Gaussian drift problem, whose filtering posterior (the Kalman
+    filter's) is Gaussian: the reference :func:`time_to_threshold` is tested against.
+
+    Step 1 is closed form; after it the surviving density lives on one side of the threshold, is
+    carried by the Gaussian step with the trapezoid rule on a grid whose first node is the threshold
+    (so the cut is a grid end) and the mass that steps across is integrated with the exact normal
+    CDF. With the defaults the error is below 1e-5 (against a grid twice as fine and 40 % wider).
+
+    Parameters
+    ----------
+    mean, sd : float
+        The start's mean and standard deviation (``sd >= 0``).
+    drift, noise_std : float
+        The walk's drift per step and its noise standard deviation (``> 0``).
+    threshold : float
+    horizon : int
+    direction : {"below", "above"}
+    n_grid, width : int, float
+        Grid nodes, and the grid's extent beyond the threshold in standard deviations.
+    """
+    from scipy import stats
+
+    if direction not in ("below", "above"):
+        raise ValueError(f"direction: expected 'below' or 'above', got {direction!r}")
+    if not noise_std > 0 or not sd >= 0:
+        raise ValueError(f"noise_std and sd: expected noise_std > 0 and sd >= 0, got {noise_std}, {sd}")
+    if direction == "above":  # mirror: a -> -a
+        return gaussian_first_passage(-mean, sd, -drift, noise_std, -threshold, horizon, n_grid=n_grid, width=width)
+    sd1 = float(np.hypot(sd, noise_std))
+    out = [stats.norm.cdf(threshold, mean + drift, sd1)]
+    upper = max(mean, threshold) + max(drift, 0.0) * horizon + width * (sd1 + noise_std * np.sqrt(horizon))
+    x = np.linspace(threshold, upper, n_grid)
+    w = np.full(n_grid, x[1] - x[0])
+    w[[0, -1]] /= 2                                                      # trapezoid weights
+    step = stats.norm.pdf(x[:, None], x[None, :] + drift, noise_std) * w[None, :]
+    p_below = stats.norm.cdf(threshold, x + drift, noise_std) * w
+    alive = stats.norm.pdf(x, mean + drift, sd1)                         # survivors of step 1, on x >= threshold
+    for _ in range(int(horizon) - 1):
+        out.append(p_below @ alive)
+        alive = step @ alive
+    return np.array(out)
