@@ -161,7 +161,8 @@ class SamplerConfig:
         Applies to the ``"transition"`` and ``"kde"`` predictives of kernels in which every
         parameter moves; ``"history"`` is exact already, and ``"smc2"`` is not covered.
     remedy_ess : float
-        Fraction of N below which the ancestor ESS triggers the remedy (0.05).
+        Fraction of N below which the ancestor ESS triggers the remedy (0.05; five times that
+        right after a path-space step).
     remedy_lag : int
         Steps kept for the path-space target (10): exact when the run has at most that many steps,
         else the window's first state takes the (mixture) prior that step used.
@@ -215,7 +216,6 @@ class SamplerConfig:
     conflict_remedy: bool = True
     remedy_ess: float = 0.05
     remedy_lag: int = 10
-
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -771,6 +771,8 @@ class PastStep:
         The step's posterior particles and their normalised log-weights.
     log_evidence_increment : float
         ``log p(D^s | D^{1:s-1})`` as estimated at the step.
+    path_space : bool
+        Whether the step was assimilated on the path space.
     """
 
     dataset: object
@@ -778,6 +780,7 @@ class PastStep:
     posterior: np.ndarray
     log_weights: np.ndarray
     log_evidence_increment: float
+    path_space: bool = False
 
 
 def _remedy_applies(config, method, kernel) -> bool:
@@ -956,8 +959,13 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     components[carried, 1] = prior_logpdf(walkers[carried])
     cloud = _Cloud(walkers, log_weights, components)
     moves = _Moves(step_size=state.step_size)
+    # L + 1 times as many dimensions: SMC's random-walk scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
+    # 1997), so gamma for d dimensions becomes gamma / sqrt(L + 1), and a path decorrelates in O(dim) moves: at
+    # least L + 1 per stage (on the abrupt drop, 4 seeds: worst SMC error 0.47 -> 0.17 sd; benchmarks/bench_abrupt.py)
+    path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
+                          n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual, length + 1)))
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
-        cloud, path_problem, config, path_counter, prior_logpdf, moves, True, False, rng)
+        cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
     log_z = log_z + log_restricted_mass
     cloud, log_increment, evidence_ess, n_independent = _evidence(
         cloud, log_z, n_found, path_problem, config, path_counter, prior_logpdf, config.evidence == "importance",
@@ -988,7 +996,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
         **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
     record = StepRecord(info, posterior, cloud.log_weights, predictive)
-    past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment))
+    past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True)
     keep = config.remedy_lag - 1
     new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
                              log_evidence=log_evidence,
@@ -1034,9 +1042,11 @@ def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerCo
     method = resolve_predictive(config.predictive, problem.kernel)
     new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
     info = record.info
+    # after a path-space step the mixture's own posterior understates the conflict (its target cannot reach
+    # the tail, so fewer ancestors look involved): stay on the path space until 5x the threshold
+    threshold = config.remedy_ess * (5.0 if state.window and state.window[-1].path_space else 1.0)
     if state.window and _remedy_applies(config, method, problem.kernel) and (
-            info.ancestor_ess < config.remedy_ess * config.n_samples
-            or info.prior_data_conflict > config.conflict_threshold):
+            info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold):
         try:
             new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start)
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
