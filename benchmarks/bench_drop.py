@@ -18,7 +18,8 @@ one, P(M_2) 2 s after the drop, the posterior mean drop fraction and change
 time at the end, and for the record without a drop the largest P(change) over
 all blocks (a false alarm if above 0.99); wall and CPU seconds.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_drop.py [--seeds 10] [--json out.json]``
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_drop.py [--seeds 10] [--json out.json]
+[--figure docs/figures/shake_table_drop.png]`` (the figure: seed 0, with and without the drop).
 """
 
 from __future__ import annotations
@@ -78,7 +79,44 @@ def monitor(data: dict, seed: int, block: int, **options) -> dict:
     out["final_drop_mean"] = float(final.drop_mean[data["storey"]])
     out["final_change_time"] = float(final.change_time_mean[data["storey"]])
     out["final_probabilities"] = final.class_probabilities.tolist()
+    out["history"] = history
     return out
+
+
+def figure(path, rows, drop_time):
+    """P(change), the class probabilities and storey 2's current ratio, block by block (seed 0)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for label, style in (("drop", "C3"), ("no_drop", "C0")):
+        history = rows[0][label]["history"]
+        t = np.array([b.time for b in history])
+        axes[0].semilogy(t, np.clip([b.change_probability for b in history], 1e-12, 1), style,
+                         label=f"P(change), {label.replace('_', ' ')}")
+    history = rows[0]["drop"]["history"]
+    t = np.array([b.time for b in history])
+    probs = np.array([b.class_probabilities for b in history])
+    for c in range(probs.shape[1]):
+        axes[1].plot(t, probs[:, c], label="no change" if c == 0 else f"drop in storey {c}")
+    theta2 = np.array([b.theta_mean[2, 1] for b in history])
+    axes[2].plot(t, theta2, "C1", label="storey-2 class: posterior mean of the current theta_2")
+    axes[2].axhline(TRUTH[1], color="k", lw=0.8)
+    axes[2].axhline(TRUTH[1] * 0.8, color="k", lw=0.8, ls="--")
+    for ax in axes:
+        ax.axvline(drop_time, color="0.5", lw=0.8, ls=":")
+        ax.legend(fontsize=7, loc="best")
+    axes[0].axhline(0.99, color="k", lw=0.6, ls="--")
+    axes[0].set_ylabel("P(change | y)")
+    axes[1].set_ylabel("P(class | y)")
+    axes[2].set_ylabel("theta_2")
+    axes[2].set_xlabel("record time [s] (end of each 0.5 s block)")
+    fig.suptitle("On-line stiffness-drop detection, 4 storeys, seed 0 (benchmarks/bench_drop.py)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 def main(argv=None):
@@ -87,6 +125,7 @@ def main(argv=None):
     parser.add_argument("--fraction", type=float, default=0.2)
     parser.add_argument("--block", type=int, default=25, help="steps per update (25 = 0.5 s)")
     parser.add_argument("--json", default=None)
+    parser.add_argument("--figure", default=None, help="write the seed-0 figure here")
     args = parser.parse_args(argv)
     print(f"load average (1, 5, 15 min): {os.getloadavg()}", flush=True)
     rows = []
@@ -112,7 +151,12 @@ def main(argv=None):
           f"(max P(change) {max(r['no_drop']['max_change_probability'] for r in rows):.2e}); median wall "
           f"{np.median([r['drop']['wall'] for r in rows]):.1f} s (drop) / "
           f"{np.median([r['no_drop']['wall'] for r in rows]):.1f} s (no drop); load average {os.getloadavg()}")
+    if args.figure:
+        figure(args.figure, rows, drop_record(0, args.fraction)["drop_time"])
     if args.json:
+        for r in rows:
+            for label in ("drop", "no_drop"):
+                r[label].pop("history")
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
 
