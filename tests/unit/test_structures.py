@@ -152,3 +152,39 @@ def test_expm_and_derivatives_equal_scipy_frechet():
     for j in range(2):
         np.testing.assert_allclose(L[j], expm_frechet(M, E[j], compute_expm=False), rtol=1e-10,
                                    atol=1e-10 * np.abs(L[j]).max())
+
+
+def test_sensor_layout_selects_rows_and_runs_through_the_filters():
+    # only floors 1 and 3 of 3 carry accelerometers, storey 2 a drift sensor: H holds exactly those rows of the
+    # full matrices, the exact Kalman likelihood equals the one of a model built from those rows, and the
+    # EKF and the SG-EnMCMC identifier accept the layout
+    from seqbayes.filters import AugmentedModel, ekf, kalman_log_likelihood
+    from seqbayes.sgenmcmc import SGEnMCMC
+    from seqbayes.structures import DiscreteModel, Sensors, add_measurement_noise, kanai_tajimi
+
+    b = ShearBuilding(np.array([30.0, 26.0, 20.0]) * 1e3, np.array([45.0, 34.0, 22.0]) * 1e6, (0.02, 0.05))
+    theta = np.array([[0.88, 0.76, 0.95], [0.8, 0.9, 0.75]])
+    layout = Sensors(accelerations=(1, 3), drifts=(2,))
+    H = b.observation_matrix(theta, layout)
+    np.testing.assert_array_equal(H[:, :2], b.observation_matrix(theta, "absolute_acceleration")[:, [0, 2]])
+    np.testing.assert_array_equal(H[:, 2:], b.observation_matrix(theta, "drift")[:, [1]])
+    model = discretise(b, theta, 0.02, channels=layout)
+    full = discretise(b, theta, 0.02)
+    assert model.H.shape == (2, 3, 6) and np.array_equal(model.A, full.A)
+    u = kanai_tajimi(6.0, 0.02, 0.07, rng=0).acceleration
+    y_clean = simulate(model.take([0]), u)[0]
+    y, std = add_measurement_noise(y_clean, 0.03, rng=1)
+    by_rows = DiscreteModel(full.A, full.B0, full.B1, np.concatenate(
+        [full.H[:, [0, 2]], b.observation_matrix(theta, "drift")[:, [1]]], axis=1), 0.02, "foh")
+    np.testing.assert_array_equal(kalman_log_likelihood(model, u, y, std, 0.01),
+                                  kalman_log_likelihood(by_rows, u, y, std, 0.01))
+    e = ekf(AugmentedModel(b, 0.02, 0.01, channels=layout), u, y, std)
+    assert np.all(np.abs(e.theta_mean[-1] - theta[0]) < 0.05)
+    run = SGEnMCMC(b, 0.02, 0.7, 1.0, std, 0.01, n_members=60, channels=layout).run(u, y, rng=2)
+    assert np.all((run.theta_quantiles[-1, 0] < theta[0]) & (theta[0] < run.theta_quantiles[-1, 2]))
+    with pytest.raises(ValueError, match="sensors"):
+        b.observation_matrix(theta, Sensors(accelerations=(4,)))
+    with pytest.raises(ValueError, match="accelerations"):
+        Sensors(accelerations=(1, 1))
+    with pytest.raises(ValueError, match="at least one"):
+        Sensors()

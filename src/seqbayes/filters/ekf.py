@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..structures.shear_building import ShearBuilding, batched_expm, expm_and_derivatives
+from ..structures.shear_building import Sensors, ShearBuilding, batched_expm, expm_and_derivatives
 from .kalman import measurement_covariance
 
 __all__ = ["AugmentedModel", "JointFilterResult", "ekf"]
@@ -79,7 +79,8 @@ class AugmentedModel:
         Std of the unmeasured ground-acceleration noise.
     theta_walk_std : float
         Std of the random-walk step of ``theta`` per time step.
-    channels : str
+    channels : str or Sensors
+        ``"absolute_acceleration"``, ``"drift"`` or a sensor layout (:class:`~seqbayes.structures.Sensors`).
     fd_step : float
         Unused (the ``theta`` Jacobian is now exact); kept for compatibility.
     theta_floor : float
@@ -100,8 +101,9 @@ class AugmentedModel:
         self.channels = channels
         self.fd_step = float(fd_step)
         self.theta_floor = float(theta_floor)
-        if channels not in ("absolute_acceleration", "drift"):
-            raise ValueError(f"channels: expected 'absolute_acceleration' or 'drift', got {channels!r}")
+        if not isinstance(channels, Sensors) and channels not in ("absolute_acceleration", "drift"):
+            raise ValueError(f"channels: expected 'absolute_acceleration', 'drift' or a Sensors layout, "
+                             f"got {channels!r}")
         building.check_sampling(dt)
         # affine pieces: A_c(theta) = A_c0 + sum_j theta_j A_cj, H(theta) = H0 + sum_j theta_j H_j
         d, m = self.d, self.m
@@ -195,7 +197,7 @@ def _check_inputs(model, u, y):
     y = np.asarray(y, float)
     if u.ndim != 1 or not np.all(np.isfinite(u)):
         raise ValueError("ground_acceleration: expected a finite 1-D series")
-    p = model.building.n_storeys if model.channels in ("absolute_acceleration", "drift") else None
+    p = model.channels.n_channels if isinstance(model.channels, Sensors) else model.building.n_storeys
     if y.ndim != 2 or y.shape[0] != u.size or y.shape[1] != p:
         raise ValueError(f"measurements: expected shape ({u.size}, {p}), got {y.shape}")
     if not np.all(np.isfinite(y)):

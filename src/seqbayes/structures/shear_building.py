@@ -49,10 +49,49 @@ __all__ = [
     "batched_expm",
     "expm_and_derivatives",
     "CHANNELS",
+    "Sensors",
 ]
 
 HOLDS = ("foh", "zoh")
 CHANNELS = ("absolute_acceleration", "drift")
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """Sensor layout: which floors carry an accelerometer and which storeys a
+    drift sensor (1-based, bottom to top). Accepted wherever ``channels`` is (in
+    place of ``"absolute_acceleration"``, every floor, or ``"drift"``, every
+    storey); the observation matrix has the acceleration rows first, in the
+    order given, then the drift rows.
+
+    Examples
+    --------
+    >>> b = ShearBuilding([1e3, 1e3, 1e3], [1e6, 1e6, 1e6])
+    >>> b.observation_matrix([1.0, 1.0, 1.0], Sensors(accelerations=(1, 3), drifts=(2,))).shape
+    (1, 3, 6)
+    """
+
+    accelerations: tuple = ()
+    drifts: tuple = ()
+
+    def __post_init__(self):
+        for name in ("accelerations", "drifts"):
+            values = tuple(int(v) for v in np.atleast_1d(getattr(self, name)))
+            if any(v < 1 for v in values) or len(set(values)) != len(values):
+                raise ValueError(f"{name}: expected distinct 1-based floor numbers, got {getattr(self, name)}")
+            object.__setattr__(self, name, values)
+        if not self.accelerations and not self.drifts:
+            raise ValueError("accelerations, drifts: a layout needs at least one sensor")
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.accelerations) + len(self.drifts)
+
+    def check(self, n_storeys: int) -> None:
+        """Raise if a sensor sits above the top floor."""
+        top = max(self.accelerations + self.drifts)
+        if top > n_storeys:
+            raise ValueError(f"sensors: floor {top} does not exist in a {n_storeys}-storey building")
 
 
 def _as_theta(theta, n: int, name: str = "theta") -> np.ndarray:
@@ -250,10 +289,21 @@ class ShearBuilding:
         b = np.concatenate([np.zeros(n), -np.ones(n)])
         return A, b
 
-    def observation_matrix(self, theta, channels: str = "absolute_acceleration") -> np.ndarray:
-        """``H (N, p, 2n)`` of the measured channels (see module docstring)."""
+    def observation_matrix(self, theta, channels="absolute_acceleration") -> np.ndarray:
+        """``H (N, p, 2n)`` of the measured channels (see module docstring):
+        ``"absolute_acceleration"`` (every floor), ``"drift"`` (every storey) or a
+        :class:`Sensors` layout (some floors)."""
         n = self.n_storeys
         theta = _as_theta(theta, n)
+        if isinstance(channels, Sensors):
+            channels.check(n)
+            rows = []
+            if channels.accelerations:
+                rows.append(self.observation_matrix(theta, "absolute_acceleration")[:, [f - 1 for f in
+                                                                                      channels.accelerations]])
+            if channels.drifts:
+                rows.append(self.observation_matrix(theta, "drift")[:, [f - 1 for f in channels.drifts]])
+            return np.concatenate(rows, axis=1)
         if channels == "absolute_acceleration":
             A, _ = self.continuous_state_space(theta)
             return A[:, n:, :].copy()  # x'' + a_g = -M^-1 (K x + C x')
@@ -356,7 +406,8 @@ def discretise(building: ShearBuilding, theta, dt: float, hold: str = "foh",
         Sampling step [s]; must resolve the highest mode (below Nyquist).
     hold : {"foh", "zoh"}
         Input interpolation between samples.
-    channels : {"absolute_acceleration", "drift"}
+    channels : {"absolute_acceleration", "drift"} or Sensors
+        Every floor's acceleration, every storey's drift, or a sensor layout.
 
     Returns
     -------
