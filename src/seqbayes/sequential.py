@@ -55,7 +55,8 @@ from .rng import as_generator, generator_from_state, generator_state
 from .transforms import BoxTransform
 from .weights import ess, logsumexp
 
-__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "resolve_predictive", "ZeroLikelihoodError",
+__all__ = ["SMC", "SEMC", "SamplerConfig", "SamplerState", "assimilate", "assimilate_paths", "ancestor_draws",
+           "forecast", "PastStep", "resolve_predictive", "ZeroLikelihoodError",
            "TemperingLimitError", "PriorDataConflictWarning", "InnerFilterWarning"]
 
 
@@ -1008,6 +1009,58 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     return new_state, record, marginal
 
 
+def forecast(samples, kernel: MarkovKernel, support, n_steps: int, rng: np.random.Generator,
+             max_rounds: int = 100) -> np.ndarray:
+    """Forecasts of the parameters ``1..n_steps`` steps ahead, restricted to the parameter space.
+
+    The likelihood is zero outside the parameter space, so the model's forecast at horizon ``h``
+    is the law of ``theta_{s+h}`` given the data and that ``theta_{s+1}, ..., theta_{s+h}`` all stay
+    inside (the mass the kernel carries out is lost, as in the samplers' steps and the grid
+    reference). It is drawn by rejection of whole paths: paths from ``samples`` through the kernel
+    (Eq. A2), each kept for the horizons before it first leaves the space; more rounds re-draw
+    from ``samples`` until every horizon has ``N`` paths. When the space is never left (or is
+    unbounded) the first round is the plain propagation, draw for draw.
+
+    Parameters
+    ----------
+    samples : (N, d) array
+        Equal-weight posterior draws.
+    kernel : MarkovKernel
+    support : (d, 2) array
+        The parameter space (box bounds, infinite allowed).
+    n_steps : int
+    rng : numpy.random.Generator
+    max_rounds : int
+        At most ``max_rounds * N`` paths; a horizon that has fewer than ``N`` inside paths then
+        (but some) repeats them, one with none raises ``ValueError``.
+
+    Returns
+    -------
+    (n_steps, N, d) array
+    """
+    samples = np.asarray(samples, dtype=float)
+    n = samples.shape[0]
+    out = np.empty((n_steps,) + samples.shape)
+    filled = np.zeros(n_steps, dtype=int)
+    for round_ in range(max_rounds):
+        current = samples if round_ == 0 else samples[rng.integers(n, size=n)]
+        alive = np.ones(n, dtype=bool)
+        for h in range(n_steps):
+            current = kernel.propagate(current, rng)
+            alive &= _inside(current, support)
+            take = current[alive][: n - filled[h]]
+            out[h, filled[h]:filled[h] + take.shape[0]] = take
+            filled[h] += take.shape[0]
+        if (filled == n).all():
+            return out
+    for h in np.flatnonzero(filled < n):
+        if filled[h] == 0:
+            raise ValueError(f"predict: none of {max_rounds * n} forecast paths stays inside the parameter space "
+                             f"for {h + 1} steps; the kernel carries the posterior out of it")
+        out[h, filled[h]:] = out[h, rng.integers(filled[h], size=n - filled[h])]
+    return out
+
+
 def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
                rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
     """Assimilate one dataset (pure; ``state`` is not modified): weigh the prior particles, temper,
@@ -1328,18 +1381,15 @@ class _SequentialSampler:
         Returns
         -------
         (n_steps, N, d) array
-            Equal-weight draws; the parameter space is not imposed on forecasts.
+            Equal-weight draws of each horizon's forecast restricted to the parameter space, as the
+            model defines it (:func:`forecast`).
         """
         if self._state.posterior is None:
             raise ValueError("predict: no dataset assimilated yet")
         if int(n_steps) < 1:
             raise ValueError(f"n_steps: must be >= 1, got {n_steps}")
-        current = self._records[-1].equal_weight_samples(self._rng)
-        out = []
-        for _ in range(int(n_steps)):
-            current = self.problem.kernel.propagate(current, self._rng)
-            out.append(current)
-        return np.stack(out)
+        return forecast(self._records[-1].equal_weight_samples(self._rng), self.problem.kernel,
+                        self.problem.support, int(n_steps), self._rng)
 
     @property
     def result(self) -> Result:
