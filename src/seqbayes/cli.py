@@ -322,11 +322,27 @@ def cmd_report(args: argparse.Namespace) -> int:
     try:
         thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
         write_report(store, output, others=others, forecast_steps=args.forecast, level=args.level,
-                     embed=not args.no_embed, thresholds=thresholds, horizon=args.horizon)
+                     embed=not args.no_embed, thresholds=thresholds, horizon=args.horizon,
+                     fit_data=_assimilated_dataset(store, args.data) if args.data else None)
     except ValueError as err:
         raise CommandError(str(err)) from err
     print(f"report written to {output}")
     return 0
+
+
+def _assimilated_dataset(store, path) -> tuple:
+    """``(step index, table)`` of a data file the run assimilated (found by its content's hash)."""
+    from .datasets import dataset_digest, read_datafile
+
+    if store.config.predict is None:
+        raise CommandError(f"--data: {store.path}'s configuration names no [model] predict function, so there is no "
+                           f"fit to draw")
+    table = read_datafile(path, store.config)
+    digest = dataset_digest(table, store.config.columns)
+    if digest not in store.digests:
+        raise CommandError(f"--data: {path} was not assimilated by {store.path} (its steps: "
+                           f"{', '.join(store.sources)})")
+    return store.digests.index(digest), table
 
 
 # ----------------------------------------------------------------------- parser
@@ -389,6 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='add the time to a threshold, "NAME<VALUE" or "NAME>VALUE" (repeatable)')
     p.add_argument("--horizon", type=int, default=20, metavar="H",
                    help="steps ahead for the time to a threshold (default 20)")
+    p.add_argument("--data", metavar="DATAFILE",
+                   help="one of the assimilated datasets, for the data-versus-fit panel (needs [model] predict in "
+                        "the configuration; default: the last one when the run keeps its datasets)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)

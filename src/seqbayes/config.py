@@ -5,6 +5,9 @@ A run is described by one TOML file::
     [model]
     name = "bridge-drift"              # optional, shown in reports and comparisons
     likelihood = "mymodel:loglike"     # module:function; the module may sit next to this file
+    predict = "predict"                # optional: a function of the same module, predict(theta, data)
+                                       # -> (N, n_rows) model values of the observed column (report)
+    observed = "y"                     # optional: that column (default: the last one)
 
     [data]
     columns = ["t", "y"]               # columns every data file must hold, in this order
@@ -70,7 +73,7 @@ JUMP_OPTIONAL = ("tail", "scales", "scale_weights")
 EXECUTORS = ("serial", "processes", "dask")
 #: RunConfig fields that do not define the model (not in :meth:`RunConfig.fingerprint`).
 NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "likelihood_file",
-                     "likelihood_sha256")
+                     "likelihood_sha256", "predict", "observed")
 
 
 class ConfigError(ValueError):
@@ -144,6 +147,11 @@ class RunConfig:
     likelihood_sha256 : str or None
         SHA-256 of that file's content (see :class:`ModuleSource`): a run store
         runs the module only while the file still has this content.
+    predict : str or None
+        Name of a function in the likelihood's module, ``predict(theta (N, d), data) -> (N, n_rows)``:
+        the model's values of the ``observed`` column, for the report's data-versus-fit panel.
+    observed : str or None
+        The data column ``predict`` models (``None``: the last column).
     """
 
     name: str
@@ -163,6 +171,8 @@ class RunConfig:
     address: str | None = None
     likelihood_file: str | None = None
     likelihood_sha256: str | None = None
+    predict: str | None = None
+    observed: str | None = None
 
     # ------------------------------------------------------------------ builders
     @property
@@ -240,7 +250,8 @@ class RunConfig:
                 "n_samples": self.n_samples, "seed": self.seed, "settings": self.settings,
                 "data_format": self.data_format, "rows": self.rows, "search_path": self.search_path,
                 "executor": self.executor, "workers": self.workers, "address": self.address,
-                "likelihood_file": self.likelihood_file, "likelihood_sha256": self.likelihood_sha256}
+                "likelihood_file": self.likelihood_file, "likelihood_sha256": self.likelihood_sha256,
+                "predict": self.predict, "observed": self.observed}
 
     @classmethod
     def from_dict(cls, data: dict) -> "RunConfig":
@@ -630,7 +641,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     """
     _check_keys(raw, {"model", "data", "priors", "kernel", "sampler", "parallel"}, source, "<top level>")
     model = _table(raw, "model", source)
-    _check_keys(model, {"name", "likelihood"}, source, "model")
+    _check_keys(model, {"name", "likelihood", "predict", "observed"}, source, "model")
     if "likelihood" not in model:
         _fail(source, "model.likelihood", "missing (\"module:function\")")
     likelihood = model["likelihood"]
@@ -699,10 +710,17 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     if address is not None and not isinstance(address, str):
         _fail(source, "parallel.address", f"expected a string, got {address!r}")
 
+    predict = model.get("predict")
+    if predict is not None and (not isinstance(predict, str) or not predict.isidentifier()):
+        _fail(source, "model.predict", f"expected the name of a function in the likelihood's module, got {predict!r}")
+    observed = model.get("observed")
+    if observed is not None and observed not in columns:
+        _fail(source, "model.observed", f"expected one of the data columns {columns}, got {observed!r}")
+
     config = RunConfig(name=name, likelihood=likelihood, columns=tuple(columns), priors=priors, kernel=kernel,
                        sampler=kind, n_samples=n_samples, seed=seed, settings=settings, data_format=data_format,
                        rows=rows, search_path=str(Path(base_dir).resolve()) if base_dir is not None else None,
-                       executor=executor, workers=workers, address=address)
+                       executor=executor, workers=workers, address=address, predict=predict, observed=observed)
     try:  # a history prior needs every parameter static
         config.predictive_method
     except ValueError as err:
@@ -711,6 +729,11 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
         try:
             located = config.locate_likelihood()
             load_located(likelihood, located)
+            if predict is not None:
+                try:
+                    load_located(f"{likelihood.split(':')[0]}:{predict}", located)
+                except ConfigError as err:
+                    raise ConfigError(str(err).replace("model.likelihood:", "model.predict:", 1)) from None
         except ConfigError as err:
             raise ConfigError(f"{source}: {err}") from None
         config = replace(config, likelihood_file=located.file, likelihood_sha256=located.sha256)

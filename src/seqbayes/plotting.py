@@ -222,7 +222,7 @@ def plot_first_passage(passages: Sequence[tuple[str, FirstPassage]], *, start_st
 
 
 def plot_data_fit(x: ArrayLike, observed: ArrayLike, predicted: ArrayLike, *, level: float = 0.95,
-                  title: str | None = None) -> Figure:
+                  title: str | None = None, xlabel: str | None = None, ylabel: str | None = None) -> Figure:
     """Data against the posterior-predictive fit: observations as dots, the predictive mean and band.
 
     Parameters
@@ -235,6 +235,7 @@ def plot_data_fit(x: ArrayLike, observed: ArrayLike, predicted: ArrayLike, *, le
         The model's prediction at ``N`` posterior draws.
     level : float
         Credible level of the band.
+    title, xlabel, ylabel : str, optional
     """
     x = np.asarray(x, dtype=float)
     observed = np.asarray(observed, dtype=float).reshape(x.size, -1)
@@ -248,9 +249,13 @@ def plot_data_fit(x: ArrayLike, observed: ArrayLike, predicted: ArrayLike, *, le
     for j in range(observed.shape[1]):
         ax = axes[j, 0]
         band(ax, x[order], predicted[:, order, j].mean(axis=0), lower[order, j], upper[order, j], color=COLORS[0],
-             marker="", label=f"posterior predictive mean, {level:.0%} band")
+             marker="", label=f"model at the posterior draws: mean, {level:.0%} band")
         ax.plot(x, observed[:, j], "k.", markersize=4, label="data")
         ax.grid(alpha=0.3)
+        if ylabel:
+            ax.set_ylabel(ylabel)
+    if xlabel:
+        axes[-1, 0].set_xlabel(xlabel)
     axes[0, 0].legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(title)

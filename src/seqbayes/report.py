@@ -324,9 +324,45 @@ def _threshold_section(store, thresholds, horizon, image_dir) -> str:
     return "\n".join(out)
 
 
+def _fit_section(store: RunStore, fit_data: tuple[int, np.ndarray] | None, level: float,
+                 image_dir: Path | None) -> str:
+    """The data-versus-fit panel: a dataset and the model's prediction at that step's posterior draws."""
+    from .datasets import as_likelihood_data
+
+    cfg = store.config
+    out = ["<h2>Data versus fit</h2>"]
+    if cfg.predict is None:
+        return "\n".join(out + ["<p>Not shown: name a prediction function in the configuration "
+                                 "(<code>[model] predict = \"predict\"</code>, a function of the likelihood's module, "
+                                 "<code>predict(theta (N, d), data) -&gt; (N, n_rows)</code>).</p>"])
+    if fit_data is None and len(store.tables) == store.n_steps:
+        fit_data = (store.n_steps - 1, np.asarray(store.tables[-1]))
+    if fit_data is None:
+        return "\n".join(out + ["<p>Not shown: this run does not keep its datasets; give one of them "
+                                 "(<code>seqbayes report RUN --data FILE</code>).</p>"])
+    index, table = fit_data
+    record = store.result.steps[index]
+    observed = cfg.observed or cfg.columns[-1]
+    column = cfg.columns.index(observed)
+    abscissa = cfg.columns[0] if cfg.columns[0] != observed else None
+    theta = record.equal_weight_samples(np.random.default_rng(0), min(200, record.posterior.shape[0]))
+    values = np.asarray(store.load_predict()(theta, as_likelihood_data(table, cfg)), dtype=float)
+    if values.shape != (theta.shape[0], table.shape[0]):
+        raise ValueError(f"predict: {cfg.predict} returned shape {values.shape} for theta of shape {theta.shape} and "
+                         f"{table.shape[0]} data rows; expected ({theta.shape[0]}, {table.shape[0]})")
+    x = table[:, 0] if abscissa else np.arange(1, table.shape[0] + 1)
+    fig = plotting.plot_data_fit(x, table[:, column], values, level=level, xlabel=abscissa or "row", ylabel=observed)
+    caption = (f"Step {record.info.step} ({store.sources[index]}): the data of column {observed!r} and the model's "
+               f"prediction ({cfg.predict}) at {theta.shape[0]} draws of the step's posterior: mean and {level:.0%} "
+               f"band (the posterior's uncertainty, without the observation noise)")
+    out.append(_figure_html(fig, caption, "fig-fit", image_dir))
+    return "\n".join(out)
+
+
 def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_steps: int = 3,
                   level: float = 0.95, image_dir: Path | None = None,
-                  thresholds: Sequence[Threshold] = (), horizon: int = 20) -> str:
+                  thresholds: Sequence[Threshold] = (), horizon: int = 20,
+                  fit_data: tuple[int, np.ndarray] | None = None) -> str:
     """The HTML text of the report for ``store`` (and, for model comparison, ``others``).
 
     Parameters
@@ -344,6 +380,10 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
         Add the time to each threshold (:func:`seqbayes.prognostics.parse_threshold`).
     horizon : int
         Steps ahead simulated for the time to a threshold.
+    fit_data : (int, (n_rows, n_columns) array), optional
+        A step index and the dataset it assimilated, for the data-versus-fit panel (needs the
+        configuration's ``[model] predict``); default: the last dataset when the store keeps the
+        datasets (static or SMC^2 runs), else no panel.
     """
     from .selection import compare
 
@@ -384,6 +424,7 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
                                    _fmt(r["lower"]), _fmt(r["upper"])] for r in frows], left=(2,)))
     if thresholds:
         parts.append(_threshold_section(store, thresholds, horizon, image_dir))
+    parts.append(_fit_section(store, fit_data, level, image_dir))
 
     runs = {store.config.name: store.result}
     for other in others:

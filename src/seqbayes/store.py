@@ -798,6 +798,17 @@ class RunStore:
         except ConfigError as err:
             raise StoreError(f"{self.path}: {str(err).replace('model.likelihood:', 'model.predict:', 1)}") from None
 
+    def load_predict(self):
+        """The configuration's ``[model] predict`` function (``None`` when it names none), from the same
+        verified module file as the likelihood (:meth:`load_likelihood`)."""
+        if self.config.predict is None:
+            return None
+        _, source = self._verified_likelihood()
+        try:
+            return load_located(f"{self.config.likelihood.split(':')[0]}:{self.config.predict}", source)
+        except ConfigError as err:
+            raise StoreError(f"{self.path}: {str(err).replace('model.likelihood:', 'model.predict:', 1)}") from None
+
     def share_likelihood(self, executor, source: ModuleSource | None = None) -> None:
         """Make the user's likelihood module importable on a Dask cluster's workers.
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import html
 import json
 import re
 
@@ -24,6 +25,10 @@ TRUTH_A = [1.8, 1.65, 1.5]
 TRUTH_B = 0.4
 
 BAD_SHAPE = """
+def predict(theta, data):
+    # the model's value of y at every row, for the report's data-versus-fit panel
+    return theta[:, [0]] * np.exp(-theta[:, [1]] * data["t"][None, :])
+
 def bad_shape(theta, data):
     return np.zeros((theta.shape[0], 2))
 """
@@ -39,7 +44,9 @@ def work(tmp_path_factory):
                "static": "# every parameter static"}
     common = dict(amplitude="A", data='format = "columns"', n_samples=120, seed=7)
     for name, kernel in kernels.items():
-        write_config(root / f"{name}.toml", "e2emodel", name=name, kernel=kernel, **common)
+        config = write_config(root / f"{name}.toml", "e2emodel", name=name, kernel=kernel, **common)
+        config.write_text(config.read_text().replace('likelihood = "e2emodel:loglike"\n',
+                                                     'likelihood = "e2emodel:loglike"\npredict = "predict"\n'))
     write_config(root / "badshape.toml", "e2emodel", name="bad", func="bad_shape", **common)
     tables = decay_tables(TRUTH_A, np.linspace(0.0, 4.0, 25), 0.05, seed=12, rate=TRUTH_B)
     for s, table in enumerate(tables):
@@ -172,13 +179,13 @@ def test_full_monitoring_session(work, capsys):
     assert code == 0 and "report written" in out
     page = (work / "report.html").read_text()
     images = re.findall(r"<img src='data:image/png;base64,([A-Za-z0-9+/=]+)' alt='([^']*)'>", page)
-    assert len(images) == 5
+    assert len(images) == 6
     for data, _alt in images:
         png = base64.b64decode(data)
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
         width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
         assert width >= 400 and height >= 200
-    for fig_id in ("fig-parameters", "fig-diagnostics", "fig-evidence", "fig-probabilities", "fig-threshold"):
+    for fig_id in ("fig-parameters", "fig-diagnostics", "fig-evidence", "fig-probabilities", "fig-threshold", "fig-fit"):
         assert f"id='{fig_id}'" in page
     # the model table in the usual notation, not raw JSON
     assert "<td class='l'>U(0.5, 2.5)</td>" in page and "<td class='l'>x - 0.15 + N(0, 0.02)</td>" in page
@@ -189,6 +196,19 @@ def test_full_monitoring_session(work, capsys):
     assert f"<td class=''>{first['step']}</td><td class=''>4</td><td class=''>{first['probability']:.4f}</td>" in page
     assert "last tempering stage, before resampling" in page
     assert "3-step forecast" in page and "Most probable model after step 3: <strong>drift</strong>" in page
+    # data versus fit: the run keeps its datasets (SMC^2), so by default the last one, with the model's predict
+    assert html.escape("Step 3 (month3.csv): the data of column 'y' and the model's prediction (predict)") in page
+    code, _, err = run(capsys, "report", work / "drift.nc", "-o", work / "fit1.html", "--data", work / "month1.csv",
+                       "--forecast", "0")
+    assert code == 0, err
+    assert html.escape("Step 1 (month1.csv): the data of column 'y'") in (work / "fit1.html").read_text()
+    (work / "other.csv").write_text("t,y\n0,1\n1,0.5\n")
+    code, _, err = run(capsys, "report", work / "drift.nc", "-o", work / "fit2.html", "--data", work / "other.csv")
+    assert code == 2 and "--data: " in err and "other.csv was not assimilated by" in err, err
+    nopredict = work / "nopredict.toml"
+    nopredict.write_text((work / "drift.toml").read_text().replace('predict = "predict"', 'predict = "nosuch"'))
+    code, _, err = run(capsys, "init", nopredict, work / "nopredict.nc")
+    assert code == 2 and "model.predict: module 'e2emodel' has no attribute 'nosuch'" in err, err
     for path in files:
         assert f"<td class='l'>{path.name}</td>" in page
     mean_a3 = f"{status['steps'][-1]['parameters']['A']['mean']:.4g}"
@@ -198,7 +218,7 @@ def test_full_monitoring_session(work, capsys):
                      "--forecast", "0")
     assert code == 0
     assert sorted(p.name for p in (work / "files" / "r_figures").iterdir()) == [
-        "fig-diagnostics.png", "fig-evidence.png", "fig-parameters.png", "fig-probabilities.png"]
+        "fig-diagnostics.png", "fig-evidence.png", "fig-fit.png", "fig-parameters.png", "fig-probabilities.png"]
     assert "src='r_figures/fig-parameters.png'" in (work / "files" / "r.html").read_text()
 
     assert run(capsys, "example", "no-such-study")[0] == 2   # the studies' dispatch is still there
