@@ -1,27 +1,32 @@
-"""Speed-up of distributed likelihood evaluation with an artificially slow likelihood.
+"""Speed-up of distributed likelihood evaluation with an expensive likelihood (issue 14, item 5).
 
-An expensive model (a finite-element solve) is emulated by a likelihood costing
-``--cost`` seconds per sample (default 20 ms): ``--mode sleep`` waits (an external
-solver, no CPU used here), ``--mode busy`` spins the CPU. One SEMC step (and one SMC
-step) on a small ensemble is timed serially and with a local Dask cluster of
-``--workers`` worker processes (``distributed.LocalCluster(processes=True,
-threads_per_worker=1)``); the numbers of both runs are checked to be identical.
+An expensive model (a finite-element solve) is emulated by a likelihood costing ``--cost``
+seconds per sample (default 50 ms): ``--mode sleep`` waits (an external solver: no CPU used
+here, so the figure does not depend on the machine's load), ``--mode busy`` spins the CPU
+(needs a free core per worker). One SEMC step and one SMC step (N = 32, d = 2, no tempering,
+3 sweeps / MH steps, the default importance evidence) run serially, with
+:class:`seqbayes.parallel.ProcessWorkers` (2 worker processes) and with a Dask ``LocalCluster`` of 2
+worker processes (one thread each, bound to 127.0.0.1, no dashboard), in interleaved rounds
+(serial, processes, Dask, serial, ...) in one process. The figure is the median over rounds of
+the per-round ratio serial / parallel; the numbers of every run are checked to be identical
+to the serial run's.
 
-    .venv/bin/python benchmarks/bench_parallel.py               # full (about 8 s serial per sampler)
-    .venv/bin/python benchmarks/bench_parallel.py --quick       # CI-sized (a few seconds)
+    .venv/bin/python benchmarks/bench_parallel.py                   # 50 ms sleep, 3 rounds
+    .venv/bin/python benchmarks/bench_parallel.py --mode busy
+    .venv/bin/python benchmarks/bench_parallel.py --cost 0.0 --n 2000   # a cheap batched likelihood
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
 from scipy import stats
 
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
-
-COST = {"seconds": 0.02, "mode": "sleep"}
+from seqbayes.parallel import ProcessWorkers
 
 
 def slow_loglike(theta, data):
@@ -40,49 +45,67 @@ def slow_loglike(theta, data):
 def run(cls, executor, args):
     prior = JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)})
     kernel = MarkovKernel([Drift(-0.1, noise_std=0.05), Static()])
-    settings = dict(tempering=False, n_moves=args.moves)
-    if cls is SEMC:
-        settings["max_virtual"] = args.moves
+    settings = dict(tempering=False, n_moves=args.moves, predictive="transition")
+    settings["max_virtual" if cls is SEMC else "max_moves"] = args.moves
     sampler = cls(prior, kernel, slow_loglike, n_samples=args.n, rng=1, executor=executor, **settings)
     rng = np.random.default_rng(0)
     x = np.linspace(-1, 1, 10)
     data = (x, 0.5 + 1.2 * x + 0.2 * rng.standard_normal(x.size), args.cost, args.mode)
     start = time.perf_counter()
-    info = sampler.update(data)
-    return time.perf_counter() - start, info, sampler.result.steps[-1]
+    sampler.update(data)
+    return time.perf_counter() - start, sampler.result.steps[-1]
+
+
+def identical(a, b) -> bool:
+    return (np.array_equal(a.posterior, b.posterior) and np.array_equal(a.log_weights, b.log_weights)
+            and a.info.log_evidence == b.info.log_evidence and a.info.n_loglike_evals == b.info.n_loglike_evals)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=32, help="ensemble size N (default 32)")
-    parser.add_argument("--cost", type=float, default=0.02, help="seconds per likelihood sample (default 0.02)")
+    parser.add_argument("--cost", type=float, default=0.05, help="seconds per likelihood sample (default 0.05)")
     parser.add_argument("--mode", choices=("sleep", "busy"), default="sleep")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--moves", type=int, default=3, help="MCMC sweeps per step (default 3)")
-    parser.add_argument("--quick", action="store_true", help="N = 16, 5 ms per sample, 1 sweep")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--samplers", nargs="+", default=["SEMC", "SMC"])
     args = parser.parse_args(argv)
-    if args.quick:
-        args.n, args.cost, args.moves = 16, 0.005, 1
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=args.workers, processes=True, threads_per_worker=1, dashboard_address=":0")
+    cluster = LocalCluster(n_workers=args.workers, processes=True, threads_per_worker=1, host="127.0.0.1",
+                           dashboard_address=None)
     client = Client(cluster)
+    pool = ProcessWorkers(args.workers)
     try:
         client.run(lambda: None)  # workers up before timing
-        print(f"N = {args.n}, {args.cost * 1e3:.0f} ms per sample ({args.mode}), {args.moves} sweep(s), "
-              f"{args.workers} Dask worker processes")
-        print(f"{'sampler':<6} {'evals':>6} {'serial s':>9} {'dask s':>8} {'speed-up':>8} {'ideal':>6}  identical")
-        for cls in (SEMC, SMC):
-            t_serial, info, rec_serial = run(cls, None, args)
-            t_dask, info_dask, rec_dask = run(cls, client, args)
-            same = (np.array_equal(rec_serial.posterior, rec_dask.posterior)
-                    and info.log_evidence == info_dask.log_evidence)
-            ideal = args.workers
-            print(f"{cls.__name__:<6} {info.n_loglike_evals:>6} {t_serial:9.2f} {t_dask:8.2f} "
-                  f"{t_serial / t_dask:8.2f} {ideal:6.1f}  {same}")
+        pool.map(abs, range(args.workers))  # worker processes up before timing
+        print(f"\nN = {args.n}, {args.cost * 1e3:.0f} ms per sample ({args.mode}), {args.moves} sweep(s), "
+              f"{args.workers} workers, {args.rounds} interleaved rounds; load average at start "
+              f"{os.getloadavg()[0]:.1f}\n")
+        print("| sampler | evaluations | serial s (median) | processes s | Dask s | speed-up processes | "
+              "speed-up Dask | identical |\n|---|---|---|---|---|---|---|---|")
+        for name in args.samplers:
+            cls = {"SEMC": SEMC, "SMC": SMC}[name]
+            times = {"serial": [], "processes": [], "dask": []}
+            same = True
+            for _ in range(args.rounds):
+                t, reference = run(cls, None, args)
+                times["serial"].append(t)
+                for label, executor in (("processes", pool), ("dask", client)):
+                    t, record = run(cls, executor, args)
+                    times[label].append(t)
+                    same &= identical(reference, record)
+            serial = np.array(times["serial"])
+            ratios = {k: np.median(serial / np.array(times[k])) for k in ("processes", "dask")}
+            print(f"| {name} | {reference.info.n_loglike_evals} | {np.median(serial):.2f} | "
+                  f"{np.median(times['processes']):.2f} | {np.median(times['dask']):.2f} | "
+                  f"{ratios['processes']:.2f} | {ratios['dask']:.2f} | {'yes' if same else 'NO'} |")
             if not same:
-                raise SystemExit("results differ between serial and Dask runs")
+                raise SystemExit("results differ between serial and parallel runs")
+        print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
     finally:
+        pool.shutdown()
         client.close()
         cluster.close()
     return 0

@@ -1,18 +1,45 @@
 """Likelihood evaluation over a batch of samples, serially or through an executor.
 
-An executor is anything with ``map`` (a :mod:`concurrent.futures` executor) or a
-:class:`dask.distributed.Client` (``map`` returns futures, gathered here). The
-batch is split into contiguous chunks, so the result is identical to the serial
-evaluation whatever the number of workers. The user's function gets read-only views
-of the samples and the data (:func:`read_only`): writing into them raises instead of
-corrupting the sampler's particles or a stored dataset.
+An executor is a :class:`ProcessWorkers` pool, any object with ``map`` (a
+:mod:`concurrent.futures` executor) or a :class:`dask.distributed.Client`. The batch is
+split into one contiguous chunk per worker, so the result is identical to the serial
+evaluation whatever the number of workers. What makes a pool pay for an expensive model
+(docs/parallel.md measures it):
+
+* **The likelihood and the dataset travel once.** :class:`ProcessWorkers` and a Dask
+  client keep them on the workers, keyed by a fingerprint of their pickled bytes (so a
+  buffer the caller refilled in place is sent again, never used stale); each call then
+  ships only the samples. A plain ``concurrent.futures`` executor cannot address its
+  workers and gets both with every chunk.
+* **A cheap batch stays here.** The likelihood's own time per sample (timed around the
+  call, in the worker or here, so without the round trip; on the very first call, from
+  its first sample, evaluated here) is remembered per executor and likelihood; when a
+  chunk would take less than :data:`MIN_CHUNK_SECONDS` (the round trip's order), the batch
+  is evaluated serially.
+
+The user's function gets read-only views of the samples and the data (:func:`read_only`):
+writing into them raises instead of corrupting the sampler's particles or a stored dataset.
 """
 
 from __future__ import annotations
 
+import hashlib
+import pickle
+import time
+import weakref
+from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor
+
 import numpy as np
 
-__all__ = ["evaluate_loglike", "read_only"]
+__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "MIN_CHUNK_SECONDS"]
+
+#: A chunk expected to take less than this (seconds) is not worth a round trip: the batch is evaluated
+#: serially. 20 ms: a Dask round trip costs 5-20 ms, a local process pool's 0.5-2 ms (docs/parallel.md).
+MIN_CHUNK_SECONDS = 0.02
+
+#: Payloads (likelihood, dataset) kept per pool; the history prior's past datasets each need one.
+_KEPT_PAYLOADS = 16
 
 
 def read_only(value):
@@ -48,21 +75,180 @@ def _call(loglike, theta, dataset):
     return np.array(values, dtype=float)  # a copy: never a view of theta
 
 
+# ---------------------------------------------------------------- worker side: payloads kept by key
+_STORED: OrderedDict = OrderedDict()
+
+
+def _store(key, payload: bytes) -> None:
+    """In a worker: keep the unpickled ``(loglike, dataset)`` under ``key`` (the newest few)."""
+    _STORED[key] = pickle.loads(payload)
+    while len(_STORED) > _KEPT_PAYLOADS:
+        _STORED.popitem(last=False)
+
+
+def _timed(loglike, theta, dataset):
+    """In a worker: ``(values, seconds spent in the likelihood)``: the cost without the round trip."""
+    start = time.perf_counter()
+    values = _call(loglike, theta, dataset)
+    return values, time.perf_counter() - start
+
+
+def _call_stored(key, theta):
+    """In a worker: the kept likelihood on the kept dataset at ``theta``, timed."""
+    loglike, dataset = _STORED[key]
+    return _timed(loglike, theta, dataset)
+
+
+def _call_payload(payload, theta):
+    """In a Dask worker: ``payload`` is the scattered ``(loglike, dataset)``, resolved there; timed."""
+    loglike, dataset = payload
+    return _timed(loglike, theta, dataset)
+
+
+class ProcessWorkers:
+    """A pool of worker processes that keep the likelihood and the dataset between calls.
+
+    Each worker is its own one-process executor, so a payload can be sent to every worker once
+    and each chunk addressed to one worker. Usable as an ordinary executor (``map``) too.
+
+    Parameters
+    ----------
+    n_workers : int
+    mp_context : multiprocessing context, optional
+        E.g. ``multiprocessing.get_context("spawn")`` (the platform's default otherwise).
+
+    Examples
+    --------
+    >>> with ProcessWorkers(2) as pool:                       # doctest: +SKIP
+    ...     sampler = seqbayes.SEMC(prior, kernel, loglike, executor=pool)
+    """
+
+    def __init__(self, n_workers: int = 2, mp_context=None):
+        if isinstance(n_workers, bool) or int(n_workers) != n_workers or n_workers < 1:
+            raise ValueError(f"n_workers: expected an integer >= 1, got {n_workers!r}")
+        self._executors = [ProcessPoolExecutor(1, mp_context=mp_context) for _ in range(int(n_workers))]
+        self._sent: OrderedDict = OrderedDict()
+
+    @property
+    def n_workers(self) -> int:
+        return len(self._executors)
+
+    def map(self, fn, *iterables):
+        """``fn`` over the iterables, round-robin over the workers; results in order."""
+        futures = [self._executors[i % self.n_workers].submit(fn, *args) for i, args in enumerate(zip(*iterables))]
+        return [f.result() for f in futures]
+
+    def evaluate(self, key, payload: bytes, chunks) -> list:
+        """Chunk ``i`` on worker ``i``; the payload is sent to the workers only the first time ``key`` is seen."""
+        if key not in self._sent:
+            for f in [e.submit(_store, key, payload) for e in self._executors]:
+                f.result()
+            self._sent[key] = True
+            while len(self._sent) > _KEPT_PAYLOADS:
+                self._sent.popitem(last=False)
+        else:
+            self._sent.move_to_end(key)
+        futures = [self._executors[i % self.n_workers].submit(_call_stored, key, chunk) for i, chunk in enumerate(chunks)]
+        return [f.result() for f in futures]
+
+    def shutdown(self, wait: bool = True) -> None:
+        for executor in self._executors:
+            executor.shutdown(wait=wait)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.shutdown()
+
+
+class _Plan:
+    """What one executor remembers: the measured cost per sample of each likelihood, Dask's scattered payloads."""
+
+    def __init__(self):
+        self.seconds_per_row: dict = {}
+        self.scattered: OrderedDict = OrderedDict()
+
+
+_PLANS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_UNWEAKABLE_PLANS: dict = {}
+
+
+def _plan(executor) -> _Plan:
+    try:
+        return _PLANS.setdefault(executor, _Plan())
+    except TypeError:  # an executor that takes no weak reference: kept by id while it lives
+        return _UNWEAKABLE_PLANS.setdefault(id(executor), _Plan())
+
+
+def _payload(loglike, dataset):
+    """The pickled ``(loglike, dataset)`` and its fingerprint (cloudpickle for what pickle cannot take)."""
+    try:
+        payload = pickle.dumps((loglike, dataset), protocol=pickle.HIGHEST_PROTOCOL)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        import cloudpickle
+
+        payload = cloudpickle.dumps((loglike, dataset))
+    return payload, hashlib.blake2b(payload, digest_size=16).hexdigest()
+
+
 def evaluate_loglike(loglike, theta, dataset, executor=None, n_chunks: int | None = None) -> np.ndarray:
-    """``loglike(theta, dataset)`` for ``theta (N, d)``, optionally in chunks across workers; ``(N,)``."""
-    if executor is None or theta.shape[0] < 2:
+    """``loglike(theta, dataset)`` for ``theta (N, d)``, optionally in chunks across workers; ``(N,)``.
+
+    Parameters
+    ----------
+    loglike : callable ``(theta (k, d), dataset) -> (k,)``
+    theta : (N, d) array
+    dataset : object
+    executor : ProcessWorkers, concurrent.futures executor or dask Client, optional
+    n_chunks : int, optional
+        Chunks per call (default: one per worker).
+    """
+    n = theta.shape[0]
+    if executor is None or n < 2:
         return _call(loglike, theta, dataset)
-    n_chunks = n_chunks or _default_chunks(executor)
-    chunks = np.array_split(theta, min(n_chunks, theta.shape[0]))
-    if hasattr(executor, "gather"):  # dask.distributed.Client
-        futures = executor.map(_call, [loglike] * len(chunks), chunks, [dataset] * len(chunks), pure=False)
-        parts = executor.gather(futures)
+    n_chunks = min(n_chunks or _default_chunks(executor), n)
+    plan = _plan(executor)
+    cost = plan.seconds_per_row.get(id(loglike))
+    head = None
+    if cost is None and MIN_CHUNK_SECONDS > 0:  # first call: time one sample here (it is needed anyway)
+        start = time.perf_counter()
+        head = _call(loglike, theta[:1], dataset)
+        cost = plan.seconds_per_row[id(loglike)] = time.perf_counter() - start
+        theta = theta[1:]
+        n_chunks = min(n_chunks, theta.shape[0])
+    if cost is not None and cost * theta.shape[0] / n_chunks < MIN_CHUNK_SECONDS:
+        values, seconds = _timed(loglike, theta, dataset)
     else:
-        parts = list(executor.map(_call, [loglike] * len(chunks), chunks, [dataset] * len(chunks)))
-    return np.concatenate([np.atleast_1d(p) for p in parts])
+        values, seconds = _parallel(loglike, theta, dataset, executor, n_chunks, plan)
+    plan.seconds_per_row[id(loglike)] = seconds / max(1, theta.shape[0])  # the likelihood's own time
+    return values if head is None else np.concatenate([head, values])
+
+
+def _parallel(loglike, theta, dataset, executor, n_chunks, plan) -> np.ndarray:
+    chunks = np.array_split(theta, n_chunks)
+    if isinstance(executor, ProcessWorkers):
+        payload, key = _payload(loglike, dataset)
+        parts = executor.evaluate(key, payload, chunks)
+    elif hasattr(executor, "gather"):  # dask.distributed.Client: the payload is scattered once, kept on the workers
+        payload, key = _payload(loglike, dataset)
+        future = plan.scattered.get(key)
+        if future is None:
+            future = executor.scatter([(loglike, dataset)], broadcast=True, hash=False)[0]
+            plan.scattered[key] = future
+            while len(plan.scattered) > _KEPT_PAYLOADS:
+                plan.scattered.popitem(last=False)
+        else:
+            plan.scattered.move_to_end(key)
+        parts = executor.gather(executor.map(_call_payload, [future] * len(chunks), chunks, pure=False))
+    else:
+        parts = list(executor.map(_timed, [loglike] * len(chunks), chunks, [dataset] * len(chunks)))
+    return np.concatenate([np.atleast_1d(values) for values, _ in parts]), sum(seconds for _, seconds in parts)
 
 
 def _default_chunks(executor) -> int:
+    if isinstance(executor, ProcessWorkers):
+        return executor.n_workers
     if hasattr(executor, "nthreads"):  # dask Client
         try:
             return max(1, sum(executor.nthreads().values()))

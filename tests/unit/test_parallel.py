@@ -12,8 +12,17 @@ import pytest
 from scipy import stats
 
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
+from seqbayes import parallel
+from seqbayes.parallel import ProcessWorkers
 
 distributed = pytest.importorskip("distributed")
+
+
+@pytest.fixture(autouse=True)
+def every_batch_to_the_workers(monkeypatch):
+    """The tests below check that the work really runs in the workers: no batch is kept here for being
+    cheap (``MIN_CHUNK_SECONDS = 0``), except in the test of that rule, which sets it back."""
+    monkeypatch.setattr(parallel, "MIN_CHUNK_SECONDS", 0.0)
 
 
 def loglike(theta, data):
@@ -146,3 +155,71 @@ def test_history_prior_evaluates_past_datasets_on_the_executor_with_the_serial_n
     assert_identical(serial, result)
     evaluated = sum(int(n) for p in tmp_path.glob("*.pid") for n in p.read_text().split())
     assert evaluated == sum(r.info.n_loglike_evals for r in result.steps)
+
+
+class CountedLoglike:
+    """The regression likelihood; every unpickling (a delivery to a worker) leaves a file in ``folder``."""
+
+    def __init__(self, folder):
+        self.folder = folder
+
+    def __call__(self, theta, data):
+        with open(os.path.join(self.folder, f"eval-{os.getpid()}-{os.urandom(4).hex()}"), "w") as fh:
+            fh.write(str(theta.shape[0]))
+        return loglike(theta, data[:2] + (None,))
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        open(os.path.join(self.folder, f"delivery-{os.getpid()}-{os.urandom(4).hex()}"), "w").close()
+
+
+def counted_run(executor, folder):
+    return SEMC(JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)}),
+                MarkovKernel([Drift(-0.1, noise_std=0.05), Static()]), CountedLoglike(str(folder)), n_samples=40,
+                rng=17, executor=executor, moved_fraction=0.0, max_virtual=4).run(datasets())
+
+
+def test_process_workers_get_the_likelihood_and_each_dataset_once(serial, tmp_path):
+    """Two datasets, two workers: four deliveries, however many batches (the plain executor ships per chunk)."""
+    with ProcessWorkers(2) as pool:
+        assert_identical(serial["SEMC"], make(SEMC, executor=pool).run(datasets()))
+        result = counted_run(pool, tmp_path)
+        worker_pids = set(pool.map(os.getpid, *[[]]) or []) | {int(p.name.split("-")[1]) for p in tmp_path.glob("eval-*")}
+    assert_identical(serial["SEMC"], result)
+    deliveries = list(tmp_path.glob("delivery-*"))
+    assert len(deliveries) == 4
+    assert os.getpid() not in {int(p.name.split("-")[1]) for p in deliveries}
+    n_batches = len(list(tmp_path.glob("eval-*"))) // 2
+    assert n_batches > 10  # many calls, each chunk evaluated in a worker from what it kept
+    evaluated = sum(int(p.read_text()) for p in tmp_path.glob("eval-*"))
+    assert evaluated == sum(r.info.n_loglike_evals for r in result.steps)
+    assert len(worker_pids) == 2
+
+
+def test_dask_workers_get_the_likelihood_and_each_dataset_once(client, serial, tmp_path):
+    result = counted_run(client, tmp_path)
+    assert_identical(serial["SEMC"], result)
+    deliveries = {int(p.name.split("-")[1]) for p in tmp_path.glob("delivery-*")}
+    assert deliveries <= set(client.run(os.getpid).values())
+    assert len(list(tmp_path.glob("delivery-*"))) <= 4  # at most once per worker and dataset
+    evaluated = sum(int(p.read_text()) for p in tmp_path.glob("eval-*"))
+    assert evaluated == sum(r.info.n_loglike_evals for r in result.steps)
+
+
+def test_a_cheap_likelihood_stays_in_this_process_with_the_same_numbers(serial, tmp_path, monkeypatch):
+    """Under MIN_CHUNK_SECONDS per chunk, batches are evaluated here. The first call times its first sample
+    here; if that one sample looked slow (a loaded machine), the first call's two chunks may go to the
+    workers, which time the likelihood without the round trip, and every later call stays here."""
+    monkeypatch.setattr(parallel, "MIN_CHUNK_SECONDS", 0.02)
+    with ProcessWorkers(2) as pool:
+        result = counted_run(pool, tmp_path)
+    assert_identical(serial["SEMC"], result)
+    in_workers = [p for p in tmp_path.glob("eval-*") if int(p.name.split("-")[1]) != os.getpid()]
+    assert len(in_workers) <= 2
+    assert sum(int(p.read_text()) for p in in_workers) in (0, 40 - 1)
+    assert len(list(tmp_path.glob("eval-*"))) > 20  # many calls, all (but the first at most) here
+
+
+def test_process_workers_bad_input():
+    with pytest.raises(ValueError, match="n_workers"):
+        ProcessWorkers(0)
