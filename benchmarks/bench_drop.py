@@ -3,10 +3,10 @@ bullet 3; quoted in docs/shake_table.md, section "Stiffness drop during the shak
 
 The 4-storey building of case b4 in bench_sgenmcmc.py (masses 24/20/20/16 t,
 stiffness 36/30/24/16 kN/mm, Rayleigh 2 % / 4 %, truth 0.91/0.85/0.78/0.94), a new
-30 s Kanai-Tajimi record per seed (2.5 Hz, 0.07 g, 50 Hz), unmeasured input
+20 s Kanai-Tajimi record per seed (2.5 Hz, 0.07 g, 50 Hz), unmeasured input
 noise 5 % of the input RMS, 3 % measurement noise on the four floor
 accelerations. With a drop: storey 2 loses ``--fraction`` (20 %) of its
-stiffness from step 752 (15.04 s, half-way, and deliberately not on the
+stiffness from step 502 (10.04 s, half-way, and deliberately not on the
 monitor's 0.1 s change grid). Without: the same record and noise draws with no
 drop (false alarms). :class:`seqbayes.stiffness_drop.StiffnessDropMonitor` at
 default settings is fed blocks of ``--block`` steps (25 = 0.5 s).
@@ -17,6 +17,14 @@ there and the log Bayes factor of storey 2's class against the best other
 one, P(M_2) 2 s after the drop, the posterior mean drop fraction and change
 time at the end, and for the record without a drop the largest P(change) over
 all blocks (a false alarm if above 0.99); wall and CPU seconds.
+
+``--evidence``: instead, the per-block log-evidence of both classes of a
+one-storey building (5 Hz, 4 s Kanai-Tajimi record, 30 % noise, a 30 % drop at
+step 100, change boundaries every 25 steps with h = 0.1, blocks of 25 steps,
+200 particles) against the exact evidence
+(:func:`seqbayes.stiffness_drop.grid_log_evidence`) over ``--seeds`` sampler
+seeds: the Monte Carlo errors behind the tolerances of
+tests/statistical/test_stiffness_drop.py.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_drop.py [--seeds 10] [--json out.json]
 [--figure docs/figures/shake_table_drop.png]`` (the figure: seed 0, with and without the drop).
@@ -31,7 +39,7 @@ import time
 
 import numpy as np
 
-from seqbayes.stiffness_drop import StiffnessDropMonitor, simulate_drop
+from seqbayes.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, simulate_drop
 from seqbayes.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
 
 DT = 0.02
@@ -39,7 +47,7 @@ TRUTH = np.array([0.91, 0.85, 0.78, 0.94])
 BUILDING = dict(masses=(24.0, 20.0, 20.0, 16.0), stiffness=(36.0, 30.0, 24.0, 16.0), damping=(0.02, 0.04))
 
 
-def drop_record(seed: int, fraction: float, storey: int = 2, seconds: float = 30.0, drop_step: int = 752,
+def drop_record(seed: int, fraction: float, storey: int = 2, seconds: float = 20.0, drop_step: int = 502,
                 noise: float = 0.03) -> dict:
     """Record of one seed; ``fraction = 0``: the same draws without a drop."""
     building = ShearBuilding(np.array(BUILDING["masses"]) * 1e3, np.array(BUILDING["stiffness"]) * 1e6,
@@ -119,17 +127,60 @@ def figure(path, rows, drop_time):
     plt.close(fig)
 
 
+def bench_evidence(seeds: int, particles: int = 200) -> dict:
+    """Per-block log-evidence errors against the exact one (module docstring, --evidence)."""
+    building = ShearBuilding([1e4], [1e7], (0.03, 0.03))
+    rng = np.random.default_rng(0)
+    T = 200
+    u = kanai_tajimi((T - 1) * DT, DT, 0.07, ground_frequency_hz=4.0, rng=rng).acceleration
+    sw = 0.05 * float(np.sqrt(np.mean(u**2)))
+    y, _ = simulate_drop(building, DT, [0.85], 1, 0.3, T // 2, u, sw, rng)
+    y, std = add_measurement_noise(y, 0.3, rng)
+    ends = np.arange(24, T, 25)
+    t0 = time.perf_counter()
+    exact = np.column_stack(grid_log_evidence(building, DT, u, y, std, sw, ends, change_every=25, hazard=0.1))
+    fine = np.column_stack(grid_log_evidence(building, DT, u, y, std, sw, ends, change_every=25, hazard=0.1,
+                                             n_theta=301, n_delta=201))
+    print(f"exact evidence: {time.perf_counter() - t0:.1f} s (both grids); grid error (vs twice as fine) "
+          f"{np.abs(exact - fine).max():.1e}; exact log Z (no change / drop) at the block ends:\n"
+          f"{np.round(fine.T, 2).tolist()}", flush=True)
+    errors = []
+    for seed in range(seeds):
+        mon = StiffnessDropMonitor(building, DT, 0.7, 1.0, std, sw, n_particles=particles, change_every=25,
+                                   change_rate=0.2, prune_below=0)
+        mon.reset(rng=seed)
+        for start in range(0, T, 25):
+            mon.update(u[start : start + 25], y[start : start + 25])
+        errors.append(np.array([b.log_evidence for b in mon.history]) - fine)
+    errors = np.array(errors)  # (seeds, blocks, 2)
+    before = ends < T // 2
+    for c, label in enumerate(("no change (M_0)", "drop (M_1)")):
+        e = errors[:, :, c]
+        print(f"{label}: error per block, mean {np.round(e.mean(axis=0), 2).tolist()}, sd "
+              f"{np.round(e.std(axis=0), 2).tolist()}; before the drop max |error| {np.abs(e[:, before]).max():.2f}, "
+              f"after {np.abs(e[:, ~before]).max():.2f}")
+    return {"exact": fine.tolist(), "errors": errors.tolist(), "ends": ends.tolist()}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     parser.add_argument("--fraction", type=float, default=0.2)
     parser.add_argument("--block", type=int, default=25, help="steps per update (25 = 0.5 s)")
     parser.add_argument("--json", default=None)
     parser.add_argument("--figure", default=None, help="write the seed-0 figure here")
+    parser.add_argument("--evidence", action="store_true", help="the exact-evidence check instead")
     args = parser.parse_args(argv)
+    if args.evidence:
+        out = bench_evidence(args.seeds)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+        return
     print(f"load average (1, 5, 15 min): {os.getloadavg()}", flush=True)
     rows = []
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         drop = drop_record(seed, args.fraction)
         calm = drop_record(seed, 0.0)
         row = {"seed": seed, "drop": monitor(drop, seed, args.block), "no_drop": monitor(calm, seed, args.block)}

@@ -55,10 +55,14 @@ and a change is *detected* at the end of the first block where it exceeds
 ``threshold``; it is *attributed* to the storey of the most probable change
 class.
 
-Pruning (``prune_below``): a class whose posterior probability falls below
-``prune_below`` after a step stops being updated (its log-evidence is
+Pruning (``prune_below``): a class whose posterior probability stays below
+``prune_below`` for ``prune_after`` consecutive steps stops being updated (its log-evidence is
 kept as it was) and is left out of the class probabilities from then on, the
-beam pruning of multiple-model trackers. Without it, after a drop the wrong
+beam pruning of multiple-model trackers. The wait matters: right after a
+drop, a wrong storey's class can explain the first few steps better than the
+right one, whose particles need a few change boundaries to propose a drop of
+the right size (measured: pruning after a single step removed the right class
+in the first benchmark seed). Without pruning, after a drop the wrong
 classes keep re-fitting data they cannot explain, which is most of the cost
 (measured in benchmarks/bench_drop.py); with ``prune_below=0`` every class runs
 to the end. Validated against the exact evidence (quadrature over ``theta`` and
@@ -75,14 +79,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
+from .filters.kalman import (
+    KalmanBank, check_filter_inputs, kalman_filter, kalman_log_likelihood, measurement_covariance,
+)
 from .resampling import resample
 from .rng import as_generator
 from .sgenmcmc import _blas_limit, _next_exponent
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise, simulate
 from .weights import logsumexp, normalise
 
-__all__ = ["StiffnessDropMonitor", "DropBlock", "path_log_likelihood", "simulate_drop"]
+__all__ = ["StiffnessDropMonitor", "DropBlock", "path_log_likelihood", "simulate_drop", "grid_log_evidence"]
 
 
 @dataclass(frozen=True)
@@ -269,6 +275,66 @@ def simulate_drop(building: ShearBuilding, dt: float, theta, storey: int, fracti
     return np.concatenate([y1[0], y2[0, 1:]]), np.concatenate([d1[0], d2[0, 1:]])
 
 
+def _switched_increments(building, dt, theta, delta, tau, u, y, R, sw):
+    """Per-step increments ``(M, T)`` of the plain Kalman filter of a one-storey path
+    with the matrices switched at step ``tau`` (common to all members)."""
+    after = theta * (1 - delta)[:, None]
+    pre, post = discretise(building, theta, dt), discretise(building, after, dt)
+    first = kalman_filter(pre, u[:tau], y[:tau], R, sw, store=True)
+    A, b = post.A, post.B0 + post.B1
+    x0 = np.einsum("nij,nj->ni", A, first.filtered_means[:, -1]) + post.B0 * u[tau - 1] + post.B1 * u[tau]
+    P0 = A @ first.filtered_covariances @ np.swapaxes(A, 1, 2) + sw**2 * b[:, :, None] * b[:, None, :]
+    second = kalman_filter(post, u[tau:], y[tau:], R, sw, x0=x0, P0=P0, store=True)
+    return np.concatenate([first.log_likelihood_increments, second.log_likelihood_increments], axis=1)
+
+
+def grid_log_evidence(building: ShearBuilding, dt: float, ground_acceleration, measurements, measurement_noise,
+                      process_noise_std: float, ends, change_every: int, hazard: float, lower: float = 0.7,
+                      upper: float = 1.0, drop_range=(0.02, 0.5), n_theta: int = 151, n_delta: int = 101):
+    """The exact evidence of the two classes of a **one-storey** building, the
+    reference for :class:`StiffnessDropMonitor`: ``log p(y_{0:e} | M_0)`` and
+    ``log p(y_{0:e} | M_1)`` at each step ``e`` in ``ends``.
+
+    Trapezoid rule on an ``n_theta x n_delta`` grid of the uniform priors of
+    ``theta`` and ``delta`` (on the tests' case within 5e-5 of a grid twice as
+    fine), and the sum over the change boundaries with their geometric prior
+    ``h (1 - h)^(b - 1)``; every term is the plain :func:`~seqbayes.filters.kalman.kalman_filter`
+    (no steady-state shortcut), independent of :func:`path_log_likelihood`.
+
+    Returns
+    -------
+    log_z0, log_z1 : (len(ends),) arrays
+    """
+    if building.n_storeys != 1:
+        raise ValueError(f"building: the grid reference is for one storey, got {building.n_storeys}")
+    u = np.asarray(ground_acceleration, float)
+    y = np.asarray(measurements, float)
+    ends = np.asarray(ends, int)
+    R = measurement_covariance(measurement_noise, 1)
+    theta = np.linspace(lower, upper, n_theta)
+    delta = np.linspace(*drop_range, n_delta)
+    w_theta, w_delta = np.ones(n_theta), np.ones(n_delta)
+    w_theta[[0, -1]] = w_delta[[0, -1]] = 0.5
+    w_theta, w_delta = w_theta / w_theta.sum(), w_delta / w_delta.sum()
+    log_w = np.log(np.outer(w_theta, w_delta).ravel())
+    no_change = np.cumsum(kalman_filter(discretise(building, theta[:, None], dt), u, y, R, process_noise_std,
+                                        store=True).log_likelihood_increments, axis=1)
+    log_z0 = np.array([logsumexp(np.log(w_theta) + no_change[:, e]) for e in ends])
+    grid_theta, grid_delta = np.repeat(theta, n_delta)[:, None], np.tile(delta, n_theta)
+    boundaries = np.arange(change_every, u.size, change_every)
+    terms = []
+    for i, tau in enumerate(boundaries):  # loop over change boundaries
+        cum = np.cumsum(_switched_increments(building, dt, grid_theta, grid_delta, tau, u, y, R, process_noise_std),
+                        axis=1)
+        log_prior = np.log(hazard) + i * np.log1p(-hazard)  # P(tau = i-th boundary)
+        terms.append([log_prior + logsumexp(log_w + cum[:, e]) if e >= tau else -np.inf for e in ends])
+    terms = np.array(terms).reshape(len(boundaries), len(ends))
+    n_before = np.array([np.sum(boundaries <= e) for e in ends])
+    log_z1 = np.array([logsumexp(np.concatenate([[n_before[j] * np.log1p(-hazard) + log_z0[j]], terms[:, j]]))
+                       for j in range(len(ends))])
+    return log_z0, log_z1
+
+
 class StiffnessDropMonitor:
     """On-line stiffness-drop detection and storey attribution (module docstring).
 
@@ -298,17 +364,19 @@ class StiffnessDropMonitor:
     threshold : float
         Detection threshold on ``P(changed | y)``.
     prune_below : float
-        Classes below this posterior probability after a step stop being updated
-        (module docstring; 0: never).
+        Classes below this posterior probability for ``prune_after`` consecutive
+        steps stop being updated (module docstring; 0: never).
+    prune_after : int
+        Steps (default 25 = 0.5 s at 50 Hz).
     ess_threshold, moves_per_particle, max_sweeps, resampling, blas_threads
         As :class:`~seqbayes.sgenmcmc.SGEnMCMC`.
     channels : str
     """
 
     def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
-                 process_noise_std: float = 0.0, n_particles: int = 300, drop_range=(0.02, 0.5),
+                 process_noise_std: float = 0.0, n_particles: int = 200, drop_range=(0.02, 0.5),
                  change_rate: float = 0.01, change_every: int = 5, jump_proposal: float | None = None,
-                 prior_no_change: float = 0.5, threshold: float = 0.99, prune_below: float = 1e-10,
+                 prior_no_change: float = 0.5, threshold: float = 0.99, prune_below: float = 1e-10, prune_after: int = 25,
                  ess_threshold: float = 0.3,
                  moves_per_particle: float = 1.0, max_sweeps: int = 10, resampling: str = "systematic",
                  channels: str = "absolute_acceleration", blas_threads: int | None = 1):
@@ -349,7 +417,9 @@ class StiffnessDropMonitor:
         self.n_particles, self.drop_range = int(n_particles), (lo, hi)
         self.hazard, self.jump_proposal, self.change_every = hazard, q, int(change_every)
         self.prior_no_change, self.threshold = float(prior_no_change), float(threshold)
-        self.prune_below = float(prune_below)
+        if not isinstance(prune_after, (int, np.integer)) or prune_after < 1:
+            raise ValueError(f"prune_after: expected a positive integer, got {prune_after!r}")
+        self.prune_below, self.prune_after = float(prune_below), int(prune_after)
         self.ess_threshold, self.moves_per_particle, self.max_sweeps = float(ess_threshold), float(
             moves_per_particle), int(max_sweeps)
         self.resampling, self.blas_threads = resampling, blas_threads
@@ -371,7 +441,8 @@ class StiffnessDropMonitor:
             classes.append(_ClassState(storey, theta, np.zeros(N), np.full(N, -1), bank, mean, cov, np.zeros(N),
                                        np.zeros(N), 0.0, 0))
         self._run = {"rng": rng, "R": R, "probe": probe, "u": np.zeros(0), "y": np.zeros((0, R.shape[0])),
-                     "classes": classes, "active": np.ones(d + 1, bool), "history": []}
+                     "classes": classes, "active": np.ones(d + 1, bool), "low_steps": np.zeros(d + 1, int),
+                     "history": []}
 
     def update(self, ground_acceleration, measurements) -> DropBlock:
         """Process the next block ``measurements (n, p)`` under ``ground_acceleration (n,)``;
@@ -389,8 +460,10 @@ class StiffnessDropMonitor:
             for k in range(first, run["u"].size):  # loop over time only
                 run["classes"] = [self._class_step(c, k, run) if on else c
                                   for c, on in zip(run["classes"], run["active"])]
-                if self.prune_below > 0:
-                    run["active"] = run["active"] & (np.exp(self._log_class_probabilities(run)) >= self.prune_below)
+                if self.prune_below > 0:  # count the consecutive steps each class spent below prune_below
+                    low = np.exp(self._log_class_probabilities(run)) < self.prune_below
+                    run["low_steps"] = np.where(low, run["low_steps"] + 1, 0)
+                    run["active"] = run["active"] & (run["low_steps"] < self.prune_after)
         block = self._summary(run, before, time.perf_counter() - started)
         run["history"].append(block)
         return block

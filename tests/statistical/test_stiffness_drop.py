@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from seqbayes.filters.kalman import kalman_filter, measurement_covariance
-from seqbayes.stiffness_drop import StiffnessDropMonitor, path_log_likelihood, simulate_drop
+from seqbayes.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, path_log_likelihood, simulate_drop
 from seqbayes.structures import ShearBuilding, add_measurement_noise, discretise, kanai_tajimi, simulate
-from seqbayes.weights import logsumexp
 
 DT = 0.02
 
@@ -24,51 +23,6 @@ def one_storey_case(seed=0, fraction=0.3, T=200, noise=0.3):
     y, _ = simulate_drop(b, DT, [0.85], 1, fraction, T // 2, u, sw, rng)
     y, std = add_measurement_noise(y, noise, rng)
     return b, u, y, std, sw
-
-
-def switched_filter(building, theta, delta, tau, u, y, R, sw):
-    """Increments ``(M, T)`` of the plain Kalman filter with the matrices switched at ``tau`` (common to all)."""
-    pre = discretise(building, theta, DT)
-    after = theta.copy()
-    after[:, 0] *= 1 - delta
-    post = discretise(building, after, DT)
-    first = kalman_filter(pre, u[:tau], y[:tau], R, sw, store=True)
-    A, b = post.A, post.B0 + post.B1
-    x0 = np.einsum("nij,nj->ni", A, first.filtered_means[:, -1]) + post.B0 * u[tau - 1] + post.B1 * u[tau]
-    P0 = A @ first.filtered_covariances @ np.swapaxes(A, 1, 2) + sw**2 * b[:, :, None] * b[:, None, :]
-    second = kalman_filter(post, u[tau:], y[tau:], R, sw, x0=x0, P0=P0, store=True)
-    return np.concatenate([first.log_likelihood_increments, second.log_likelihood_increments], axis=1)
-
-
-def exact_log_evidence(building, u, y, std, sw, ends, every, hazard, lower=0.7, upper=1.0, drop=(0.02, 0.5),
-                       n_theta=151, n_delta=101):
-    """``log p(y_{0:e} | M_0)`` and ``log p(y_{0:e} | M_1)`` at each ``e`` in ``ends`` by the
-    trapezoid rule on a ``n_theta x n_delta`` grid of the uniform priors (measured: within
-    2e-5 of a grid twice as fine) and the sum over the change boundaries."""
-    R = measurement_covariance(std, 1)
-    theta = np.linspace(lower, upper, n_theta)
-    delta = np.linspace(*drop, n_delta)
-    w_theta = np.ones(n_theta)
-    w_theta[[0, -1]] = 0.5
-    w_delta = np.ones(n_delta)
-    w_delta[[0, -1]] = 0.5
-    log_w = np.log(np.outer(w_theta / w_theta.sum(), w_delta / w_delta.sum()).ravel())
-    no_change = np.cumsum(kalman_filter(discretise(building, theta[:, None], DT), u, y, R, sw,
-                                        store=True).log_likelihood_increments, axis=1)
-    log_z0 = np.array([logsumexp(np.log(w_theta / w_theta.sum()) + no_change[:, e]) for e in ends])
-    grid_theta = np.repeat(theta, n_delta)[:, None]
-    grid_delta = np.tile(delta, n_theta)
-    boundaries = np.arange(every, u.size, every)
-    terms = []
-    for i, tau in enumerate(boundaries):
-        cum = np.cumsum(switched_filter(building, grid_theta, grid_delta, tau, u, y, R, sw), axis=1)
-        log_prior = np.log(hazard) + i * np.log1p(-hazard)  # P(tau = i-th boundary)
-        terms.append([log_prior + logsumexp(log_w + cum[:, e]) if e >= tau else -np.inf for e in ends])
-    terms = np.array(terms)
-    n_before = np.array([np.sum(boundaries <= e) for e in ends])
-    log_z1 = np.array([logsumexp(np.concatenate([[n_before[j] * np.log1p(-hazard) + log_z0[j]], terms[:, j]]))
-                       for j in range(len(ends))])
-    return log_z0, log_z1
 
 
 def test_path_log_likelihood_equals_the_switched_kalman_filter():
@@ -124,7 +78,7 @@ def test_block_evidence_matches_the_exact_evidence():
     # weights degenerate at every step). Bounds ~4 sd: 1.0 / 2.0 nats (M_1), 0.5 / 10 nats (M_0).
     b, u, y, std, sw = one_storey_case()
     ends = np.arange(24, 200, 25)
-    z0, z1 = exact_log_evidence(b, u, y, std, sw, ends, every=25, hazard=0.1)
+    z0, z1 = grid_log_evidence(b, DT, u, y, std, sw, ends, change_every=25, hazard=0.1)
     assert z1[-1] - z0[-1] > 100  # the data decide for the drop
     for seed in range(2):
         mon = StiffnessDropMonitor(b, DT, 0.7, 1.0, std, sw, n_particles=200, change_every=25, change_rate=0.2,
@@ -172,7 +126,8 @@ def test_input_validation_names_the_argument():
     b = ShearBuilding([1e4, 1e4], [1e7, 1e7])
     for kwargs, name in [({"drop_range": (0.5, 0.2)}, "drop_range"), ({"change_every": 0}, "change_every"),
                          ({"threshold": 1.5}, "threshold"), ({"n_particles": 3}, "n_particles"),
-                         ({"prune_below": 0.6}, "prune_below"), ({"jump_proposal": 2.0}, "jump_proposal")]:
+                         ({"prune_below": 0.6}, "prune_below"), ({"jump_proposal": 2.0}, "jump_proposal"),
+                         ({"prune_after": 0}, "prune_after")]:
         with pytest.raises(ValueError, match=name):
             StiffnessDropMonitor(b, DT, 0.7, 1.0, 0.1, **kwargs)
     mon = StiffnessDropMonitor(b, DT, 0.7, 1.0, 0.1)
