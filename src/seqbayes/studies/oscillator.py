@@ -33,7 +33,7 @@ from ._runner import map_tasks
 from ..models import oscillator as osc
 
 __all__ = ["SAMPLERS", "KERNELS", "QUANTILES", "DEFAULT_OPTIONS", "run_task", "run_study",
-           "StudySummary", "selection_log_evidence", "summarise", "make_figures", "format_report",
+           "StudySummary", "selection_log_evidence", "exact_errors", "summarise", "make_figures", "format_report",
            "evidence_check", "format_evidence_check", "main"]
 
 SAMPLERS = ("SEMC", "SMC")
@@ -110,7 +110,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
 _STEP_FIELDS = ("log_evidence", "log_evidence_increment", "acceptance_rate", "step_size", "n_virtual",
                 "n_stages", "n_loglike_evals", "n_distinct", "n_proposed", "n_accepted",
                 "n_identical_partner", "n_nan", "ess", "log_evidence_increment_path", "evidence_ess",
-                "n_independent_accepted", "prior_data_conflict")
+                "n_independent_accepted", "prior_data_conflict", "ancestor_ess", "path_steps")
 _EXTRA_STEP_FIELDS = ("log_mass_inside",)
 
 
@@ -145,6 +145,18 @@ def _problem_arrays(seed, runs):
         "kernel_rate": np.array(rates), "kernel_noise_std": np.array(noise),
         "likelihood_std": np.array(lik_std),
     }
+
+
+def _exact_arrays(seed, runs, kernels):
+    """The exact grid references of the study's (run, kernel) (bundled for seed 0, runs 0-9:
+    :func:`seqbayes.models.oscillator.load_exact_references`), or None for other studies."""
+    if seed != 0 or runs > 10:
+        return None
+    refs = osc.load_exact_references()
+    pick = [[refs[(r, k)] for k in kernels] for r in range(runs)]
+    return {"mean": np.array([[ref.mean for ref in row] for row in pick]),
+            "std": np.array([[ref.std for ref in row] for row in pick]),
+            "log_evidence": np.array([[ref.log_evidence for ref in row] for row in pick])}
 
 
 def run_study(runs: int = 10, n_samples: int = 1000, seed: int = 0, *, kernels=KERNELS, samplers=SAMPLERS,
@@ -223,6 +235,11 @@ def run_study(runs: int = 10, n_samples: int = 1000, seed: int = 0, *, kernels=K
         "failed_step": (dims, arrays["failed_step"]),
     }
     data.update({f: (dims + ("step",), arrays[f]) for f in fields_step})
+    exact = _exact_arrays(seed, runs, kernels)
+    if exact is not None:
+        data.update({"exact_mean": (("run", "kernel", "step", "parameter"), exact["mean"]),
+                     "exact_std": (("run", "kernel", "step", "parameter"), exact["std"]),
+                     "exact_log_evidence": (("run", "kernel", "step"), exact["log_evidence"])})
     problems = _problem_arrays(seed, runs)
     kernel_index = [KERNELS.index(k) for k in kernels]
     data.update({
@@ -260,14 +277,22 @@ class StudySummary:
         Its log-evidence margin over the runner-up (nats).
     coverage : float
         Fraction of (run, step, parameter) where the truth lies in the 95%
-        credible interval of the selected kernel's SEMC posterior.
+        credible interval of the selected kernel's SEMC posterior: a statement about the
+        kernel (how well it describes the degradation), not about the sampler.
     coverage_smc : float
         Same for SMC (with SMC's selected kernel).
-    agreement : float
-        Fraction of (run, step, parameter) where the SEMC and SMC posterior
-        means (selected kernel) differ by at most the larger posterior std.
-    agreement_all_kernels : float
-        Same over every kernel.
+    exact_coverage : float
+        The same for the exact posterior (grid reference) of SEMC's selected kernel, with the
+        interval ``exact mean +- 1.96 exact sd``; NaN without references.
+    mean_error, mean_error_all_kernels : dict sampler -> float
+        The measure of sampler correctness: the largest ``|sampler mean - exact mean| / exact sd``
+        over (run, step, parameter) for the selected kernels, and over every kernel that did
+        not fail (the grid reference of :func:`seqbayes.models.oscillator.exact_grid_reference`;
+        NaN without references).
+    log_evidence_error, log_evidence_error_all_kernels : dict sampler -> float
+        The largest ``|log p(D^{1:s})|`` error against the exact one, nats, the same way.
+    exact_selected : (runs,) array of str or None
+        The kernel of largest exact ``log p(D^{1:6})`` per run.
     semc_acceptance_range, smc_acceptance_range : (2,) arrays
         Min and max true acceptance rate over every step of every run
         (selected kernel).
@@ -285,8 +310,12 @@ class StudySummary:
     margin: dict
     coverage: float
     coverage_smc: float
-    agreement: float
-    agreement_all_kernels: float
+    exact_coverage: float
+    mean_error: dict
+    mean_error_all_kernels: dict
+    log_evidence_error: dict
+    log_evidence_error_all_kernels: dict
+    exact_selected: np.ndarray | None
     semc_acceptance_range: np.ndarray
     smc_acceptance_range: np.ndarray
     semc_acceptance_in_bounds: float
@@ -334,8 +363,35 @@ def _select(ds, sampler, conditional=False):
 
 def _pick(da, kernel_idx):
     """Select one kernel per run: ``da`` has dims (run, kernel, ...)."""
-    arr = np.asarray(da.values)
+    return _pick_array(da.values, kernel_idx)
+
+
+def _pick_array(arr, kernel_idx):
+    arr = np.asarray(arr)
     return arr[np.arange(arr.shape[0]), kernel_idx]
+
+
+def exact_errors(ds) -> dict | None:
+    """Every sampler's errors against the exact grid references, per (run, kernel, step).
+
+    Returns
+    -------
+    dict sampler -> {"mean_sd": (R, K, S, 2), "std_ratio": (R, K, S, 2), "log_evidence": (R, K, S)} or None
+        ``(sampler - exact) / exact sd``, ``sampler sd / exact sd - 1`` and the cumulative log-evidence
+        error in nats (as :meth:`seqbayes.reference.GridReference.errors`); NaN after a kernel failed.
+        None when the study has no references (``exact_mean`` is bundled for seed 0, runs 0-9).
+    """
+    if "exact_mean" not in ds:
+        return None
+    exact_mean, exact_std = ds["exact_mean"].values, ds["exact_std"].values
+    out = {}
+    for s in ds["sampler"].values:
+        sub = ds.sel(sampler=s)
+        ev = sub["log_evidence"].values
+        out[str(s)] = {"mean_sd": (sub["posterior_mean"].values - exact_mean) / exact_std,
+                       "std_ratio": sub["posterior_std"].values / exact_std - 1.0,
+                       "log_evidence": np.where(np.isfinite(ev), ev - ds["exact_log_evidence"].values, np.nan)}
+    return out
 
 
 def summarise(ds) -> StudySummary:
@@ -355,16 +411,24 @@ def summarise(ds) -> StudySummary:
 
     coverage = coverage_of("SEMC") if "SEMC" in samplers else np.nan
     coverage_smc = coverage_of("SMC") if "SMC" in samplers else np.nan
-    agreement = agreement_all = np.nan
-    if {"SEMC", "SMC"} <= set(samplers):
-        m1 = ds["posterior_mean"].sel(sampler="SEMC").values
-        m2 = ds["posterior_mean"].sel(sampler="SMC").values
-        s1 = ds["posterior_std"].sel(sampler="SEMC").values
-        s2 = ds["posterior_std"].sel(sampler="SMC").values
-        ok = np.abs(m1 - m2) <= np.maximum(s1, s2)                                # (R, K, S, 2)
-        agreement = float(np.mean(ok[np.arange(ok.shape[0]), chosen["SEMC"]]))
-        valid = np.isfinite(m1) & np.isfinite(m2)                                  # failed kernels excluded
-        agreement_all = float(np.mean(ok[valid]))
+    errors = exact_errors(ds)
+    nan = {s: np.nan for s in samplers}
+    mean_error, mean_error_all, ev_error, ev_error_all = dict(nan), dict(nan), dict(nan), dict(nan)
+    exact_coverage, exact_selected = np.nan, None
+    if errors is not None:
+        for s in samplers:
+            mean_sd = np.abs(errors[s]["mean_sd"]).max(axis=-1)                     # (R, K, S)
+            ev = np.abs(errors[s]["log_evidence"])
+            ok = np.isfinite(mean_sd)                                                # failed kernels excluded
+            mean_error_all[s], ev_error_all[s] = float(mean_sd[ok].max()), float(ev[ok].max())
+            mean_error[s] = float(np.nanmax(_pick_array(mean_sd, chosen[s])))
+            ev_error[s] = float(np.nanmax(_pick_array(ev, chosen[s])))
+        if "SEMC" in samplers:
+            em = _pick_array(ds["exact_mean"].values, chosen["SEMC"])                # (R, S, 2)
+            es = _pick_array(ds["exact_std"].values, chosen["SEMC"])
+            exact_coverage = float(np.mean(np.abs(truth - em) <= 1.96 * es))
+        exact_final = ds["exact_log_evidence"].isel(step=-1).values                  # (R, K)
+        exact_selected = np.asarray(ds["kernel"].values)[np.argmax(exact_final, axis=1)]
     acc = {s: _pick(ds["acceptance_rate"].sel(sampler=s), chosen[s]) for s in samplers}
     rng_of = {s: np.array([np.nanmin(a), np.nanmax(a)]) for s, a in acc.items()}
     in_bounds = in_bounds_all = np.nan
@@ -380,7 +444,8 @@ def summarise(ds) -> StudySummary:
         forecast_cov = float(np.mean((ft >= fq[:, :, lo]) & (ft <= fq[:, :, hi])))
     wall = {s: tuple(float(f(ds["wall_time"].sel(sampler=s).values)) for f in (np.mean, np.min, np.max))
             for s in samplers}
-    return StudySummary(selected, margin, coverage, coverage_smc, agreement, agreement_all,
+    return StudySummary(selected, margin, coverage, coverage_smc, exact_coverage, mean_error, mean_error_all,
+                        ev_error, ev_error_all, exact_selected,
                         rng_of.get("SEMC", np.full(2, np.nan)), rng_of.get("SMC", np.full(2, np.nan)),
                         in_bounds, in_bounds_all, wall, float(ds.attrs.get("total_wall_time", np.nan)),
                         forecast_cov, {"chosen_index": chosen, "selected_conditional": selected_conditional})
@@ -445,11 +510,39 @@ def format_report(ds, summary: StudySummary | None = None) -> str:
         for r in range(acc.shape[0]):
             lines.append(f"- {s} run {r}: " + " ".join(f"{a:.3f}" for a in acc[r]))
     lines.append("")
+    errors = exact_errors(ds)
+    if errors is not None:
+        lines.append("Sampler errors against the exact grid filter (bundled references, docs/exact_references.md), "
+                     "per step, selected kernel: largest |mean - exact| / exact sd over runs and parameters, "
+                     "largest |log p(D^1:s) - exact| [nats]:")
+        lines.append("")
+        lines.append("| sampler | " + " | ".join(f"t={t}" for t in ds["step"].values) + " |")
+        lines.append("|:---|" + "---:|" * ds.sizes["step"])
+        for s in summary.selected:
+            mean_sd = _pick_array(np.abs(errors[s]["mean_sd"]).max(axis=-1), chosen[s])     # (R, S)
+            ev = _pick_array(np.abs(errors[s]["log_evidence"]), chosen[s])
+            lines.append(f"| {s} | " + " | ".join(f"{m:.2f} sd / {e:.2f}" for m, e in
+                                                   zip(np.nanmax(mean_sd, axis=0), np.nanmax(ev, axis=0))) + " |")
+        lines.append("")
     lines.append("Checks:")
-    lines.append(f"- truth in the 95% credible interval of the selected kernel's SEMC posterior: "
-                 f"{100 * summary.coverage:.1f}% of (run, step, parameter) (SMC: {100 * summary.coverage_smc:.1f}%)")
-    lines.append(f"- SEMC and SMC posterior means within the larger posterior std: "
-                 f"{100 * summary.agreement:.1f}% (selected kernel), {100 * summary.agreement_all_kernels:.1f}% (all kernels)")
+    for s in summary.selected:
+        lines.append(f"- {s} against the exact posterior: means within {summary.mean_error[s]:.2f} exact sds and "
+                     f"log-evidence within {summary.log_evidence_error[s]:.2f} nats at every step (selected kernels); "
+                     f"{summary.mean_error_all_kernels[s]:.2f} sds and {summary.log_evidence_error_all_kernels[s]:.2f} "
+                     f"nats over every kernel that did not fail")
+    if summary.exact_selected is not None:
+        for s in summary.selected:
+            same = int(np.sum(summary.selected[s] == summary.exact_selected))
+            lines.append(f"- {s} selects the kernel of largest exact evidence in {same} of {len(summary.exact_selected)} runs")
+    steps = ds["path_steps"].values
+    lines.append(f"- prior-data conflict remedy (path space) used at {int(np.sum(steps > 0))} of "
+                 f"{int(np.sum(np.isfinite(steps)))} (run, kernel, sampler, step); conflict above 4 prior sds at "
+                 f"{int(np.nansum(ds['prior_data_conflict'].values > 4))}, in runs "
+                 f"{sorted({int(r) for r in np.nonzero(ds['prior_data_conflict'].values > 4)[0]})}")
+    lines.append(f"- truth in the 95% credible interval of the selected kernel's SEMC posterior (a statement about "
+                 f"the kernel): {100 * summary.coverage:.1f}% of (run, step, parameter) (SMC: "
+                 f"{100 * summary.coverage_smc:.1f}%; the exact posterior's mean +- 1.96 sd: "
+                 f"{100 * summary.exact_coverage:.1f}%)")
     lines.append(f"- SEMC true acceptance rate, selected kernel: range [{summary.semc_acceptance_range[0]:.3f}, "
                  f"{summary.semc_acceptance_range[1]:.3f}], in [0.15, 0.50] at {100 * summary.semc_acceptance_in_bounds:.1f}% "
                  f"of (run, step); all kernels: {100 * summary.semc_acceptance_in_bounds_all_kernels:.1f}%")
