@@ -62,7 +62,11 @@ grows). Transition matrices: the exact discretisation by default
 sparse-grid level can be given.
 
 On-line use: :meth:`SGEnMCMC.reset` then :meth:`SGEnMCMC.update` with each new
-block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record).
+block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record);
+:meth:`SGEnMCMC.snapshot` / :meth:`SGEnMCMC.restore` stop and resume a run bit
+for bit (plain named arrays and the generator state). A stiffness that drops
+during the shaking is detected and attributed to a storey by
+:class:`seqbayes.stiffness_drop.StiffnessDropMonitor`.
 
 Measured (docs/shake_table.md, benchmarks/bench_sgenmcmc.py): on 2-, 3- and
 4-storey buildings and a 2-storey case with the truth at 0.705 of U(0.7, 1),
