@@ -14,22 +14,24 @@ Each kind of state has one pair of functions in :data:`_KINDS` (``to_arrays``,
 (another mixture, ...) is one more entry. Array names are the run store's variable
 names; :func:`state_dims` names their dimensions after ``step``.
 
-=================  =======================================================  ==================
-kind               arrays (after the ``step`` dimension)                    needs the datasets
-=================  =======================================================  ==================
-``mixture``        ``mixture_centres (N, d)``, ``mixture_bandwidth (d,)``,  no
-                   ``mixture_log_weights (N,)`` (Eq. A3)
-``mixture_sum``    ``mixsum_centres (C, N, d)``, ``mixsum_bandwidth         no
-                   (C, d)``, ``mixsum_component_log_weights (C, N)``,
-                   ``mixsum_log_weights (C,)``
-``history``        ``state_log_prior (N,)``: the exact history prior's      yes
-                   values at the particles
-``nested``         ``nested_*``: SMC^2's outer particles, inner filters,    yes
-                   likelihood estimates (:func:`~seqbayes.nested.nested_state_arrays`)
-=================  =======================================================  ==================
+The kinds and their arrays (after the ``step`` dimension):
+
+- ``mixture`` (the Gaussian mixture of Eq. A3): ``mixture_centres (N, d)``,
+  ``mixture_bandwidth (d,)``, ``mixture_log_weights (N,)``.
+- ``mixture_sum`` (a jump kernel's weighted sum of mixtures): ``mixsum_centres (C, N, d)``,
+  ``mixsum_bandwidth (C, d)``, ``mixsum_component_log_weights (C, N)``, ``mixsum_log_weights (C,)``.
+- ``history`` (the exact history prior of static parameters): ``state_log_prior (N,)``, its
+  values at the particles; resuming needs the assimilated datasets.
+- ``nested`` (SMC^2): ``nested_*``, the outer particles, inner filters and likelihood
+  estimates of :func:`~seqbayes.nested.nested_state_arrays`; resuming needs the datasets.
 
 Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
-the cumulative log-evidence (absent from stores written before it: 0).
+the cumulative log-evidence, ``state_window ()``, the length of the conflict remedy's window of
+past steps (:class:`~seqbayes.sequential.PastStep`: rebuilt from the steps' records, datasets and
+priors, so a window needs the datasets), and ``state_paths (L, N, d)``, the particle paths the
+remedy carries forward (``L = 0`` until it first runs; ``L`` changes over the steps, so the run
+store concatenates these arrays, see :data:`RAGGED`). Stores written before them read as 0 and
+no window.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 from .density import GaussianMixture, HistoryPrior, MixtureSum
 from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
 from .results import StepRecord
-from .sequential import SamplerState
+from .sequential import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
            "check_state", "is_state_variable", "UnsupportedState"]
@@ -101,14 +103,19 @@ _KINDS = {
 }
 _NESTED = "nested_"
 #: Arrays every SamplerState kind has besides its prior's: the variance estimate of the cumulative
-#: log-evidence (its standard error carries over the steps).
-_COMMON = ("state_log_evidence_variance",)
+#: log-evidence (its standard error carries over the steps), the length of the conflict remedy's
+#: window of past steps (rebuilt from the steps' records, datasets and priors) and the paths of the
+#: last path-space step carried forward (``(L, N, d)``, ``L`` of 0 before the remedy first ran).
+_COMMON = ("state_log_evidence_variance", "state_window", "state_paths")
+#: Arrays whose first axis may have another length at every step: the run store concatenates them.
+RAGGED = ("state_paths",)
 
 #: Dimension names (after ``step``) of the arrays whose axes have a meaning a NetCDF reader can use.
 _DIMS = {"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
          "mixture_log_weights": ("sample",), "state_log_prior": ("sample",),
          "mixsum_centres": ("branch", "sample", "parameter"), "mixsum_bandwidth": ("branch", "parameter"),
-         "mixsum_component_log_weights": ("branch", "sample"), "mixsum_log_weights": ("branch",)}
+         "mixsum_component_log_weights": ("branch", "sample"), "mixsum_log_weights": ("branch",),
+         "state_paths": ("path_step", "sample", "parameter")}
 
 
 def state_arrays(state) -> dict:
@@ -122,7 +129,7 @@ def state_arrays(state) -> dict:
     Returns
     -------
     dict of str -> ndarray
-        Names as in the module's table.
+        Names as in the module docstring's list.
 
     Raises
     ------
@@ -134,8 +141,12 @@ def state_arrays(state) -> dict:
     if isinstance(state, SamplerState):
         for _, cls, to_arrays, _, _ in _KINDS.values():
             if type(state.prior) is cls:
+                d = state.particles.shape[1]
+                paths = (np.zeros((0, state.particles.shape[0], d)) if state.paths is None
+                         else np.transpose(state.paths, (1, 0, 2)))       # (L, N, d): L varies over the steps
                 arrays = {**to_arrays(state.prior, state.log_prior),
-                          "state_log_evidence_variance": state.log_evidence_variance}
+                          "state_log_evidence_variance": state.log_evidence_variance,
+                          "state_window": len(state.window), "state_paths": paths}
                 return {name: np.array(value, dtype=float) for name, value in arrays.items()}
     kind = type(state.prior).__name__ if isinstance(state, SamplerState) else type(state).__name__
     raise UnsupportedState(f"state: cannot store a sampler state whose prior is a {kind}")
@@ -169,7 +180,7 @@ def needs_datasets(arrays) -> bool:
     """Whether resuming from ``arrays`` needs the assimilated datasets (the history prior re-evaluates
     them; SMC^2 re-runs its inner filters on them)."""
     kind = state_kind(arrays)
-    return kind == "nested" or _KINDS[kind][4]
+    return kind == "nested" or _KINDS[kind][4] or float(arrays.get("state_window", 0)) > 0
 
 
 def state_dims(name: str, ndim: int) -> tuple:
@@ -189,15 +200,16 @@ def initial_state(predictive_method: str, prior, particles, log_weights, step_si
                         step_size=step_size)
 
 
-def state_from_arrays(arrays_by_step, record: StepRecord, step_size: float, initial_prior, datasets=()):
+def state_from_arrays(arrays_by_step, records, step_size: float, initial_prior, datasets=()):
     """The inverse of :func:`state_arrays`: the state after step ``s = len(arrays_by_step)``.
 
     Parameters
     ----------
     arrays_by_step : sequence of dict
-        :func:`state_arrays` of steps ``1 .. s`` (SMC^2 takes its earlier guides from them).
-    record : StepRecord
-        Step ``s``'s record.
+        :func:`state_arrays` of steps ``1 .. s`` (SMC^2 takes its earlier guides from them, the
+        conflict remedy's window its steps' priors).
+    records : sequence of StepRecord
+        The records of steps ``1 .. s``.
     step_size : float
         The state's stretch step size.
     initial_prior : object with ``logpdf``
@@ -209,20 +221,36 @@ def state_from_arrays(arrays_by_step, record: StepRecord, step_size: float, init
     -------
     SamplerState or NestedState
     """
+    step = len(arrays_by_step)
     arrays = arrays_by_step[-1]
     kind = state_kind(arrays)
-    if kind != "nested" and _KINDS[kind][4] and len(datasets) != len(arrays_by_step):
-        raise ValueError(f"datasets: {len(datasets)} datasets for a state at step {len(arrays_by_step)}")
+    if needs_datasets(arrays) and len(datasets) != step:
+        raise ValueError(f"datasets: {len(datasets)} datasets for a state at step {step}")
     if kind == "nested":
         def strip(a):
             return {key[len(_NESTED):]: value for key, value in a.items()}
         guides = tuple(nested_guide(strip(a)) for a in arrays_by_step[:-1])
         return nested_state_from_arrays(strip(arrays), tuple(datasets), guides)
-    context = {"initial_prior": initial_prior, "datasets": datasets, "log_evidence": record.info.log_evidence}
-    prior, log_prior = _KINDS[kind][3](arrays, context)
-    return SamplerState(step=len(arrays_by_step), particles=record.predictive, log_weights=record.log_weights,
+
+    def prior_of(k):  # the prior density after step k (the one step k + 1 used), and its log_prior
+        if k == 0:
+            return initial_prior, None
+        context = {"initial_prior": initial_prior, "datasets": datasets[:k],
+                   "log_evidence": records[k - 1].info.log_evidence}
+        return _KINDS[state_kind(arrays_by_step[k - 1])][3](arrays_by_step[k - 1], context)
+
+    prior, log_prior = prior_of(step)
+    record = records[step - 1]
+    # the conflict remedy's window: the last steps' datasets, the priors they used, their posteriors
+    # (sequential.assimilate keeps exactly these); a path-space step has a nonzero path_steps
+    window = tuple(PastStep(datasets[k - 1], prior_of(k - 1)[0], records[k - 1].posterior, records[k - 1].log_weights,
+                            records[k - 1].info.log_evidence_increment, records[k - 1].info.path_steps > 0)
+                   for k in range(step - int(arrays.get("state_window", 0)) + 1, step + 1))
+    paths = arrays.get("state_paths")
+    return SamplerState(step=step, particles=record.predictive, log_weights=record.log_weights,
                         prior=prior, log_evidence=record.info.log_evidence, step_size=float(step_size),
                         posterior=record.posterior, posterior_log_weights=record.log_weights, log_prior=log_prior,
+                        window=window, paths=None if paths is None or not len(paths) else np.transpose(paths, (1, 0, 2)),
                         log_evidence_variance=float(arrays.get("state_log_evidence_variance", 0.0)))
 
 

@@ -488,7 +488,16 @@ class RunStore:
                               variables["predictive"][i])
                    for i, info in enumerate(_json_list(text.get("step_info", []), path, "step_info"))]
         result = Result(stored.names, tuple(records), _json(attrs.get("result_meta", "{}"), path, "result_meta"))
-        states = [{name: variables[name][i] for name in state_names} for i in range(n_steps)]
+        ragged = {}                           # state arrays of another length at every step, concatenated
+        for name in state_names:
+            if name in snapshot.RAGGED:
+                rows = variables.get(f"{name}_rows", np.zeros(0, dtype=int))
+                if rows.shape != (n_steps,) or int(rows.sum()) != variables[name].shape[0]:
+                    raise StoreError(f"{path}: inconsistent store ({name}_rows {rows.tolist()} for "
+                                     f"{variables[name].shape[0]} stored rows)")
+                ragged[name] = np.split(variables[name], np.cumsum(rows)[:-1]) if n_steps else []
+        states = [{name: ragged[name][i] if name in ragged else variables[name][i] for name in state_names}
+                  for i in range(n_steps)]
         if n_steps and snapshot.state_kind(states[0]) == "mixture" and stored.predictive_method == "history":
             raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
                              f"kernel-density prior; this version uses their exact history prior. Re-create "
@@ -501,7 +510,7 @@ class RunStore:
                 raise StoreError(f"{path}: inconsistent store (dataset_rows {rows.tolist()} for "
                                  f"{values.shape[0]} stored data rows)")
             tables = np.split(values, np.cumsum(rows)[:-1])
-        if n_steps and snapshot.needs_datasets(states[0]) and len(tables) != n_steps:
+        if n_steps and snapshot.needs_datasets(states[-1]) and len(tables) != n_steps:
             raise StoreError(f"{path}: damaged run store: missing variable(s) dataset_values, dataset_rows")
         step_sizes = [float(v) for v in variables["state_step_size"]] if n_steps else []
         if len(step_sizes) != n_steps:
@@ -571,6 +580,11 @@ class RunStore:
             "state_step_size": (("step",), np.array(self.step_sizes[start:], dtype=float)),
         })
         for name in self.states[start]:
+            if name in snapshot.RAGGED:       # concatenated along a growing dimension, with a count per step
+                parts = [arrays[name] for arrays in self.states[start:]]
+                data[name] = ((f"{name}_row",) + snapshot.state_dims(name, parts[0].ndim)[1:], np.concatenate(parts))
+                data[f"{name}_rows"] = (("step",), np.array([len(part) for part in parts]))
+                continue
             stacked = np.stack([arrays[name] for arrays in self.states[start:]])
             data[name] = (("step",) + snapshot.state_dims(name, stacked.ndim - 1), stacked)
         if self.tables:  # the datasets the state needs (history prior, SMC^2)
@@ -689,10 +703,8 @@ class RunStore:
                     if not _appendable(f, data, start, len(self.config.columns)):
                         return False
                     for name, values in data.items():
-                        if name == "dataset_values":
-                            _extend(f["dataset_row"], len(values))
-                        elif name == "rng_state":
-                            _extend(f["rng_index"], len(values))
+                        if name in _BARE_DIMS:       # the dimension without coordinates it grows along
+                            _extend(f[_BARE_DIMS[name]], len(values))
                         _extend(f[name], len(values), values)
                     for key, value in attrs.items():
                         f.attrs[key] = value
@@ -717,8 +729,8 @@ class RunStore:
                                            self.initial_log_weights, self.initial_step_size)
         else:
             datasets = tuple(as_likelihood_data(t, self.config) for t in self.tables[:step])
-            state = snapshot.state_from_arrays(self.states[:step], self.result.steps[step - 1],
-                                               self.step_sizes[step - 1], prior, datasets)
+            state = snapshot.state_from_arrays(self.states[:step], self.result.steps[:step], self.step_sizes[step - 1],
+                                               prior, datasets)
         return state, tuple(self.result.steps[:step]), self.rng_states[step]
 
     # ------------------------------------------------------------ the likelihood
@@ -786,17 +798,6 @@ class RunStore:
         ``accept_model_change``.
         """
         return self._verified_likelihood(accept_model_change)[0]
-
-    def load_predict(self):
-        """The configuration's ``[model] predict`` function (``None`` when it names none), from the same
-        verified module file as the likelihood (:meth:`load_likelihood`)."""
-        if self.config.predict is None:
-            return None
-        _, source = self._verified_likelihood()
-        try:
-            return load_located(f"{self.config.likelihood.split(':')[0]}:{self.config.predict}", source)
-        except ConfigError as err:
-            raise StoreError(f"{self.path}: {str(err).replace('model.likelihood:', 'model.predict:', 1)}") from None
 
     def load_predict(self):
         """The configuration's ``[model] predict`` function (``None`` when it names none), from the same
@@ -945,8 +946,9 @@ class RunStore:
             self._record_hashes = self._record_hashes[:base]
             self.result = _replace(sampler.result, steps=tuple(records))
             self.states = self.states[:base] + [arrays]
-            if snapshot.needs_datasets(arrays):
-                self.tables = self.tables[:base] + [table]
+            if snapshot.needs_datasets(arrays) or self.tables:  # steps whose dataset is not kept: 0 rows
+                kept = self.tables[:base] + [np.zeros((0, table.shape[1]))] * (base - len(self.tables))
+                self.tables = kept + [table]
             self.step_sizes = self.step_sizes[:base] + [float(state.step_size)]
             self.rng_states = self.rng_states[:base + 1] + [rng_state]
             self.digests = self.digests[:base] + [digest]
@@ -1177,7 +1179,10 @@ def _check_finite(path: Path, variables: dict) -> None:
 # -------------------------------------------------------------------------- writing
 #: Dimensions that grow with the run (unlimited in the file, so that a step can be appended),
 #: with the chunk length along them.
-_GROWING = {"step": 8, "rng_index": 8, "dataset_row": 256}
+_GROWING = {"step": 8, "rng_index": 8, "dataset_row": 256, **{f"{name}_row": 8 for name in snapshot.RAGGED}}
+#: Variables along a growing dimension other than ``step`` (a dimension without coordinates).
+_BARE_DIMS = {"rng_state": "rng_index", "dataset_values": "dataset_row",
+              **{name: f"{name}_row" for name in snapshot.RAGGED}}
 
 
 def _encoding(ds) -> dict:
@@ -1186,7 +1191,7 @@ def _encoding(ds) -> dict:
     encoding = {}
     for name, var in ds.variables.items():
         enc = {}
-        if var.dtype.kind in "fiu" and var.ndim and var.size:
+        if var.dtype.kind in "fiu" and var.ndim and (var.size or var.dims[0] in _GROWING):
             enc["fletcher32"] = True
         if var.dims and var.dims[0] in _GROWING:
             enc["chunksizes"] = (_GROWING[var.dims[0]],) + tuple(var.shape[1:])
@@ -1206,8 +1211,9 @@ def _appendable(f, data: dict, disk_steps: int, n_columns: int) -> bool:
                and not str(_plain(obj.attrs.get("NAME", b""))).startswith(_BARE_DIMENSION.decode())}
     if growing != set(data):
         return False
+    counts = {"dataset_values": "dataset_rows", **{name: f"{name}_rows" for name in snapshot.RAGGED}}
     lengths = {"rng_state": disk_steps + 1,
-               "dataset_values": int(f["dataset_rows"][()].sum()) if "dataset_rows" in f else 0}
+               **{name: int(f[rows][()].sum()) if rows in f else 0 for name, rows in counts.items()}}
     for name, values in data.items():
         dataset = f[name]
         if dataset.shape[0] != lengths.get(name, disk_steps) or dataset.shape[1:] != np.shape(values)[1:]:
