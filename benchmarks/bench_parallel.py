@@ -14,6 +14,11 @@ to the serial run's.
     .venv/bin/python benchmarks/bench_parallel.py                   # 50 ms sleep, 3 rounds
     .venv/bin/python benchmarks/bench_parallel.py --mode busy
     .venv/bin/python benchmarks/bench_parallel.py --cost 0.0 --n 2000   # a cheap batched likelihood
+    .venv/bin/python benchmarks/bench_parallel.py --round-trip         # the cost of one round trip
+
+``--round-trip`` times 20 calls that send two chunks of 8 samples to the workers and do nothing
+there: the fixed cost that a chunk's work must dwarf for the pool to pay (with Dask: through the
+actors seqbayes uses, and through ``Client.map`` as before).
 """
 
 from __future__ import annotations
@@ -61,6 +66,35 @@ def identical(a, b) -> bool:
             and a.info.log_evidence == b.info.log_evidence and a.info.n_loglike_evals == b.info.n_loglike_evals)
 
 
+def _nothing(theta, data):
+    return np.zeros(theta.shape[0])
+
+
+def round_trips(pool, client, repeats=20):
+    from seqbayes import parallel
+
+    saved, parallel.MIN_CHUNK_SECONDS = parallel.MIN_CHUNK_SECONDS, 0.0  # always to the workers
+    theta = np.zeros((16, 2))
+    calls = {"ProcessWorkers": lambda: parallel.evaluate_loglike(_nothing, theta, None, pool),
+             "Dask client (actors, what seqbayes does)": lambda: parallel.evaluate_loglike(_nothing, theta, None, client),
+             "Dask client.map + gather (before)": lambda: client.gather(
+                 client.map(_nothing, np.array_split(theta, 2), [None] * 2, pure=False))}
+    times = {name: [] for name in calls}
+    try:
+        for _ in range(repeats):  # interleaved
+            for name, call in calls.items():
+                start = time.perf_counter()
+                call()
+                times[name].append(time.perf_counter() - start)
+    finally:
+        parallel.MIN_CHUNK_SECONDS = saved
+    print(f"\nround trip of two chunks of 8 samples, a likelihood that does nothing, {repeats} interleaved "
+          f"calls; load average {os.getloadavg()[0]:.1f}\n")
+    print("| executor | median ms | 90th percentile ms |\n|---|---|---|")
+    for name, t in times.items():
+        print(f"| {name} | {1e3 * np.median(t):.1f} | {1e3 * np.quantile(t, 0.9):.1f} |")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=32, help="ensemble size N (default 32)")
@@ -70,6 +104,7 @@ def main(argv=None) -> int:
     parser.add_argument("--moves", type=int, default=3, help="MCMC sweeps per step (default 3)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--samplers", nargs="+", default=["SEMC", "SMC"])
+    parser.add_argument("--round-trip", action="store_true", help="time empty round trips only")
     args = parser.parse_args(argv)
     from distributed import Client, LocalCluster
 
@@ -80,6 +115,9 @@ def main(argv=None) -> int:
     try:
         client.run(lambda: None)  # workers up before timing
         pool.map(abs, range(args.workers))  # worker processes up before timing
+        if args.round_trip:
+            round_trips(pool, client)
+            return 0
         print(f"\nN = {args.n}, {args.cost * 1e3:.0f} ms per sample ({args.mode}), {args.moves} sweep(s), "
               f"{args.workers} workers, {args.rounds} interleaved rounds; load average at start "
               f"{os.getloadavg()[0]:.1f}\n")
