@@ -44,7 +44,8 @@ class AIESResult:
         return self.chain[burn::thin].reshape(-1, self.chain.shape[-1])
 
 
-def sample(log_prob, initial, n_steps: int, rng=None, step_size: float = 2.0, support=None) -> AIESResult:
+def sample(log_prob: Callable[[np.ndarray], np.ndarray], initial: ArrayLike, n_steps: int, rng: int | np.random.Generator | None = None,
+           step_size: float = 2.0, support: ArrayLike | None = None) -> AIESResult:
     """Run the ensemble sampler.
 
     Parameters
@@ -95,3 +96,9 @@ def sample(log_prob, initial, n_steps: int, rng=None, step_size: float = 2.0, su
                                                    support)
         chain[t], log_probs[t], accepted[t] = walkers, components[:, 0], stats.n_accepted
     return AIESResult(chain, log_probs, accepted)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable
+    from numpy.typing import ArrayLike

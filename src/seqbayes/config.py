@@ -180,13 +180,13 @@ class RunConfig:
         """Parameter names, in order."""
         return tuple(self.priors)
 
-    def build_prior(self):
+    def build_prior(self) -> JointPrior:
         """The :class:`~seqbayes.priors.JointPrior`."""
         from .priors import JointPrior
 
         return JointPrior({name: _freeze(spec, "<config>", f"priors.{name}") for name, spec in self.priors.items()})
 
-    def build_kernel(self):
+    def build_kernel(self) -> MarkovKernel:
         """The :class:`~seqbayes.kernels.MarkovKernel`, one component per parameter."""
         from .kernels import Decay, Drift, Jump, MarkovKernel, Static
 
@@ -221,11 +221,12 @@ class RunConfig:
         """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
         return locate_module(_split_likelihood(self.likelihood)[0], self.search_path)
 
-    def load_likelihood(self):
+    def load_likelihood(self) -> Callable[[np.ndarray, Any], np.ndarray]:
         """Import and return the likelihood function (a config is trusted like code)."""
         return load_likelihood(self.likelihood, self.search_path)
 
-    def build_sampler(self, executor=None, loglike=None):
+    def build_sampler(self, executor: Any = None,
+                      loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None) -> SEMC | SMC:
         """A fresh :class:`~seqbayes.SEMC` or :class:`~seqbayes.SMC` for this configuration.
 
         Parameters
@@ -271,7 +272,7 @@ class RunConfig:
         content = {k: v for k, v in self.to_dict().items() if k not in NOT_FINGERPRINTED}
         return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
-    def make_executor(self):
+    def make_executor(self) -> tuple[Any, Callable[[], None]]:
         """``(executor, close)`` for the ``[parallel]`` section (``(None, no-op)`` when serial)."""
         if self.executor == "serial":
             return None, lambda: None
@@ -474,7 +475,7 @@ def _split_likelihood(spec):
     return spec.split(":")
 
 
-def file_sha256(path) -> str:
+def file_sha256(path: str | os.PathLike) -> str:
     """SHA-256 hex digest of a file's bytes."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -502,7 +503,8 @@ def _chain_in_folder(module_name: str, folder) -> tuple | None:
     return tuple(files)
 
 
-def locate_module(module_name: str, folder=None, search_installed: bool = True) -> ModuleSource | None:
+def locate_module(module_name: str, folder: str | os.PathLike | None = None,
+                  search_installed: bool = True) -> ModuleSource | None:
     """Find the likelihood's module without running it: in ``folder`` first, then on ``sys.path``.
 
     With ``search_installed=False`` only ``folder`` is searched (None when it does not hold the module).
@@ -597,7 +599,7 @@ def _function_of(module, spec: str):
     return func
 
 
-def load_located(spec: str, source: ModuleSource):
+def load_located(spec: str, source: ModuleSource) -> Callable[..., Any]:
     """The function named by ``spec`` from the located module ``source`` (see :func:`locate_module`)."""
     _split_likelihood(spec)
     try:
@@ -609,7 +611,7 @@ def load_located(spec: str, source: ModuleSource):
     return _function_of(module, spec)
 
 
-def load_likelihood(spec: str, search_path: str | None = None):
+def load_likelihood(spec: str, search_path: str | None = None) -> Callable[..., Any]:
     """Import ``"module:function"``: from the file in ``search_path`` (a folder) if it holds one,
     else from ``sys.path``. The folder is not added to ``sys.path``.
 
@@ -740,7 +742,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     return config
 
 
-def load_config(path, check_likelihood: bool = True) -> RunConfig:
+def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunConfig:
     """Read and validate a TOML run configuration (the likelihood's module may sit next to it)."""
     path = Path(path)
     try:
@@ -755,3 +757,14 @@ def load_config(path, check_likelihood: bool = True) -> RunConfig:
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: invalid TOML: {err}") from None
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    import os
+    from collections.abc import Callable
+    from typing import Any
+
+    from .kernels import MarkovKernel
+    from .priors import JointPrior
+    from .sequential import SEMC, SMC

@@ -61,7 +61,7 @@ def _weighted_moments(samples, log_weights):
     return mean, var, n_eff
 
 
-def silverman_bandwidth(samples, log_weights=None) -> np.ndarray:
+def silverman_bandwidth(samples: ArrayLike, log_weights: ArrayLike | None = None) -> np.ndarray:
     """Per-dimension Silverman bandwidth of Eq. (A10): ``sigma_j (4 / (N (d + 2)))^(1/(d + 4))``.
 
     With weights, ``N`` is the effective sample size and ``sigma_j`` the weighted std.
@@ -125,7 +125,7 @@ class GaussianMixture:
     def dim(self) -> int:
         return self.centres.shape[1]
 
-    def logpdf(self, theta) -> np.ndarray:
+    def logpdf(self, theta: np.ndarray) -> np.ndarray:
         """Log density at ``theta (m, d)``, returns ``(m,)``; memory ``O(block x N)``.
 
         Below ``_TREE_MIN_CENTRES`` centres every pair is summed (:meth:`_dense_logsum`). With more,
@@ -165,7 +165,7 @@ class GaussianMixture:
                                         - 0.5 * np.einsum("ij,ij->i", xb, xb))
         return out
 
-    def ancestor_ess(self, theta, log_weights=None) -> float:
+    def ancestor_ess(self, theta: np.ndarray, log_weights: np.ndarray | None = None) -> float:
         """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
 
         ``a_i = sum_k v_k r_ki`` is the mass that the points (weights ``v``) give to component ``i``,
@@ -248,12 +248,12 @@ class MixtureSum:
     def dim(self) -> int:
         return self.mixtures[0].dim
 
-    def component_logpdfs(self, theta) -> np.ndarray:
+    def component_logpdfs(self, theta: np.ndarray) -> np.ndarray:
         """``log V_c + log p_c(theta)`` for each branch, ``(m, d) -> (m, C)``."""
         theta = as_samples(theta, self.dim)
         return np.column_stack([lw + m.logpdf(theta) for lw, m in zip(self.log_weights, self.mixtures)])
 
-    def logpdf(self, theta) -> np.ndarray:
+    def logpdf(self, theta: np.ndarray) -> np.ndarray:
         """Log density at ``theta (m, d)`` (log-sum-exp over the branches), returns ``(m,)``."""
         return logsumexp(self.component_logpdfs(theta), axis=1)
 
@@ -314,7 +314,7 @@ class RunningStatistics:
         if not (callable(self.summarise) and callable(self.loglike)):
             raise TypeError("RunningStatistics: summarise and loglike must be callables")
 
-    def add(self, summary, dataset) -> dict:
+    def add(self, summary: dict, dataset: Any) -> dict:
         """``summary`` (``None`` for none yet) plus the statistics of ``dataset``."""
         new = self.summarise(dataset)
         if not isinstance(new, dict) or not new:
@@ -392,8 +392,9 @@ class HistoryPrior:
         return out
 
 
-def predictive_density(posterior, log_weights, kernel, rng: np.random.Generator,
-                       method: str = "transition", shrink_static: bool = True):
+def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: MarkovKernel,
+                       rng: np.random.Generator, method: str = "transition",
+                       shrink_static: bool = True) -> tuple[GaussianMixture, np.ndarray]:
     """The predictive prior of Eq. (A3) and the samples that represent it.
 
     Parameters
@@ -443,3 +444,11 @@ def predictive_density(posterior, log_weights, kernel, rng: np.random.Generator,
     else:
         density = GaussianMixture(centres, bandwidth, log_weights)
     return density, density.draw_one_per_component(rng)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from typing import Any
+    from numpy.typing import ArrayLike
+
+    from .kernels import MarkovKernel

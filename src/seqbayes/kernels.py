@@ -195,7 +195,8 @@ class Jump(_Component):
         object.__setattr__(self, "scale_weights", tuple(weights.tolist()))
 
     @classmethod
-    def heavy_tailed(cls, base, p: float, drop_mean: float, drop_sd: float, reference: float) -> "Jump":
+    def heavy_tailed(cls, base: Drift | Decay | Static, p: float, drop_mean: float, drop_sd: float,
+                     reference: float) -> "Jump":
         """The heavy-tailed variant: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)``
         (:data:`HEAVY_TAIL_SCALES`, :data:`HEAVY_TAIL_WEIGHTS`)."""
         return cls(base, p, drop_mean, drop_sd, reference, HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS)
@@ -290,7 +291,9 @@ class MarkovKernel:
     nominal_function: Callable | None = None
     noise_std: np.ndarray = field(default=None)
 
-    def __init__(self, components: Sequence | None = None, *, nominal_function=None, noise_std=None):
+    def __init__(self, components: Sequence | None = None, *,
+                 nominal_function: Callable[[np.ndarray], np.ndarray] | None = None,
+                 noise_std: ArrayLike | None = None):
         if (components is None) == (nominal_function is None):
             raise TypeError("MarkovKernel: give either components or nominal_function (with noise_std)")
         if components is not None:
@@ -343,7 +346,7 @@ class MarkovKernel:
         """Every parameter is :class:`Static`: the kernel is the identity (no evolution, no noise)."""
         return bool(self.components) and all(isinstance(c, Static) for c in self.components)
 
-    def nominal(self, theta) -> np.ndarray:
+    def nominal(self, theta: np.ndarray) -> np.ndarray:
         """``Gamma(theta)``: the noise-free evolution, ``(N, d) -> (N, d)``."""
         theta = as_samples(theta, self.dim)
         if self.nominal_function is not None:
@@ -353,7 +356,7 @@ class MarkovKernel:
             return out
         return np.column_stack([c.nominal(theta[:, j]) for j, c in enumerate(self.components)])
 
-    def propagate(self, theta, rng: np.random.Generator) -> np.ndarray:
+    def propagate(self, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One draw from ``T(. | theta)`` for each row: ``Gamma(theta) + nu`` (Eq. A2).
 
         With jumps, each row first draws its branch (:meth:`Branches.choose`), then
@@ -365,7 +368,7 @@ class MarkovKernel:
         branch = self._branches.choose(mean.shape[0], rng)
         return mean + self._branches.shifts[branch] + rng.standard_normal(mean.shape) * self._branches.sds[branch]
 
-    def logpdf(self, new, old) -> np.ndarray:
+    def logpdf(self, new: np.ndarray, old: np.ndarray) -> np.ndarray:
         """``log T(new | old)`` over the noisy parameters; static ones must be equal (else ``-inf``).
 
         With jumps: ``log sum_c W_c N(new; Gamma(old) + shift_c, diag(sd_c^2))`` over the branches.
@@ -441,7 +444,8 @@ def _ancestor_moments(mixture, theta, column) -> tuple[np.ndarray, np.ndarray]:
     return first, second
 
 
-def jump_posterior(kernel: MarkovKernel, prior, posterior, log_weights) -> JumpPosterior:
+def jump_posterior(kernel: MarkovKernel, prior: Any, posterior: np.ndarray,
+                   log_weights: np.ndarray) -> JumpPosterior:
     """The posterior probability of a jump at one step and of its size.
 
     With the step's predictive prior ``pi(theta) = sum_c V_c p_c(theta)`` (a
@@ -520,3 +524,10 @@ def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dic
     if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
         return {}
     return jump_posterior(kernel, prior, posterior, log_weights).step_fields()
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable
+    from typing import Any
+    from numpy.typing import ArrayLike

@@ -51,7 +51,7 @@ class JointPrior:
     (5, 2)
     """
 
-    def __init__(self, distributions, names: Sequence[str] | None = None):
+    def __init__(self, distributions: Mapping[str, Any] | Sequence[Any], names: Sequence[str] | None = None):
         if isinstance(distributions, Mapping):
             if names is not None:
                 raise TypeError("names: give names either as mapping keys or as names=, not both")
@@ -85,7 +85,7 @@ class JointPrior:
         """``(d, 2)`` array of lower and upper bounds of each marginal (read-only)."""
         return self._support
 
-    def logpdf(self, theta) -> np.ndarray:
+    def logpdf(self, theta: ArrayLike) -> np.ndarray:
         """Log density at ``theta (N, d)``; ``-inf`` outside the support. Returns ``(N,)``."""
         theta = as_samples(theta, self.dim)
         total = np.zeros(theta.shape[0])
@@ -94,12 +94,12 @@ class JointPrior:
         total[np.isnan(total)] = -np.inf
         return total
 
-    def marginal_logpdf(self, j: int, values) -> np.ndarray:
+    def marginal_logpdf(self, j: int, values: ArrayLike) -> np.ndarray:
         """Log density of parameter ``j`` alone at ``values (N,)``; ``-inf`` outside its support."""
         out = np.asarray(self._logpdfs[j](np.asarray(values, dtype=float)), dtype=float)
         return np.where(np.isnan(out), -np.inf, out)
 
-    def sample(self, n: int, rng=None) -> np.ndarray:
+    def sample(self, n: int, rng: int | np.random.Generator | None = None) -> np.ndarray:
         """``n`` independent draws, shape ``(n, d)``."""
         if int(n) < 1:
             raise ValueError(f"n: must be at least 1, got {n}")
@@ -215,3 +215,10 @@ def support_of(prior, dim: int) -> np.ndarray:
     if support.shape != (dim, 2):
         raise ValueError(f"prior.support: expected shape ({dim}, 2), got {support.shape}")
     return support
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Mapping
+    from typing import Any
+    from numpy.typing import ArrayLike

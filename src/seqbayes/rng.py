@@ -10,7 +10,7 @@ import numpy as np
 __all__ = ["as_generator", "generator_state", "generator_from_state"]
 
 
-def as_generator(rng=None) -> np.random.Generator:
+def as_generator(rng: int | np.random.Generator | None = None) -> np.random.Generator:
     """Return a :class:`numpy.random.Generator` for ``rng``.
 
     Parameters

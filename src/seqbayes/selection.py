@@ -58,7 +58,7 @@ class ModelComparison:
         return self.table()
 
 
-def compare(results, prior_probabilities=None) -> ModelComparison:
+def compare(results: Mapping[str, Any], prior_probabilities: ArrayLike | None = None) -> ModelComparison:
     """Compare model classes by log-evidence.
 
     Parameters
@@ -96,3 +96,10 @@ def compare(results, prior_probabilities=None) -> ModelComparison:
     log_post = log_z + log_prior
     probabilities = np.exp(log_post - logsumexp(log_post, axis=1)[:, None])
     return ModelComparison(names, log_z, increments, probabilities)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Mapping
+    from typing import Any
+    from numpy.typing import ArrayLike

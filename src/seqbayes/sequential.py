@@ -1061,7 +1061,7 @@ def forecast(samples, kernel: MarkovKernel, support, n_steps: int, rng: np.rando
     return out
 
 
-def assimilate(state: SamplerState, dataset, problem: Problem, config: SamplerConfig,
+def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: SamplerConfig,
                rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
     """Assimilate one dataset (pure; ``state`` is not modified): weigh the prior particles, temper,
     resample and move, estimate the evidence, propagate through the kernel.
@@ -1225,9 +1225,11 @@ class _SequentialSampler:
 
     _move = ""
 
-    def __init__(self, prior, kernel, loglike, n_samples: int = 1000, rng=None, *, executor=None,
-                 n_chunks: int | None = None, history=None, inner_filter=None, blas_threads: int | None = 1,
-                 **settings):
+    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
+                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
+                 history: RunningStatistics | None = None,
+                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None,
+                 blas_threads: int | None = 1, **settings: Any):
         if not (hasattr(prior, "logpdf") and hasattr(prior, "sample")):
             raise TypeError("prior: expected an object with logpdf(theta) and sample(n, rng)")
         if not isinstance(kernel, MarkovKernel):
@@ -1289,7 +1291,7 @@ class _SequentialSampler:
         """``(state, records, rng_state)``: everything needed to resume this run elsewhere."""
         return self._state, tuple(self._records), generator_state(self._rng)
 
-    def restore(self, state: SamplerState, records, rng_state: dict) -> None:
+    def restore(self, state: SamplerState, records: Sequence[StepRecord], rng_state: dict) -> None:
         """Continue from a :meth:`snapshot`: the next :meth:`update` gives the same numbers as
         it would have in the original process."""
         particles = as_samples(state.particles, self.problem.kernel.dim, "state.particles")
@@ -1306,7 +1308,7 @@ class _SequentialSampler:
     def rng(self) -> np.random.Generator:
         return self._rng
 
-    def update(self, dataset, *, progress: bool = False) -> StepInfo:
+    def update(self, dataset: Any, *, progress: bool = False) -> StepInfo:
         """Assimilate one dataset ``D^s`` and return its :class:`~seqbayes.results.StepInfo`.
 
         With ``progress=True`` a tqdm bar counts the step's likelihood evaluations (the number of
@@ -1354,7 +1356,7 @@ class _SequentialSampler:
                           PriorDataConflictWarning, stacklevel=2)
         return record.info
 
-    def run(self, datasets, *, progress: bool = False) -> Result:
+    def run(self, datasets: Iterable[Any], *, progress: bool = False) -> Result:
         """Assimilate each dataset in turn; returns :attr:`result`.
 
         With ``progress=True`` (as emcee's ``run_mcmc``) a tqdm bar over the datasets shows the
@@ -1449,9 +1451,10 @@ conflict_remedy, remedy_ess, remedy_lag
 
     _move = "stretch"
 
-    def __init__(self, prior, kernel, loglike, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor=None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None, inner_filter=None, blas_threads: int | None = 1,
+    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
+                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
+                 history: RunningStatistics | None = None,
+                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
                  target_acceptance: float | None = None, step_size: float = 2.0, max_virtual: int = 30,
                  virtual_tolerance: float = 0.1, tempering: bool = True, tempering_ess: float = 0.5,
                  tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
@@ -1482,9 +1485,10 @@ class SMC(_SequentialSampler):
 
     _move = "gaussian"
 
-    def __init__(self, prior, kernel, loglike, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor=None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None, inner_filter=None, blas_threads: int | None = 1,
+    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
+                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
+                 history: RunningStatistics | None = None,
+                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
                  proposal_scale: float = 1.0, max_moves: int = 30, tempering: bool = True, tempering_ess: float = 0.5,
                  tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
                  resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
@@ -1497,4 +1501,14 @@ class SMC(_SequentialSampler):
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
 
+import typing as _typing  # noqa: E402
 
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable, Iterable, Sequence
+    from typing import Any
+
+    from .nested import KalmanInnerFilter, ParticleInnerFilter
+    from .priors import JointPrior
+
+    #: ``loglike(theta (N, d), dataset) -> (N,)``
+    LogLikelihood = Callable[[np.ndarray, Any], np.ndarray]

@@ -143,7 +143,7 @@ def _fault(point: str) -> None:
 
 
 # ------------------------------------------------------------------------- locks
-def lock_file(fh, exclusive: bool = True) -> None:
+def lock_file(fh: BinaryIO, exclusive: bool = True) -> None:
     """Block until this process holds an advisory lock on the open file ``fh``.
 
     POSIX: ``flock`` (shared or exclusive, released when ``fh`` is closed or by
@@ -185,7 +185,7 @@ _LOCKS_GUARD = threading.Lock()
 
 
 @contextlib.contextmanager
-def store_lock(path):
+def store_lock(path: str | os.PathLike) -> Iterator[None]:
     """Exclusive advisory lock on ``<path>.lock`` (:func:`lock_file`), held for a read-modify-write.
 
     Re-entrant within a process (the CLI holds it around :meth:`RunStore.assimilate`, which
@@ -357,7 +357,7 @@ class RunStore:
 
     # ----------------------------------------------------------------- creation
     @classmethod
-    def create(cls, path, config: RunConfig, *, overwrite: bool = False) -> "RunStore":
+    def create(cls, path: str | os.PathLike, config: RunConfig, *, overwrite: bool = False) -> "RunStore":
         """Start a new run at ``path`` from ``config`` (draws the initial prior samples) and write it.
 
         The likelihood's module is located (not run) and its file and SHA-256 recorded,
@@ -388,7 +388,7 @@ class RunStore:
 
     # ------------------------------------------------------------------ reading
     @classmethod
-    def open(cls, path, config: RunConfig | None = None) -> "RunStore":
+    def open(cls, path: str | os.PathLike, config: RunConfig | None = None) -> "RunStore":
         """Load a run store (this runs no user code).
 
         Reads the file under a shared lock (so never between the two halves of a step
@@ -600,7 +600,7 @@ class RunStore:
             known += [_record_hash(self._step_texts(k)) for k in range(len(known), start)]
         return known + [_record_hash(t) for t in texts]
 
-    def to_xarray(self):
+    def to_xarray(self) -> xr.Dataset:
         """The store's content as an :class:`xarray.Dataset` (what :meth:`write` saves)."""
         import xarray as xr
 
@@ -790,7 +790,7 @@ class RunStore:
                 f"--accept-model-change (API: accept_model_change=True): the new hash is recorded for the "
                 f"steps that follow")
 
-    def load_likelihood(self, accept_model_change: bool = False):
+    def load_likelihood(self, accept_model_change: bool = False) -> Callable[[np.ndarray, Any], np.ndarray]:
         """The run's likelihood, imported by file path from a file whose SHA-256 the run recorded.
 
         Candidates are :meth:`likelihood_candidates`; a module file whose content
@@ -799,7 +799,7 @@ class RunStore:
         """
         return self._verified_likelihood(accept_model_change)[0]
 
-    def load_predict(self):
+    def load_predict(self) -> Callable[[np.ndarray, Any], np.ndarray] | None:
         """The configuration's ``[model] predict`` function (``None`` when it names none), from the same
         verified module file as the likelihood (:meth:`load_likelihood`)."""
         if self.config.predict is None:
@@ -810,7 +810,7 @@ class RunStore:
         except ConfigError as err:
             raise StoreError(f"{self.path}: {str(err).replace('model.likelihood:', 'model.predict:', 1)}") from None
 
-    def share_likelihood(self, executor, source: ModuleSource | None = None) -> None:
+    def share_likelihood(self, executor: Any, source: ModuleSource | None = None) -> None:
         """Make the user's likelihood module importable on a Dask cluster's workers.
 
         A module that lives next to the config (or the store) is not installed on the
@@ -835,7 +835,8 @@ class RunStore:
             archive = shutil.make_archive(str(Path(tmp) / top), "zip", root_dir=source.folder, base_dir=top)
             executor.upload_file(archive)
 
-    def sampler(self, step: int | None = None, executor=None, loglike=None):
+    def sampler(self, step: int | None = None, executor: Any = None,
+                loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None) -> SEMC | SMC:
         """A sampler restored to the state after ``step`` datasets (default: the last).
 
         Without ``loglike`` the run's verified likelihood is loaded (:meth:`load_likelihood`).
@@ -874,8 +875,9 @@ class RunStore:
                              f"opened")
         self.__dict__.update(fresh.__dict__)
 
-    def assimilate(self, table, source: str = "<array>", *, replace_last: bool = False, executor=None,
-                   loglike=None, write: bool = True, accept_model_change: bool = False):
+    def assimilate(self, table: ArrayLike, source: str = "<array>", *, replace_last: bool = False,
+                   executor: Any = None, loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None,
+                   write: bool = True, accept_model_change: bool = False) -> StepInfo:
         """Assimilate one dataset given as an ``(n_rows, n_columns)`` array and save the store.
 
         The read-modify-write holds the store's lock; steps another process stored since
@@ -962,8 +964,9 @@ class RunStore:
             warnings.warn(message, BoundWarning, stacklevel=2)
         return info
 
-    def update(self, datafile, *, replace_last: bool = False, executor=None, loglike=None,
-               accept_model_change: bool = False):
+    def update(self, datafile: str | os.PathLike, *, replace_last: bool = False, executor: Any = None,
+               loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None,
+               accept_model_change: bool = False) -> StepInfo:
         """Read a CSV/NetCDF data file (:func:`~seqbayes.datasets.read_datafile`) and :meth:`assimilate` it."""
         table = read_datafile(datafile, self.config)
         return self.assimilate(table, Path(datafile).name, replace_last=replace_last, executor=executor,
@@ -1048,7 +1051,7 @@ class RunStore:
         return time_to_threshold(samples, sampler.problem.kernel, self.names.index(parameter), threshold, horizon,
                                  direction=direction, rng=sampler.rng, paths_per_sample=paths_per_sample)
 
-    def to_arviz(self, step: int | None = None, rng=None, **kwargs):
+    def to_arviz(self, step: int | None = None, rng: int | np.random.Generator | None = None, **kwargs: Any) -> az.InferenceData:
         """The run as :class:`arviz.InferenceData` (:meth:`seqbayes.Result.to_arviz`; step 1's prior
         draws are the run's own initial draws)."""
         return self.result.to_arviz(step, rng, prior=self.initial_particles, **kwargs)
@@ -1492,7 +1495,20 @@ def _check_free_space(path: Path, folder: Path, needed: int) -> None:
                          f"{free // 1024} KiB free ({os.strerror(errno.ENOSPC)}); the previous store is kept")
 
 
-def posterior_to_arviz(result: Result, step: int | None = -1, rng=None, **kwargs):
+def posterior_to_arviz(result: Result, step: int | None = -1, rng: int | np.random.Generator | None = None,
+                       **kwargs: Any) -> az.InferenceData:
     """A step's posterior (``step=None``: every step) as :class:`arviz.InferenceData`:
     :meth:`seqbayes.Result.to_arviz`."""
     return result.to_arviz(step, rng, **kwargs)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable, Iterator
+    from typing import Any, BinaryIO
+
+    import arviz as az
+    import xarray as xr
+    from numpy.typing import ArrayLike
+
+    from .sequential import SEMC, SMC
