@@ -5,8 +5,9 @@ Usage: ``python tools/count_annotations.py [--list]``.
 The public API is what ``seqbayes/__init__.py`` exports (``__all__``: functions, classes and
 the sub-modules it names, through their own ``__all__``) plus the modules behind the command
 line (``cli``, ``config``, ``store``, ``report``, ``plotting``, ``results``, ``prognostics``).
-A class contributes its public methods, properties and ``__init__`` (dataclass-generated ones
-excluded: they are annotated from the fields). A function is fully annotated when every
+A class contributes its public methods, properties and ``__init__``, also those it inherits
+from seqbayes base classes (dataclass-generated ``__init__`` excluded: it is annotated from the
+fields). A function is fully annotated when every
 parameter but ``self``/``cls`` has an annotation and, except for ``__init__``, so has the return
 value. ``--list`` prints the functions that are not.
 """
@@ -62,8 +63,10 @@ def public_functions() -> dict:
         elif inspect.isclass(obj):
             if not getattr(obj, "__module__", "").startswith("seqbayes"):
                 return
-            for qual, func in _functions_of_class(obj):
-                found.setdefault(f"{obj.__module__}.{qual}", func)
+            for base in obj.__mro__:   # with the methods a public class inherits from a private base
+                if getattr(base, "__module__", "").startswith("seqbayes"):
+                    for qual, func in _functions_of_class(base):
+                        found.setdefault(f"{base.__module__}.{qual}", func)
         elif inspect.isfunction(obj):
             if getattr(obj, "__module__", "").startswith("seqbayes"):
                 found.setdefault(f"{obj.__module__}.{obj.__qualname__}", obj)
