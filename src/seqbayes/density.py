@@ -120,6 +120,9 @@ class GaussianMixture:
         object.__setattr__(self, "_scaled_centres", np.ascontiguousarray(scaled.T, dtype=np.float32))
         object.__setattr__(self, "_offset", (log_w - 0.5 * np.einsum("ij,ij->i", scaled, scaled)).astype(np.float32))
         object.__setattr__(self, "_const", -np.sum(np.log(bandwidth)) - 0.5 * centres.shape[1] * np.log(2.0 * np.pi))
+        # centres within ~2.5 bandwidths of their mean on every axis: the truncation radius (~10 bandwidths,
+        # gaussian_sum) holds them all, so no tree can save work (measured: it only costs, bench_scale --mixture)
+        object.__setattr__(self, "_compact", bool(np.all(scaled.std(axis=0) < 2.5)))
 
     @property
     def dim(self) -> int:
@@ -136,7 +139,7 @@ class GaussianMixture:
         """
         theta = as_samples(theta, self.dim)
         x = (theta - self._shift) / self.bandwidth  # centring keeps the expansion below accurate
-        if self.centres.shape[0] < _TREE_MIN_CENTRES:
+        if self.centres.shape[0] < _TREE_MIN_CENTRES or self._compact:
             return self._dense_logsum(x) + self._const
         truncated = self.__dict__.get("_truncated")
         if truncated is None:  # built on first use: a mixture that is only sampled never needs it

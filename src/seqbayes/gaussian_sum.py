@@ -15,7 +15,8 @@ that are not:
   pair search (:meth:`scipy.spatial.cKDTree.sparse_distance_matrix`); the queries that need
   more, and every query when the pairs within ``R`` would be more than 0.5 % of all pairs
   (a pair found by the tree costs ~100 times a pair of the dense sum, measured), go to the
-  caller's dense evaluation.
+  caller's dense evaluation; after a call where truncation did not pay, the sum gives up on
+  it (the same mixture is queried again near the same bulk).
 
 Measured against the double-precision all-pairs sum in ``tests/unit/test_density.py``.
 """
@@ -64,6 +65,8 @@ class TruncatedSum:
         -------
         (m,) array
         """
+        if self.__dict__.get("_gave_up"):  # a previous call found that truncation saves nothing here
+            return dense(x)
         m, n = x.shape[0], self._log_weights.size
         nearest, index = self._tree.query(x, k=1)
         lower = self._log_weights[index] - 0.5 * nearest**2
@@ -77,6 +80,7 @@ class TruncatedSum:
         probe = np.linspace(0, m - 1, min(m, n_probe)).astype(int)  # evenly spaced: no random draw
         expected_pairs = self._tree.query_ball_point(x[probe], common, return_length=True).mean() * m
         if expected_pairs > _MAX_PAIR_FRACTION * m * n:
+            object.__setattr__(self, "_gave_up", True)  # the same mixture is queried near the same bulk again
             return dense(x)
         served = usable & (radius2 <= common**2)
         rows = np.flatnonzero(served)
