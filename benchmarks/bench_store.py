@@ -50,6 +50,8 @@ def extend(store: RunStore, n_steps: int) -> None:
         k = len(steps)
         steps.append(replace(last, info=replace(last.info, step=k + 1)))
         store.states.append(store.states[-1])
+        if store.tables:                       # the datasets the state needs (the conflict remedy's window)
+            store.tables.append(store.tables[-1])
         store.step_sizes.append(store.step_sizes[-1])
         store.rng_states.append(store.rng_states[-1])
         store.digests.append(hashlib.sha256(str(k).encode()).hexdigest())

@@ -84,6 +84,7 @@ import errno
 import hashlib
 import io
 import json
+import mmap
 import os
 import shutil
 import signal
@@ -1385,23 +1386,48 @@ def _read_journal(path: Path):
 
 def _apply_pages(path: Path, journal, fault: bool = False) -> None:
     """Write a journal's pages into the store and set its size, under an exclusive lock on it, then
-    ``fsync`` (idempotent: a second application after a crash in the first gives the same file)."""
+    ``fsync`` (idempotent: a second application after a crash in the first gives the same file).
+
+    Where the filesystem takes it, the pages go with ``O_DIRECT`` (one aligned buffer, a partial last
+    page padded with zeros before the size is set): a buffered write of 4 KiB into a page-cache folio
+    that readahead made large sends the whole folio to the disk, so the bytes reaching the disk
+    would grow with the store."""
     _, new_size, pages = journal
     with open(path, "r+b") as fh:
         lock_file(fh, exclusive=True)
-        fd = fh.fileno()
-        for i, (offset, data) in enumerate(pages):
-            if fault and i == len(pages) // 2:
-                _fault("mid-apply")
-            view = memoryview(data)
-            while view:
-                written = _pwrite(fd, view, offset)
-                view, offset = view[written:], offset + written
-        os.ftruncate(fd, new_size)
-        os.fsync(fd)
+        direct = _direct_fd(path)
+        fd = fh.fileno() if direct is None else direct
+        try:
+            buffer = mmap.mmap(-1, _PendingWrites.PAGE) if direct is not None else None
+            for i, (offset, data) in enumerate(pages):
+                if fault and i == len(pages) // 2:
+                    _fault("mid-apply")
+                view = memoryview(data)
+                if buffer is not None:             # a page (the last may be shorter), aligned for O_DIRECT
+                    buffer[:len(data)] = data
+                    buffer[len(data):] = bytes(len(buffer) - len(data))
+                    view = memoryview(buffer)
+                while view:
+                    written = _pwrite(fd, view, offset)
+                    view, offset = view[written:], offset + written
+            os.ftruncate(fd, new_size)
+            os.fsync(fd)
+        finally:
+            if direct is not None:
+                os.close(direct)
         # the journal goes while readers are still locked out: they never see the store half written
         os.remove(_journal_path(path))
         _fsync_dir(path.resolve().parent)
+
+
+def _direct_fd(path: Path):
+    """A descriptor of ``path`` opened with ``O_DIRECT``, or None where there is none (tmpfs, Windows, macOS)."""
+    if not hasattr(os, "O_DIRECT"):
+        return None
+    try:
+        return os.open(path, os.O_RDWR | os.O_DIRECT)
+    except OSError:
+        return None
 
 
 def _recover_journal(path: Path) -> None:
