@@ -125,7 +125,7 @@ class ParticleInnerFilter:
     #: prior draws, which a sharp dataset would leave with one or no useful inner particle.
     joint_first_step = True
 
-    def outer_columns(self, split, dim) -> np.ndarray:
+    def outer_columns(self, split: tuple[np.ndarray, np.ndarray], dim: int) -> np.ndarray:
         return np.arange(dim)
 
     def __post_init__(self):
@@ -134,12 +134,14 @@ class ParticleInnerFilter:
         if not 0.0 <= self.ess_threshold <= 1.0:
             raise ValueError(f"ess_threshold: must lie in [0, 1], got {self.ess_threshold}")
 
-    def check(self, problem, split) -> None:
+    def check(self, problem: Problem, split: tuple[np.ndarray, np.ndarray]) -> None:
         if not isinstance(problem.prior, JointPrior):
             raise TypeError("prior: SMC^2 draws the drifting parameters from their own marginals; "
                             "give a seqbayes.JointPrior (independent marginals)")
 
-    def fit_guide(self, problem, split, outer, log_weights, cloud, dataset, counter, rng):
+    def fit_guide(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, log_weights: np.ndarray,
+                  cloud: dict | None, dataset: Any, counter: Any,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """The step's Gaussian guide ``(mean (d_x,), cov (d_x, d_x))``, or ``None`` (not guided, a kernel
         without noise on a drifting parameter, or too few pilot draws with a non-zero likelihood).
 
@@ -194,7 +196,9 @@ class ParticleInnerFilter:
             log_predictive = _gaussian_logpdf(x, *predictive)
         return mean, cov
 
-    def advance(self, problem, split, outer, cloud, dataset, first, counter, rng, guide=None):
+    def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, cloud: dict | None, dataset: Any,
+                first: bool, counter: Any, rng: np.random.Generator,
+                guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One step of every inner filter.
 
         Parameters
@@ -267,7 +271,7 @@ class ParticleInnerFilter:
         # "ess": each inner filter's ESS fraction after weighting, before resampling (a health diagnostic)
         return log_increment, {"x": x, "log_w": log_w, "ess": np.where(alive, ess, 0.0) / m}
 
-    def draws(self, cloud, rng) -> np.ndarray:
+    def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
         """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
         index = _categorical_rows(cloud["log_w"], rng)
         return cloud["x"][np.arange(index.size), index]
@@ -308,10 +312,10 @@ class KalmanInnerFilter:
 
     joint_first_step = False
 
-    def outer_columns(self, split, dim) -> np.ndarray:
+    def outer_columns(self, split: tuple[np.ndarray, np.ndarray], dim: int) -> np.ndarray:
         return split[0]
 
-    def check(self, problem, split) -> None:
+    def check(self, problem: Problem, split: tuple[np.ndarray, np.ndarray]) -> None:
         prior, kernel = problem.prior, problem.kernel
         if not isinstance(prior, JointPrior):
             raise TypeError("prior: KalmanInnerFilter needs a seqbayes.JointPrior with normal drifting marginals")
@@ -322,11 +326,13 @@ class KalmanInnerFilter:
             if not isinstance(kernel.components[j], (Drift, Decay)):
                 raise ValueError(f"kernel: {prior.names[j]!r} must be Drift or Decay for KalmanInnerFilter")
 
-    def fit_guide(self, *args, **kwargs):
+    def fit_guide(self, *args: Any, **kwargs: Any) -> None:
         """The Kalman filter needs no guide."""
         return None
 
-    def advance(self, problem, split, static, cloud, dataset, first, counter, rng, guide=None):
+    def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], static: np.ndarray, cloud: dict | None, dataset: Any,
+                first: bool, counter: Any, rng: np.random.Generator,
+                guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
         (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
         k, d_x = static.shape[0], split[1].size
@@ -362,7 +368,7 @@ class KalmanInnerFilter:
         mean, cov = mean + correction, posterior_cov
         return log_increment, {"mean": mean, "cov": cov}
 
-    def draws(self, cloud, rng) -> np.ndarray:
+    def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
         chol = np.linalg.cholesky(cloud["cov"] + 1e-300 * np.eye(cloud["cov"].shape[1]))
         return cloud["mean"] + np.einsum("kij,kj->ki", chol, rng.standard_normal(cloud["mean"].shape))
 
@@ -417,15 +423,15 @@ class NestedState:
         return self.predictive if self.predictive is not None else self.particles
 
     @property
-    def posterior(self):
+    def posterior(self) -> np.ndarray | None:
         return self.particles if self.step else None
 
     @property
-    def posterior_log_weights(self):
+    def posterior_log_weights(self) -> np.ndarray | None:
         return self.log_weights if self.step else None
 
 
-def start_nested(prior, columns, draws, step_size) -> NestedState:
+def start_nested(prior: JointPrior, columns: np.ndarray, draws: np.ndarray, step_size: float) -> NestedState:
     """The state before the first dataset, from ``draws (N, d)`` of the prior; ``columns`` are the
     outer particles' columns."""
     n = draws.shape[0]
@@ -434,8 +440,9 @@ def start_nested(prior, columns, draws, step_size) -> NestedState:
                        np.zeros(n), (), 0.0, float(step_size), draws)
 
 
-def after_joint_first_step(split, n_inner, particles, log_weights, components, dataset, log_evidence, step_size,
-                           posterior, predictive) -> NestedState:
+def after_joint_first_step(split: tuple[np.ndarray, np.ndarray], n_inner: int, particles: np.ndarray, log_weights: np.ndarray,
+                           components: np.ndarray, dataset: Any, log_evidence: float, step_size: float,
+                           posterior: np.ndarray, predictive: np.ndarray) -> NestedState:
     """The state after a first step done jointly over every parameter (``joint_first_step``):
     ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``; each inner filter holds
     ``n_inner`` copies of its outer particle's drifting values."""
@@ -547,7 +554,8 @@ def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
     return past, last, cloud
 
 
-def assimilate_nested(state: NestedState, dataset, problem, config, counter, rng):
+def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config: SamplerConfig, counter: Any,
+                      rng: np.random.Generator) -> tuple[NestedState, StepRecord]:
     """Assimilate one dataset with SMC^2 (pure; ``state`` is not modified).
 
     Returns
@@ -632,7 +640,7 @@ def nested_state_arrays(state: NestedState) -> dict:
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
 
 
-def nested_guide(arrays: dict):
+def nested_guide(arrays: dict) -> tuple[np.ndarray, np.ndarray] | None:
     """The guide of the step whose :func:`nested_state_arrays` are ``arrays`` (``None`` if unguided)."""
     if "guide_used" not in arrays or not float(arrays["guide_used"]):
         return None
@@ -653,3 +661,12 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
                        float(log_evidence), float(step_size), np.array(arrays["particles"]),
                        np.array(arrays["predictive"]) if "predictive" in arrays else None,
                        tuple(guides) + (nested_guide(arrays),))
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from typing import Any
+
+    from .priors import JointPrior
+    from .results import StepRecord
+    from .sequential import Problem, SamplerConfig

@@ -51,7 +51,7 @@ __all__ = ["simpson_weights", "log_integral", "marginal_moments", "adaptive_axes
            "reference_table", "read_reference_table"]
 
 
-def simpson_weights(grid) -> np.ndarray:
+def simpson_weights(grid: ArrayLike) -> np.ndarray:
     """Composite Simpson weights of a uniform or log-uniform grid with an odd number of points.
 
     A log-uniform (geometric) grid is Simpson's rule in ``u = log x`` with the Jacobian
@@ -113,7 +113,7 @@ def _clean(log_values) -> np.ndarray:
     return np.where(np.isnan(log_values), -np.inf, log_values)
 
 
-def log_integral(log_values, axes) -> float:
+def log_integral(log_values: np.ndarray, axes: Sequence[np.ndarray]) -> float:
     """``log int f`` over a tensor grid, by Simpson on each axis, from ``log f``.
 
     Parameters
@@ -143,7 +143,7 @@ def _log_marginals(log_values, axes) -> list[np.ndarray]:
     return out
 
 
-def marginal_moments(log_density, axes) -> tuple[np.ndarray, np.ndarray]:
+def marginal_moments(log_density: np.ndarray, axes: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard deviation of each coordinate under a grid density.
 
     Parameters
@@ -177,9 +177,11 @@ def _range_with_mass(log_marginal, axis, tail_mass):
     return int(np.flatnonzero(below <= tail_mass)[-1]), int(np.flatnonzero(above <= tail_mass)[0])
 
 
-def adaptive_axes(log_target: Callable, window, n_points, *, hard=None, fixed=None, n_coarse=201,
-                  tail_mass: float = 1e-40, max_rounds: int = 12, points_per_sd: float | None = None,
-                  scales=None, max_points: int = 2001, log_axes=None) -> tuple[np.ndarray, ...]:
+def adaptive_axes(log_target: Callable, window: ArrayLike, n_points: int | Sequence[int], *,
+                  hard: ArrayLike | None = None, fixed: Sequence[np.ndarray | None] | None = None,
+                  n_coarse: int = 201, tail_mass: float = 1e-40, max_rounds: int = 12,
+                  points_per_sd: float | None = None, scales: ArrayLike | None = None, max_points: int = 2001,
+                  log_axes: Sequence[bool] | None = None) -> tuple[np.ndarray, ...]:
     """A data-centred fine grid: the range of every marginal of ``exp(log_target)`` but for
     ``tail_mass`` of its mass in each tail.
 
@@ -298,7 +300,8 @@ def _transition_matrix(new_axis, old_axis, nominal, noise_std) -> np.ndarray:
     return np.exp(-0.5 * z * z) / (noise_std * np.sqrt(2.0 * np.pi)) * simpson_weights(old_axis)[None, :]
 
 
-def propagate(log_density, old_axes, new_axes, nominals, noise_stds) -> np.ndarray:
+def propagate(log_density: np.ndarray, old_axes: Sequence[np.ndarray], new_axes: Sequence[np.ndarray],
+              nominals: Sequence[Callable], noise_stds: ArrayLike) -> np.ndarray:
     """Log predictive density ``log int T(theta' | theta) p(theta) dtheta`` on a new grid (Eq. A3).
 
     Parameters
@@ -355,7 +358,7 @@ class GridStep:
     std: np.ndarray
 
 
-def grid_update(log_target: Callable, window, n_points, **kwargs) -> GridStep:
+def grid_update(log_target: Callable, window: ArrayLike, n_points: int | Sequence[int], **kwargs: Any) -> GridStep:
     """One Bayes update on an adaptive grid: ``log_target = log(L pi)`` integrated and normalised.
 
     Parameters are those of :func:`adaptive_axes` (``kwargs``: ``hard``, ``fixed``,
@@ -408,7 +411,7 @@ class GridReference:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
 
-    def errors(self, mean, std, log_evidence) -> dict:
+    def errors(self, mean: ArrayLike, std: ArrayLike, log_evidence: ArrayLike) -> dict:
         """A sampler's errors against this reference, step by step.
 
         Parameters
@@ -446,10 +449,11 @@ class GridReference:
         return out
 
 
-def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Sequence[Callable],
-                noise_stds, n_points, *, first_window=None, hard=None, n_coarse=201,
-                tail_mass: float = 1e-40, widen: float = 20.0, points_per_sd: float | None = None,
-                max_points: int = 2001, log_axes=None) -> list[GridStep]:
+def grid_filter(datasets: Sequence, log_likelihood: Callable, box: ArrayLike, nominals: Sequence[Callable],
+                noise_stds: ArrayLike, n_points: int | Sequence[int], *, first_window: ArrayLike | None = None,
+                hard: ArrayLike | None = None, n_coarse: int = 201, tail_mass: float = 1e-40, widen: float = 20.0,
+                points_per_sd: float | None = None, max_points: int = 2001,
+                log_axes: Sequence[bool] | None = None) -> list[GridStep]:
     """Grid filter under a uniform box prior and a per-parameter Gaussian kernel.
 
     Parameters
@@ -536,7 +540,8 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box, nominals: Seq
     return steps
 
 
-def reference_from_steps(steps: Sequence[GridStep], parameter_names, n_steps: int, settings: dict) -> GridReference:
+def reference_from_steps(steps: Sequence[GridStep], parameter_names: Sequence[str], n_steps: int,
+                         settings: dict) -> GridReference:
     """Stack :class:`GridStep` records into a :class:`GridReference` (``-inf`` evidence, NaN moments
     for the steps after a zero-evidence step)."""
     d = len(parameter_names)
@@ -611,3 +616,9 @@ def read_reference_table(text: str, key_names: Sequence[str], parameter_names: S
         out[key] = GridReference(tuple(parameter_names), mean, std, log_evidence,
                                  np.diff(log_evidence, prepend=0.0), {})
     return out
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from typing import Any
+    from numpy.typing import ArrayLike

@@ -225,7 +225,7 @@ class SparseGridTransition:
         :class:`~seqbayes.sparsegrid.SparseGrid`.
     """
 
-    def __init__(self, building: ShearBuilding, dt: float, lower, upper, level: int = 6,
+    def __init__(self, building: ShearBuilding, dt: float, lower: ArrayLike, upper: ArrayLike, level: int = 6,
                  hold: str = "foh", channels: str = "absolute_acceleration", basis: str = "modified"):
         self.building, self.dt, self.hold, self.channels = building, float(dt), hold, channels
         self.m = building.state_dim
@@ -323,7 +323,7 @@ class SGEnMCMCResult:
     def log_evidence(self) -> float:
         return float(self.log_evidence_increments.sum())
 
-    def convergence_step(self, truth, tol: float = 0.01) -> np.ndarray:
+    def convergence_step(self, truth: ArrayLike, tol: float = 0.01) -> np.ndarray:
         """First step after which the mean stays within ``tol`` of ``truth``, per parameter
         (``T`` if never)."""
         return _convergence_step(self.theta_mean, truth, tol)
@@ -434,11 +434,13 @@ class SGEnMCMC:
         Measured channels (default floor absolute accelerations).
     """
 
-    def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
-                 process_noise_std: float = 0.0, n_members: int = 500, level="auto",
+    def __init__(self, building: ShearBuilding, dt: float, lower: ArrayLike, upper: ArrayLike,
+                 measurement_noise: ArrayLike, process_noise_std: float = 0.0, n_members: int = 500,
+                 level: int | str = "auto",
                  ess_threshold: float | None = None, shrinkage: float = 0.5, conditional: bool = True,
                  resampling: str = "systematic", channels: str = "absolute_acceleration",
-                 basis: str = "modified", transition=None, centre: str = "regression",
+                 basis: str = "modified", transition: SparseGridTransition | None = None,
+                 centre: str = "regression",
                  state_move: str = "regression", leverage_correction: bool = True,
                  sampler: str = "resample-move", proposal: str = "independent", proposal_scale: float = 1.0,
                  moves_per_particle: float = 1.0, max_sweeps: int = 10, likelihood: str = "kalman",
@@ -526,8 +528,8 @@ class SGEnMCMC:
         z = np.mod(new - self.lower, 2 * width)  # reflect into the box
         return self.lower + np.where(z > width, 2 * width - z, z)
 
-    def run(self, ground_acceleration, measurements, rng=None, progress: bool = False,
-            initial_theta=None) -> SGEnMCMCResult:
+    def run(self, ground_acceleration: ArrayLike, measurements: ArrayLike, rng: int | np.random.Generator | None = None,
+            progress: bool = False, initial_theta: ArrayLike | None = None) -> SGEnMCMCResult:
         """Identify ``theta`` on-line from ``measurements (T, p)`` under ``ground_acceleration (T,)``.
 
         The structure starts at rest; ``y_0`` is the first measurement.
@@ -651,7 +653,7 @@ class SGEnMCMC:
         return self.result()
 
     # ------------------------------------------------------------------ on-line
-    def reset(self, rng=None, initial_theta=None) -> None:
+    def reset(self, rng: int | np.random.Generator | None = None, initial_theta: ArrayLike | None = None) -> None:
         """Start an on-line identification (``sampler="resample-move"``): draw the
         particles from the prior (or take ``initial_theta (N, d)``), structure at
         rest. Then call :meth:`update` with each new block of the record.
@@ -673,7 +675,8 @@ class SGEnMCMC:
             stats=_Histories(0, d, m, n, self.lower, self.upper), evid=np.zeros(0), resampled=np.zeros(0, bool),
             events=[], elapsed=0.0)
 
-    def update(self, ground_acceleration, measurements, progress: bool = False) -> SGEnMCMCResult:
+    def update(self, ground_acceleration: ArrayLike, measurements: ArrayLike,
+               progress: bool = False) -> SGEnMCMCResult:
         """Process the next block of the record: ``measurements (n, p)`` under
         ``ground_acceleration (n,)``, continuing from the previous blocks (call
         :meth:`reset` first). Returns :meth:`result` (histories of all steps so far)."""
@@ -1114,3 +1117,8 @@ def stage_modes(samples, weights, lower, upper, lo, hi, bins: int = 60) -> np.nd
                          minlength=L * d * bins).reshape(L, d, bins)
     i = np.argmax(counts, axis=2)
     return lo + (i + 0.5) * (hi - lo) / bins
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from numpy.typing import ArrayLike

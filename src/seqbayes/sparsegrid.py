@@ -192,7 +192,7 @@ class SparseGrid:
             out[inside] = self._lookup(lv, ix)
         return out
 
-    def hierarchise(self, values) -> np.ndarray:
+    def hierarchise(self, values: ArrayLike) -> np.ndarray:
         """Hierarchical surpluses ``c`` (Eqs. 19-20) from nodal values.
 
         Parameters
@@ -245,7 +245,7 @@ class SparseGrid:
         return c
 
     # ----------------------------------------------------------------- evaluation
-    def basis_matrix(self, x) -> sp.csr_matrix:
+    def basis_matrix(self, x: ArrayLike) -> sp.csr_matrix:
         """Sparse ``(M, P)`` matrix of basis values ``phi_p(x_m)`` (Eq. 18).
 
         Each row has one non-zero per subspace (the cell of ``x`` in ``W_l``).
@@ -298,7 +298,7 @@ class SparseGridInterpolant:
     def n_outputs(self) -> int:
         return self.surpluses.shape[1]
 
-    def normalise(self, x) -> np.ndarray:
+    def normalise(self, x: ArrayLike) -> np.ndarray:
         x = np.asarray(x, dtype=float)
         if x.ndim == 1:
             x = x[None, :] if self.grid.dim > 1 else x[:, None]
@@ -312,7 +312,8 @@ class SparseGridInterpolant:
         return self.grid.basis_matrix(self.normalise(x)) @ self.surpluses
 
 
-def fit(grid: SparseGrid, values, lower=None, upper=None) -> SparseGridInterpolant:
+def fit(grid: SparseGrid, values: ArrayLike, lower: ArrayLike | None = None,
+        upper: ArrayLike | None = None) -> SparseGridInterpolant:
     """Interpolant from values ``(P, K)`` at ``grid.points`` (mapped to the box)."""
     lower = np.zeros(grid.dim) if lower is None else np.asarray(lower, dtype=float).reshape(-1)
     upper = np.ones(grid.dim) if upper is None else np.asarray(upper, dtype=float).reshape(-1)
@@ -321,8 +322,8 @@ def fit(grid: SparseGrid, values, lower=None, upper=None) -> SparseGridInterpola
     return SparseGridInterpolant(grid, grid.hierarchise(values), lower, upper)
 
 
-def interpolate(function, dim: int, level: int, lower=None, upper=None,
-                basis: str = "modified") -> SparseGridInterpolant:
+def interpolate(function: Callable[[np.ndarray], np.ndarray], dim: int, level: int, lower: ArrayLike | None = None,
+                upper: ArrayLike | None = None, basis: str = "modified") -> SparseGridInterpolant:
     """Build the sparse-grid interpolant of a batch function on a box.
 
     Parameters
@@ -350,3 +351,9 @@ def interpolate(function, dim: int, level: int, lower=None, upper=None,
     if values.shape[0] != grid.n_points:
         raise ValueError(f"function: returned {values.shape[0]} rows for {grid.n_points} points")
     return fit(grid, values, lower, upper)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable
+    from numpy.typing import ArrayLike
