@@ -62,7 +62,7 @@ class JointFilterResult:
     final_covariance: np.ndarray
     elapsed: float
 
-    def convergence_step(self, truth, tol: float = 0.01) -> np.ndarray:
+    def convergence_step(self, truth: ArrayLike, tol: float = 0.01) -> np.ndarray:
         from ..sgenmcmc import _convergence_step
 
         return _convergence_step(self.theta_mean, truth, tol)
@@ -138,7 +138,7 @@ class AugmentedModel:
     def _safe(self, theta):
         return np.maximum(theta, self.theta_floor)  # keep stiffness positive
 
-    def propagate(self, Z, u_now, u_next):
+    def propagate(self, Z: np.ndarray, u_now: float, u_next: float) -> tuple[np.ndarray, np.ndarray]:
         """``f(Z)`` for a batch ``Z (K, m + d)``; also returns ``b(theta) (K, m)``."""
         m = self.m
         E = self._transition(self._safe(Z[:, m:]))
@@ -147,11 +147,11 @@ class AugmentedModel:
         Xn = np.einsum("kij,kj->ki", E[:, :m, :], drive)
         return np.concatenate([Xn, Z[:, m:]], axis=1), E[:, :m, m]  # b = B0 + B1 = e12
 
-    def observe(self, Z):
+    def observe(self, Z: np.ndarray) -> np.ndarray:
         """``h(Z) = H(theta) X`` for a batch ``(K, m + d)`` -> ``(K, p)``."""
         return np.einsum("kpm,km->kp", self._H(self._safe(Z[:, self.m :])), Z[:, : self.m])
 
-    def process_covariance(self, b):
+    def process_covariance(self, b: np.ndarray) -> np.ndarray:
         """``Q_aug``: ``s_w^2 b b^T`` on the state block, ``s_theta^2 I`` on theta."""
         size = self.m + self.d
         Q = np.zeros((size, size))
@@ -159,7 +159,7 @@ class AugmentedModel:
         Q[self.m :, self.m :] = self.theta_walk_std**2 * np.eye(self.d)
         return Q
 
-    def linearise(self, z, u_now, u_next):
+    def linearise(self, z: np.ndarray, u_now: float, u_next: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``f(z)``, ``F = df/dZ``, ``b`` at one augmented state ``z (m + d,)``: one
         exponential with its derivatives along every ``theta_j`` (module docstring)."""
         m, d = self.m, self.d
@@ -172,7 +172,7 @@ class AugmentedModel:
         F[:m, m:] = (dE[:, :m] @ drive).T * (z[m:] > self.theta_floor)  # d X' / d theta_j; clamped: 0
         return np.concatenate([Xn, z[m:]]), F, E[:m, m]
 
-    def observation_jacobian(self, z):
+    def observation_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``h(z)`` and ``Hz = dh/dZ`` (exact: ``H`` is affine in theta)."""
         m, d = self.m, self.d
         H = self._H(self._safe(z[m:])[None, :])[0]
@@ -212,8 +212,8 @@ def _summaries(z, P, m, n):
     return drift, np.sqrt(np.maximum(drift_var, 0))
 
 
-def ekf(model: AugmentedModel, ground_acceleration, measurements, measurement_noise,
-        theta0=0.85, theta0_var=0.3**2 / 12) -> JointFilterResult:
+def ekf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
+        theta0: ArrayLike = 0.85, theta0_var: ArrayLike = 0.3**2 / 12) -> JointFilterResult:
     """Run the augmented-state EKF (Eqs. 2-5) from rest.
 
     Parameters
@@ -255,3 +255,8 @@ def ekf(model: AugmentedModel, ground_acceleration, measurements, measurement_no
         dr_mean[k], dr_std[k] = _summaries(z, P, m, n)
     return JointFilterResult(th_mean, th_var, x_mean, dr_mean, dr_std, float(loglik), P,
                              time.perf_counter() - start)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from numpy.typing import ArrayLike

@@ -55,7 +55,7 @@ def _anomalies(values: np.ndarray, covariates: np.ndarray | None) -> np.ndarray:
     return centred - Z @ beta
 
 
-def ensemble_moments(X, covariates=None):
+def ensemble_moments(X: np.ndarray, covariates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sample mean ``(m,)`` and covariance ``(m, m)`` of an ensemble ``X (N, m)`` (Eq. 9).
 
     With ``covariates (N, q)``, the covariance is that of the regression
@@ -85,7 +85,8 @@ def _gaussian_logpdf(residuals: np.ndarray, S: np.ndarray) -> np.ndarray:
     return -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(L)).sum() + (z**2).sum(axis=0))
 
 
-def predictive_log_likelihood(y, Y, R, covariates=None, centre: str = "member"):
+def predictive_log_likelihood(y: np.ndarray, Y: np.ndarray, R: np.ndarray, covariates: np.ndarray | None = None,
+                              centre: str = "member") -> tuple[np.ndarray, np.ndarray]:
     """EnKF predictive log-density of observation ``y`` (Eq. 25).
 
     Parameters
@@ -125,7 +126,9 @@ def predictive_log_likelihood(y, Y, R, covariates=None, centre: str = "member"):
     return ens, _gaussian_logpdf(y[None, :] - centres, S)
 
 
-def perturbed_observation_update(X, Y, y, R, rng, covariates=None, gain_covariance=None):
+def perturbed_observation_update(X: np.ndarray, Y: np.ndarray, y: np.ndarray, R: np.ndarray,
+                                 rng: int | np.random.Generator | None, covariates: np.ndarray | None = None,
+                                 gain_covariance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Stochastic EnKF analysis (Eqs. 10, 22) for all members at once.
 
     Parameters
@@ -165,8 +168,8 @@ def perturbed_observation_update(X, Y, y, R, rng, covariates=None, gain_covarian
     return X + (perturbed - Y) @ gain.T, gain
 
 
-def forecast(model: DiscreteModel, X, u_now: float, u_next: float, process_noise_std: float = 0.0,
-             rng=None):
+def forecast(model: DiscreteModel, X: np.ndarray, u_now: float, u_next: float, process_noise_std: float = 0.0,
+             rng: int | np.random.Generator | None = None) -> np.ndarray:
     """One forecast step for every member (Eq. 7 / Eq. 21 with exact matrices).
 
     ``X_i <- A_i X_i + B0_i u_now + B1_i u_next + b_i eta_i``; ``model`` has one
@@ -199,9 +202,9 @@ class EnKFResult:
     final_ensemble: np.ndarray
 
 
-def enkf_filter(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
-                process_noise_std: float = 0.0, n_members: int = 500, x0=None, P0=None,
-                rng=None) -> EnKFResult:
+def enkf_filter(model: DiscreteModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
+                process_noise_std: float = 0.0, n_members: int = 500, x0: ArrayLike | None = None,
+                P0: ArrayLike | None = None, rng: int | np.random.Generator | None = None) -> EnKFResult:
     """Stochastic EnKF for one linear model (a ``DiscreteModel`` with one member).
 
     Same model and conventions as :func:`seqbayes.filters.kalman.kalman_filter`;
@@ -265,7 +268,8 @@ class EnKFBank:
     can_freeze = False
     frozen = None
 
-    def __init__(self, model: DiscreteModel, measurement_noise, process_noise_std: float, members: int, rng):
+    def __init__(self, model: DiscreteModel, measurement_noise: ArrayLike, process_noise_std: float, members: int,
+                 rng: int | np.random.Generator | None):
         if not isinstance(members, (int, np.integer)) or members < 2:
             raise ValueError(f"members: expected an integer >= 2, got {members!r}")
         p = model.H.shape[1]
@@ -277,16 +281,17 @@ class EnKFBank:
         self.rng = rng
         self.b = model.B0 + model.B1
 
-    def initial_state(self):
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ensembles at rest ``(N, M, m)`` and zero covariances ``(N, m, m)``."""
         N, m = self.model.A.shape[:2]
         return np.zeros((N, self.members, m)), np.zeros((N, m, m))
 
-    def moments(self, X, cov):
+    def moments(self, X: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(N, m)`` and covariance ``(N, m, m)`` of each filter's state."""
         return X.mean(axis=1), cov
 
-    def step(self, X, cov, y_k, u_prev=None, u_now=None):
+    def step(self, X: np.ndarray, cov: np.ndarray, y_k: np.ndarray, u_prev: float | None = None,
+             u_now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One step (prediction skipped when ``u_prev`` is None): returns the
         updated ensembles, their covariances and the increments ``(N,)``."""
         model, rng = self.model, self.rng
@@ -315,8 +320,9 @@ class EnKFBank:
         return X, cov, increment
 
 
-def enkf_log_likelihood(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
-                        process_noise_std: float, members: int, rng=None):
+def enkf_log_likelihood(model: DiscreteModel, ground_acceleration: ArrayLike, measurements: ArrayLike,
+                        measurement_noise: ArrayLike, process_noise_std: float, members: int,
+                        rng: int | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """EnKF log-likelihood of ``y_{0:T-1}`` for each of the ``N`` filters of ``model``
     (:class:`EnKFBank`, ``members`` each), and the final ensembles and covariances.
 
@@ -334,3 +340,8 @@ def enkf_log_likelihood(model: DiscreteModel, ground_acceleration, measurements,
         X, cov, increment = bank.step(X, cov, y[k], *((u[k - 1], u[k]) if k else (None, None)))
         total += increment
     return total, X, cov
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from numpy.typing import ArrayLike

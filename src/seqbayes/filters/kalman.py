@@ -89,8 +89,9 @@ def check_filter_inputs(model: DiscreteModel, ground_acceleration, measurements)
     return u, y
 
 
-def kalman_filter(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
-                  process_noise_std: float = 0.0, x0=None, P0=None, store: bool = False) -> KalmanResult:
+def kalman_filter(model: DiscreteModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
+                  process_noise_std: float = 0.0, x0: ArrayLike | None = None, P0: ArrayLike | None = None,
+                  store: bool = False) -> KalmanResult:
     """Batched Kalman filter: one independent filter per member of ``model``.
 
     Parameters
@@ -245,10 +246,10 @@ def _chandrasekhar_transient(model, H, yw, u, mean, loglik, process_noise_std, s
     raise AssertionError("unreachable")  # pragma: no cover
 
 
-def kalman_log_likelihood(model: DiscreteModel, ground_acceleration, measurements, measurement_noise,
-                          process_noise_std: float = 0.0, x0=None, P0=None, steady_tol: float = 1e-11,
-                          return_steady_step: bool = False, return_state: bool = False,
-                          chandrasekhar: bool = True):
+def kalman_log_likelihood(model: DiscreteModel, ground_acceleration: ArrayLike, measurements: ArrayLike,
+                          measurement_noise: ArrayLike, process_noise_std: float = 0.0, x0: ArrayLike | None = None,
+                          P0: ArrayLike | None = None, steady_tol: float = 1e-11, return_steady_step: bool = False,
+                          return_state: bool = False, chandrasekhar: bool = True) -> np.ndarray | tuple:
     """``log p(y_{0:T-1} | theta_i)`` for every member: the same numbers as
     :func:`kalman_filter`, computed fast for the many-``theta`` batches of a sampler.
 
@@ -394,7 +395,7 @@ class KalmanBank:
     process_noise_std : float
     """
 
-    def __init__(self, model: DiscreteModel, measurement_noise, process_noise_std: float = 0.0):
+    def __init__(self, model: DiscreteModel, measurement_noise: ArrayLike, process_noise_std: float = 0.0):
         p = model.H.shape[1]
         self.model = model
         self.R = measurement_covariance(measurement_noise, p)
@@ -414,18 +415,19 @@ class KalmanBank:
     def n_members(self) -> int:
         return self.model.A.shape[0]
 
-    def moments(self, mean, P):
+    def moments(self, mean: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(N, m)`` and covariance ``(N, m, m)`` of each filter's state (as they are)."""
         return mean, P
 
-    def initial_state(self, x0=None, P0=None):
+    def initial_state(self, x0: ArrayLike | None = None, P0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(N, m)`` and covariance ``(N, m, m)`` of ``X_0`` (default at rest, known)."""
         N, m = self.model.A.shape[:2]
         mean = np.zeros((N, m)) if x0 is None else np.broadcast_to(np.asarray(x0, float), (N, m)).copy()
         P = np.zeros((N, m, m)) if P0 is None else np.broadcast_to(np.asarray(P0, float), (N, m, m)).copy()
         return mean, P
 
-    def step(self, mean, P, y_k, u_prev=None, u_now=None):
+    def step(self, mean: np.ndarray, P: np.ndarray, y_k: np.ndarray, u_prev: float | None = None,
+             u_now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One step: predict from the filtered ``(mean, P)`` of step ``k - 1`` with
         inputs ``u_prev = u_{k-1}``, ``u_now = u_k`` (skip the prediction when both
         are ``None``: the first step), then update with ``y_k (p,)``.
@@ -453,7 +455,7 @@ class KalmanBank:
         mean, P, increment = _sequential_update(mean, P, self.H, self.Ht, yw)
         return mean, P, increment + self.constant
 
-    def freeze(self, P) -> "KalmanBank":
+    def freeze(self, P: np.ndarray) -> "KalmanBank":
         """A bank whose covariance is in its steady state: from the filtered ``P``
         (steady), the predicted ``P^- = A P A^T + Q``, ``S = H P^- H^T + I`` and
         the gain ``P^- H^T S^-1`` are fixed, and :meth:`step` only moves the
@@ -469,7 +471,7 @@ class KalmanBank:
         new.frozen = (PHt @ S_inv, S_inv, np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1))
         return new
 
-    def take(self, index) -> "KalmanBank":
+    def take(self, index: ArrayLike) -> "KalmanBank":
         """The bank of members ``index``."""
         new = object.__new__(KalmanBank)
         new.model = self.model.take(index)
@@ -480,7 +482,7 @@ class KalmanBank:
         return new
 
     @staticmethod
-    def concatenate(banks) -> "KalmanBank":
+    def concatenate(banks: Sequence[KalmanBank]) -> "KalmanBank":
         """One bank of the members of ``banks`` in order (same noise levels)."""
         first = banks[0]
         new = object.__new__(KalmanBank)
@@ -495,3 +497,9 @@ class KalmanBank:
         new.At = np.concatenate([b.At for b in banks])
         new.frozen = None
         return new
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Sequence
+    from numpy.typing import ArrayLike

@@ -19,7 +19,8 @@ __all__ = ["ukf", "sigma_points"]
 _LOG_2PI = np.log(2 * np.pi)
 
 
-def sigma_points(mean, cov, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
+def sigma_points(mean: np.ndarray, cov: np.ndarray, alpha: float = 1.0, beta: float = 2.0,
+                 kappa: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scaled sigma points ``(2L+1, L)`` and mean/covariance weights ``(2L+1,)``.
 
     Examples
@@ -45,8 +46,8 @@ def _psd(P):
     return (v * np.maximum(w, 1e-18 * max(w.max(), 1e-300))) @ v.T
 
 
-def ukf(model: AugmentedModel, ground_acceleration, measurements, measurement_noise,
-        theta0=0.85, theta0_var=0.3**2 / 12, alpha: float = 1.0, beta: float = 2.0,
+def ukf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
+        theta0: ArrayLike = 0.85, theta0_var: ArrayLike = 0.3**2 / 12, alpha: float = 1.0, beta: float = 2.0,
         kappa: float = 0.0) -> JointFilterResult:
     """Run the augmented-state UKF from rest (arguments as :func:`~seqbayes.filters.ekf.ekf`)."""
     import time
@@ -86,3 +87,8 @@ def ukf(model: AugmentedModel, ground_acceleration, measurements, measurement_no
         dr_mean[k], dr_std[k] = _summaries(z, P, m, n)
     return JointFilterResult(th_mean, th_var, x_mean, dr_mean, dr_std, float(loglik), P,
                              time.perf_counter() - start)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from numpy.typing import ArrayLike

@@ -84,7 +84,7 @@ class GroundMotion:
         return GroundMotion(self.acceleration[:n], self.dt, self.name)
 
 
-def read_at2(path) -> GroundMotion:
+def read_at2(path: str | os.PathLike) -> GroundMotion:
     """Read a PEER NGA ``.AT2`` file (acceleration in g) into m/s^2.
 
     Format: four header lines, the fourth holding ``NPTS=`` and ``DT=``, then
@@ -106,7 +106,7 @@ def read_at2(path) -> GroundMotion:
     return GroundMotion(values[:n] * G, float(dt.group(1)), name=lines[1].strip())
 
 
-def read_two_column(path, units: str = "g", comments: str = "#") -> GroundMotion:
+def read_two_column(path: str | os.PathLike, units: str = "g", comments: str = "#") -> GroundMotion:
     """Read plain two-column text ``time acceleration`` (uniform time step).
 
     Parameters
@@ -181,7 +181,7 @@ def _envelope(t: np.ndarray, duration: float) -> np.ndarray:
 
 
 def kanai_tajimi(duration: float, dt: float, pga_g: float = 0.07, ground_frequency_hz: float = 2.5,
-                 ground_damping: float = 0.6, rng=None, envelope: bool = True) -> GroundMotion:
+                 ground_damping: float = 0.6, rng: int | np.random.Generator | None = None, envelope: bool = True) -> GroundMotion:
     """Kanai-Tajimi filtered white noise with an envelope, scaled to a PGA.
 
     The white noise drives the ground filter
@@ -208,8 +208,8 @@ def kanai_tajimi(duration: float, dt: float, pga_g: float = 0.07, ground_frequen
     return scale_to_pga(motion, pga_g)
 
 
-def band_limited_white_noise(duration: float, dt: float, band=(0.5, 50.0), rms_g: float = 0.02,
-                             rng=None) -> GroundMotion:
+def band_limited_white_noise(duration: float, dt: float, band: tuple[float, float] = (0.5, 50.0),
+                             rms_g: float = 0.02, rng: int | np.random.Generator | None = None) -> GroundMotion:
     """Gaussian white noise band-passed to ``band`` Hz and scaled to an RMS (in g).
 
     The paper's identification input is 0.5-50 Hz noise. The upper edge is
@@ -230,3 +230,8 @@ def band_limited_white_noise(duration: float, dt: float, band=(0.5, 50.0), rms_g
     a_g = signal.sosfiltfilt(sos, rng.standard_normal(n))
     a_g *= rms_g * G / np.sqrt(np.mean(a_g**2))
     return GroundMotion(a_g, dt, f"white noise {low}-{high} Hz")
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    import os

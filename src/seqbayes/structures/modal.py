@@ -20,7 +20,7 @@ from .shear_building import ShearBuilding
 __all__ = ["mac", "ModalSummary", "modal_summary"]
 
 
-def mac(shapes_a, shapes_b) -> np.ndarray:
+def mac(shapes_a: ArrayLike, shapes_b: ArrayLike) -> np.ndarray:
     """Modal assurance criterion ``|a_i^T b_j|^2 / ((a_i^T a_i)(b_j^T b_j))``.
 
     Parameters
@@ -110,7 +110,8 @@ def _weighted_quantiles(x, w, probs):
     return np.array([[np.interp(p, cw[:, j], xs[:, j]) for j in range(x.shape[1])] for p in probs])
 
 
-def modal_summary(building: ShearBuilding, theta_samples, weights=None, identified_shapes=None) -> ModalSummary:
+def modal_summary(building: ShearBuilding, theta_samples: ArrayLike, weights: ArrayLike | None = None,
+                  identified_shapes: ArrayLike | None = None) -> ModalSummary:
     """Modal properties of the posterior samples of ``theta``.
 
     Parameters
@@ -167,3 +168,8 @@ def modal_summary(building: ShearBuilding, theta_samples, weights=None, identifi
                         frequency_interval=_weighted_quantiles(freqs, w, [0.025, 0.975]), damping_mean=z_mean,
                         damping_sd=z_sd, damping_interval=_weighted_quantiles(damping, w, [0.025, 0.975]),
                         shapes=mean_shape, shape_mac=spread, mac_identified=identified)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from numpy.typing import ArrayLike

@@ -89,7 +89,7 @@ class ResponseRecord:
         """One channel, ``(T,)``."""
         return self.data[:, self._index(name)].copy()
 
-    def select(self, names) -> np.ndarray:
+    def select(self, names: Sequence[str]) -> np.ndarray:
         """Channels ``names`` in that order, ``(T, len(names))`` (e.g. the measurements ``y``)."""
         return self.data[:, [self._index(n) for n in names]].copy()
 
@@ -165,8 +165,9 @@ def _rate(sampling_rate, dt_from_time):
     return dt_from_time
 
 
-def read_csv(path, units="m/s2", sampling_rate: float | None = None, time_column: str | None = None,
-             channels=None, delimiter: str = ",") -> ResponseRecord:
+def read_csv(path: str | os.PathLike, units: str | Sequence[str] = "m/s2", sampling_rate: float | None = None,
+             time_column: str | None = None, channels: Sequence[str] | None = None,
+             delimiter: str = ",") -> ResponseRecord:
     """Read a multichannel CSV file with a header row of channel names.
 
     Parameters
@@ -207,7 +208,8 @@ def read_csv(path, units="m/s2", sampling_rate: float | None = None, time_column
     return ResponseRecord(data, _rate(sampling_rate, dt_time), tuple(names), si)
 
 
-def read_hdf5(path, group: str = "/", channels=None, units=None, sampling_rate: float | None = None) -> ResponseRecord:
+def read_hdf5(path: str | os.PathLike, group: str = "/", channels: Sequence[str] | None = None,
+              units: str | Sequence[str] | None = None, sampling_rate: float | None = None) -> ResponseRecord:
     """Read channels stored as 1-D datasets of one HDF5 group.
 
     Each dataset is a channel named by its key; its unit is the dataset's
@@ -251,3 +253,9 @@ def read_hdf5(path, group: str = "/", channels=None, units=None, sampling_rate: 
         dt_time = _step_from(g["time"][...], "time") if "time" in g else None
     factors, si = _factors(names, units)
     return ResponseRecord(np.column_stack(columns) * factors, _rate(rate, dt_time), tuple(names), si)
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    import os
+    from collections.abc import Sequence

@@ -155,7 +155,7 @@ class DiscreteModel:
         H = flat[:, i + 2 * m : i + 2 * m + p * m].reshape(n, p, m)
         return DiscreteModel(A, B0, B1, H, float(dt), hold)
 
-    def take(self, index) -> "DiscreteModel":
+    def take(self, index: ArrayLike) -> "DiscreteModel":
         """The members ``index`` (fancy indexing on the batch axis)."""
         return DiscreteModel(self.A[index], self.B0[index], self.B1[index], self.H[index],
                              self.dt, self.hold)
@@ -231,7 +231,7 @@ class ShearBuilding:
         """``M``, shape ``(n, n)`` (lumped, diagonal)."""
         return np.diag(self.masses)
 
-    def stiffness_matrix(self, theta) -> np.ndarray:
+    def stiffness_matrix(self, theta: ArrayLike) -> np.ndarray:
         """``K(theta)`` for a batch, shape ``(N, n, n)`` (tridiagonal)."""
         n = self.n_storeys
         theta = _as_theta(theta, n)
@@ -255,12 +255,12 @@ class ShearBuilding:
         a0, a1 = np.linalg.solve(design, np.array(self.damping_ratios))
         return (float(a0), float(a1))
 
-    def damping_matrix(self, theta) -> np.ndarray:
+    def damping_matrix(self, theta: ArrayLike) -> np.ndarray:
         """Rayleigh ``C = a0 M + a1 K(theta)``, shape ``(N, n, n)``."""
         a0, a1 = self.rayleigh
         return a0 * self.mass_matrix()[None] + a1 * self.stiffness_matrix(theta)
 
-    def modes(self, theta):
+    def modes(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Natural frequencies [Hz] ``(N, n)`` ascending and mass-normalised shapes ``(N, n, n)``.
 
         Solves ``K phi = w^2 M phi`` through the symmetric ``M^-1/2 K M^-1/2``.
@@ -270,13 +270,13 @@ class ShearBuilding:
         w2, v = np.linalg.eigh(s[None, :, None] * K * s[None, None, :])
         return np.sqrt(np.clip(w2, 0, None)) / (2 * np.pi), s[None, :, None] * v
 
-    def modal_damping_ratios(self, theta) -> np.ndarray:
+    def modal_damping_ratios(self, theta: ArrayLike) -> np.ndarray:
         """Damping ratio of every mode, ``(N, n)``: ``a0 / (2 w) + a1 w / 2``."""
         a0, a1 = self.rayleigh
         w = 2 * np.pi * self.modes(theta)[0]
         return a0 / (2 * w) + a1 * w / 2
 
-    def continuous_state_space(self, theta):
+    def continuous_state_space(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """``A_c (N, 2n, 2n)`` and ``b_c (2n,)`` of ``X' = A_c X + b_c a_g`` (Eq. 11)."""
         n = self.n_storeys
         K = self.stiffness_matrix(theta)
@@ -289,7 +289,7 @@ class ShearBuilding:
         b = np.concatenate([np.zeros(n), -np.ones(n)])
         return A, b
 
-    def observation_matrix(self, theta, channels="absolute_acceleration") -> np.ndarray:
+    def observation_matrix(self, theta: ArrayLike, channels: str = "absolute_acceleration") -> np.ndarray:
         """``H (N, p, 2n)`` of the measured channels (see module docstring):
         ``"absolute_acceleration"`` (every floor), ``"drift"`` (every storey) or a
         :class:`Sensors` layout (some floors)."""
@@ -314,7 +314,7 @@ class ShearBuilding:
             return H
         raise ValueError(f"channels: expected one of {CHANNELS}, got {channels!r}")
 
-    def check_sampling(self, dt: float, theta=None) -> None:
+    def check_sampling(self, dt: float, theta: ArrayLike | None = None) -> None:
         """Raise if ``dt`` is too coarse for the highest mode (above Nyquist).
 
         The highest natural frequency (at ``theta``, default 1) must be below
@@ -393,7 +393,7 @@ def _check_dt(dt) -> float:
     return dt
 
 
-def discretise(building: ShearBuilding, theta, dt: float, hold: str = "foh",
+def discretise(building: ShearBuilding, theta: ArrayLike, dt: float, hold: str = "foh",
                channels: str = "absolute_acceleration") -> DiscreteModel:
     """Exact discretisation at step ``dt`` for a batch of ``theta``.
 
@@ -452,8 +452,9 @@ def _as_ground_motion(ground_acceleration) -> np.ndarray:
     return u
 
 
-def simulate(model: DiscreteModel, ground_acceleration, x0=None, process_noise_std: float = 0.0,
-             rng=None, extra_observations=()) -> np.ndarray | tuple:
+def simulate(model: DiscreteModel, ground_acceleration: ArrayLike, x0: ArrayLike | None = None,
+             process_noise_std: float = 0.0, rng: int | np.random.Generator | None = None,
+             extra_observations: Sequence[str] = ()) -> np.ndarray | tuple:
     """Simulate a batch of discrete models driven by one ground motion.
 
     Parameters
@@ -507,7 +508,7 @@ def simulate(model: DiscreteModel, ground_acceleration, x0=None, process_noise_s
     return (y, states, *extras)
 
 
-def add_measurement_noise(y, fraction: float, rng=None):
+def add_measurement_noise(y: ArrayLike, fraction: float, rng: int | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Add white noise with std ``fraction * RMS`` of each channel.
 
     Parameters
@@ -532,3 +533,9 @@ def add_measurement_noise(y, fraction: float, rng=None):
     std = fraction * np.sqrt(np.mean(y**2, axis=0))
     noisy = y + as_generator(rng).standard_normal(y.shape) * std
     return noisy, std
+
+import typing as _typing  # noqa: E402
+
+if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Sequence
+    from numpy.typing import ArrayLike
