@@ -195,7 +195,7 @@ class Jump(_Component):
         object.__setattr__(self, "scale_weights", tuple(weights.tolist()))
 
     @classmethod
-    def heavy_tailed(cls, base: Drift | Decay | Static, p: float, drop_mean: float, drop_sd: float,
+    def heavy_tailed(cls, base: Drift | Decay | Custom, p: float, drop_mean: float, drop_sd: float,
                      reference: float) -> "Jump":
         """The heavy-tailed variant: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)``
         (:data:`HEAVY_TAIL_SCALES`, :data:`HEAVY_TAIL_WEIGHTS`)."""
