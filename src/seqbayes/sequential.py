@@ -1137,11 +1137,6 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     cloud, log_increment, evidence_ess, n_independent = _evidence(
         cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng)
     log_evidence = float(state.log_evidence + log_increment)
-    carriers = state.prior.ancestor_ess(cloud.particles, cloud.log_weights) \
-        if isinstance(state.prior, GaussianMixture) else float("nan")  # Eq. (A3)'s N ancestors carry Z_s
-    increment_se, evidence_se, evidence_variance = step_standard_errors(
-        state.log_evidence_variance, config.n_samples, use_importance and log_increment != log_increment_path,
-        evidence_ess, weights_before, cloud.log_weights, len(temperatures), resampled, carriers, method)
     density, predictive, next_log_prior = _propagate(state, cloud, dataset, log_increment, log_evidence, method,
                                                      problem, config, rng)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
@@ -1157,6 +1152,12 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
                 paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
         window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
                                            float(log_increment)),))[-keep:]
+    # the evidence's standard error; Eq. (A3)'s N ancestors carry Z_s (the remedy's ancestor ESS when it has one)
+    carriers = ancestors if np.isfinite(ancestors) or not isinstance(state.prior, GaussianMixture) else \
+        state.prior.ancestor_ess(cloud.particles, cloud.log_weights)
+    increment_se, evidence_se, evidence_variance = step_standard_errors(
+        state.log_evidence_variance, config.n_samples, use_importance and log_increment != log_increment_path,
+        evidence_ess, weights_before, cloud.log_weights, len(temperatures), resampled, carriers, method)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
