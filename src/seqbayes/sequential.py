@@ -1345,7 +1345,7 @@ class _SequentialSampler:
                           f"kernel the data contradict loses evidence anyway; otherwise raise n_inner, declare a "
                           f"KalmanInnerFilter if the model is linear-Gaussian in them, or for a short run use "
                           f"predictive='transition'",
-                          InnerFilterWarning, stacklevel=2)
+                          InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         if record.info.prior_data_conflict > self.config.conflict_threshold:
             conflict = prior_data_conflict(*prior, record.posterior, record.log_weights)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
@@ -1354,7 +1354,7 @@ class _SequentialSampler:
             warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
                           f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
                           f"kernel too narrow for the data, and the sampler may be unreliable here",
-                          PriorDataConflictWarning, stacklevel=2)
+                          PriorDataConflictWarning, stacklevel=3)
         return record.info
 
     def run(self, datasets: Iterable[Any], *, progress: bool = False) -> Result:
@@ -1366,7 +1366,7 @@ class _SequentialSampler:
         """
         if not progress:
             for dataset in datasets:
-                self.update(dataset)
+                self._update(dataset, False, leave=True)
             return self.result
         from tqdm.auto import tqdm
 

@@ -399,3 +399,20 @@ def test_progress_bars_change_nothing_but_stderr(capsys):
     info = one.update(DATA[0], progress=True)
     assert info.log_evidence == quiet.steps[0].info.log_evidence
     assert re.search(rf"step 1: {info.n_loglike_evals}eval .*ESS=\d+, logZ=", capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("how", ["update", "run", "run-progress"])
+def test_warnings_point_at_the_callers_line(how):
+    import warnings
+
+    prior = JointPrior({"a": stats.norm(0, 1)})
+    loglike = lambda theta, y: stats.norm.logpdf(y, theta[:, 0], 0.1)  # noqa: E731
+    sampler = SMC(prior, MarkovKernel([Static()]), loglike, n_samples=200, rng=0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if how == "update":
+            sampler.update(6.0)      # the data 6 prior sds out: a prior-data conflict
+        else:
+            sampler.run([6.0], progress=how == "run-progress")
+    conflicts = [w for w in caught if issubclass(w.category, seqbayes.PriorDataConflictWarning)]
+    assert conflicts and all(w.filename == __file__ for w in conflicts), [(w.filename, w.lineno) for w in caught]
