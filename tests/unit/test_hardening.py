@@ -390,6 +390,36 @@ def test_a_flipped_bit_in_the_stored_arrays_is_detected(tmp_path):
         RunStore.open(run)
 
 
+def test_a_flipped_bit_in_an_appended_step_is_detected_on_open(tmp_path):
+    """Steps 2 and 3 are appended in place (their chunks rewritten, their records hashed alone): a
+    flipped bit in step 3's numbers or in its text record is still refused when the store is opened."""
+    import h5py
+
+    make_run(tmp_path, "appendbitmodel", n_steps=3)
+    run = tmp_path / "run.nc"
+    pristine = run.read_bytes()
+    with h5py.File(run, "r") as fh:
+        posterior = fh["posterior"]
+        assert posterior.fletcher32 and posterior.shape[0] == 3
+        # step 3's first value in the chunk of steps 1-8 (row-major: 2 steps of 40 x 2 values before it)
+        offset = posterior.id.get_chunk_info(0).byte_offset + 2 * 40 * 2 * 8
+    raw = bytearray(pristine)
+    raw[offset] ^= 0x01
+    run.write_bytes(bytes(raw))
+    with pytest.raises(StoreError, match=r"run.nc: cannot read the run store: .*a checksum failed"):
+        RunStore.open(run)
+    raw = bytearray(pristine)
+    where = raw.find(b'"step": 3,')
+    assert where > 0 and raw.find(b'"step": 3,', where + 1) < 0
+    raw[where + len(b'"step": ')] ^= 0x04                 # '3' -> '7': the JSON stays valid
+    run.write_bytes(bytes(raw))
+    with pytest.raises(StoreError, match=r"run.nc: damaged run store: the content hash of its configuration and "
+                                         r"records does not match \(the records of step 3\)"):
+        RunStore.open(run)
+    run.write_bytes(pristine)
+    assert RunStore.open(run).n_steps == 3
+
+
 def test_bad_paths_get_one_line(tmp_path, capsys):
     make_run(tmp_path, "pathmodel", n_steps=1)
     run = tmp_path / "run.nc"
@@ -484,8 +514,9 @@ def test_the_store_keeps_its_permission_bits(tmp_path):
 
     store = make_run(tmp_path, "modemodel", n_steps=0)
     os.chmod(tmp_path / "run.nc", 0o600)
-    store.assimilate(tables(1)[0])
-    assert stat.S_IMODE(os.stat(tmp_path / "run.nc").st_mode) == 0o600
+    for table in tables(2):                     # a whole write (the first step), then an append
+        store.assimilate(table)
+        assert stat.S_IMODE(os.stat(tmp_path / "run.nc").st_mode) == 0o600
 
 
 # ------------------------------------------------------------------ filesystem faults on a small tmpfs
