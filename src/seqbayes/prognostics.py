@@ -53,6 +53,11 @@ class FirstPassage:
     direction : {"below", "above"}
     n_paths : int
         Simulated paths (samples x paths per sample).
+    left_support : float
+        With ``support``: the share of paths that left the parameter space before crossing (and
+        within the horizon; NaN without ``support``). The likelihood is zero outside, so under the
+        model those paths have no weight; the probabilities here are the kernel's, unrestricted, and
+        are the model's when this share is small.
     """
 
     probability: np.ndarray
@@ -66,6 +71,7 @@ class FirstPassage:
     threshold: float
     direction: str
     n_paths: int
+    left_support: float = float("nan")
 
     @property
     def horizon(self) -> int:
@@ -146,7 +152,7 @@ def parse_threshold(text: str, names: Sequence[str]) -> Threshold:
 
 def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold: float, horizon: int, *,
                       direction: str = "below", rng: int | np.random.Generator | None = None,
-                      paths_per_sample: int = 1) -> FirstPassage:
+                      paths_per_sample: int = 1, support: ArrayLike | None = None) -> FirstPassage:
     """Distribution of the first future step at which ``theta[:, parameter]`` crosses ``threshold``.
 
     Parameters
@@ -169,6 +175,9 @@ def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold
     paths_per_sample : int
         Independent paths simulated from each sample (more paths lower the kernel-noise
         part of the Monte Carlo error, not the posterior-sampling part).
+    support : array_like, shape (d, 2), optional
+        The parameter space (lower and upper bounds, infinite allowed): report the share of paths
+        that leave it before crossing (:attr:`FirstPassage.left_support`).
 
     Returns
     -------
@@ -204,6 +213,10 @@ def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold
     if isinstance(paths_per_sample, bool) or not isinstance(paths_per_sample, (int, np.integer)) \
             or paths_per_sample < 1:
         raise ValueError(f"paths_per_sample: expected an integer >= 1, got {paths_per_sample!r}")
+    if support is not None:
+        support = np.asarray(support, dtype=float)
+        if support.shape != (d, 2) or np.any(support[:, 0] > support[:, 1]):
+            raise ValueError(f"support: expected (d, 2) = ({d}, 2) lower and upper bounds, got shape {support.shape}")
     rng = as_generator(rng)
     sign = 1.0 if direction == "below" else -1.0
 
@@ -212,11 +225,16 @@ def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold
 
     paths = np.repeat(theta, paths_per_sample, axis=0)                   # (N R, d), sample-major
     first = np.zeros(paths.shape[0], dtype=np.int64)                     # 0: not crossed yet
+    left = np.zeros(paths.shape[0], dtype=bool)                          # left the space before crossing
     for h in range(1, int(horizon) + 1):
         paths = np.asarray(kernel.propagate(paths, rng), dtype=float)    # Eq. (A2)
         if paths.shape != (n * paths_per_sample, d):
             raise ValueError(f"kernel.propagate: returned shape {paths.shape} for input ({n * paths_per_sample}, {d})")
-        first[(first == 0) & beyond(paths)] = h
+        crossing = (first == 0) & beyond(paths)
+        if support is not None:   # leaving and crossing at the same step counts as a crossing
+            outside = np.any((paths < support[:, 0]) | (paths > support[:, 1]), axis=1)
+            left |= (first == 0) & ~crossing & outside
+        first[crossing] = h
     # per-sample frequencies of "first crossing at h" (h = 0 collects "not crossed")
     counts = np.zeros((n, int(horizon) + 1))
     np.add.at(counts, (np.repeat(np.arange(n), paths_per_sample), first), 1.0)
@@ -233,7 +251,8 @@ def time_to_threshold(samples: ArrayLike, kernel: Any, parameter: int, threshold
     return FirstPassage(probability=p[1:], standard_error=se[1:], not_crossed=float(p[0]),
                         not_crossed_standard_error=float(se[0]), cumulative=c, cumulative_standard_error=c_se,
                         beyond_now=float(np.mean(beyond(theta))), parameter=int(parameter), threshold=threshold,
-                        direction=direction, n_paths=int(n * paths_per_sample))
+                        direction=direction, n_paths=int(n * paths_per_sample),
+                        left_support=float(np.mean(left)) if support is not None else float("nan"))
 
 
 def gaussian_first_passage(mean: float, sd: float, drift: float, noise_std: float, threshold: float, horizon: int, *,

@@ -238,6 +238,7 @@ def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPass
             "from_step": store.n_steps, "beyond_now": passage.beyond_now, "not_crossed": passage.not_crossed,
             "not_crossed_standard_error": passage.not_crossed_standard_error, "n_paths": passage.n_paths,
             "median_step": None if math.isinf(median) else store.n_steps + int(median),
+            "left_support": None if math.isnan(passage.left_support) else passage.left_support,
             "steps": first_passage_rows(store, threshold, passage)}
 
 
@@ -247,7 +248,9 @@ def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassag
             else f"median first crossing after step {store.n_steps + passage.horizon}")
     return (f"time to {threshold} from step {store.n_steps} ({passage.n_paths} kernel paths): {when}; "
             f"P(not crossed by step {store.n_steps + passage.horizon}) = {passage.not_crossed:.4f} +- "
-            f"{passage.not_crossed_standard_error:.4f}; already beyond now: {passage.beyond_now:.4f}")
+            f"{passage.not_crossed_standard_error:.4f}; already beyond now: {passage.beyond_now:.4f}"
+            + (f"; {passage.left_support:.4f} of the paths left the parameter space before crossing (the "
+               f"probabilities are the kernel's, unrestricted)" if passage.left_support > 0 else ""))
 
 
 def format_first_passage(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:

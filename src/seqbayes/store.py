@@ -1050,7 +1050,8 @@ class RunStore:
         sampler = self.sampler(loglike=_likelihood_not_needed)
         samples = sampler.result.steps[-1].equal_weight_samples(sampler.rng)
         return time_to_threshold(samples, sampler.problem.kernel, self.names.index(parameter), threshold, horizon,
-                                 direction=direction, rng=sampler.rng, paths_per_sample=paths_per_sample)
+                                 direction=direction, rng=sampler.rng, paths_per_sample=paths_per_sample,
+                                 support=sampler.problem.support)
 
     def to_arviz(self, step: int | None = None, rng: int | np.random.Generator | None = None, **kwargs: Any) -> az.InferenceData:
         """The run as :class:`arviz.InferenceData` (:meth:`seqbayes.Result.to_arviz`; step 1's prior

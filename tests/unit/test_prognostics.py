@@ -166,3 +166,24 @@ def test_from_the_sampler_posterior_matches_the_exact_kalman_answer():
     z = (out.probability - exact) / out.standard_error
     assert np.all(np.abs(z) < 4.0) and np.sum(z**2) < stats.chi2.ppf(0.999, HORIZON), z
     assert np.all(np.abs(out.cumulative - np.cumsum(exact)) < 4 * out.cumulative_standard_error)
+
+
+def test_paths_leaving_the_parameter_space_before_crossing_are_counted():
+    kernel = MarkovKernel([Drift(0.1, noise_std=0.2)])
+    samples = np.random.default_rng(0).normal(1.0, 0.05, (400, 1))
+    support = np.array([[0.0, 1.3]])
+    out = time_to_threshold(samples, kernel, 0, 0.5, 6, rng=np.random.default_rng(9), support=support)
+    # the same paths by hand (the same generator stream): the share that leaves [0, 1.3] before being below 0.5
+    rng, paths = np.random.default_rng(9), samples.copy()
+    crossed, left = np.zeros(400, bool), np.zeros(400, bool)
+    for _ in range(6):
+        paths = kernel.propagate(paths, rng)
+        now = ~crossed & (paths[:, 0] < 0.5)
+        left |= ~crossed & ~now & ((paths[:, 0] < 0.0) | (paths[:, 0] > 1.3))
+        crossed |= now
+    assert out.left_support == left.mean() and 0.3 < out.left_support < 0.95   # upward drift: most leave above
+    unrestricted = time_to_threshold(samples, kernel, 0, 0.5, 6, rng=np.random.default_rng(9))
+    np.testing.assert_array_equal(out.probability, unrestricted.probability)   # reported, not imposed
+    assert np.isnan(unrestricted.left_support)
+    with pytest.raises(ValueError, match="support"):
+        time_to_threshold(samples, kernel, 0, 0.5, 6, rng=0, support=[0.0, 1.3])
