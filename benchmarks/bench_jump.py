@@ -1,6 +1,7 @@
 """Jump kernels on the synthetic abrupt drop (issue 11): is sudden damage told from smooth decay?
 
     python benchmarks/bench_jump.py [--seeds 10] [--samples 1000] [--workers 2] [--exact] [--out FILE]
+                                    [--runs-json FILE] [--refs-json FILE] [--refs-only]
 
 For each seed, :func:`seqbayes.studies.abrupt_drop.simulate` makes two 8-inspection histories of
 the damped oscillator with the same noise: one whose stiffness drops 30 % at step 5, one with
@@ -16,6 +17,10 @@ With ``--exact`` the exact grid reference (:func:`~seqbayes.studies.abrupt_drop.
 of every history under the decay and jump kernels is computed too, and the samplers' errors
 against it are printed: posterior means in exact sds, cumulative log-evidence in nats and the
 jump probability, the worst over the 8 steps, and the exact selection between decay and jump.
+
+``--out`` saves every run's and reference's numbers as JSON; ``--runs-json`` / ``--refs-json``
+read them back instead of recomputing (``--refs-only`` computes the references alone), so the
+two halves can run as separate processes.
 
 Every (seed, variant, kernel, sampler) task has its own seed
 (``SeedSequence(seed, spawn_key=(variant, kernel, sampler))``); the history is drawn from
@@ -141,14 +146,31 @@ def main():
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--exact", action="store_true", help="also the exact grid references (decay, jump)")
     parser.add_argument("--out", help="write every run's numbers as JSON here")
+    parser.add_argument("--runs-json", help="read the sampler runs from this --out file instead of running them")
+    parser.add_argument("--refs-json", help="read the exact references from this --out file")
+    parser.add_argument("--refs-only", action="store_true", help="compute the exact references alone (with --out)")
     args = parser.parse_args()
     seeds = list(range(args.seeds))
     tasks = [(s, v, k, smp, args.samples) for s in seeds for v in VARIANTS for k in KERNELS for smp in SAMPLERS]
+    ref_tasks = [(s, v, k) for s in seeds for v in VARIANTS for k in ("decay", "jump")]
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
-        runs = list(pool.map(run_task, tasks, chunksize=1))
-        refs = list(pool.map(reference_task, [(s, v, k) for s in seeds for v in VARIANTS for k in ("decay", "jump")],
-                             chunksize=1)) if args.exact else []
+        if args.runs_json:
+            with open(args.runs_json) as fh:
+                runs = json.load(fh)["runs"]
+        else:
+            runs = [] if args.refs_only else list(pool.map(run_task, tasks, chunksize=1))
+        if args.refs_json:
+            with open(args.refs_json) as fh:
+                refs = json.load(fh)["refs"]
+        else:
+            refs = list(pool.map(reference_task, ref_tasks, chunksize=1)) if args.exact or args.refs_only else []
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump({"runs": runs, "refs": refs}, fh)
+    if args.refs_only:
+        print(f"{len(refs)} references in {time.perf_counter() - start:.0f} s")
+        return
     table, verdict = summarise(runs, refs, seeds)
     print(table)
     n = len(seeds)
@@ -162,9 +184,6 @@ def main():
               f"(P(jump) <= {p_smooth:.3f}): {'met' if ok else 'NOT met'}")
     print(f"sampler time {sum(r['wall_time'] for r in runs):.0f} s in {len(runs)} runs; "
           f"total wall {time.perf_counter() - start:.0f} s with {args.workers} workers")
-    if args.out:
-        with open(args.out, "w") as fh:
-            json.dump({"runs": runs, "refs": refs}, fh)
 
 
 if __name__ == "__main__":
