@@ -277,7 +277,7 @@ class RunConfig:
         if self.executor == "serial":
             return None, lambda: None
         if self.executor == "processes":
-            from concurrent.futures import ProcessPoolExecutor
+            from .parallel import ProcessWorkers  # keeps the likelihood and the dataset on the workers
 
             import multiprocessing
 
@@ -285,7 +285,7 @@ class RunConfig:
             # is not importable by name in a spawned process (the default start method may change)
             context = (multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods()
                        else None)
-            pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=context)
+            pool = ProcessWorkers(self.workers, mp_context=context)
             return pool, pool.shutdown
         from distributed import Client, LocalCluster  # optional extra: seqbayes[dask]
 
