@@ -97,8 +97,13 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
         out["quantile"][s] = record.quantile(QUANTILES)
         for name in _STEP_FIELDS:
             out[name][s] = getattr(info, name)
+    forecast = None
     if not out["failed_step"]:
-        forecast = np.asarray(smp.predict(n_horizon))                       # (3, N, 2)
+        try:  # restricted to the prior box, as the model defines it (seqbayes.sequential.forecast)
+            forecast = np.asarray(smp.predict(n_horizon))                   # (3, N, 2)
+        except ValueError:  # no forecast path stays in the box (a drift taking c below 0): left NaN
+            pass
+    if forecast is not None:
         out["forecast_mean"] = forecast.mean(axis=1)
         out["forecast_std"] = forecast.std(axis=1)
         out["forecast_quantile"] = np.moveaxis(np.quantile(forecast, QUANTILES, axis=1), 0, 1)
@@ -539,6 +544,11 @@ def format_report(ds, summary: StudySummary | None = None) -> str:
                  f"{int(np.sum(np.isfinite(steps)))} (run, kernel, sampler, step); conflict above 4 prior sds at "
                  f"{int(np.nansum(ds['prior_data_conflict'].values > 4))}, in runs "
                  f"{sorted({int(r) for r in np.nonzero(ds['prior_data_conflict'].values > 4)[0]})}")
+    lost = np.isnan(ds["forecast_mean"].values[..., -1, 0]) & (ds["failed_step"].values == 0)   # (R, K, S)
+    lines.append("- forecasts restricted to the prior box; none of 100 N forecast paths stays inside for 3 steps "
+                 "(zero predictive mass, no forecast) for: "
+                 + (", ".join(f"run {r} {ds['kernel'].values[k]} {ds['sampler'].values[s]}"
+                              for r, k, s in zip(*np.nonzero(lost))) or "-"))
     lines.append(f"- truth in the 95% credible interval of the selected kernel's SEMC posterior (a statement about "
                  f"the kernel): {100 * summary.coverage:.1f}% of (run, step, parameter) (SMC: "
                  f"{100 * summary.coverage_smc:.1f}%; the exact posterior's mean +- 1.96 sd: "
