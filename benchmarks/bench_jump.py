@@ -182,8 +182,8 @@ def main():
         print(f"{sampler}: drop -> jump kernel {j_drop}/{n}, P(jump) at the drop step >= {p_drop:.3f}, "
               f"elsewhere <= {p_else:.3f}; smooth -> smooth kernel {n - j_smooth}/{n} "
               f"(P(jump) <= {p_smooth:.3f}): {'met' if ok else 'NOT met'}")
-    print(f"sampler time {sum(r['wall_time'] for r in runs):.0f} s in {len(runs)} runs; "
-          f"total wall {time.perf_counter() - start:.0f} s with {args.workers} workers")
+    print(f"sampler time {sum(r['wall_time'] for r in runs):.0f} s in {len(runs)} runs"
+          + ("" if args.runs_json else f"; total wall {time.perf_counter() - start:.0f} s with {args.workers} workers"))
 
 
 if __name__ == "__main__":
