@@ -12,8 +12,10 @@ bit. Runs are repeated until ``--kills`` kills have been made.
 
     python benchmarks/bench_kill.py --kills 200
 
-prints the number of kills, how many landed before the store was replaced (and of those, how many
-during the write of the temporary file) and after it, the number of completed runs and the time taken.
+prints the number of kills, how many landed before the step was stored (and of those, how many left
+a half-written temporary file of a whole write or a torn journal of an append) and after it (and
+of those, how many left a complete journal, which readers lay over the store and the next update
+applies), the number of completed runs and the time taken.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from test_kill_resume import assert_prefix_of_reference, fork_cli, wait  # noqa:
 
 from seqbayes import cli  # noqa: E402
 from seqbayes.config import load_config  # noqa: E402
-from seqbayes.store import RunStore  # noqa: E402
+from seqbayes.store import RunStore, _read_journal  # noqa: E402
 
 
 def setup(folder: Path, n_steps: int) -> RunStore:
@@ -56,6 +58,14 @@ def setup(folder: Path, n_steps: int) -> RunStore:
     return reference
 
 
+def journal_stamp(path: Path):
+    """``(inode, size, mtime)`` of a journal file, or None."""
+    with contextlib.suppress(OSError):
+        st = path.stat()
+        return st.st_ino, st.st_size, st.st_mtime_ns
+    return None
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--kills", type=int, default=200, help="SIGKILLs to make (default 200)")
@@ -68,7 +78,8 @@ def main(argv=None) -> int:
         folder = Path(tmp)
         reference = setup(folder, args.steps)
         run = folder / "killed.nc"
-        kills = lost = stored = torn = runs = 0
+        kills = lost = stored = torn = runs = torn_journal = committed_journal = 0
+        journal = folder / f".{run.name}.journal"
         # the duration of each step's update, from one run nobody kills (the kill delays are drawn from it)
         durations = {}
         assert cli.main(["init", str(folder / "run.toml"), str(folder / "timing.nc")]) == 0
@@ -81,6 +92,7 @@ def main(argv=None) -> int:
             for s in range(1, args.steps + 1):
                 while RunStore.open(run).n_steps < s:
                     before = RunStore.open(run).n_steps
+                    old_journal = journal_stamp(journal)   # one left by an earlier kill stays until an update applies it
                     pid = fork_cli(["update", str(run), str(folder / f"d{s}.csv")])
                     if kills < args.kills:
                         # half the kills anywhere in the update, half near its end, where the store is written
@@ -98,6 +110,11 @@ def main(argv=None) -> int:
                         lost += store.n_steps == before
                         stored += store.n_steps == before + 1
                         torn += (folder / f".{run.name}.tmp-{pid}").exists()   # this child's own temporary file
+                        if journal.exists() and journal_stamp(journal) != old_journal:   # this kill's journal
+                            complete = _read_journal(run) is not None
+                            committed_journal += complete
+                            torn_journal += not complete
+                            assert complete == (store.n_steps == before + 1)
                     assert_prefix_of_reference(store, reference)
             final = RunStore.open(run)
             assert final.n_steps == args.steps
@@ -108,8 +125,9 @@ def main(argv=None) -> int:
                   flush=True)
     elapsed = time.perf_counter() - start
     print(f"{kills} SIGKILLs of `seqbayes update` ({lost} before the step was stored, of which {torn} left a "
-          f"half-written temporary file; {stored} after the store was replaced); after each the store loaded "
-          f"and every stored step was bit-identical; "
+          f"half-written temporary file and {torn_journal} a torn journal; {stored} after the step was committed, "
+          f"of which {committed_journal} left its complete journal for the next reader and writer); after each "
+          f"the store loaded and every stored step was bit-identical; "
           f"{runs} runs of {args.steps} datasets completed bit for bit; one update takes "
           f"{np.median(list(durations.values())):.2f} s; {elapsed:.0f} s in all")
     return 0
