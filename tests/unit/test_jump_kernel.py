@@ -246,6 +246,7 @@ def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
     from _user_model import decay_tables, write_config, write_model
 
     from seqbayes.config import load_config
+    from seqbayes.report import status_rows
     from seqbayes.store import RunStore
 
     write_model(tmp_path, "jumpstoremodel")
@@ -275,4 +276,6 @@ def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
             np.testing.assert_equal(getattr(a.info, name), getattr(b.info, name))
     probability = [s.info.jump_probability for s in store.result.steps]
     assert np.isnan(probability[0]) and probability[2] > 0.9 and max(probability[1], probability[3]) < 0.1
+    rows = status_rows(store)                                        # what `seqbayes status --json` prints
+    assert [r["jump_probability"] for r in rows[1:]] == probability[1:] and rows[2]["jump_parameter"] == "a"
     sys.modules.pop("jumpstoremodel", None)
