@@ -14,6 +14,10 @@ Two constructions are offered (see :func:`predictive_density`):
     with Liu-West shrinkage of the centres towards the mean so that the
     mixture keeps the posterior's mean and variance instead of inflating it
     by ``(1 + h^2)`` per step.
+    With :class:`~seqbayes.kernels.Jump` components the transition of each ancestor is
+    a mixture of Gaussian branches with shared shifts and widths, so Eq. (A3) is a
+    :class:`MixtureSum`: one such mixture per branch combination, weighted by its
+    probability.
 
 ``"history"`` (exact; the default when every parameter is static)
     With an identity kernel the prior of step ``s`` is the last posterior,
