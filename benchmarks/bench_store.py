@@ -16,7 +16,9 @@ grows with the file although the store writes the same pages); the copy is not c
     python benchmarks/bench_store.py
 
 prints the medians of both stores, the median of the per-pair ratios and the file sizes
-(issue 15 asks for time and bytes per update at step 500 within 1.5x of step 5).
+(issue 15 asks for time and bytes per update at step 500 within 1.5x of step 5). With
+``--full`` each step is a real update of a new dataset (open, the sampler's step, the write),
+the time a user waits for ``seqbayes update``.
 """
 
 from __future__ import annotations
@@ -69,18 +71,24 @@ def written_bytes() -> tuple[int, int]:
     return int(fields["wchar"]), int(fields["write_bytes"])
 
 
-def one_update(saved: Path, path: Path) -> dict:
-    """Copy ``saved`` to ``path``, open it, add a step and write it: the times and bytes written."""
+def one_update(saved: Path, path: Path, table=None) -> dict:
+    """Copy ``saved`` to ``path``, open it, add a step and write it: the times and bytes written.
+    With ``table`` the step is a real update (the sampler assimilates it; ``write`` then times the
+    sampler and the write together)."""
     shutil.copyfile(saved, path)
     with open(path, "rb+") as fh:               # the copy on disk before the update starts
         os.fsync(fh.fileno())
     t0 = time.perf_counter()
     store = RunStore.open(path)
     t1 = time.perf_counter()
-    extend(store, store.n_steps + 1)
+    if table is None:
+        extend(store, store.n_steps + 1)
     before = written_bytes()
     t2 = time.perf_counter()
-    store.write()
+    if table is None:
+        store.write()
+    else:
+        store.assimilate(table, "new.csv")
     t3 = time.perf_counter()
     after = written_bytes()
     return {"open": t1 - t0, "write": t3 - t2, "calls": after[0] - before[0], "bytes": after[1] - before[1],
@@ -92,6 +100,8 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--samples", type=int, default=200)
     parser.add_argument("--repeat", type=int, default=15)
+    parser.add_argument("--full", action="store_true",
+                        help="time whole updates: open, assimilate a new dataset (the sampler runs), write")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -109,12 +119,13 @@ def main(argv=None) -> int:
             saved[n] = folder / f"saved{n}.nc"
             shutil.copyfile(store.path, saved[n])
         rows = {5: [], args.steps: []}
+        new = decay_tables([1.45], np.linspace(0, 3, 15), 0.1, seed=3)[0] if args.full else None
         for _ in range(args.repeat):             # interleaved pairs: the machine's load hits both alike
             for n in rows:
-                rows[n].append(one_update(saved[n], folder / f"work{n}.nc"))
+                rows[n].append(one_update(saved[n], folder / f"work{n}.nc", new))
     short, long = rows[5], rows[args.steps]
     print(f"run store, N = {args.samples}, 2 parameters, transition-density prior; median of {args.repeat} "
-          f"interleaved pairs")
+          f"interleaved pairs" + ("; whole updates: 'write' is the sampler's step and the write" if args.full else ""))
     print(f"{'update':>10} {'file size':>11} {'open (ms)':>10} {'write (ms)':>11} {'open+write':>11} "
           f"{'written':>10} {'to storage':>11}")
     for runs in (short, long):

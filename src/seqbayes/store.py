@@ -1148,9 +1148,14 @@ _STEP_INFO_FIELDS = {f.name: f.type for f in dataclasses.fields(StepInfo)}
 
 def _step_info(values: dict) -> StepInfo:
     """A :class:`StepInfo` from its stored dict: directly when it has this version's fields (what
-    this version wrote; 4x faster, which counts at 500 steps), else by :meth:`StepInfo.from_dict`."""
+    this version wrote; several times faster, which counts at 500 steps), else by
+    :meth:`StepInfo.from_dict` (tolerant of fields added or removed since)."""
     if isinstance(values, dict) and values.keys() == _STEP_INFO_FIELDS.keys():
-        return StepInfo(**{**values, "temperatures": tuple(values["temperatures"])})
+        # what StepInfo(**values) makes (a frozen dataclass without __post_init__), without its 38
+        # object.__setattr__ calls (16 -> 9 ms of profiled time for 500 steps)
+        info = object.__new__(StepInfo)
+        info.__dict__.update(values, temperatures=tuple(values["temperatures"]))
+        return info
     return StepInfo.from_dict(values)
 
 
