@@ -1353,9 +1353,13 @@ class _SequentialSampler:
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
                             if value > self.config.conflict_threshold) or \
                 f"{self.names[record.info.conflict_parameter]} {record.info.prior_data_conflict:.1f}"
+            remedy = (f"; assimilated on the path space of the last {record.info.path_steps} states, whose target is "
+                      f"the model's exact one (StepInfo.path_steps)" if record.info.path_steps else
+                      "; the predictive mixture's tail is a few particles there, so the sampler may be unreliable "
+                      "(the path-space remedy is off or does not apply: docs/prior_data_conflict.md)")
             warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
                           f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
-                          f"kernel too narrow for the data, and the sampler may be unreliable here",
+                          f"kernel too narrow for the data{remedy}",
                           PriorDataConflictWarning, stacklevel=3)
         return record.info
 

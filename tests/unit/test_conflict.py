@@ -35,6 +35,8 @@ def test_an_abrupt_change_warns_and_names_the_parameter():
     conflicts = [w for w in caught if issubclass(w.category, PriorDataConflictWarning)]
     assert len(conflicts) == 1 and "step 4" in str(conflicts[0].message) and "theta_1" in str(conflicts[0].message)
     assert infos[3].prior_data_conflict > 4 and infos[3].conflict_parameter == 1
+    # the exact remedy ran there (docs/prior_data_conflict.md) and the warning says so
+    assert infos[3].path_steps == 4 and "assimilated on the path space" in str(conflicts[0].message)
     assert all(info.prior_data_conflict < 4 for info in infos[1:3])
 
 
