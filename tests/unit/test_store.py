@@ -280,6 +280,38 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
         RunStore.create(tmp_path / "run.nc", cfg)
 
 
+def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_path):
+    """Format 3 (one content hash over all text records, no per-step record hashes, no remedy state)
+    is still read, verified by its own hash, and the next update writes the whole file in format 4."""
+    import xarray as xr
+
+    from seqbayes.store import _content_hash_v3
+
+    cfg = config(tmp_path)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    for d in datasets(2):
+        store.assimilate(d)
+    ds = store.to_xarray().drop_vars(["record_sha256", "state_window", "state_paths", "state_paths_rows",
+                                      "state_log_evidence_variance"], errors="ignore")
+    ds.attrs["seqbayes_store_format"] = 3
+    variables = {name: ds[name].values for name in ds.variables}
+    ds.attrs["content_sha256"] = _content_hash_v3(ds.attrs, variables)
+    ds.to_netcdf(tmp_path / "v3.nc", engine="h5netcdf")
+    old = RunStore.open(tmp_path / "v3.nc")
+    assert_same_steps(store.result.steps, old.result.steps)
+    assert old.rng_states == store.rng_states and old.digests == store.digests
+    edited = ds.copy()
+    edited.attrs["config"] = edited.attrs["config"].replace('"seed": 11', '"seed": 12')
+    edited.to_netcdf(tmp_path / "v3_edited.nc", engine="h5netcdf")
+    with pytest.raises(StoreError, match="v3_edited.nc: damaged run store: the content hash"):
+        RunStore.open(tmp_path / "v3_edited.nc")
+    old.assimilate(datasets(3)[2], "d3")
+    again = RunStore.open(tmp_path / "v3.nc")
+    assert again.n_steps == 3 and again.sources[-1] == "d3"
+    assert_same_steps(store.result.steps, again.result.steps[:2])
+    assert xr.open_dataset(tmp_path / "v3.nc", engine="h5netcdf").attrs["seqbayes_store_format"] == FORMAT_VERSION
+
+
 def test_write_removes_stale_temporary_files(tmp_path):
     cfg = config(tmp_path)
     stale = tmp_path / ".run.nc.tmp-99999"
