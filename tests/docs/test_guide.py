@@ -19,7 +19,7 @@ def test_guide_outputs_are_the_current_code(tmp_path):
     assert not mismatches, "docs/guide.md differs from a rerun (`make docs-regen`):\n\n" + "\n\n".join(
         map(str, mismatches))
     # the run really happened: the files the guide creates are there
-    for name in ("beam.py", "beam.toml", "month4.csv", "beam.nc", "beam_static.nc", "beam.html", "beam_api.nc"):
+    for name in ("beam.py", "beam.toml", "month4.csv", "beam.nc", "beam_trend0.nc", "beam.html", "beam_api.nc"):
         assert (tmp_path / name).is_file(), name
 
 
