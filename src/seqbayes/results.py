@@ -89,10 +89,12 @@ class StepInfo:
         fraction of their size (NaN otherwise). Below ~0.02 the likelihood estimates are too
         noisy for the PMMH moves (raise ``n_inner``; see docs/core.md).
     ancestor_ess : float
-        How many of the previous posterior's particles carry this step's posterior through the
-        exact transition (``1 / sum_j a_j^2``, :func:`~seqbayes.sequential.ancestor_draws`; NaN at
-        step 1 and where the conflict remedy does not apply). Small values mean the posterior
-        lies in the far tail of the predictive mixture, which N particles do not represent.
+        How many of the predictive mixture's components (Eq. A3: the previous posterior's
+        particles through the exact transition with ``"transition"``) carry this step's posterior,
+        ``1 / sum_j a_j^2`` (:meth:`~seqbayes.density.GaussianMixture.ancestor_ess`, or
+        :func:`~seqbayes.sequential.ancestor_draws` once paths are carried; NaN at step 1 and where
+        the conflict remedy does not apply). Small values mean the posterior lies in the far tail
+        of the mixture, which N particles do not represent.
     path_steps : int
         0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
         assimilated it on the path space of the last ``L`` states (the exact target;
