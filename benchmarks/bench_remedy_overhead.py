@@ -1,0 +1,47 @@
+"""What the conflict remedy costs a healthy run: CPU time with ``conflict_remedy=True`` over ``False``.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_remedy_overhead.py [--pairs 4]
+
+Run 0 of the oscillator study under T1 (no step triggers the remedy: asserted), SMC, N = 1000, six
+steps; the two settings alternate in one process (interleaved pairs, process CPU time) and the median
+ratio is printed, since the machine is shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import warnings
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from seqbayes.models import oscillator as osc  # noqa: E402
+from seqbayes.sequential import SMC  # noqa: E402
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--pairs", type=int, default=4)
+    args = parser.parse_args()
+    problem = osc.study_problem(0)
+    kernel = problem.kernels["T1"].kernel
+    times = {True: [], False: []}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for pair in range(args.pairs):
+            for remedy in (True, False):
+                start = time.process_time()
+                result = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=pair,
+                             conflict_remedy=remedy).run(problem.datasets)
+                times[remedy].append(time.process_time() - start)
+                assert all(r.info.path_steps == 0 for r in result.steps)
+    on, off = np.array(times[True]), np.array(times[False])
+    print(f"CPU s per run, remedy on: {np.round(on, 2)}, off: {np.round(off, 2)}; "
+          f"median ratio on/off {np.median(on / off):.2f}")
+
+
+if __name__ == "__main__":
+    main()
