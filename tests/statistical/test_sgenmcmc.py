@@ -216,37 +216,38 @@ def test_resample_move_with_the_enkf_likelihood():
     assert np.all(np.abs(ratio - 0.91) < 4 * np.hypot(0.053, 0.02)), ratio
 
 
-@pytest.mark.parametrize("likelihood", ["kalman", "enkf"])
-def test_snapshot_and_restore_are_bit_identical(wc1, tmp_path, likelihood):
-    # a run stopped after 250 steps, written to disk as plain arrays (np.savez, the generator state as JSON),
+@pytest.mark.parametrize("likelihood, stop, end", [("kalman", 250, 320), ("enkf", 100, 150)])
+def test_snapshot_and_restore_are_bit_identical(wc1, tmp_path, likelihood, stop, end):
+    # a run stopped after `stop` steps, written to disk as plain arrays (np.savez, the generator state as JSON),
     # restored into a new identifier and continued gives the numbers of the uninterrupted run bit for bit;
-    # on WC1 (seed 5) the Kalman bank is frozen from step ~210 and a resample-move event follows at ~270
+    # on WC1 (seed 5) the Kalman bank is frozen from step ~210 and a resample-move event follows at ~270; the
+    # EnKF run (shorter: each event re-runs 60 x 10 members over the history) has events after step 100
     import json
 
     def make():
         return SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
                         n_members=60, likelihood=likelihood, enkf_members=10)
 
-    u, y = wc1["u"][:320], wc1["y"][:320]
+    u, y = wc1["u"][:end], wc1["y"][:end]
     whole = make()
     whole.reset(rng=5)
-    whole.update(u[:250], y[:250])
+    whole.update(u[:stop], y[:stop])
     snap = whole.snapshot()
     if likelihood == "kalman":
         assert bool(snap["frozen"])  # the restore rebuilds a frozen bank
     arrays = {k: v for k, v in snap.items() if k != "rng_state"}
     np.savez(tmp_path / "snap.npz", **arrays)
     (tmp_path / "rng.json").write_text(json.dumps(snap["rng_state"]))
-    expected = whole.update(u[250:], y[250:])
+    expected = whole.update(u[stop:], y[stop:])
     loaded = dict(np.load(tmp_path / "snap.npz"))
     loaded["rng_state"] = json.loads((tmp_path / "rng.json").read_text())
     resumed = make()
     resumed.restore(loaded)
-    got = resumed.update(u[250:], y[250:])
+    got = resumed.update(u[stop:], y[stop:])
     for name in ("theta_mean", "theta_var", "theta_quantiles", "theta_mpv", "ess", "log_evidence_increments",
                  "drift_mean", "final_theta", "move_steps", "move_acceptance", "resampled"):
         assert np.array_equal(getattr(expected, name), getattr(got, name)), name
-    assert expected.move_steps.size > 0 and expected.move_steps[-1] >= 250  # an event after the restore
+    assert expected.move_steps.size > 0 and expected.move_steps[-1] >= stop  # an event after the restore
     with pytest.raises(ValueError, match="missing"):
         make().restore({"theta": snap["theta"]})
     with pytest.raises(ValueError, match="snapshot"):
