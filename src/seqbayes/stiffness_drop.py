@@ -78,7 +78,6 @@ false alarms measured in ``benchmarks/bench_drop.py`` (docs/shake_table.md).
 
 from __future__ import annotations
 
-import contextlib
 import time
 from dataclasses import dataclass, replace
 
