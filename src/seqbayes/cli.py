@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import sys
 import traceback
 import warnings
@@ -153,9 +154,11 @@ def cmd_update(args: argparse.Namespace) -> int:
                     except Exception as err:
                         raise CommandError(f"{path}: {_describe(err, store, done)}") from err
                 done.append(f"{Path(path).name} (step {info.step})")
+                moves = ("no moves" if math.isnan(info.acceptance_rate)  # SMC^2 moves only when the ESS falls
+                         else f"acceptance {info.acceptance_rate:.3f}")
                 tqdm.write(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
-                           f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, acceptance "
-                           f"{info.acceptance_rate:.3f}, ESS {info.ess:.1f} of N = {store.config.n_samples} "
+                           f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, {moves}, "
+                           f"ESS {info.ess:.1f} of N = {store.config.n_samples} "
                            f"(last tempering stage, before resampling), {info.n_distinct} distinct samples after "
                            f"the step, {info.n_loglike_evals} likelihood evaluations in {info.wall_time:.2f} s",
                            file=sys.stdout)

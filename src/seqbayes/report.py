@@ -98,10 +98,14 @@ def format_status(store: RunStore, level: float = 0.95) -> str:
                  f" {'log Z':>11} {'conflict':>8}")
     for r in rows:
         flag = f" (!{r['conflict_parameter']})" if r["prior_data_conflict"] > 4 else ""
-        lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {r['acceptance_rate']:7.3f} {r['ess']:8.1f} "
+        accept = "-" if np.isnan(r["acceptance_rate"]) else f"{r['acceptance_rate']:.3f}"  # no moves (SMC^2)
+        lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {accept:>7} {r['ess']:8.1f} "
                      f"{r['ess'] / n:6.3f} {r['n_distinct']:8d} {r['log_evidence_increment']:11.4f} "
                      f"{r['log_evidence']:11.4f} {r['prior_data_conflict']:8.2f}{flag}")
-    lines += textwrap.wrap(f"({ESS_NOTE} conflict: posterior-mean shift in prior sds, flagged above 4.)", 100)
+    note = f"({ESS_NOTE} conflict: posterior-mean shift in prior sds, flagged above 4."
+    if any(np.isnan(r["acceptance_rate"]) for r in rows):
+        note += " accept '-': the step moved no samples (SMC^2 moves them only when their ESS falls)."
+    lines += textwrap.wrap(note + ")", 100)
     previous = rows[0]["likelihood_sha256"]
     for r in rows[1:]:   # an edited likelihood module accepted with --accept-model-change
         if r["likelihood_sha256"] != previous:
