@@ -618,7 +618,8 @@ class StiffnessDropMonitor:
 
     def _move(self, storey, theta, delta, tau, past, inc, mean_k, cov_k, phi, k, u, y, fits, rng):
         """Metropolis-Hastings sweeps on all particles at once: independent Gaussian or
-        random-walk proposal (probability 1/2 each) from the fit of the particle's part."""
+        random-walk proposal from the fit of the particle's part, and for the dropped part
+        also a wide random walk of ``delta`` alone (symmetric)."""
         N, d = theta.shape
         lo, hi = self.drop_range
         acceptance_total, sweeps = 0.0, 0
@@ -626,16 +627,23 @@ class StiffnessDropMonitor:
             x = np.column_stack([theta, delta])
             candidate = x.copy()
             log_hastings = np.zeros(N)
-            independent = rng.random(N) < 0.5
+            kind = rng.random(N)  # the proposal of each particle, drawn independently of its state
             z_all = rng.standard_normal((N, d + 1))
             for part, dim, fit in ((tau < 0, d, fits[0]), (tau >= 0, d + 1, fits[1])):
                 if fit is None or not part.any():
                     continue
                 mean, chol = fit
                 step = z_all[part, :dim] @ chol.T
-                ind = independent[part]
+                # not dropped: independent or random walk (1/2 each); dropped: independent 0.4, random walk
+                # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range): a cloud that
+                # collapsed away from the mode of delta cannot reach it with proposals fitted to itself
+                ind = kind[part] < (0.5 if dim == d else 0.4)
                 current = x[part, :dim]
                 proposed = np.where(ind[:, None], mean + step, current + 2.38 / np.sqrt(dim) * step)
+                if dim > d:
+                    wide = kind[part] >= 0.8
+                    proposed[wide, :d] = current[wide, :d]
+                    proposed[wide, d] = current[wide, d] + 0.1 * (hi - lo) * z_all[part, d][wide]
                 chol_inv = np.linalg.inv(chol)
 
                 def log_q(v):
