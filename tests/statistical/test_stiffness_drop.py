@@ -71,11 +71,12 @@ def test_simulate_drop_continues_the_state_through_the_new_matrices():
 
 def test_block_evidence_matches_the_exact_evidence():
     # 1 storey, a 30 % drop at step 100 of 200, change boundaries every 25 steps (h = 0.1), blocks of 25 steps.
-    # Measured over 10 sampler seeds (200 particles; seeds 0-9): M_1 (the true class) error against the exact
-    # log-evidence sd <= 0.23 nats per block until the drop (worst 0.40), 0.50 after it (mean -0.10, worst
-    # -1.09); M_0 sd <= 0.10 until the drop (worst 0.17); after the drop M_0 is ~400 nats below M_1 and its
-    # SMC estimate is low by 0.3-6.4 nats (mean -4.3, sd 1.3: a static model chasing an abrupt change, its
-    # weights degenerate at every step). Bounds ~4 sd: 1.0 / 2.0 nats (M_1), 0.5 / 10 nats (M_0).
+    # Measured over 10 sampler seeds (200 particles; seeds 0-9; benchmarks/bench_drop.py --evidence): M_1 (the
+    # true class) error against the exact log-evidence sd <= 0.23 nats per block until the drop (worst 0.41),
+    # 0.41 after it (mean within 0.03, worst 0.83); M_0 sd <= 0.11 until the drop (worst 0.19); after the drop
+    # M_0 is ~400 nats below M_1 and its SMC estimate is low by up to 8.3 nats (mean -5.8, sd 1.4 at the end:
+    # a static model chasing an abrupt change, its weights degenerate at every step). Bounds ~4 sd: 1.0 / 2.0
+    # nats (M_1), 0.5 / 12 nats (M_0).
     b, u, y, std, sw = one_storey_case()
     ends = np.arange(24, 200, 25)
     z0, z1 = grid_log_evidence(b, DT, u, y, std, sw, ends, change_every=25, hazard=0.1)
@@ -90,7 +91,7 @@ def test_block_evidence_matches_the_exact_evidence():
         before = ends < 100
         error = log_z - np.column_stack([z0, z1])
         assert np.all(np.abs(error[before, 1]) < 1.0) and np.all(np.abs(error[~before, 1]) < 2.0), error[:, 1]
-        assert np.all(np.abs(error[before, 0]) < 0.5) and np.all(np.abs(error[~before, 0]) < 10.0), error[:, 0]
+        assert np.all(np.abs(error[before, 0]) < 0.5) and np.all(np.abs(error[~before, 0]) < 12.0), error[:, 0]
         increments = np.array([blk.log_evidence_increments for blk in mon.history])
         np.testing.assert_allclose(np.cumsum(increments, axis=0), log_z, atol=1e-9)
 
