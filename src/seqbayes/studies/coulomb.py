@@ -461,6 +461,18 @@ def summary(study: CoulombStudy) -> str:
     lines.append("   s   measured   posterior mean +- std")
     for i in range(m.size):
         lines.append(f"   {i + 1}   {model.MEASURED_FORCES[i]:8.3f}   {m[i]:.3f} +- {sd[i]:.3f}")
+    lines.append("")
+    lines.append("Prior-data conflict (largest posterior-mean shift in prior sds over runs and steps 2-4; "
+                 "flagged above 4):")
+    for s in samplers:
+        cells = []
+        for k in kernels:
+            shifts = [(r.steps[i].info.prior_data_conflict, i + 1, r.steps[i].info.conflict_parameter)
+                      for r in study.results[(s, k)] for i in range(1, len(r.steps))]
+            worst = max(shifts, key=lambda c: np.nan_to_num(c[0], nan=-np.inf))
+            flag = f" at s = {worst[1]} ({worst[2]}) FLAGGED" if worst[0] > 4 else ""
+            cells.append(f"{k}: {worst[0]:.2f}{flag}")
+        lines.append(f"  {s:4s}  " + "   ".join(cells))
     ref = study.reference
     lines.append("")
     lines.append(f"Exact posterior at s = 1: log-evidence {ref.log_evidence:.2f}, F_mu {ref.mean[0]:.3f} +- "
