@@ -247,7 +247,16 @@ def coulomb_tables(write: bool = False) -> str:
         return coulomb.tables_markdown(study)
 
 
-SECTIONS = {("coulomb_friction.md", "coulomb-tables"): coulomb_tables}
+def oscillator_correctness(write: bool = False) -> str:
+    """The damped-oscillator study's timing-free results (against the exact grid reference, and the
+    checks) for the command's defaults (10 runs, N = 1000, seed 0), as docs/damped_oscillator.md shows."""
+    from seqbayes.studies import oscillator
+
+    return oscillator.correctness_report(oscillator.run_study(progress=False))
+
+
+SECTIONS = {("coulomb_friction.md", "coulomb-tables"): coulomb_tables,
+            ("damped_oscillator.md", "oscillator-correctness"): oscillator_correctness}
 
 
 def main(argv=None) -> int:

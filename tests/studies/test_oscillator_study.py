@@ -2,6 +2,9 @@
 on 2 runs x 2 kernels x {SEMC, SMC} at N = 300 (the full study is
 ``seqbayes example oscillator``; its numbers are in docs/damped_oscillator.md)."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -166,3 +169,17 @@ def test_evidence_check_structure_and_step_one_error():
     assert table.count("\n") == 3 + 4 and "importance" in table
     with pytest.raises(ValueError, match="replicates"):
         study.evidence_check(replicates=1)
+
+
+def test_docs_show_the_default_study():
+    """docs/damped_oscillator.md shows the timing-free results of exactly the default study
+    (`seqbayes example oscillator`: 10 runs x 6 kernels x 2 samplers, N = 1000, seed 0; ~75 s
+    on 2 idle cores); `make docs-regen` rewrites them after an intended change."""
+    root = Path(__file__).resolve().parents[2]
+    sys.path.insert(0, str(root / "tools"))
+    try:
+        import docgen
+    finally:
+        sys.path.remove(str(root / "tools"))
+    shown = docgen.generated_section(root / "docs" / "damped_oscillator.md", "oscillator-correctness")
+    assert study.correctness_report(study.run_study(progress=False)).strip("\n") == shown, "run `make docs-regen`"
