@@ -27,7 +27,7 @@ def test_a_changed_output_is_caught(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("```console\n$ echo 41\n42\n```\n")
     (mismatch,) = docgen.run_guide(page, folder=tmp_path)
-    assert mismatch.expected == "42" and mismatch.actual == "41"
+    assert mismatch.expected == "$ echo 41\n42" and mismatch.actual == "$ echo 41\n41"
     docgen.run_guide(page, write=True, folder=tmp_path)
     assert page.read_text() == "```console\n$ echo 41\n41\n```\n"
     assert docgen.run_guide(page, folder=tmp_path) == []
