@@ -319,18 +319,39 @@ def propagate(log_density: np.ndarray, old_axes: Sequence[np.ndarray], new_axes:
     ndarray, shape (len(new_axes[0]), ..., len(new_axes[d-1]))
         ``-inf`` where the predictive underflows.
     """
+    matrices = []
+    for j, q in enumerate(noise_stds):
+        if q == 0:
+            if new_axes[j] is not old_axes[j] and not np.array_equal(new_axes[j], old_axes[j]):
+                raise ValueError(f"new_axes[{j}]: a static axis keeps its grid")
+            matrices.append(None)
+        else:
+            matrices.append(_transition_matrix(np.asarray(new_axes[j]), np.asarray(old_axes[j]), nominals[j],
+                                               float(q)))
+    return apply_axis_transitions(log_density, matrices)
+
+
+def apply_axis_transitions(log_density: np.ndarray, matrices: Sequence[np.ndarray | None]) -> np.ndarray:
+    """``log sum_old M_0[new_0, old_0] ... M_{d-1}[new_{d-1}, old_{d-1}] p(old)``: a transition that acts
+    on each axis separately, applied to a log density on a grid (quadrature weights inside ``M``).
+
+    Parameters
+    ----------
+    log_density : ndarray, shape (n_0, ..., n_{d-1})
+    matrices : sequence of d ``(m_j, n_j)`` arrays, or None for an axis left as it is
+
+    Returns
+    -------
+    ndarray, shape (m_0, ..., m_{d-1}); ``-inf`` where the result underflows.
+    """
     log_density = _clean(log_density)
     shift = np.max(log_density)
     if not np.isfinite(shift):
         raise ValueError("log_density: zero everywhere")
     values = np.exp(log_density - shift)             # scaled exponentials: log-sum-exp as a matrix product
-    for j, q in enumerate(noise_stds):
-        if q == 0:
-            if new_axes[j] is not old_axes[j] and not np.array_equal(new_axes[j], old_axes[j]):
-                raise ValueError(f"new_axes[{j}]: a static axis keeps its grid")
-            continue
-        matrix = _transition_matrix(np.asarray(new_axes[j]), np.asarray(old_axes[j]), nominals[j], float(q))
-        values = np.moveaxis(np.tensordot(matrix, values, axes=([1], [j])), 0, j)
+    for j, matrix in enumerate(matrices):
+        if matrix is not None:
+            values = np.moveaxis(np.tensordot(matrix, values, axes=([1], [j])), 0, j)
     with np.errstate(divide="ignore"):
         return np.log(values) + shift
 

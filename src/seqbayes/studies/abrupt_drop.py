@@ -203,16 +203,11 @@ def _axis_transition(new_axis, old_axis, component, slab_only: bool = False) -> 
 
 def _propagate(log_density, old_axes, new_axes, components, slab_axis=None) -> np.ndarray:
     """Log predictive density on ``new_axes`` (the transition acts on each axis separately)."""
-    from ..reference import _clean
+    from ..reference import apply_axis_transitions
 
-    log_density = _clean(log_density)
-    shift = np.max(log_density)
-    values = np.exp(log_density - shift)
-    for j, component in enumerate(components):
-        matrix = _axis_transition(np.asarray(new_axes[j]), np.asarray(old_axes[j]), component, j == slab_axis)
-        values = np.moveaxis(np.tensordot(matrix, values, axes=([1], [j])), 0, j)
-    with np.errstate(divide="ignore"):
-        return np.log(values) + shift
+    return apply_axis_transitions(log_density, [
+        _axis_transition(np.asarray(new_axes[j]), np.asarray(old_axes[j]), component, j == slab_axis)
+        for j, component in enumerate(components)])
 
 
 @dataclass(frozen=True)
