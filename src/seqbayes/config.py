@@ -48,17 +48,16 @@ raises :class:`ConfigError` with a message such as
 from __future__ import annotations
 
 import hashlib
-import importlib
-import importlib.machinery
-import importlib.util
 import json
 import math
-import sys
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from .modules import (ConfigError, ModuleSource, _split_likelihood, file_sha256, load_likelihood, load_located,
+                      locate_module)
 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
            "load_located", "ModuleSource", "file_sha256"]
@@ -74,10 +73,6 @@ EXECUTORS = ("serial", "processes", "dask")
 #: RunConfig fields that do not define the model (not in :meth:`RunConfig.fingerprint`).
 NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "likelihood_file",
                      "likelihood_sha256", "predict", "observed")
-
-
-class ConfigError(ValueError):
-    """A run configuration is invalid; the message names the file and the field."""
 
 
 def _fail(source, field_name, message):
@@ -273,34 +268,10 @@ class RunConfig:
         return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
     def make_executor(self) -> tuple[Any, Callable[[], None]]:
-        """``(executor, close)`` for the ``[parallel]`` section (``(None, no-op)`` when serial)."""
-        if self.executor == "serial":
-            return None, lambda: None
-        if self.executor == "processes":
-            from .parallel import ProcessWorkers  # keeps the likelihood and the dataset on the workers
+        """``(executor, close)`` for the ``[parallel]`` section (:func:`seqbayes.parallel.make_executor`)."""
+        from .parallel import make_executor
 
-            import multiprocessing
-
-            # forked workers inherit the likelihood's module, which is imported by file path and so
-            # is not importable by name in a spawned process (the default start method may change)
-            context = (multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods()
-                       else None)
-            pool = ProcessWorkers(self.workers, mp_context=context)
-            return pool, pool.shutdown
-        from distributed import Client, LocalCluster  # optional extra: seqbayes[dask]
-
-        if self.address:
-            client = Client(self.address)
-            return client, client.close
-        cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address="127.0.0.1:0")   # not on every interface
-        client = Client(cluster)
-
-        def close():
-            client.close()
-            cluster.close()
-
-        return client, close
+        return make_executor(self.executor, self.workers, self.address)
 
 
 # ---------------------------------------------------------------------- priors
@@ -436,193 +407,6 @@ def _parse_jump(prefix, raw, rate, noise, source):
         scales, weights = (list(HEAVY_TAIL_SCALES), list(HEAVY_TAIL_WEIGHTS)) if tail == "heavy" else ([1.0], [1.0])
     return {"type": "jump", "base": raw["base"], "rate": rate, "noise_std": noise, "p": p, "drop_mean": drop_mean,
             "drop_sd": drop_sd, "reference": reference, "scales": scales, "scale_weights": weights}
-
-
-# ------------------------------------------------------------------ likelihood
-@dataclass(frozen=True)
-class ModuleSource:
-    """Where the likelihood's module lives and what it contains, found without running it.
-
-    Attributes
-    ----------
-    name : str
-        Dotted module name.
-    files : tuple of str
-        Absolute paths of the source files an import executes, outermost package first
-        (one file for a plain module); empty for a module without a Python source file.
-    sha256 : str
-        SHA-256 of the content: of the file itself for a plain module (what ``sha256sum``
-        prints), else of the files' hex digests joined; ``""`` without source files.
-    folder : str or None
-        The folder the module was found in (imported by file path), or None for a module
-        found on ``sys.path`` (installed; imported the usual way).
-    """
-
-    name: str
-    files: tuple
-    sha256: str
-    folder: str | None = None
-
-    @property
-    def file(self) -> str | None:
-        """The module's own file (the last of :attr:`files`)."""
-        return self.files[-1] if self.files else None
-
-
-def _split_likelihood(spec):
-    if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
-        raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
-    return spec.split(":")
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 hex digest of a file's bytes."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def _files_sha256(files) -> str:
-    if not files:
-        return ""
-    digests = [file_sha256(f) for f in files]
-    return digests[0] if len(digests) == 1 else hashlib.sha256(" ".join(digests).encode()).hexdigest()
-
-
-def _chain_in_folder(module_name: str, folder) -> tuple | None:
-    """The files ``import module_name`` would run from ``folder`` (packages' ``__init__.py`` first), or None."""
-    parts = module_name.split(".")
-    files = []
-    for i in range(1, len(parts) + 1):
-        base = Path(folder, *parts[:i])
-        if i < len(parts) or not base.with_suffix(".py").is_file():
-            init = base / "__init__.py"
-            if not init.is_file():
-                return None
-            files.append(str(init.resolve()))
-        else:
-            files.append(str(base.with_suffix(".py").resolve()))
-    return tuple(files)
-
-
-def locate_module(module_name: str, folder: str | os.PathLike | None = None,
-                  search_installed: bool = True) -> ModuleSource | None:
-    """Find the likelihood's module without running it: in ``folder`` first, then on ``sys.path``.
-
-    With ``search_installed=False`` only ``folder`` is searched (None when it does not hold the module).
-
-    Raises
-    ------
-    ConfigError
-        The module is found nowhere.
-    """
-    if folder:
-        chain = _chain_in_folder(module_name, folder)
-        if chain:
-            return ModuleSource(module_name, chain, _files_sha256(chain), str(Path(folder).resolve()))
-    if not search_installed:
-        return None
-    try:  # sys.path only, not the module cache (which may hold a module run from some folder)
-        spec = (importlib.machinery.PathFinder.find_spec(module_name) if "." not in module_name
-                else importlib.util.find_spec(module_name))
-    except Exception as err:  # a parent package that fails to import
-        spec, reason = None, f"{type(err).__name__}: {err}"
-    else:
-        reason = f"ModuleNotFoundError: No module named {module_name!r}"
-    if spec is None:
-        where = f" (searched {folder} and sys.path)" if folder else ""
-        raise ConfigError(f"model.likelihood: cannot import module {module_name!r}{where}: {reason}")
-    origin = (spec.origin if spec.has_location and spec.origin and spec.origin.endswith(".py")
-              and Path(spec.origin).is_file() else None)
-    files = (str(Path(origin).resolve()),) if origin else ()
-    return ModuleSource(module_name, files, _files_sha256(files), None)
-
-
-def _exec_source(name: str, file: str, source: bytes, package: bool):
-    """Run ``source`` (the bytes that were hashed, not a cached ``.pyc``) as module ``name`` from ``file``."""
-    spec = importlib.util.spec_from_file_location(
-        name, file, submodule_search_locations=[str(Path(file).parent)] if package else None)
-    module = importlib.util.module_from_spec(spec)
-    previous = sys.modules.get(name)
-    sys.modules[name] = module  # pickling (process pools, Dask) and dataclasses look the module up by name
-    try:
-        exec(compile(source, file, "exec"), module.__dict__)
-    except BaseException:
-        if previous is None:
-            sys.modules.pop(name, None)
-        else:
-            sys.modules[name] = previous
-        raise
-    module.__seqbayes_sha256__ = hashlib.sha256(source).hexdigest()
-    return module
-
-
-def import_module_source(source: ModuleSource):
-    """Import a located module; one found in a folder is run from its files by path, ``sys.path`` untouched.
-
-    A module of the same name cached from another file (two runs in two folders both
-    naming ``model:loglike``) is replaced, with its submodules; the same file with the
-    same content is reused.
-    """
-    if source.folder is None:
-        cached = sys.modules.get(source.name)
-        if cached is not None and source.file and getattr(cached, "__file__", None) and \
-                str(Path(cached.__file__).resolve()) != source.file:
-            del sys.modules[source.name]  # run from a folder before; the installed module is wanted now
-        return importlib.import_module(source.name)
-    parts = source.name.split(".")
-    module = None
-    for i, file in enumerate(source.files):
-        name = ".".join(parts[:i + 1])
-        content = Path(file).read_bytes()
-        cached = sys.modules.get(name)
-        if (cached is not None and getattr(cached, "__file__", None) and Path(cached.__file__).resolve() == Path(file)
-                and getattr(cached, "__seqbayes_sha256__", None) == hashlib.sha256(content).hexdigest()):
-            module = cached
-            continue
-        if cached is not None:
-            for other in [m for m in sys.modules if m.startswith(name + ".")]:
-                del sys.modules[other]
-        module = _exec_source(name, file, content, package=i < len(parts) - 1 or file.endswith("__init__.py"))
-        if i:
-            setattr(sys.modules[".".join(parts[:i])], parts[i], module)
-    return module
-
-
-def _function_of(module, spec: str):
-    module_name, func_name = spec.split(":")
-    func = module
-    for part in func_name.split("."):
-        func = getattr(func, part, None)
-        if func is None:
-            raise ConfigError(f"model.likelihood: module {module_name!r} has no attribute {func_name!r}")
-    if not callable(func):
-        raise ConfigError(f"model.likelihood: {spec!r} is not callable")
-    return func
-
-
-def load_located(spec: str, source: ModuleSource) -> Callable[..., Any]:
-    """The function named by ``spec`` from the located module ``source`` (see :func:`locate_module`)."""
-    _split_likelihood(spec)
-    try:
-        module = import_module_source(source)
-    except Exception as err:
-        where = f" from {source.file}" if source.file else ""
-        raise ConfigError(f"model.likelihood: cannot import module {source.name!r}{where}: "
-                          f"{type(err).__name__}: {err}") from err
-    return _function_of(module, spec)
-
-
-def load_likelihood(spec: str, search_path: str | None = None) -> Callable[..., Any]:
-    """Import ``"module:function"``: from the file in ``search_path`` (a folder) if it holds one,
-    else from ``sys.path``. The folder is not added to ``sys.path``.
-
-    Raises
-    ------
-    ConfigError
-        If the string is malformed, the module cannot be imported or the
-        attribute is missing or not callable.
-    """
-    module_name, _ = _split_likelihood(spec)
-    return load_located(spec, locate_module(module_name, search_path))
 
 
 # ---------------------------------------------------------------------- parsing

@@ -30,11 +30,13 @@ import pickle
 import time
 import weakref
 from collections import OrderedDict
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from typing import Any
 
 import numpy as np
 
-__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "MIN_CHUNK_SECONDS"]
+__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "MIN_CHUNK_SECONDS", "make_executor"]
 
 #: A chunk expected to take less than this (seconds) is not worth a round trip: the batch is evaluated
 #: serially. 20 ms: a Dask round trip costs 5-20 ms, a local process pool's 0.5-2 ms (docs/parallel.md).
@@ -289,3 +291,42 @@ def _default_chunks(executor) -> int:
         except Exception:  # pragma: no cover - a client without workers yet
             return 2
     return getattr(executor, "_max_workers", 2) or 2
+
+
+def make_executor(kind: str, workers: int = 2, address: str | None = None) -> tuple[Any, Callable[[], None]]:
+    """``(executor, close)`` for a run configuration's ``[parallel]`` section.
+
+    Parameters
+    ----------
+    kind : {"serial", "processes", "dask"}
+        ``"serial"`` gives ``(None, no-op)``; ``"processes"`` a :class:`ProcessWorkers` pool of
+        ``workers`` forked processes; ``"dask"`` a client of the cluster at ``address`` or of a
+        local cluster of ``workers`` single-threaded processes bound to 127.0.0.1.
+    """
+    if kind == "serial":
+        return None, lambda: None
+    if kind == "processes":
+        import multiprocessing
+
+        # forked workers inherit the likelihood's module, which is imported by file path and so
+        # is not importable by name in a spawned process (the default start method may change)
+        context = (multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods()
+                   else None)
+        pool = ProcessWorkers(workers, mp_context=context)
+        return pool, pool.shutdown
+    if kind != "dask":
+        raise ValueError(f"kind: expected 'serial', 'processes' or 'dask', got {kind!r}")
+    from distributed import Client, LocalCluster  # optional extra: seqbayes[dask]
+
+    if address:
+        client = Client(address)
+        return client, client.close
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           host="127.0.0.1", dashboard_address="127.0.0.1:0")   # not on every interface
+    client = Client(cluster)
+
+    def close():
+        client.close()
+        cluster.close()
+
+    return client, close

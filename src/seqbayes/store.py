@@ -99,7 +99,8 @@ from pathlib import Path
 import numpy as np
 
 from . import snapshot
-from .config import NOT_FINGERPRINTED, ConfigError, ModuleSource, RunConfig, load_located, locate_module
+from .config import NOT_FINGERPRINTED, RunConfig
+from .modules import ConfigError, ModuleSource, load_located, locate_module
 from .datasets import as_likelihood_data, check_table, dataset_digest, read_datafile
 from .prognostics import FirstPassage, time_to_threshold
 from .results import Result, StepInfo, StepRecord
