@@ -266,11 +266,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     failed = False
     if "guide" in args.what:
-        mismatches = run_guide(write=args.write)
-        for m in mismatches:
-            print(m, "\n")
-        print(f"docs/guide.md: {len(mismatches)} block(s) differ{' (rewritten)' if args.write else ''}")
-        failed |= bool(mismatches) and not args.write
+        for page in (GUIDE, ROOT / "README.md"):
+            mismatches = run_guide(page, write=args.write)
+            for m in mismatches:
+                print(m, "\n")
+            print(f"{page.relative_to(ROOT)}: {len(mismatches)} block(s) differ{' (rewritten)' if args.write else ''}")
+            failed |= bool(mismatches) and not args.write
     if "sections" in args.what:
         for (page, key), render in SECTIONS.items():
             path = ROOT / "docs" / page

@@ -23,6 +23,10 @@ def test_guide_outputs_are_the_current_code(tmp_path):
         assert (tmp_path / name).is_file(), name
 
 
+def test_readme_example_prints_what_it_shows(tmp_path):
+    assert docgen.run_guide(ROOT / "README.md", folder=tmp_path) == []
+
+
 def test_a_changed_output_is_caught(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("```console\n$ echo 41\n42\n```\n")
