@@ -207,17 +207,17 @@ def test_dask_workers_get_the_likelihood_and_each_dataset_once(client, serial, t
 
 
 def test_a_cheap_likelihood_stays_in_this_process_with_the_same_numbers(serial, tmp_path, monkeypatch):
-    """Under MIN_CHUNK_SECONDS per chunk, batches are evaluated here. The first call times its first sample
-    here; if that one sample looked slow (a loaded machine), the first call's two chunks may go to the
-    workers, which time the likelihood without the round trip, and every later call stays here."""
-    monkeypatch.setattr(parallel, "MIN_CHUNK_SECONDS", 0.02)
+    """A batch whose chunks would take less than MIN_CHUNK_SECONDS is evaluated here. The threshold is set
+    so high that every batch counts as cheap whatever the machine's load (a test may not depend on
+    timing): every evaluation then happens in this process, and the numbers are the serial ones."""
+    monkeypatch.setattr(parallel, "MIN_CHUNK_SECONDS", 1e9)
     with ProcessWorkers(2) as pool:
         result = counted_run(pool, tmp_path)
     assert_identical(serial["SEMC"], result)
     in_workers = [p for p in tmp_path.glob("eval-*") if int(p.name.split("-")[1]) != os.getpid()]
-    assert len(in_workers) <= 2
-    assert sum(int(p.read_text()) for p in in_workers) in (0, 40 - 1)
-    assert len(list(tmp_path.glob("eval-*"))) > 20  # many calls, all (but the first at most) here
+    assert in_workers == []
+    assert len(list(tmp_path.glob("eval-*"))) > 20  # many calls, all here
+    assert not list(tmp_path.glob("delivery-*"))     # nothing was even sent to the workers
 
 
 def test_process_workers_bad_input():
