@@ -160,17 +160,25 @@ class GaussianMixture:
         """
         # log sum_i W_i exp(-|x - c_i|^2 / 2) = -|x|^2 / 2 + log sum_i exp(x.c_i - |c_i|^2 / 2 + log W_i)
         out = np.empty(x.shape[0])
+        for rows, xb, scaled, peak in self._scaled_terms(x, np.float32):
+            out[rows] = (np.log(scaled.sum(axis=1, dtype=np.float64)) + peak[:, 0]
+                         - 0.5 * np.einsum("ij,ij->i", xb, xb))
+        return out
+
+    def _scaled_terms(self, x, dtype):
+        """Blocks of the mixture's terms at ``x (m, d)`` (centred, in bandwidth units), memory ``O(block x N)``:
+        yields ``(rows, x[rows], exp(e - peak), peak)`` with ``e_ki = x_k.c_i - |c_i|^2 / 2 + log W_i`` in
+        ``dtype`` and ``peak (b, 1)`` its row maximum; never N x N x d."""
+        centres = self._scaled_centres if dtype == np.float32 else self._scaled_centres.astype(dtype)
         block = max(1, _BLOCK_FLOATS // max(1, self.centres.shape[0]))
-        for start in range(0, x.shape[0], block):  # blocks of queries, never N x N x d
+        for start in range(0, x.shape[0], block):
             xb = x[start:start + block]
-            exponent = xb.astype(np.float32) @ self._scaled_centres
+            exponent = xb.astype(dtype) @ centres
             exponent += self._offset
             peak = exponent.max(axis=1, keepdims=True)
             exponent -= peak
             np.exp(exponent, out=exponent)
-            out[start:start + block] = (np.log(exponent.sum(axis=1, dtype=np.float64)) + peak[:, 0]
-                                        - 0.5 * np.einsum("ij,ij->i", xb, xb))
-        return out
+            yield slice(start, start + xb.shape[0]), xb, exponent, peak
 
     def ancestor_ess(self, theta: np.ndarray, log_weights: np.ndarray | None = None) -> float:
         """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
@@ -192,18 +200,12 @@ class GaussianMixture:
         float
         """
         theta = as_samples(theta, self.dim)
-        m, n = theta.shape[0], self.centres.shape[0]
+        m = theta.shape[0]
         v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
-        x = (theta - self._shift) / self.bandwidth
-        mass = np.zeros(n)
-        block = max(1, _BLOCK_FLOATS // max(1, n))
-        for start in range(0, m, block):  # blocks of points, never m x N at once
-            exponent = x[start:start + block] @ self._scaled_centres.astype(float)
-            exponent += self._offset
-            exponent -= exponent.max(axis=1, keepdims=True)
-            np.exp(exponent, out=exponent)
-            exponent /= exponent.sum(axis=1, keepdims=True)
-            mass += v[start:start + block] @ exponent
+        mass = np.zeros(self.centres.shape[0])
+        for rows, _, scaled, _ in self._scaled_terms((theta - self._shift) / self.bandwidth, np.float64):
+            scaled /= scaled.sum(axis=1, keepdims=True)   # responsibilities r_ki
+            mass += v[rows] @ scaled
         return float(1.0 / np.dot(mass, mass))
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
