@@ -527,7 +527,11 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
 
 
 def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunConfig:
-    """Read and validate a TOML run configuration (the likelihood's module may sit next to it)."""
+    """Read and validate a TOML run configuration (the likelihood's module may sit next to it).
+
+    A configuration with a ``[building]`` section is an SG-EnMCMC run: it is validated by
+    :func:`seqbayes.sgstore.parse_sg_config` and returned as a :class:`~seqbayes.sgstore.SGRunConfig`.
+    """
     path = Path(path)
     try:
         with open(path, "rb") as fh:
@@ -540,6 +544,10 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
         raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: invalid TOML: {err}") from None
+    if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.sgstore)
+        from .sgstore import parse_sg_config
+
+        return parse_sg_config(raw, str(path), base_dir=path.parent)
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
 
 import typing as _typing  # noqa: E402

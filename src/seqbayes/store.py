@@ -427,6 +427,10 @@ class RunStore:
     @classmethod
     def _from_file(cls, path: Path, attrs: dict, variables: dict, config: RunConfig | None) -> "RunStore":
         version = attrs.get("seqbayes_store_format")
+        if attrs.get("run_kind", "semc") != "semc":
+            raise StoreError(f"{path}: an SG-EnMCMC run store (run_kind {attrs.get('run_kind')!r}); open it with "
+                             f"seqbayes.SGRunStore.open (the seqbayes commands init, update, status and report "
+                             f"take it)")
         if version is None:
             raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
         if int(version) not in _READABLE_VERSIONS:
