@@ -2,7 +2,8 @@
 
 Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
 
-    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.config)
+    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.config; a [building]
+                                              # section: an SG-EnMCMC run of a shear building, seqbayes.sgstore)
     seqbayes update RUN.nc DATA.csv [...]     # assimilate datasets (CSV or NetCDF), one step each
     seqbayes status RUN.nc                    # per step: mean, sd, credible interval, acceptance, ESS, evidence
     seqbayes predict RUN.nc --steps K         # forecast K steps ahead through the Markov kernel
@@ -36,7 +37,8 @@ DESCRIPTION = """\
 On-line Bayesian model updating: monitor one's own model, or run the papers' studies.
 
 monitoring (a run is one NetCDF file):
-  seqbayes init CONFIG.toml RUN.nc          a new run from a TOML configuration
+  seqbayes init CONFIG.toml RUN.nc          a new run from a TOML configuration (with a [building]
+                                            section: SG-EnMCMC of a shear building, one block per update)
   seqbayes update RUN.nc DATA.csv [...]     assimilate datasets (CSV or NetCDF), one step each
   seqbayes status RUN.nc                    per step: posterior mean, sd, interval, ESS, evidence
   seqbayes predict RUN.nc --steps K         forecast K steps ahead through the Markov kernel
@@ -118,6 +120,16 @@ def cmd_init(args: argparse.Namespace) -> int:
     from .store import RunStore
 
     config = load_config(args.config)
+    if getattr(config, "kind", None) == "sgenmcmc":
+        from .sgstore import SGRunStore
+
+        store = SGRunStore.create(args.run, config, overwrite=args.force)
+        sensors = ", ".join([f"a{f}" for f in config.accelerations] + [f"d{f}" for f in config.drifts])
+        print(f"created SG-EnMCMC run {store.path} for model {config.name!r}: {config.n_storeys}-storey shear "
+              f"building, ratios {', '.join(config.names)} in [{', '.join(f'{v:g}' for v in config.lower)}] .. "
+              f"[{', '.join(f'{v:g}' for v in config.upper)}], sensors {sensors}, N = {config.n_members}, seed "
+              f"{config.seed}; blocks need columns {', '.join(config.columns)} at dt = {config.dt:g} s")
+        return 0
     store = RunStore.create(args.run, config, overwrite=args.force)
     print(f"created run {store.path} for model {config.name!r}: {len(config.names)} parameters "
           f"({', '.join(config.names)}), {config.sampler} with N = {config.n_samples}, seed {config.seed}")
@@ -130,6 +142,8 @@ def cmd_update(args: argparse.Namespace) -> int:
     from .datasets import read_datafile
     from .store import BoundWarning, RunStore, store_lock
 
+    if _is_sg(args.run):
+        return _update_sg(args)
     show = _progress_enabled() and not args.quiet
     with store_lock(args.run):
         store = RunStore.open(args.run)
@@ -171,6 +185,70 @@ def cmd_update(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_sg(path) -> bool:
+    """Whether ``path`` is an SG-EnMCMC run store (:mod:`seqbayes.sgstore`)."""
+    from .sgstore import RUN_KIND, run_kind
+
+    return run_kind(path) == RUN_KIND
+
+
+def _update_sg(args: argparse.Namespace) -> int:
+    """``seqbayes update`` of an SG-EnMCMC run: each file is the next block of the record."""
+    from .datasets import read_datafile
+    from .sgstore import SGRunStore
+    from .store import store_lock
+
+    if args.replace_last:
+        raise CommandError(f"--replace-last: not available for an SG-EnMCMC run ({args.run}): its blocks are one "
+                           f"continuous record; re-create the run (seqbayes init --force) to assimilate it again")
+    with store_lock(args.run):
+        store = SGRunStore.open(args.run)
+        tables = [read_datafile(path, store.config) for path in args.datafiles]  # all files checked first
+        done = []
+        for path, table in zip(args.datafiles, tables):
+            try:
+                info = store.assimilate(table, Path(path).name)
+            except (KeyboardInterrupt, SystemExit):
+                raise
+            except Exception as err:
+                raise CommandError(f"{path}: {_describe_sg(err, done)}") from err
+            done.append(f"{Path(path).name} (step {info['step']})")
+            post = store.block_posterior(-1)
+            ratios = ", ".join(f"{name} {p['mean']:.4g} +- {p['sd']:.2g}" for name, p in post.items())
+            moves = (f"{info['moves']} resample-moves (acceptance {info['acceptance']:.3f})" if info["moves"]
+                     else "no resample-moves")
+            dt = store.config.dt
+            print(f"{args.run}: step {info['step']} from {Path(path).name}: samples {info['first_sample']}-"
+                  f"{info['first_sample'] + info['rows'] - 1} (t = {info['time_start']:.2f}-"
+                  f"{(info['first_sample'] + info['rows'] - 1) * dt:.2f} s), log-evidence increment "
+                  f"{info['log_evidence_increment']:.4f}, cumulative {info['log_evidence']:.4f}, ESS "
+                  f"{info['ess_end']:.1f} of N = {store.config.n_members}, {moves}; {ratios}")
+    return 0
+
+
+def _describe_sg(err, done=()) -> str:
+    """One line for an SG-EnMCMC block that failed, saying what the run store holds now."""
+    from .config import ConfigError
+    from .datasets import DataError
+    from .store import StoreError
+
+    unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the ones "
+                 f"after it were not assimilated" if done else "the run store is unchanged")
+    text = str(err)
+    if isinstance(err, (StoreError, ConfigError, DataError, ValueError)):
+        return text if "previous store is kept" in text else f"{text}; {unchanged}"
+    if isinstance(err, OSError):
+        return f"{err.strerror or text}{f' ({err.filename})' if err.filename else ''}; {unchanged}"
+    return f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); {unchanged}"
+
+
+def _not_for_sg(args, what: str) -> None:
+    for path in [getattr(args, "run", None), *(getattr(args, "runs", None) or ())]:
+        if path and _is_sg(path):
+            raise CommandError(f"{path}: an SG-EnMCMC run; {what} is for SEMC/SMC runs (use seqbayes status or "
+                               f"seqbayes report)")
+
+
 def _raised_in(err, files) -> bool:
     """Whether the exception passed through one of ``files`` (the user's likelihood module)."""
     files = {str(Path(f).resolve()) for f in files if f}
@@ -208,6 +286,17 @@ def cmd_status(args: argparse.Namespace) -> int:
     from .report import format_status, status_rows
     from .store import RunStore
 
+    if _is_sg(args.run):
+        from .sgreport import format_sg_status, sg_status_rows
+        from .sgstore import SGRunStore
+
+        store = SGRunStore.open(args.run)
+        if args.json:
+            print(json.dumps({"run": str(store.path), "model": store.config.name, "kind": "sgenmcmc",
+                              "steps": sg_status_rows(store, args.level)}, indent=1))
+        else:
+            print(format_sg_status(store, args.level))
+        return 0
     store = RunStore.open(args.run)
     if args.json:
         print(json.dumps({"run": str(store.path), "model": store.config.name, "steps": status_rows(store, args.level)},
@@ -222,6 +311,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from .report import first_passage_json, forecast_rows, format_first_passage, format_forecast
     from .store import RunStore
 
+    _not_for_sg(args, "predict (a forecast through the Markov kernel)")
     store = RunStore.open(args.run)
     if store.n_steps == 0:
         raise CommandError(f"{args.run}: no dataset assimilated yet; nothing to forecast from")
@@ -293,6 +383,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from .report import comparison_rows
     from .selection import compare
 
+    _not_for_sg(args, "compare")
     stores, names, n_common = _open_for_comparison(args.runs)
     comparison = compare({n: s.result.log_evidence[:n_common] for n, s in zip(names, stores)})
     if args.json:
@@ -314,6 +405,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from .report import write_report
     from .store import RunStore
 
+    if _is_sg(args.run):
+        return _report_sg(args)
     store = RunStore.open(args.run)
     others = []
     if args.compare:
@@ -329,6 +422,25 @@ def cmd_report(args: argparse.Namespace) -> int:
                      fit_data=_assimilated_dataset(store, args.data) if args.data else None)
     except ValueError as err:
         raise CommandError(str(err)) from err
+    print(f"report written to {output}")
+    return 0
+
+
+def _report_sg(args: argparse.Namespace) -> int:
+    """``seqbayes report`` of an SG-EnMCMC run: ratios over the record, per-block posteriors, modal results."""
+    from .sgreport import read_mode_shapes, write_sg_report
+    from .sgstore import SGRunStore
+
+    store = SGRunStore.open(args.run)
+    if args.compare or args.threshold or args.data:
+        raise CommandError("--compare, --threshold and --data are for SEMC/SMC runs; an SG-EnMCMC report takes "
+                           "--modes, --level and --no-embed")
+    output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
+    if output.is_dir():
+        raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
+    identified = read_mode_shapes(args.modes, store.config.n_storeys) if args.modes else None
+    write_sg_report(store, output, level=args.level, embed=not args.no_embed, identified_shapes=identified,
+                    identified_source=Path(args.modes).name if args.modes else None)
     print(f"report written to {output}")
     return 0
 
@@ -411,6 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", metavar="DATAFILE",
                    help="one of the assimilated datasets, for the data-versus-fit panel (needs [model] predict in "
                         "the configuration; default: the last one when the run keeps its datasets)")
+    p.add_argument("--modes", metavar="CSV",
+                   help="SG-EnMCMC runs: identified mode shapes for the MAC (one row per floor, bottom to top, one "
+                        "column per mode; default: the shapes of the configured building at ratios 1)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)

@@ -83,8 +83,8 @@ from .modules import ConfigError, load_located, locate_module
 from .rng import as_generator, generator_from_state, generator_state
 from .store import (StoreError, DuplicateDatasetError, _apply_with_journal, _check_finite, _check_free_space,
                     _content_hash, _extend, _fault, _fsync_dir, _json, _json_list, _netcdf_bytes, _now, _os_message,
-                    _PendingWrites, _plain, _read_file, _read_token, _record_hash, _recover_journal, _write_file,
-                    store_lock)
+                    _PendingWrites, _plain, _read_file, _read_journal, _read_token, _record_hash, _recover_journal, _write_file,
+                    lock_file, store_lock)
 
 __all__ = ["SGRunConfig", "SGRunStore", "parse_sg_config", "load_sg_config", "run_kind", "SG_FORMAT_VERSION",
            "RUN_KIND"]
@@ -426,8 +426,12 @@ def run_kind(path: str | os.PathLike) -> str:
     import h5py
 
     try:
-        with h5py.File(path, "r") as f:
-            return str(_plain(f.attrs.get("run_kind", "semc")))
+        with open(path, "rb") as fh:
+            with contextlib.suppress(OSError):   # as the store's readers: never between two halves of a step
+                lock_file(fh, exclusive=False)
+            journal = _read_journal(Path(path))      # a committed step not yet written into the file
+            with h5py.File(_PendingWrites(fh, journal) if journal is not None else fh, "r") as f:
+                return str(_plain(f.attrs.get("run_kind", "semc")))
     except Exception:
         return "semc"
 
@@ -647,9 +651,14 @@ class SGRunStore:
 
     # ----------------------------------------------------------------------- assimilation
     def _check_block(self, table, source: str) -> np.ndarray:
+        """The table checked (:func:`~seqbayes.datasets.check_table`), not assimilated before, and, with a
+        time column, in step with ``dt`` and continuing the record."""
         table = check_table(table, self.config, source)
-        if table.shape[0] < 1:
-            raise DataError(f"{source}: no data rows")
+        digest = dataset_digest(table, self.config.columns)
+        if digest in self.digests:
+            step = self.digests.index(digest) + 1
+            raise DuplicateDatasetError(f"{self.path}: this block was already assimilated as step {step} (from "
+                                        f"{self.sources[step - 1]}, sha256 {digest[:12]})")
         if self.config.time:
             t = table[:, 0]
             dt = self.config.dt
@@ -692,10 +701,6 @@ class SGRunStore:
                 _recover_journal(self.path)
                 self._reload_if_changed()
                 table = self._check_block(table, "table" if source == "<array>" else f"table from {source}")
-            if digest in self.digests:
-                step = self.digests.index(digest) + 1
-                raise DuplicateDatasetError(f"{self.path}: this block was already assimilated as step {step} (from "
-                                            f"{self.sources[step - 1]}, sha256 {digest[:12]})")
             sampler = self.identifier()
             offset = 1 if self.config.time else 0
             started = time.perf_counter()

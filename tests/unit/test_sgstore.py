@@ -1,0 +1,292 @@
+"""SG-EnMCMC runs in the run store (seqbayes.sgstore) and on the command line.
+
+* Resume is bit-identical: blocks assimilated by one object, by a fresh object opened before
+  every block, and by a forked ``seqbayes update`` killed at the journal's fault points and
+  rerun, give the same arrays and generator states; all equal one uninterrupted
+  ``SGEnMCMC.reset`` + ``update`` over the whole record.
+* Bad input (wrong channel count, NaN, no rows, a block out of time order, a block given twice,
+  a broken configuration) is one line naming the argument, and the store's bytes are unchanged.
+* The store's integrity checks hold for the new kind; SEMC's reader refuses it by name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import h5py
+import numpy as np
+import pytest
+
+from seqbayes import cli
+from seqbayes.config import ConfigError, load_config
+from seqbayes.datasets import DataError
+from seqbayes.sgstore import SGRunStore, parse_sg_config
+from seqbayes.store import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
+from seqbayes.structures.shear_building import discretise, simulate
+
+TOML = """
+[model]
+name = "two-storey"
+
+[building]
+masses = [20000.0, 16000.0]
+stiffnesses = [3.0e7, 2.0e7]
+damping_ratios = [0.02, 0.03]
+
+[sensors]
+accelerations = [1, 2]
+
+[data]
+dt = 0.02
+input = "ag"
+responses = ["a1", "a2"]
+time = "t"
+
+[priors]
+lower = 0.5
+upper = 1.5
+
+[noise]
+measurement_std = 0.05
+
+[sampler]
+n_members = 48
+seed = 7
+"""
+TRUTH = np.array([0.9, 0.8])
+N_BLOCKS = 3
+
+
+def record(config, n=240, seed=0):
+    """``(t, ag, y)`` of the two-storey building at TRUTH with 0.05 m/s^2 noise."""
+    rng = np.random.default_rng(seed)
+    ag = rng.standard_normal(n)
+    y = simulate(discretise(config.build_building(), TRUTH, config.dt), ag)[0]
+    return np.arange(n) * config.dt, ag, y + 0.05 * rng.standard_normal(y.shape)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sgstore")
+    (root / "run.toml").write_text(TOML)
+    config = load_config(root / "run.toml")
+    t, ag, y = record(config)
+    table = np.column_stack([t, ag, y])
+    for k, block in enumerate(np.array_split(table, N_BLOCKS)):
+        np.savetxt(root / f"b{k + 1}.csv", block, delimiter=",", header="t,ag,a1,a2", comments="", fmt="%.17g")
+    reference = SGRunStore.create(root / "reference.nc", config)   # one object, every block
+    for k in range(N_BLOCKS):
+        reference.update(root / f"b{k + 1}.csv")
+    return root
+
+
+def arrays(path):
+    """Every variable of a store but the per-step wall times (the text of step_info and its hash)."""
+    attrs, variables = _read_file(path)
+    out = {name: value for name, value in variables.items() if name not in ("step_info", "record_sha256")}
+    out["infos"] = [{k: v for k, v in json.loads(s).items() if k != "wall_time"} for s in variables["step_info"]]
+    return out
+
+
+def assert_same_store(a, b):
+    va, vb = arrays(a), arrays(b)
+    assert va.keys() == vb.keys()
+    for name in va:
+        if isinstance(va[name], np.ndarray):
+            assert va[name].dtype == vb[name].dtype and np.array_equal(va[name], vb[name]), name
+        else:
+            assert va[name] == vb[name], name
+
+
+def test_config_from_toml(workdir):
+    config = load_config(workdir / "run.toml")
+    assert config.kind == "sgenmcmc"
+    assert config.columns == ("t", "ag", "a1", "a2") and config.names == ("theta_1", "theta_2")
+    assert config.lower == (0.5, 0.5) and config.measurement_std == (0.05, 0.05)
+
+
+def test_reopen_before_every_block_is_bit_identical(workdir, tmp_path, monkeypatch):
+    from seqbayes import sgstore
+
+    appended = []
+    real = sgstore._apply_with_journal
+    monkeypatch.setattr(sgstore, "_apply_with_journal", lambda *a: (appended.append(1), real(*a)))
+    config = load_config(workdir / "run.toml")
+    SGRunStore.create(tmp_path / "run.nc", config)
+    for k in range(N_BLOCKS):
+        SGRunStore.open(tmp_path / "run.nc").update(workdir / f"b{k + 1}.csv")
+    assert len(appended) == N_BLOCKS - 1      # blocks after the first are appended in place
+    assert_same_store(workdir / "reference.nc", tmp_path / "run.nc")
+
+
+def test_store_equals_one_uninterrupted_identifier(workdir):
+    config = load_config(workdir / "run.toml")
+    t, ag, y = record(config)
+    sampler = config.build_identifier()
+    sampler.reset(np.random.default_rng(config.seed))
+    whole = sampler.update(ag, y)
+    store = SGRunStore.open(workdir / "reference.nc")
+    stored = store.result()
+    for name in ("theta_mean", "theta_var", "theta_mpv", "theta_quantiles", "ess", "log_evidence_increments",
+                 "state_mean", "drift_mean", "drift_std", "move_steps", "move_acceptance", "final_theta"):
+        assert np.array_equal(getattr(whole, name), getattr(stored, name)), name
+    snap = sampler.snapshot()
+    assert np.array_equal(snap["theta"], store.fixed[-1]["theta"])
+    assert snap["rng_state"] == store.rng_states[-1]
+    # the block summaries add up to the record's log-evidence and the posterior is near the truth
+    assert store.infos[-1]["log_evidence"] == pytest.approx(whole.log_evidence, rel=1e-12)
+    post = store.block_posterior()
+    for j, name in enumerate(config.names):
+        assert abs(post[name]["mean"] - TRUTH[j]) < 6 * post[name]["sd"] + 1e-3
+
+
+def fork_update(run, block, fault):
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 70
+        try:
+            os.environ[FAULT_ENV] = fault
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 1)
+            os.dup2(devnull, 2)
+            code = cli.main(["update", str(run), str(block)])
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    return status
+
+
+@pytest.mark.parametrize("fault", ["before-write", "mid-write", "before-replace", "mid-apply", "after-replace"])
+def test_killed_update_resumes_bit_identically(workdir, tmp_path, fault):
+    config = load_config(workdir / "run.toml")
+    run = tmp_path / "run.nc"
+    store = SGRunStore.create(run, config)
+    store.update(workdir / "b1.csv")
+    status = fork_update(run, workdir / "b2.csv", fault)      # the append of step 2 is killed
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+    after = SGRunStore.open(run)
+    committed = fault not in ("before-write", "mid-write")   # the journal was complete (fsync-ed)
+    assert after.n_steps == (2 if committed else 1)
+    for k in range(after.n_steps + 1, N_BLOCKS + 1):
+        assert cli.main(["update", str(run), str(workdir / f"b{k}.csv")]) == 0
+    assert_same_store(workdir / "reference.nc", run)
+    assert not (tmp_path / ".run.nc.journal").exists()
+
+
+def test_cli_cycle(workdir, tmp_path, capsys):
+    run = tmp_path / "cli.nc"
+    assert cli.main(["init", str(workdir / "run.toml"), str(run)]) == 0
+    assert "SG-EnMCMC run" in capsys.readouterr().out
+    blocks = [str(workdir / f"b{k + 1}.csv") for k in range(N_BLOCKS)]
+    assert cli.main(["update", str(run), *blocks]) == 0
+    out = capsys.readouterr().out
+    assert out.count("step ") >= N_BLOCKS and "theta_2" in out
+    assert cli.main(["status", str(run)]) == 0
+    text = capsys.readouterr().out
+    assert "theta_1" in text and "blocks: 3" in text
+    assert cli.main(["status", str(run), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["steps"]
+    reference = SGRunStore.open(workdir / "reference.nc")
+    assert [r["parameters"] for r in rows] == [reference.block_posterior(i) for i in range(N_BLOCKS)]
+    assert_same_store(workdir / "reference.nc", run)
+    assert cli.main(["predict", str(run), "--steps", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "SG-EnMCMC" in err
+    with pytest.raises(StoreError, match="SG-EnMCMC run store"):
+        RunStore.open(run)
+
+
+def _bad_files(workdir, tmp_path):
+    good = np.loadtxt(workdir / "b2.csv", delimiter=",", skiprows=1)
+    files = {}
+    np.savetxt(tmp_path / "channels.csv", good[:, :3], delimiter=",", header="t,ag,a1", comments="")
+    files["channels"] = (tmp_path / "channels.csv", "'a2'")
+    nan = good.copy()
+    nan[5, 3] = np.nan
+    np.savetxt(tmp_path / "nan.csv", nan, delimiter=",", header="t,ag,a1,a2", comments="")
+    files["nan"] = (tmp_path / "nan.csv", "'a2'")
+    (tmp_path / "empty.csv").write_text("t,ag,a1,a2\n")
+    files["empty"] = (tmp_path / "empty.csv", "empty.csv")
+    np.savetxt(tmp_path / "skip.csv", good[10:], delimiter=",", header="t,ag,a1,a2", comments="")
+    files["out of order"] = (tmp_path / "skip.csv", "must start at")
+    np.savetxt(tmp_path / "again.csv", np.loadtxt(workdir / "b1.csv", delimiter=",", skiprows=1), delimiter=",",
+               header="t,ag,a1,a2", comments="", fmt="%.17g")
+    files["duplicate"] = (tmp_path / "again.csv", "already assimilated")
+    return files
+
+
+def test_bad_blocks_are_one_line_and_leave_the_store_unchanged(workdir, tmp_path, capsys):
+    run = tmp_path / "run.nc"
+    SGRunStore.create(run, load_config(workdir / "run.toml")).update(workdir / "b1.csv")
+    before = run.read_bytes()
+    for what, (path, named) in _bad_files(workdir, tmp_path).items():
+        assert cli.main(["update", str(run), str(path)]) == 2, what
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and named in err and err.startswith("seqbayes update: error:"), (what, err)
+        assert run.read_bytes() == before, what
+    store = SGRunStore.open(run)
+    good = np.loadtxt(workdir / "b2.csv", delimiter=",", skiprows=1)
+    for table, match in [(good[:, 1:], r"expected shape \(n_rows, 4\)"), (good[:0], "no data rows"),
+                         (good[:, 0], r"expected shape"), (np.where(good > 0, np.inf, good), "NaN/inf")]:
+        with pytest.raises(DataError, match=match):
+            store.assimilate(table)
+    with pytest.raises(DuplicateDatasetError):
+        store.update(workdir / "b1.csv")
+    assert run.read_bytes() == before and store.n_steps == 1
+    store.update(workdir / "b2.csv")      # the object is still usable
+    assert store.n_steps == 2
+
+
+@pytest.mark.parametrize("edit, match", [
+    (("data", "responses", ["a1"]), "data.responses: expected 2 columns"),
+    (("sampler", "n_particles", 10), "sampler.n_particles: unknown setting"),
+    (("priors", "upper", 0.4), "priors.upper: must exceed"),
+    (("noise", "measurement_std", [0.1, float("nan")]), "noise.measurement_std"),
+    (("building", "stiffnesses", [1.0]), "building.stiffnesses: expected 2 values"),
+    (("sensors", "accelerations", [3]), "sensors.accelerations"),
+    (("data", "dt", 0.5), "data.dt"),
+    (("sampler", "n_members", 4), "sampler"),
+])
+def test_config_errors_name_the_field(edit, match):
+    import tomllib
+
+    raw = tomllib.loads(TOML)
+    section, key, value = edit
+    raw[section][key] = value
+    with pytest.raises(ConfigError, match=match):
+        parse_sg_config(raw, "run.toml")
+
+
+def test_edited_store_is_refused(workdir, tmp_path):
+    import shutil
+
+    run = tmp_path / "run.nc"
+    shutil.copy(workdir / "reference.nc", run)
+    with h5py.File(run, "r+") as f:
+        info = json.loads(f["step_info"].asstr()[1])
+        info["log_evidence_increment"] += 1.0
+        f["step_info"][1] = json.dumps(info)
+    with pytest.raises(StoreError, match="content hash"):
+        SGRunStore.open(run)
+    shutil.copy(workdir / "reference.nc", run)
+    with h5py.File(run, "r+") as f:
+        f["sg_theta"][0, 0, 0] = np.nan
+    with pytest.raises(StoreError, match="damaged|checksum"):
+        SGRunStore.open(run)
+
+
+def test_building_from_a_user_module(tmp_path):
+    (tmp_path / "mybuilding.py").write_text(
+        "from seqbayes.structures import ShearBuilding\n"
+        "def building():\n    return ShearBuilding([2e4, 1.6e4], [3e7, 2e7], (0.02, 0.03))\n")
+    text = TOML.replace('masses = [20000.0, 16000.0]\nstiffnesses = [3.0e7, 2.0e7]\ndamping_ratios = [0.02, 0.03]',
+                        'module = "mybuilding:building"')
+    (tmp_path / "run.toml").write_text(text)
+    config = load_config(tmp_path / "run.toml")
+    assert config.masses == (2e4, 1.6e4) and config.building_module == "mybuilding:building"
+    assert len(config.building_sha256) == 64
+    (tmp_path / "mybuilding.py").write_text("def building():\n    return 3\n")
+    with pytest.raises(ConfigError, match="building.module: .*must return"):
+        load_config(tmp_path / "run.toml")
