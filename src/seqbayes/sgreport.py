@@ -19,7 +19,7 @@ import numpy as np
 from . import plotting
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
-           "nominal_mode_shapes", "render_sg_report", "write_sg_report"]
+           "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
 
 ESS_NOTE_SG = ("ESS: effective sample size (sum w)^2 / sum w^2 of the particles' weights after the block's "
                "last sample (N for equal weights). moves: resample-move events in the block (tempered "
@@ -152,11 +152,186 @@ def format_modal(summary: ModalSummary, level_note: str = "95 %") -> str:
     return "\n".join(lines)
 
 
+
+# ----------------------------------------------------------------------------- figures
+def plot_sg_ratios(store: SGRunStore, truth: ArrayLike | None = None) -> Figure:
+    """Posterior mean and 95 % band of every stiffness ratio against the record's time (the
+    identifier's per-sample histories), with the block boundaries dotted."""
+    result = store.result()
+    t = np.arange(result.theta_mean.shape[0]) * store.config.dt
+    fig, axes = plotting.new_figure(len(store.names), 1, row_height=1.9)
+    bounds = np.cumsum([table.shape[0] for table in store.tables])[:-1] * store.config.dt
+    for j, name in enumerate(store.names):
+        ax = axes[j, 0]
+        plotting.band(ax, t, result.theta_mean[:, j], result.theta_quantiles[:, 0, j], result.theta_quantiles[:, 2, j],
+                      marker="", label="posterior mean, 95 % band")
+        for b in bounds:
+            ax.axvline(b, color="0.6", linestyle=":", linewidth=0.8)
+        if truth is not None:
+            ax.axhline(np.asarray(truth, float)[j], color="k", linestyle="--", linewidth=0.8, label="reference")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="small")
+    axes[-1, 0].set_xlabel("time in the record [s] (dotted: block boundaries)")
+    return fig
+
+
+def plot_modal(summaries: Sequence[ModalSummary], reference_shapes: np.ndarray, reference_label: str) -> Figure:
+    """Left: each mode's natural frequency at the end of every block (posterior mean and 95 % interval).
+    Right: the last block's posterior mean mode shapes (solid) and the reference shapes (dashed)."""
+    fig, axes = plotting.new_figure(1, 2, width=8.0, row_height=3.4, sharex=False)
+    ax = axes[0, 0]
+    blocks = np.arange(1, len(summaries) + 1)
+    n = summaries[-1].frequency_mean.size
+    for r in range(n):
+        mean = np.array([s.frequency_mean[r] for s in summaries])
+        lower = np.array([s.frequency_interval[0, r] for s in summaries])
+        upper = np.array([s.frequency_interval[1, r] for s in summaries])
+        ax.errorbar(blocks, mean, yerr=[mean - lower, upper - mean], marker="o", markersize=3.5, capsize=3,
+                    color=plotting.COLORS[r % len(plotting.COLORS)], label=f"mode {r + 1}")
+    ax.set_xlabel("block (step)")
+    ax.set_ylabel("natural frequency [Hz]")
+    plotting.integer_steps(axes[:, :1])
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    ax = axes[0, 1]
+    floors = np.arange(0, n + 1)
+    last = summaries[-1]
+    ref = reference_shapes / np.abs(reference_shapes).max(axis=0, keepdims=True)
+    for r in range(n):
+        color = plotting.COLORS[r % len(plotting.COLORS)]
+        shape = last.shapes[:, r] / np.abs(last.shapes[:, r]).max()
+        ax.plot(np.concatenate([[0], shape]), floors, "-o", color=color, markersize=3.5, label=f"mode {r + 1}")
+        if r < ref.shape[1]:
+            sign = np.sign(shape @ ref[:, r]) or 1.0
+            ax.plot(np.concatenate([[0], sign * ref[:, r]]), floors, "--", color=color, linewidth=1)
+    ax.plot([], [], "k-", label="posterior mean")
+    ax.plot([], [], "k--", linewidth=1, label=reference_label)
+    ax.legend(fontsize="small", loc="best")
+    ax.axvline(0, color="0.5", linewidth=0.6)
+    ax.set_xlabel("mode shape (largest component 1)")
+    ax.set_ylabel("floor")
+    ax.set_yticks(floors)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+# ----------------------------------------------------------------------------- the report
+def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path | None = None,
+                     identified_shapes: ArrayLike | None = None, identified_source: str | None = None,
+                     truth: ArrayLike | None = None) -> str:
+    """The HTML text of the report of an SG-EnMCMC run.
+
+    Parameters
+    ----------
+    store : SGRunStore
+    level : float
+        Credible level of the per-block intervals of the ratios (the figure's band and the modal
+        intervals are 95 %).
+    image_dir : pathlib.Path, optional
+        Write the figures as PNG files there instead of embedding them.
+    identified_shapes : (n, k) array, optional
+        Identified mode shapes (columns, floors bottom to top) for the MAC; default: the shapes of the
+        configured building at ratios 1 (the nominal design).
+    identified_source : str, optional
+        Where they came from (shown).
+    truth : (n,) array, optional
+        Reference ratios drawn in the figure (a synthetic record's truth).
+    """
+    from .report import _CSS, _figure_html, _table_html
+
+    if store.n_steps == 0:
+        raise ValueError(f"{store.path}: no block to report yet (run `seqbayes update` first)")
+    cfg = store.config
+    building = cfg.build_building()
+    nominal_f = building.modes(np.ones(cfg.n_storeys))[0][0]
+    if identified_shapes is None:
+        reference = nominal_mode_shapes(store)
+        reference_label = "nominal design (ratios 1)"
+    else:
+        reference = np.asarray(identified_shapes, float)
+        reference = reference[:, None] if reference.ndim == 1 else reference
+        reference_label = f"identified ({identified_source or 'given'})"
+    summaries = [store.modal(i, reference) for i in range(store.n_steps)]
+    title = f"seqbayes report: {cfg.name}"
+    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+             f"<style>{_CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    sensors = ", ".join([f"acceleration at floor {f}" for f in cfg.accelerations]
+                        + [f"drift of storey {f}" for f in cfg.drifts])
+    parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: SG-EnMCMC (resample-move, "
+                 f"N = {cfg.n_members}, seed {cfg.seed}) of a {cfg.n_storeys}-storey shear building; "
+                 f"{store.n_steps} block(s), {store.n_samples} samples at dt = {cfg.dt:g} s "
+                 f"({store.n_samples * cfg.dt:.2f} s of record). Sensors: {html.escape(sensors)}. Model fingerprint "
+                 f"<code>{cfg.fingerprint()[:12]}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
+    parts.append("<h2>Model</h2>" + _table_html(
+        ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta", "nominal f [Hz]"],
+        [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})",
+          f"{nominal_f[j]:.4f}"] for j in range(cfg.n_storeys)], left=()))
+    parts.append(f"<p>Storey stiffness k_i = theta_i k_i^u; Rayleigh damping {cfg.damping_ratios[0]:g} / "
+                 f"{cfg.damping_ratios[1]:g} in modes {cfg.damping_modes[0]} / {cfg.damping_modes[1]} of the "
+                 f"undamaged building (coefficients fixed, so the damping ratios change with the stiffness); "
+                 f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}; nominal f: natural "
+                 f"frequency of mode j at ratios 1.</p>")
+
+    parts.append("<h2>Stiffness ratios</h2>")
+    parts.append(_figure_html(plot_sg_ratios(store, truth), "Posterior mean and 95 % band of the storey stiffness "
+                              "ratios after every sample of the record", "fig-ratios", image_dir))
+    rows = sg_status_rows(store, level)
+    pct = f"{level:.0%}"
+    parts.append(_table_html(["step", "dataset", "t end [s]", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
+                             [[r["step"], r["dataset"], f"{r['time_end']:.2f}", name, _fmt(p["mean"]), _fmt(p["sd"]),
+                               _fmt(p["lower"]), _fmt(p["upper"])]
+                              for r in rows for name, p in r["parameters"].items()], left=(1, 3)))
+
+    parts.append("<h2>Modal results</h2>")
+    last = summaries[-1]
+    ident = last.mac_identified is not None
+    modal = modal_rows(last)
+    parts.append(f"<p>From the posterior at the end of block {store.n_steps}: for each particle the undamped modes "
+                 f"of K(theta) phi = w^2 M phi and the Rayleigh damping ratio a0 / (2 w) + a1 w / 2; weighted "
+                 f"posterior mean, sd and 95 % interval. MAC: modal assurance criterion of the posterior mean shape "
+                 f"with the {html.escape(reference_label)} shape of the same mode (1: the same shape); spread: the "
+                 f"posterior mean MAC of each particle's shape with the mean shape.</p>")
+    header = ["mode", "f mean [Hz]", "f sd", "f 95 % interval", "nominal f [Hz]", "damping ratio mean", "sd",
+              "95 % interval", f"MAC with {reference_label}", "spread"]
+    parts.append(_table_html(header, [[
+        r["mode"], f"{r['frequency_mean']:.4f}", f"{r['frequency_sd']:.2e}",
+        f"[{r['frequency_lower']:.4f}, {r['frequency_upper']:.4f}]", f"{nominal_f[r['mode'] - 1]:.4f}",
+        f"{r['damping_mean']:.4f}", f"{r['damping_sd']:.1e}", f"[{r['damping_lower']:.4f}, {r['damping_upper']:.4f}]",
+        "-" if not ident or r["mac_identified"] is None else f"{r['mac_identified']:.4f}", f"{r['shape_mac']:.6f}"]
+        for r in modal], left=()))
+    parts.append(_figure_html(plot_modal(summaries, reference, reference_label),
+                              "Natural frequencies at the end of every block (posterior mean and 95 % interval) and "
+                              "the last block's mode shapes against the reference", "fig-modal", image_dir))
+
+    parts.append("<h2>Sampler diagnostics and evidence</h2>")
+    parts.append(_table_html(["step", "dataset", "samples", "ESS", "moves", "acceptance", "log Z (block)", "log Z"],
+                             [[r["step"], r["dataset"], f"{r['first_sample']}-{r['first_sample'] + r['rows'] - 1}",
+                               f"{r['ess']:.1f}", r["moves"], "-" if r["acceptance"] is None else f"{r['acceptance']:.3f}",
+                               f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
+                             left=(1,)))
+    parts.append(f"<p>{html.escape(ESS_NOTE_SG)} N = {cfg.n_members}.</p></body></html>")
+    return "\n".join(parts)
+
+
+def write_sg_report(store: SGRunStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
+    """Write :func:`render_sg_report` to ``output`` (an ``.html`` file; ``embed=False``: figures as PNG files
+    in ``<output stem>_figures/``); returns its path."""
+    output = Path(output)
+    image_dir = None if embed else output.parent / f"{output.stem}_figures"
+    text = render_sg_report(store, image_dir=image_dir, **kwargs)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(text, encoding="utf-8")
+    return output
+
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
     import os
+    from collections.abc import Sequence
+    from typing import Any
 
+    from matplotlib.figure import Figure
     from numpy.typing import ArrayLike
 
     from .sgstore import SGRunStore

@@ -290,3 +290,85 @@ def test_building_from_a_user_module(tmp_path):
     (tmp_path / "mybuilding.py").write_text("def building():\n    return 3\n")
     with pytest.raises(ConfigError, match="building.module: .*must return"):
         load_config(tmp_path / "run.toml")
+
+
+# ------------------------------------------------------------------------------ modal results
+def direct_modes(building, theta):
+    """Frequencies [Hz], damping ratios and shapes of one ``theta`` by a direct eigen-solution: the
+    generalised problem K phi = w^2 M phi (scipy) and the complex eigenvalues of the state matrix."""
+    from scipy.linalg import eigh
+
+    K = building.stiffness_matrix(theta)[0]
+    w2, shapes = eigh(K, building.mass_matrix())
+    A, _ = building.continuous_state_space(theta)
+    lam = np.linalg.eigvals(A[0])
+    lam = lam[lam.imag > 0]
+    lam = lam[np.argsort(np.abs(lam))]
+    return np.sqrt(w2) / (2 * np.pi), -lam.real / np.abs(lam), np.abs(lam) / (2 * np.pi), shapes
+
+
+def test_modal_results_match_a_direct_eigen_solution():
+    from seqbayes.structures import ShearBuilding
+    from seqbayes.structures.modal import modal_summary
+
+    building = ShearBuilding([3e4, 2.5e4, 2e4], [4e7, 3e7, 2e7], (0.02, 0.05), (1, 3))
+    thetas = np.array([[0.9, 0.8, 1.1], [1.0, 0.7, 0.95], [0.85, 0.9, 0.75]])
+    weights = np.array([0.5, 0.3, 0.2])
+    direct = [direct_modes(building, t) for t in thetas]
+    f = np.array([d[0] for d in direct])
+    zeta = np.array([d[1] for d in direct])
+    assert np.allclose(f, np.array([d[2] for d in direct]), rtol=1e-10)   # classical damping: |lambda| = w
+    summary = modal_summary(building, thetas, weights, identified_shapes=direct[0][3][:, ::-1])
+    assert np.allclose(summary.frequencies, f, rtol=1e-10)
+    assert np.allclose(summary.damping_ratios, zeta, rtol=1e-8)
+    assert np.allclose(summary.frequency_mean, weights @ f, rtol=1e-10)
+    assert np.allclose(summary.damping_mean, weights @ zeta, rtol=1e-8)
+    assert np.allclose(summary.frequency_sd, np.sqrt(weights @ (f - weights @ f) ** 2), rtol=1e-8)
+    assert np.all(summary.frequency_interval[0] >= f.min(0) - 1e-12)
+    assert np.all(summary.frequency_interval[1] <= f.max(0) + 1e-12)
+    # one sample: the mean shapes are the direct ones (MAC 1), the identified shapes given in reverse order
+    one = modal_summary(building, thetas[:1], identified_shapes=direct[0][3][:, ::-1])
+    from seqbayes.structures.modal import mac
+
+    assert np.allclose(np.diag(mac(one.shapes, direct[0][3])), 1.0, atol=1e-12)
+    expected = mac(direct[0][3], direct[0][3][:, ::-1])   # not the identity: the shapes are M-orthogonal
+    assert np.allclose(one.mac_identified, expected, atol=1e-12)
+    assert np.allclose(np.fliplr(one.mac_identified).diagonal(), 1.0, atol=1e-12)
+    assert np.allclose(one.frequency_interval, f[:1].repeat(2, axis=0), rtol=1e-12)
+    assert np.all(summary.mac_identified[:, ::-1].diagonal() > 0.99)   # three nearby parameter vectors
+
+
+def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
+    from seqbayes.sgreport import modal_rows, render_sg_report
+    from seqbayes.structures.modal import modal_summary
+
+    store = SGRunStore.open(workdir / "reference.nc")
+    theta, w = store.posterior_samples()
+    assert np.allclose(w.sum(), 1.0)
+    summary = store.modal()
+    direct = modal_summary(store.config.build_building(), theta, w)
+    assert np.array_equal(summary.frequency_mean, direct.frequency_mean)
+    f_truth = direct_modes(store.config.build_building(), TRUTH)[0]
+    assert np.all(np.abs(summary.frequency_mean - f_truth) < 6 * summary.frequency_sd + 1e-4 * f_truth)
+    text = render_sg_report(store)
+    assert "<h2>Modal results</h2>" in text and "fig-modal" in text and "fig-ratios" in text
+    for row in modal_rows(store.modal(-1, store.config.build_building().modes(np.ones(2))[1][0])):
+        assert f"{row['frequency_mean']:.4f}" in text and f"{row['damping_mean']:.4f}" in text
+        assert f"[{row['frequency_lower']:.4f}, {row['frequency_upper']:.4f}]" in text
+        assert f"{row['mac_identified']:.4f}" in text
+    # the command line, with identified shapes from a file, and a bad file in one line
+    shapes = direct_modes(store.config.build_building(), TRUTH)[3]
+    np.savetxt(tmp_path / "modes.csv", shapes, delimiter=",", header="mode1,mode2", comments="")
+    out = tmp_path / "report.html"
+    assert cli.main(["report", str(workdir / "reference.nc"), "-o", str(out), "--modes",
+                     str(tmp_path / "modes.csv")]) == 0
+    page = out.read_text()
+    assert "identified (modes.csv)" in page
+    mac_row = modal_rows(store.modal(-1, shapes))
+    assert all(f"{r['mac_identified']:.4f}" in page for r in mac_row)
+    assert all(r["mac_identified"] > 0.999 for r in mac_row)
+    np.savetxt(tmp_path / "bad.csv", shapes[:1], delimiter=",")
+    capsys.readouterr()
+    assert cli.main(["report", str(workdir / "reference.nc"), "-o", str(out), "--modes", str(tmp_path / "bad.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "expected 2 rows" in err
