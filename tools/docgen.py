@@ -3,7 +3,8 @@
 Two mechanisms, both checked by ``tests/docs/test_docs_generated.py`` and rewritten by
 ``make docs-regen`` (``python tools/docgen.py --write``):
 
-1. **Executable guide.** ``docs/guide.md`` is run top to bottom in an empty folder. An HTML
+1. **Executable guide.** ``docs/guide.md`` (and the README and ``docs/run_store.md``) is run top to
+   bottom in an empty folder. An HTML
    comment right before a fenced block says what the block is (the comments do not show in the
    rendered site):
 
@@ -266,7 +267,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     failed = False
     if "guide" in args.what:
-        for page in (GUIDE, ROOT / "README.md"):
+        for page in (GUIDE, ROOT / "README.md", ROOT / "docs" / "run_store.md"):
             mismatches = run_guide(page, write=args.write)
             for m in mismatches:
                 print(m, "\n")

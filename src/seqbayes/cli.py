@@ -124,11 +124,14 @@ def cmd_init(args: argparse.Namespace) -> int:
         from .sgstore import SGRunStore
 
         store = SGRunStore.create(args.run, config, overwrite=args.force)
-        sensors = ", ".join([f"a{f}" for f in config.accelerations] + [f"d{f}" for f in config.drifts])
+        sensors = ", ".join([f"acceleration {f}" for f in config.accelerations]
+                            + [f"drift {f}" for f in config.drifts])
+        boxes = [f"U({lo:g}, {up:g})" for lo, up in zip(config.lower, config.upper)]
+        prior = f"{boxes[0]} each" if len(set(boxes)) == 1 else ", ".join(boxes)
         print(f"created SG-EnMCMC run {store.path} for model {config.name!r}: {config.n_storeys}-storey shear "
-              f"building, ratios {', '.join(config.names)} in [{', '.join(f'{v:g}' for v in config.lower)}] .. "
-              f"[{', '.join(f'{v:g}' for v in config.upper)}], sensors {sensors}, N = {config.n_members}, seed "
-              f"{config.seed}; blocks need columns {', '.join(config.columns)} at dt = {config.dt:g} s")
+              f"building, stiffness ratios {', '.join(config.names)} ~ {prior}; sensors: {sensors}; N = "
+              f"{config.n_members}, seed {config.seed}; each block needs the columns {', '.join(config.columns)} "
+              f"at dt = {config.dt:g} s")
         return 0
     store = RunStore.create(args.run, config, overwrite=args.force)
     print(f"created run {store.path} for model {config.name!r}: {len(config.names)} parameters "

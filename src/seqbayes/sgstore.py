@@ -54,7 +54,10 @@ in format 4): ``sg_<name> (step, ...)`` for each array of the snapshot that has 
 ``history_mean``, ...: only the block's rows are appended), ``sg_events (event, 4)`` with
 ``sg_event_rows (step)``, ``dataset_values (time, column)`` with ``dataset_rows (step)``,
 ``rng_state (rng_index)`` and the text records of every step (``step_info``, ``dataset_sha256``,
-``dataset_source``, ``likelihood_sha256`` (empty), ``record_sha256``).
+``dataset_source``, ``likelihood_sha256`` (empty), ``record_sha256``). The store knows the snapshot
+only by these naming rules: an array whose first axis follows the record must be called
+``history_*`` or be listed in :data:`_PER_TIME` (its earlier rows may not change after a block);
+any other array is kept whole at every step.
 
 Trust: the configuration's numbers define the building; with ``[building] module`` the function
 runs once, at ``init`` (like a likelihood module, it is located next to the configuration and its

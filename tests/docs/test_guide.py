@@ -27,6 +27,12 @@ def test_readme_example_prints_what_it_shows(tmp_path):
     assert docgen.run_guide(ROOT / "README.md", folder=tmp_path) == []
 
 
+def test_run_store_page_prints_what_it_shows(tmp_path):
+    """docs/run_store.md's SG-EnMCMC section: a shake-table record through init/update/status/report."""
+    assert docgen.run_guide(ROOT / "docs" / "run_store.md", folder=tmp_path) == []
+    assert (tmp_path / "shake.html").is_file() and "Modal results" in (tmp_path / "shake.html").read_text()
+
+
 def test_a_changed_output_is_caught(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("```console\n$ echo 41\n42\n```\n")
