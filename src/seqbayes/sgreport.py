@@ -264,14 +264,13 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
                  f"({store.n_samples * cfg.dt:.2f} s of record). Sensors: {html.escape(sensors)}. Model fingerprint "
                  f"<code>{cfg.fingerprint()[:12]}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
     parts.append("<h2>Model</h2>" + _table_html(
-        ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta", "nominal f [Hz]"],
-        [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})",
-          f"{nominal_f[j]:.4f}"] for j in range(cfg.n_storeys)], left=()))
+        ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta"],
+        [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})"]
+         for j in range(cfg.n_storeys)], left=()))
     parts.append(f"<p>Storey stiffness k_i = theta_i k_i^u; Rayleigh damping {cfg.damping_ratios[0]:g} / "
                  f"{cfg.damping_ratios[1]:g} in modes {cfg.damping_modes[0]} / {cfg.damping_modes[1]} of the "
                  f"undamaged building (coefficients fixed, so the damping ratios change with the stiffness); "
-                 f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}; nominal f: natural "
-                 f"frequency of mode j at ratios 1.</p>")
+                 f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}.</p>")
 
     parts.append("<h2>Stiffness ratios</h2>")
     parts.append(_figure_html(plot_sg_ratios(store, truth), "Posterior mean and 95 % band of the storey stiffness "
@@ -289,7 +288,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     modal = modal_rows(last)
     parts.append(f"<p>From the posterior at the end of block {store.n_steps}: for each particle the undamped modes "
                  f"of K(theta) phi = w^2 M phi and the Rayleigh damping ratio a0 / (2 w) + a1 w / 2; weighted "
-                 f"posterior mean, sd and 95 % interval. MAC: modal assurance criterion of the posterior mean shape "
+                 f"posterior mean, sd and 95 % interval; nominal f: the frequency of the design (all ratios 1). MAC: modal assurance criterion of the posterior mean shape "
                  f"with the {html.escape(reference_label)} shape of the same mode (1: the same shape); spread: the "
                  f"posterior mean MAC of each particle's shape with the mean shape.</p>")
     header = ["mode", "f mean [Hz]", "f sd", "f 95 % interval", "nominal f [Hz]", "damping ratio mean", "sd",
