@@ -39,7 +39,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from .density import PREDICTIVE_METHODS, GaussianMixture, HistoryPrior, RunningStatistics, predictive_density
+from .density import (PREDICTIVE_METHODS, GaussianMixture, HistoryPrior, RunningStatistics, SubsampledPrior,
+                      predictive_density)
 from .evidence import importance_step, step_standard_errors
 from .kernels import MarkovKernel, jump_step_fields
 from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, assimilate_nested, nested_split,
@@ -185,6 +186,12 @@ class SamplerConfig:
         draws also drive one independence-MH sweep of the particles), or the tempering
         path's product of mean weights alone (Eq. 1, the paper's). Both estimates are
         recorded in :class:`StepInfo`.
+    pseudo_marginal_from : int
+        From this many particles on (4096; 0 never), a step under the ``"transition"`` mixture prior
+        (Eq. A3) lets its moves evaluate the prior by an unbiased estimate from a subsample of the
+        mixture's components (pseudo-marginal moves, exact in distribution; ``O(N M)`` per sweep
+        instead of ``O(N^2)``) where a pilot shows the estimate accurate, else exactly
+        (:class:`~seqbayes.density.SubsampledPrior`).
     """
 
     move: str
@@ -217,6 +224,7 @@ class SamplerConfig:
     conflict_remedy: bool = True
     remedy_ess: float = 0.05
     remedy_lag: int = 10
+    pseudo_marginal_from: int = 4096
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -265,6 +273,9 @@ class SamplerConfig:
             raise ValueError(f"remedy_lag: must be an integer >= 2, got {self.remedy_lag}")
         if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
             raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
+        if (isinstance(self.pseudo_marginal_from, bool) or int(self.pseudo_marginal_from) != self.pseudo_marginal_from
+                or self.pseudo_marginal_from < 0):
+            raise ValueError(f"pseudo_marginal_from: must be an integer >= 0, got {self.pseudo_marginal_from}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -622,20 +633,23 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
         loglike = np.full(n, -np.inf)
         loglike[inside] = counter.loglike(particles[inside])
     valid = np.isfinite(loglike)
-    log_restricted_mass, n_found = 0.0, n
+    log_restricted_mass, n_found, restarted = 0.0, n, False
     if not valid.any() and (inside.all() or exact_prior):
         raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
                                   f"{_prior_name(step)} is too far from the data")
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
                                                                              rng, step, counter)
-        log_weights = np.full(n, -np.log(n))
+        log_weights, restarted = np.full(n, -np.log(n)), True
     if log_prior is not None:
         components = np.column_stack([loglike, log_prior])
     else:  # every particle is inside now; the prior is only needed where the likelihood is non-zero
         components = np.column_stack([loglike, np.full(n, -np.inf)])
         carried = np.isfinite(loglike)
-        components[carried, 1] = prior_logpdf(particles[carried])
+        if isinstance(prior_logpdf, SubsampledPrior):  # chooses exact or pseudo-marginal evaluation for the step
+            components[:, 1] = prior_logpdf.start(particles, log_weights, loglike, own_draws=not restarted)
+        else:
+            components[carried, 1] = prior_logpdf(particles[carried])
     return _Cloud(particles, log_weights, components), log_restricted_mass, n_found
 
 
@@ -698,6 +712,8 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
             particles, components = particles[index], components[index]
             log_weights = np.full(n, -np.log(n))
         if resampled or move_every_stage:
+            if isinstance(prior_logpdf, SubsampledPrior):  # back to exact evaluation if the estimate got poor
+                components = prior_logpdf.refreshed(particles, components)
             particles, components, stats, step_size, n_virtual = _mutate(
                 problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
             moves = moves.then(stats, step_size, n_virtual, config.move)
@@ -1115,6 +1131,9 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     Returns the new state, the record and the final cloud."""
     step = state.step + 1
     prior_logpdf = _prior_logpdf(state.prior, counter)
+    if (method == "transition" and isinstance(state.prior, GaussianMixture) and config.pseudo_marginal_from
+            and config.n_samples >= config.pseudo_marginal_from and state.log_prior is None):
+        prior_logpdf = SubsampledPrior(state.prior, rng)  # pseudo-marginal moves where the pilot allows
     history = isinstance(state.prior, HistoryPrior)  # static parameters: the particles are the last posterior
     move_every_stage = _moves_every_stage(config, method)
     # IBIS's schedule exactly (particles'): the last stage's resample-move waits for the next dataset
@@ -1444,7 +1463,7 @@ class SEMC(_SequentialSampler):
     tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
 predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
 move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
-conflict_remedy, remedy_ess, remedy_lag
+conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from
         The fields of :class:`SamplerConfig` of the same names, with its defaults and
         validation (see there for what each does).
 
@@ -1475,7 +1494,7 @@ conflict_remedy, remedy_ess, remedy_lag
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10):
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
@@ -1508,7 +1527,7 @@ class SMC(_SequentialSampler):
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10):
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
