@@ -3,7 +3,8 @@
 d = 4 parameters, a cheap Gaussian likelihood (5 observations of every parameter per
 dataset, noise sd 0.5, prior N(0, 1)), static parameters (default predictive: the
 exact history prior) and drifting ones (random walk, noise sd 0.1: the exact
-transition mixture of Eq. A3) and slowly drifting ones (noise sd 0.005: the mixture's
+transition mixture of Eq. A3; from N = 4096 on, ``--pseudo-marginal-from``, its moves are pseudo-marginal:
+:class:`seqbayes.density.SubsampledPrior`) and slowly drifting ones (noise sd 0.005: the mixture's
 bandwidth is then ~1/20 of the posterior's spread, where its k-d tree truncation works). For each N, one sampler assimilates a first dataset
 (untimed: its prior is the initial one) and then ``--steps`` more, each timed. The
 sizes are run round-robin, ``--rounds`` times, in one process; the figure is the
@@ -19,6 +20,7 @@ unlimited), so that the ratio old / new comes from the same load.
     .venv/bin/python benchmarks/bench_scale.py --sizes 500 2000 --rounds 1   # quick
     .venv/bin/python benchmarks/bench_scale.py --mixture     # the mixture alone: k-d tree vs all pairs
     .venv/bin/python benchmarks/bench_scale.py --profile drifting 4000   # cProfile of 3 updates
+    .venv/bin/python benchmarks/bench_scale.py --kinds drifting --pseudo-marginal-from 2048
 
 ``--mixture`` times one evaluation of a 16,000-component mixture (d = 4, centres N(0, I)) at
 16,000 points, by :meth:`GaussianMixture.logpdf` (the k-d tree truncation where it pays) and by
@@ -57,8 +59,9 @@ def datasets(n_steps, seed=0):
     return out
 
 
-def run(kind, n, steps, sampler, components):
-    """Seconds per update of steps 2 .. steps + 1 (list), with the proposal capped at ``components``."""
+def run(kind, n, steps, sampler, components, **settings):
+    """Seconds per update of steps 2 .. steps + 1 (list), with the proposal capped at ``components``
+    (``settings``: further sampler settings)."""
     prior = JointPrior({f"theta_{j}": stats.norm(0, 1) for j in range(DIM)})
     drift = {"drifting": 0.1, "slow": 0.005}.get(kind)
     kernel = MarkovKernel([Static()] * DIM if kind == "static" else [Drift(0.0, noise_std=drift)] * DIM)
@@ -66,7 +69,7 @@ def run(kind, n, steps, sampler, components):
     saved = evidence.MAX_PROPOSAL_COMPONENTS
     evidence.MAX_PROPOSAL_COMPONENTS = components
     try:
-        s = cls(prior, kernel, loglike, n_samples=n, rng=1)
+        s = cls(prior, kernel, loglike, n_samples=n, rng=1, **settings)
         data = datasets(steps + 1)
         s.update(data[0])
         times = []
@@ -132,6 +135,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--compare", action="store_true", help="interleave the all-particle proposal (old code)")
     parser.add_argument("--mixture", action="store_true", help="time the mixture evaluation alone")
+    parser.add_argument("--pseudo-marginal-from", type=int, default=None,
+                        help="the samplers' pseudo_marginal_from (default: the library's, 4096)")
     parser.add_argument("--profile", nargs=2, metavar=("KIND", "N"), help="cProfile of 3 updates (after the first)")
     args = parser.parse_args(argv)
     if args.mixture:
@@ -145,15 +150,18 @@ def main(argv=None) -> int:
         profiler.runcall(run, args.profile[0], int(args.profile[1]), 3, args.sampler, evidence.MAX_PROPOSAL_COMPONENTS)
         pstats.Stats(profiler).sort_stats("cumulative").print_stats(18)
         return 0
+    settings = {} if args.pseudo_marginal_from is None else {"pseudo_marginal_from": args.pseudo_marginal_from}
     variants = [("new", evidence.MAX_PROPOSAL_COMPONENTS)] + ([("old", 10**9)] if args.compare else [])
     times = {}
     for _ in range(args.rounds):
         for kind in args.kinds:
             for n in args.sizes:
                 for name, components in variants:
-                    times.setdefault((kind, n, name), []).extend(run(kind, n, args.steps, args.sampler, components))
+                    times.setdefault((kind, n, name), []).extend(run(kind, n, args.steps, args.sampler, components,
+                                                                                **settings))
     print(f"\n{args.sampler.upper()}, d = {DIM}, {args.steps} timed updates x {args.rounds} rounds per cell, "
-          f"sizes round-robin in one process; load average {os.getloadavg()[0]:.1f}\n")
+          f"sizes round-robin in one process; {settings or 'default settings'}; load average "
+          f"{os.getloadavg()[0]:.1f}\n")
     header = "| parameters | N | s per update | us per particle | ratio to N = {0} |".format(args.sizes[0])
     if args.compare:
         header += " old code, us per particle | old / new |"
