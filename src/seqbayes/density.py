@@ -410,16 +410,17 @@ class GaussianMixture:
         return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
 
 
-#: Relative variance of the subsample estimate that :class:`SubsampledPrior` aims at (the sd of its log ~0.3:
-#: a pseudo-marginal move then accepts ~80 % as often as the exact one, Doucet et al. 2015).
+#: Relative variance of the subsample estimate that :class:`SubsampledPrior` aims at, at the pilot's 90th
+#: percentile (the sd of its log ~0.6 there, less in the bulk; Doucet et al. 2015 find ~1-1.7 optimal when the
+#: cost grows with M: here part of it does not, the proposal over the clusters).
 SUBSAMPLE_VARIANCE = 0.5
 #: ... and beyond which (at the particles of a later tempering stage) the step falls back to exact evaluation.
 SUBSAMPLE_MAX_VARIANCE = 2.0
 #: Fewest terms of a subsample estimate.
 _MIN_TERMS = 8
 #: Most terms, as a fraction of the centres: beyond, the exact evaluation is the cheaper (a term of the
-#: subsample costs a gather and a double-precision exponential, a pair of the dense sum part of a
-#: single-precision matrix product).
+#: subsample costs ~20 pairs of the dense sum at N = 16,000, measured: a gather and a double-precision
+#: exponential against part of a single-precision matrix product).
 _MAX_TERM_FRACTION = 1.0 / 32.0
 #: Share of the ancestor proposal that follows the clusters' approximate contributions at theta (the rest
 #: draws clusters by their weights: a defensive mixture, so no one-term weight exceeds 10 x its W-draw's).
@@ -458,22 +459,27 @@ class SubsampledPrior:
     """A step's transition-mixture prior (Eq. A3) for the moves: exact, or pseudo-marginal with a subsample.
 
     Called on ``theta (m, d)`` it returns ``log p(theta)`` (exact, :meth:`GaussianMixture.logpdf`,
-    ``O(m N)``) or, once :meth:`start` has chosen ``M = n_terms``, the unbiased estimate
-    ``log((1/M) sum_m T(theta | c_{a_m}))``, ``a_m ~ W`` drawn afresh
-    (:meth:`GaussianMixture.subsample_logpdf`, ``O(m M)``). The moves cache the prior value of every
+    ``O(m N)``) or, once :meth:`start` has chosen ``M = n_terms``, the log of the unbiased estimate
+    ``p_hat = (1/M) sum_m W_a T(theta | c_a) / q_a`` with ``a_1..a_M`` drawn afresh from an ancestor
+    proposal ``q(theta)`` (:meth:`GaussianMixture.subsample_logpdf`, ``O(m (K + M))``, ``K ~ sqrt(N) / 2``). The moves cache the prior value of every
     particle (column 1 of their components) and evaluate it afresh at every proposal only, so a
     random estimate makes them pseudo-marginal Metropolis-Hastings moves on an extended target whose
     ``theta``-marginal is exactly ``L^beta p`` (Andrieu & Roberts 2009). That needs the cached values
     to be draws of the extended target, which :meth:`start` provides: the step's particles are the
     predictive draws ``theta_i ~ T(. | c_i)`` with weights ``W_i`` (:meth:`GaussianMixture.draw_one_per_component`),
-    so ``a_1 = i`` and ``a_2..a_M ~ W`` (the estimate is symmetric in the ``a_m``). Tempering reweights
+    so ``(theta_i, i)`` is a draw of ``W_j T(theta | c_j)`` and ``i`` one of the exact responsibilities
+    given ``theta_i``: ``a_1 = i`` and ``a_2..a_M ~ q(theta_i)`` is a draw of the extended target
+    ``p_hat(theta; a) prod_m q_{a_m}(theta)`` (the estimate is symmetric in the ``a_m``). The step's
+    particles must therefore be the mixture's per-component draws in their order (as
+    :func:`predictive_density` returns them and the run store keeps them); the moves must never
+    re-evaluate a current particle's prior value (only proposals). Tempering reweights
     by ``L^delta`` alone and resampling carries the cached values, so both keep the extended target;
     the importance-sampling evidence (:func:`~seqbayes.evidence.importance_step`) is linear in the
     prior, stays unbiased with the estimate, and its ESS (hence the stated standard error) includes
     the estimate's noise.
 
     The choice between exact evaluation and ``M`` is automatic (:meth:`start`): the estimate's relative
-    variance at ``theta`` is known exactly, ``(E_W[T^2] / p^2 - 1) / M``
+    variance at ``theta`` is known exactly, ``(E_q[w^2] / p^2 - 1) / M``
     (:meth:`GaussianMixture.log_second_moment`, ``O(N)`` per point), so it is computed at a pilot of
     ``_PILOT`` particles selected by the prior weights and as many by the weights times the likelihood
     (where the posterior lies), and ``M`` is set for ``SUBSAMPLE_VARIANCE`` at the pilot's 90th
