@@ -180,6 +180,7 @@ from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likeliho
 from .resampling import resample
 from .results import weighted_quantile
 from .rng import as_generator, generator_from_state, generator_state
+from .structures.bouc_wen import BoucWenBuilding, bouc_wen_transition
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 from .weights import logsumexp, normalise
 
@@ -365,7 +366,12 @@ class SGEnMCMC:
 
     Parameters
     ----------
-    building : ShearBuilding
+    building : ShearBuilding or BoucWenBuilding
+        The linear shear building, or one with Bouc-Wen hysteretic storeys
+        (:mod:`seqbayes.structures.bouc_wen`; needs ``likelihood="enkf"``: the
+        exact Kalman likelihood does not apply. ``level=None``/``"auto"``: RK4
+        transition; an integer: the exponential integrator with its linear
+        part's matrices on a sparse grid of that level).
     dt : float
         Sampling step [s] (0.02 s = 50 Hz in the paper).
     lower, upper : (d,) arrays
@@ -504,6 +510,16 @@ class SGEnMCMC:
             raise ValueError("state_move: 'regression' and 'shift' need conditional=True")
         self.state_move = state_move
         self.leverage_correction = bool(leverage_correction)
+        if isinstance(building, BoucWenBuilding):
+            # no exact filter for the hysteretic model: the EnKF likelihood (module docstring)
+            if sampler != "resample-move" or likelihood != "enkf":
+                raise ValueError("building: a BoucWenBuilding needs sampler='resample-move' and likelihood='enkf'")
+            if level == "auto":
+                level = None
+            if transition is None:
+                transition = (bouc_wen_transition(building, dt, "rk4", channels=channels) if level is None else
+                              bouc_wen_transition(building, dt, "exponential", level, self.lower, self.upper,
+                                                  channels=channels))
         if level == "auto":
             level = None if sampler == "resample-move" else 6
         if transition is not None:
@@ -663,7 +679,7 @@ class SGEnMCMC:
             raise ValueError("reset/update: the on-line interface needs sampler='resample-move'")
         rng = as_generator(rng)
         probe = self.transition(self.lower[None, :])
-        p, m = probe.H.shape[1], probe.A.shape[1]
+        p, m = probe.H.shape[1], probe.H.shape[2]
         theta = self._initial_theta(initial_theta, rng)
         R = measurement_covariance(self.measurement_noise, p)
         bank = self._bank(theta, R, rng)
@@ -800,7 +816,7 @@ class SGEnMCMC:
                              f"({self.n_members}, {self.lower.size})")
         rng = generator_from_state(snapshot["rng_state"])
         probe = self.transition(self.lower[None, :])
-        p, m = probe.H.shape[1], probe.A.shape[1]
+        p, m = probe.H.shape[1], probe.H.shape[2]
         R = measurement_covariance(self.measurement_noise, p)
         cov = np.array(snapshot["filter_cov"], float)
         bank = self._bank(theta, R, rng)

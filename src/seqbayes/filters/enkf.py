@@ -249,7 +249,10 @@ class EnKFBank:
     member with its filter's matrices and its own process noise; increment
     ``log N(y_k; mean(Y_i), C_yy,i + R)`` (Eq. 25 with the ensemble mean);
     perturbed-observation update with ``K_i = C_xy,i (C_yy,i + R)^-1``
-    (Eq. 22). The increment is a random, biased estimate of the exact
+    (Eq. 22). A model with a ``propagate(X, u_prev, u_now, eta)`` method (a
+    nonlinear transition such as
+    :class:`~seqbayes.structures.bouc_wen.BoucWenModel`) forecasts its own
+    ensembles; otherwise the linear matrices ``A, B0, B1`` are used. The increment is a random, biased estimate of the exact
     ``log p(y_k | y_{0:k-1}, theta_i)``; for a linear model it converges to
     the Kalman filter's as ``M`` grows.
 
@@ -279,11 +282,11 @@ class EnKFBank:
         self.process_noise_std = float(process_noise_std)
         self.members = int(members)
         self.rng = rng
-        self.b = model.B0 + model.B1
+        self.b = None if hasattr(model, "propagate") else model.B0 + model.B1
 
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ensembles at rest ``(N, M, m)`` and zero covariances ``(N, m, m)``."""
-        N, m = self.model.A.shape[:2]
+        N, m = self.model.H.shape[0], self.model.H.shape[2]
         return np.zeros((N, self.members, m)), np.zeros((N, m, m))
 
     def moments(self, X: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,8 +302,11 @@ class EnKFBank:
         p = model.H.shape[1]
         if u_prev is not None:
             noise = rng.standard_normal((N, M)) * self.process_noise_std
-            X = (np.einsum("nij,nkj->nki", model.A, X) + (model.B0 * u_prev + model.B1 * u_now)[:, None, :]
-                 + self.b[:, None, :] * noise[:, :, None])
+            if self.b is None:  # a nonlinear model (e.g. Bouc-Wen) advances its own states
+                X = model.propagate(X, u_prev, u_now, noise)
+            else:
+                X = (np.einsum("nij,nkj->nki", model.A, X) + (model.B0 * u_prev + model.B1 * u_now)[:, None, :]
+                     + self.b[:, None, :] * noise[:, :, None])
         Y = np.einsum("npm,nkm->nkp", model.H, X)
         X_anom = X - X.mean(axis=1, keepdims=True)
         Y_mean = Y.mean(axis=1)
@@ -335,7 +341,7 @@ def enkf_log_likelihood(model: DiscreteModel, ground_acceleration: ArrayLike, me
     u, y = check_filter_inputs(model, ground_acceleration, measurements)
     bank = EnKFBank(model, measurement_noise, process_noise_std, members, as_generator(rng))
     X, cov = bank.initial_state()
-    total = np.zeros(model.A.shape[0])
+    total = np.zeros(model.H.shape[0])
     for k in range(u.size):  # loop over time only
         X, cov, increment = bank.step(X, cov, y[k], *((u[k - 1], u[k]) if k else (None, None)))
         total += increment
