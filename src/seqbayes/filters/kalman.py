@@ -166,7 +166,7 @@ def _sequential_update(mean, P, H, Ht, yw_k):
     p = H.shape[1]
     gains = np.empty_like(PH)
     increment = np.zeros(mean.shape[0])
-    innov = yw_k[None, :] - np.einsum("npm,nm->np", H, mean)  # e_l w.r.t. the current mean
+    innov = yw_k - np.einsum("npm,nm->np", H, mean)  # e_l w.r.t. the current mean; yw_k (p,) or (N, p)
     for j in range(p):  # loop over channels only
         c = PH[:, :, j]
         s = HPH[:, j, j] + 1.0
@@ -393,20 +393,37 @@ class KalmanBank:
         ``N`` members.
     measurement_noise : (p,) stds, scalar, or (p, p) covariance
     process_noise_std : float
+    member_noise_std : (N, p) array, optional
+        Per-member channel noise stds (independent channels), in place of
+        ``measurement_noise`` (which is then ignored): each filter has its own
+        ``R_i = diag(member_noise_std[i]^2)`` (noise levels as parameters).
     """
 
-    def __init__(self, model: DiscreteModel, measurement_noise: ArrayLike, process_noise_std: float = 0.0):
+    def __init__(self, model: DiscreteModel, measurement_noise: ArrayLike, process_noise_std: float = 0.0,
+                 member_noise_std: ArrayLike | None = None):
         p = model.H.shape[1]
         self.model = model
-        self.R = measurement_covariance(measurement_noise, p)
-        chol_R = np.linalg.cholesky(self.R)
-        self.white = np.linalg.inv(chol_R)
-        self.H = np.einsum("ij,njm->nim", self.white, model.H)  # whitened observation (N, p, m)
+        if member_noise_std is None:
+            self.R = measurement_covariance(measurement_noise, p)
+            chol_R = np.linalg.cholesky(self.R)
+            self.white = np.linalg.inv(chol_R)
+            self.member_white = None
+            self.H = np.einsum("ij,njm->nim", self.white, model.H)  # whitened observation (N, p, m)
+            self.constant = -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum())
+        else:
+            std = np.asarray(member_noise_std, dtype=float)
+            if std.shape != (model.H.shape[0], p) or not np.all(np.isfinite(std)) or np.any(std <= 0):
+                raise ValueError(f"member_noise_std: expected positive finite stds of shape "
+                                 f"({model.H.shape[0]}, {p}), got shape {std.shape}")
+            self.R = None
+            self.white = None
+            self.member_white = 1.0 / std  # (N, p)
+            self.H = model.H * self.member_white[:, :, None]
+            self.constant = -0.5 * p * _LOG_2PI - np.log(std).sum(axis=1)  # (N,)
         self.Ht = np.swapaxes(self.H, 1, 2).copy()
         self.Q = process_covariance(model, process_noise_std)
         self.At = np.swapaxes(model.A, 1, 2)
         self.process_noise_std = float(process_noise_std)
-        self.constant = -0.5 * (p * _LOG_2PI + 2 * np.log(np.diag(chol_R)).sum())
         self.frozen = None  # (gain, S^-1, log det S / 2) once steady: see freeze()
 
     can_freeze = True
@@ -440,7 +457,8 @@ class KalmanBank:
             ``log p(y_k | y_{0:k-1}, theta_i)``.
         """
         model = self.model
-        yw = self.white @ np.asarray(y_k, float)
+        y_k = np.asarray(y_k, float)
+        yw = self.white @ y_k if self.member_white is None else self.member_white * y_k
         if self.frozen is not None and u_prev is not None:  # steady state: P and the gain are fixed
             gain, S_inv, half_logdet = self.frozen
             mean = np.einsum("nij,nj->ni", model.A, mean) + model.B0 * u_prev + model.B1 * u_now
@@ -476,6 +494,9 @@ class KalmanBank:
         new = object.__new__(KalmanBank)
         new.model = self.model.take(index)
         new.R, new.white, new.constant = self.R, self.white, self.constant
+        new.member_white = None if self.member_white is None else self.member_white[index]
+        if np.ndim(self.constant):
+            new.constant = self.constant[index]
         new.process_noise_std = self.process_noise_std
         new.H, new.Ht, new.Q, new.At = self.H[index], self.Ht[index], self.Q[index], self.At[index]
         new.frozen = None if self.frozen is None else tuple(x[index] for x in self.frozen)
@@ -485,11 +506,14 @@ class KalmanBank:
     def concatenate(banks: Sequence[KalmanBank]) -> "KalmanBank":
         """One bank of the members of ``banks`` in order (same noise levels)."""
         first = banks[0]
+        if any(b.member_white is not None for b in banks):
+            raise ValueError("banks: concatenate needs shared noise levels (no member_noise_std)")
         new = object.__new__(KalmanBank)
         models = [b.model for b in banks]
         new.model = DiscreteModel(*(np.concatenate([getattr(mo, f) for mo in models]) for f in ("A", "B0", "B1", "H")),
                                   first.model.dt, first.model.hold)
         new.R, new.white, new.constant = first.R, first.white, first.constant
+        new.member_white = None
         new.process_noise_std = first.process_noise_std
         new.H = np.concatenate([b.H for b in banks])
         new.Ht = np.concatenate([b.Ht for b in banks])
