@@ -311,6 +311,9 @@ class SGEnMCMCResult:
         Resample-move only: for each of the ``E`` resample-move events, the
         step, the tempering exponent ``phi`` of that step's data it targeted,
         the mean acceptance rate per sweep and the number of sweeps.
+    surrogate : dict
+        With ``surrogate="auto"``: the transition chosen and why
+        (:meth:`seqbayes.surrogate.SurrogateChoice.as_dict`); empty otherwise.
     """
 
     theta_mean: np.ndarray
@@ -332,6 +335,7 @@ class SGEnMCMCResult:
     move_exponents: np.ndarray = field(default_factory=lambda: np.zeros(0))
     move_acceptance: np.ndarray = field(default_factory=lambda: np.zeros(0))
     move_sweeps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    surrogate: dict = field(default_factory=dict)
 
     @property
     def log_evidence(self) -> float:
@@ -437,6 +441,17 @@ class SGEnMCMC:
     noise_scale_bounds : (2,) tuple
         Prior box ``(lower, upper)`` of each scale factor (log-uniform), with
         ``lower < 1 < upper``; default ``(0.25, 4)``.
+    surrogate : {None, "auto"}
+        ``"auto"``: choose the transition by measurement at this run's sizes
+        (:func:`seqbayes.surrogate.choose_transition`: the exact discretisation
+        or a sparse grid for the linear building; RK4, the exponential
+        integrator or its sparse-grid form for Bouc-Wen), overriding
+        ``level``; the choice and its reason are in the result's
+        ``surrogate``. Timing-dependent: pin the chosen ``level`` to repeat a
+        run elsewhere. ``None`` (default): ``level`` decides.
+    surrogate_options : dict, optional
+        Keyword arguments of :func:`~seqbayes.surrogate.choose_transition`
+        (for Bouc-Wen ``probe``, the run's ground acceleration, is required).
     blas_threads : int or None
         BLAS threads while running (``threadpoolctl``; ``None``: no limit).
         Default 1: the products here are batches of small matrices. Measured
@@ -473,7 +488,8 @@ class SGEnMCMC:
                  sampler: str = "resample-move", proposal: str = "independent", proposal_scale: float = 1.0,
                  moves_per_particle: float = 1.0, max_sweeps: int = 10, likelihood: str = "kalman",
                  enkf_members: int = 50, blas_threads: int | None = 1, noise_parameters: str | None = None,
-                 noise_scale_bounds: tuple = (0.25, 4.0)):
+                 noise_scale_bounds: tuple = (0.25, 4.0), surrogate: str | None = None,
+                 surrogate_options: dict | None = None):
         d = building.n_storeys
         self.lower = np.broadcast_to(np.asarray(lower, float), (d,)).copy()
         self.upper = np.broadcast_to(np.asarray(upper, float), (d,)).copy()
@@ -533,6 +549,20 @@ class SGEnMCMC:
             raise ValueError("state_move: 'regression' and 'shift' need conditional=True")
         self.state_move = state_move
         self.leverage_correction = bool(leverage_correction)
+        self.surrogate_choice = None
+        if surrogate is not None:
+            if surrogate != "auto":
+                raise ValueError(f"surrogate: expected None or 'auto', got {surrogate!r}")
+            if transition is not None:
+                raise ValueError("surrogate: 'auto' chooses the transition; do not pass transition= as well")
+            from .surrogate import choose_transition
+
+            options = dict(surrogate_options or {})
+            if isinstance(building, BoucWenBuilding):
+                options.setdefault("enkf_members", enkf_members)
+            self.surrogate_choice = choose_transition(building, dt, self.lower, self.upper, int(n_members),
+                                                      channels=channels, **options)
+            transition = self.surrogate_choice.transition
         if isinstance(building, BoucWenBuilding):
             # no exact filter for the hysteretic model: the EnKF likelihood (module docstring)
             if sampler != "resample-move" or likelihood != "enkf":
@@ -722,7 +752,8 @@ class SGEnMCMC:
             ess=stats.ess, resampled=res_hist, log_evidence_increments=evid, state_mean=stats.state_mean,
             drift_mean=stats.drift_mean, drift_std=stats.drift_std, final_theta=theta[idx],
             final_log_weights=np.zeros(N), elapsed=elapsed,
-            names=tuple(f"theta_{j + 1}" for j in range(d)))
+            names=tuple(f"theta_{j + 1}" for j in range(d)),
+            surrogate={} if self.surrogate_choice is None else self.surrogate_choice.as_dict())
 
 
     # ------------------------------------------------------------ resample-move
@@ -924,7 +955,8 @@ class SGEnMCMC:
             final_log_weights=np.zeros(N), elapsed=state.elapsed,
             names=self.parameter_names, sampler="resample-move",
             move_steps=ev[:, 0].astype(int), move_exponents=ev[:, 1], move_acceptance=ev[:, 2],
-            move_sweeps=ev[:, 3].astype(int))
+            move_sweeps=ev[:, 3].astype(int),
+            surrogate={} if self.surrogate_choice is None else self.surrogate_choice.as_dict())
 
     def _bank(self, theta, R, rng):
         """The particles' filters: exact Kalman or EnKF (``likelihood``)."""
