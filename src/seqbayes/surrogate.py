@@ -13,7 +13,8 @@ run's sizes, and keeps the cheaper candidate among those accurate enough:
   increasing level (:class:`~seqbayes.sgenmcmc.SparseGridTransition`). A
   grid's accuracy is the largest relative error of its ``A, B0, B1`` (each
   block relative to its largest entry) at ``n_test`` random ``theta`` of the
-  box; the lowest level within ``tol`` is the grid candidate (levels whose
+  box (default ``tol`` 3e-6, which keeps a 500-step log-likelihood within
+  ~0.03 nats); the lowest level within ``tol`` is the grid candidate (levels whose
   grid would exceed ``max_points`` points are skipped). Cost of a run:
   exact ``rows * t_exact``; grid ``t_build + rows * t_interp``, with ``t`` per
   row measured on a batch of ``n_members`` rows (least of ``repeats``) and
@@ -130,8 +131,11 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
     channels : str or Sensors
     tol : float, optional
         Accuracy required: relative matrix error for the linear building
-        (default ``1e-4``), relative response error for Bouc-Wen (default
-        ``1e-2``).
+        (default ``3e-6``: measured on 2-4 storeys, the Kalman log-likelihood
+        of a 500-step record near the posterior moves by ~1e4 x the matrix
+        error -- 0.5 nats at level 4 (5e-5), 0.03 at level 6 (3e-6) -- and
+        the error grows with the record), relative response error for
+        Bouc-Wen (default ``1e-2``).
     levels : sequence of int
         Grid levels tried, lowest first.
     max_points : int
@@ -178,7 +182,7 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
                                 substeps, exponential_substeps)
     if not isinstance(building, ShearBuilding):
         raise TypeError(f"building: expected a ShearBuilding or BoucWenBuilding, got {type(building).__name__}")
-    return _choose_linear(building, dt, lower, upper, n_members, channels, 1e-4 if tol is None else tol, levels,
+    return _choose_linear(building, dt, lower, upper, n_members, channels, 3e-6 if tol is None else tol, levels,
                           max_points, expected_rows, repeats, n_test, rng)
 
 
