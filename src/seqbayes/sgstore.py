@@ -21,6 +21,8 @@ shear building, its sensors, the prior box of the storey stiffness ratios and th
     input = "ag"                        # column of the ground acceleration [m/s^2]
     responses = ["a1", "a2", "a3", "a4"]   # one column per sensor: accelerations, then drifts
     time = "t"                          # optional time column [s]: checked uniform and continuous
+    units = "g"                         # optional: unit of the acceleration columns (default m/s^2), or
+                                        # { ag = "g", d1 = "mm" } per column; blocks are stored in SI
 
     [priors]
     lower = 0.7                         # uniform box of the ratios (a number or one per storey)
@@ -196,6 +198,7 @@ class SGRunConfig:
     seed: int = 0
     settings: dict = field(default_factory=dict)
     time: str | None = None
+    units: dict = field(default_factory=dict)
     building_module: str | None = None
     building_sha256: str | None = None
     search_path: str | None = None
@@ -218,6 +221,12 @@ class SGRunConfig:
     @property
     def n_storeys(self) -> int:
         return len(self.masses)
+
+    def si_factors(self) -> np.ndarray:
+        """Per column of a block (:attr:`columns`), the factor that converts it to SI (``[data] units``)."""
+        from .structures.records import UNITS
+
+        return np.array([UNITS[self.units[c]] if c in self.units else 1.0 for c in self.columns])
 
     def build_building(self):
         """The :class:`~seqbayes.structures.ShearBuilding`."""
@@ -335,7 +344,7 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     data = raw.get("data")
     if data is None:
         _fail(source, "[data]", "missing section")
-    _keys(data, {"dt", "input", "responses", "time"}, source, "data")
+    _keys(data, {"dt", "input", "responses", "time", "units"}, source, "data")
     if "dt" not in data:
         _fail(source, "data.dt", "missing (the sampling step in seconds)")
     dt = _numbers(data["dt"], source, "data.dt", positive=True)[0]
@@ -355,6 +364,7 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     columns = ([time_column] if time_column else []) + [column_input] + responses
     if len(set(columns)) != len(columns):
         _fail(source, "data", f"duplicate column names in {columns}")
+    units = _parse_units(data.get("units"), column_input, responses, len(layout["accelerations"]), source)
 
     priors = raw.get("priors")
     if priors is None:
@@ -396,7 +406,7 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
                          accelerations=layout["accelerations"], drifts=layout["drifts"], dt=dt,
                          input=column_input, responses=tuple(responses), lower=tuple(lower), upper=tuple(upper),
                          measurement_std=tuple(measurement_std), process_std=process_std, n_members=n_members,
-                         seed=seed, settings=sampler, time=time_column, building_module=module_spec,
+                         seed=seed, settings=sampler, time=time_column, units=units, building_module=module_spec,
                          building_sha256=module_sha,
                          search_path=str(Path(base_dir).resolve()) if base_dir is not None else None)
     try:  # the building and the identifier validate the numbers, naming the argument
@@ -408,6 +418,35 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     except (TypeError, ValueError) as err:
         _fail(source, "sampler", str(err))
     return config
+
+
+_ACCELERATION_UNITS = ("g", "m/s2", "m/s^2", "cm/s2", "cm/s^2", "gal", "mm/s2", "mm/s^2")
+_LENGTH_UNITS = ("m", "cm", "mm")
+
+
+def _parse_units(raw, column_input, responses, n_accelerations, source) -> dict:
+    """``[data] units``: one unit for every acceleration column (a string), or ``{column: unit}``;
+    accelerations (the input and the accelerometers) take acceleration units, drifts lengths.
+    Returns ``{column: unit}`` of the columns not already in SI."""
+    kinds = {column_input: "acceleration", **{c: "acceleration" if i < n_accelerations else "drift"
+                                             for i, c in enumerate(responses)}}
+    if raw is None:
+        return {}
+    if isinstance(raw, str):
+        raw = {c: raw for c, kind in kinds.items() if kind == "acceleration"}
+    if not isinstance(raw, dict):
+        _fail(source, "data.units", f"expected a unit (\"g\") or a table {{ column = \"unit\" }}, got {raw!r}")
+    out = {}
+    for column, unit in raw.items():
+        if column not in kinds:
+            _fail(source, f"data.units.{column}", f"not an input or response column ({', '.join(kinds)})")
+        allowed = _ACCELERATION_UNITS if kinds[column] == "acceleration" else _LENGTH_UNITS
+        if unit not in allowed:
+            _fail(source, f"data.units.{column}", f"an {kinds[column]} column takes one of {', '.join(allowed)}, "
+                                                  f"got {unit!r}")
+        if unit not in ("m/s2", "m/s^2", "m"):
+            out[column] = unit
+    return out
 
 
 def load_sg_config(path: str | os.PathLike) -> SGRunConfig:
@@ -653,10 +692,15 @@ class SGRunStore:
         return self.identifier().result()
 
     # ----------------------------------------------------------------------- assimilation
-    def _check_block(self, table, source: str) -> np.ndarray:
-        """The table checked (:func:`~seqbayes.datasets.check_table`), not assimilated before, and, with a
-        time column, in step with ``dt`` and continuing the record."""
+    def _si_block(self, table, source: str) -> np.ndarray:
+        """The table checked (:func:`~seqbayes.datasets.check_table`) and in SI units (``[data] units``)."""
         table = check_table(table, self.config, source)
+        factors = self.config.si_factors()
+        return table if np.all(factors == 1.0) else table * factors
+
+    def _check_block(self, table, source: str) -> np.ndarray:
+        """The SI table (:meth:`_si_block`) not assimilated before and, with a time column, in step with
+        ``dt`` and continuing the record."""
         digest = dataset_digest(table, self.config.columns)
         if digest in self.digests:
             step = self.digests.index(digest) + 1
@@ -697,19 +741,20 @@ class SGRunStore:
         """
         import time
 
-        table = self._check_block(table, "table" if source == "<array>" else f"table from {source}")
-        digest = dataset_digest(table, self.config.columns)
+        where = "table" if source == "<array>" else f"table from {source}"
+        table = self._check_block(self._si_block(table, where), where)
         with store_lock(self.path) if write else contextlib.nullcontext():
             if write:
                 _recover_journal(self.path)
                 self._reload_if_changed()
-                table = self._check_block(table, "table" if source == "<array>" else f"table from {source}")
+                table = self._check_block(table, where)
             sampler = self.identifier()
             offset = 1 if self.config.time else 0
             started = time.perf_counter()
             result = sampler.update(table[:, offset], table[:, offset + 1:])   # flushes the stage's histories
             wall = time.perf_counter() - started
             snap = sampler.snapshot()
+            digest = dataset_digest(table, self.config.columns)
             if len(snap["buffer_steps"]):  # pragma: no cover - result() flushed it
                 raise StoreError(f"{self.path}: the identifier's stage buffer is not empty after the block")
             T0, T = self.n_samples, self.n_samples + table.shape[0]

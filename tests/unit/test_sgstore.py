@@ -372,3 +372,29 @@ def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
     assert cli.main(["report", str(workdir / "reference.nc"), "-o", str(out), "--modes", str(tmp_path / "bad.csv")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "expected 2 rows" in err
+
+
+def test_blocks_in_g_are_stored_in_si(workdir, tmp_path):
+    from seqbayes.structures.records import UNITS
+
+    (tmp_path / "g.toml").write_text(TOML.replace('time = "t"', 'time = "t"\nunits = "g"'))
+    config = load_config(tmp_path / "g.toml")
+    assert config.units == {"ag": "g", "a1": "g", "a2": "g"}
+    block = np.loadtxt(workdir / "b1.csv", delimiter=",", skiprows=1)
+    in_g = block.copy()
+    in_g[:, 1:] /= UNITS["g"]
+    store = SGRunStore.create(tmp_path / "g.nc", config)
+    store.assimilate(in_g, "b1_g.csv")
+    assert np.array_equal(store.tables[0], in_g * np.array([1.0, UNITS["g"], UNITS["g"], UNITS["g"]]))
+    reference = SGRunStore.open(workdir / "reference.nc").block_posterior(0)
+    for name, p in store.block_posterior(0).items():
+        assert abs(p["mean"] - reference[name]["mean"]) < 0.5 * reference[name]["sd"], name
+    import tomllib
+
+    raw = tomllib.loads(TOML)
+    raw["data"]["units"] = {"a1": "mm"}
+    with pytest.raises(ConfigError, match=r"data.units.a1: an acceleration column takes one of"):
+        parse_sg_config(raw, "run.toml")
+    raw["data"]["units"] = {"t": "s"}
+    with pytest.raises(ConfigError, match=r"data.units.t: not an input or response column"):
+        parse_sg_config(raw, "run.toml")
