@@ -265,7 +265,7 @@ class GaussianMixture:
         cluster_of = np.empty(n, dtype=np.intp)
         cluster_of[order] = np.repeat(np.arange(n_clusters), sizes)
         cache = {
-            "scaled": scaled, "order": order, "bounds": bounds, "cluster_of": cluster_of,
+            "scaled": scaled, "scaled32": scaled.astype(np.float32), "order": order, "bounds": bounds, "cluster_of": cluster_of,
             "cluster_weights": cluster_weights,
             # log W_k + the terms of log N(x; mu_k, I + V_k) that do not depend on x
             # log N_k(x) + log W_k = x^2 . (-precision / 2) + x . (mean precision) + offset_k, in single precision
@@ -376,13 +376,25 @@ class GaussianMixture:
             cluster[:, 0] = cache["cluster_of"][first]
         # one-term weight W_a T_a / q_a with q_a = q_k W_a / W_k: T_a W_k / q_k
         log_factor = np.log(np.take_along_axis(q, cluster, axis=1) / cache["cluster_weights"][cluster])
-        scaled = cache["scaled"]
-        out = np.empty(m)
-        block = max(1, (1 << 18) // max(1, n_terms * self.dim))          # temporaries of ~2 MB: in cache
+        # the terms exp(-|x - c_a|^2 / 2) / g in single precision (as the dense sum's exponent block): each
+        # is at most 1 / (1 - _CLUSTER_SHARE), so their sum cannot overflow and needs no peak subtracted
+        scaled, x32, log_factor32 = cache["scaled32"], x.astype(np.float32), log_factor.astype(np.float32)
+        total = np.empty(m)
+        block = max(1, (1 << 18) // max(1, n_terms * self.dim))          # temporaries of ~1 MB: in cache
         for start in range(0, m, block):
             rows = slice(start, start + block)
-            diff = x[rows, None, :] - scaled[index[rows]]                  # (b, M, d)
-            out[rows] = logsumexp(-0.5 * np.einsum("bmd,bmd->bm", diff, diff) - log_factor[rows], axis=1)
+            diff = x32[rows, None, :] - scaled[index[rows]]                # (b, M, d)
+            terms = np.einsum("bmd,bmd->bm", diff, diff)
+            terms *= -0.5
+            terms -= log_factor32[rows]
+            np.exp(terms, out=terms)
+            total[rows] = terms.sum(axis=1, dtype=np.float64)
+        with np.errstate(divide="ignore"):
+            out = np.log(total)
+        faint = np.flatnonzero(total < 1e-30)   # every term near single precision's underflow: in double
+        if faint.size:
+            diff = x[faint, None, :] - cache["scaled"][index[faint]]
+            out[faint] = logsumexp(-0.5 * np.einsum("bmd,bmd->bm", diff, diff) - log_factor[faint], axis=1)
         return out - np.log(n_terms) + self._const
 
     @staticmethod
