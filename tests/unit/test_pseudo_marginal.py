@@ -218,3 +218,24 @@ def test_pseudo_marginal_run_is_reproducible_and_resumes_bit_for_bit(monkeypatch
         plain.update(y)
         off.update(y)
     np.testing.assert_array_equal(plain.result.steps[-1].posterior, off.result.steps[-1].posterior)
+
+
+def test_a_step_in_the_mixtures_tail_evaluates_exactly(monkeypatch):
+    """Prior-data conflict end to end: a dataset far in the predictive mixture's tail makes the pilot
+    choose exact evaluation for that step (and the steps before it run pseudo-marginal)."""
+    chosen = []
+    original = SubsampledPrior.start
+
+    def start(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        chosen.append(self.n_terms)
+        return out
+
+    monkeypatch.setattr(SubsampledPrior, "start", start)
+    rng = np.random.default_rng(14)
+    sampler = drifting_sampler(1000, 2, pseudo_marginal_from=500, conflict_remedy=False)
+    for _ in range(3):
+        sampler.update(rng.normal(0.3, 0.5, size=(5, 2)))
+    sampler.update(rng.normal(2.5, 0.5, size=(5, 2)))   # ~10 posterior sds away
+    assert all(m is not None for m in chosen[:2]), chosen
+    assert chosen[-1] is None, chosen
