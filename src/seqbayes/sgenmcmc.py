@@ -387,8 +387,9 @@ class SGEnMCMC:
         The linear shear building, or one with Bouc-Wen hysteretic storeys
         (:mod:`seqbayes.structures.bouc_wen`; needs ``likelihood="enkf"``: the
         exact Kalman likelihood does not apply. ``level=None``/``"auto"``: RK4
-        transition; an integer: the exponential integrator with its linear
-        part's matrices on a sparse grid of that level).
+        transition, 4 sub-steps; an integer: the exponential integrator, 4
+        sub-steps, with its linear part's matrices on a sparse grid of that
+        level).
     dt : float
         Sampling step [s] (0.02 s = 50 Hz in the paper).
     lower, upper : (d,) arrays
