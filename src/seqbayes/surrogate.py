@@ -23,7 +23,8 @@ run's sizes, and keeps the cheaper candidate among those accurate enough:
   4-storey 1,500-step run).
 * **Bouc-Wen building** (:class:`~seqbayes.structures.bouc_wen.BoucWenBuilding`):
   every step of every ensemble member needs an integration, so the cost is
-  per step: the candidates are RK4 (``substeps``, the exact reference),
+  per step: the candidates are RK4 with the fewest sub-steps (of
+  ``rk4_substeps``, at most ``substeps``) within ``tol``,
   the exponential integrator with exact matrices at the fewest sub-steps
   (of ``exponential_substeps``) within ``tol``, and the same with its
   matrices on sparse grids of increasing level (until they match the exact
@@ -116,7 +117,8 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
                       tol: float | None = None, levels=(1, 2, 3, 4, 5, 6), max_points: int = 20000,
                       expected_rows: int | None = None, repeats: int = 5, n_test: int = 64, seed: int = 0,
                       probe=None, probe_steps: int = 200, enkf_members: int = 50, steps: int | None = None,
-                      substeps: int = 4, exponential_substeps=(1, 2, 4, 8)) -> SurrogateChoice:
+                      substeps: int = 4, exponential_substeps=(1, 2, 4, 8),
+                      rk4_substeps=(1, 2, 4)) -> SurrogateChoice:
     """Measure the exact transition against sparse grids and return the cheaper
     accurate one (module docstring).
 
@@ -160,7 +162,9 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
         resample-move sampler the histories are re-filtered at every move,
         so this undercounts, equally for every candidate.
     substeps : int
-        Bouc-Wen: RK4 sub-steps of the exact candidate.
+        Bouc-Wen: RK4 sub-steps of the exact candidate (the fallback).
+    rk4_substeps : sequence of int
+        Bouc-Wen: RK4 sub-steps tried, fewest first (up to ``substeps``).
     exponential_substeps : sequence of int
         Bouc-Wen: sub-steps tried for the exponential integrator (the fewest
         within ``tol`` is kept, and its matrices are then put on grids).
@@ -179,7 +183,7 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
     if isinstance(building, BoucWenBuilding):
         return _choose_bouc_wen(building, dt, lower, upper, n_members, channels, 1e-2 if tol is None else tol,
                                 levels, max_points, repeats, n_test, rng, probe, probe_steps, enkf_members, steps,
-                                substeps, exponential_substeps)
+                                substeps, exponential_substeps, rk4_substeps)
     if not isinstance(building, ShearBuilding):
         raise TypeError(f"building: expected a ShearBuilding or BoucWenBuilding, got {type(building).__name__}")
     return _choose_linear(building, dt, lower, upper, n_members, channels, 3e-6 if tol is None else tol, levels,
@@ -241,7 +245,8 @@ def _choose_linear(building, dt, lower, upper, n_members, channels, tol, levels,
 
 
 def _choose_bouc_wen(building, dt, lower, upper, n_members, channels, tol, levels, max_points, repeats, n_test,
-                     rng, probe, probe_steps, enkf_members, steps, substeps, exponential_substeps):
+                     rng, probe, probe_steps, enkf_members, steps, substeps, exponential_substeps,
+                     rk4_substeps):
     if probe is None:
         raise ValueError("probe: a Bouc-Wen building needs the run's ground acceleration to measure accuracy "
                          "(the nonlinearity depends on the amplitude)")
@@ -269,7 +274,13 @@ def _choose_bouc_wen(building, dt, lower, upper, n_members, channels, tol, level
                 "run_seconds": build + t_matrices + steps * t_step, "accurate": error <= tol,
                 "note": f"matrices {t_matrices * 1e3:.2f} ms per call"}, transition
 
-    measured = [measure("rk4", None, lambda: BoucWenRK4(building, dt, substeps, channels))]
+    measured = []
+    for count in sorted(set(rk4_substeps) | {substeps}):  # RK4 with the fewest sub-steps within tol
+        entry = measure("rk4", None, lambda: BoucWenRK4(building, dt, count, channels))
+        entry[0]["note"] += f"; {count} sub-steps"
+        measured.append(entry)
+        if entry[0]["accurate"] or count == substeps:
+            break
     split = 1
     for split in exponential_substeps:  # the fewest sub-steps of the exponential integrator within tol
         entry = measure("exponential", None, lambda: BoucWenExponential(building, dt, channels=channels,
@@ -293,14 +304,15 @@ def _choose_bouc_wen(building, dt, lower, upper, n_members, channels, tol, level
     accurate = [(e, t) for e, t in measured if e["accurate"]]
     candidates = tuple(e for e, _ in measured)
     if not accurate:
-        entry, transition = measured[0]
-        reason = (f"exact RK4 ({substeps} sub-steps): no candidate within tol {tol:.0e} "
+        entry, transition = [(e, t) for e, t in measured if e["name"] == "rk4"][-1]
+        reason = (f"exact RK4 ({transition.substeps} sub-steps): no candidate within tol {tol:.0e} "
                   f"(RK4 error {entry['error']:.1e})")
         return SurrogateChoice("exact", None, "rk4", reason, candidates, transition)
     entry, transition = min(accurate, key=lambda et: et[0]["run_seconds"])
-    others = ", ".join(f"{e['name']}{'' if e['level'] is None else ' ' + str(e['level'])} "
-                       f"{e['run_seconds']:.2f} s (error {e['error']:.1e})" for e, _ in measured if e is not entry)
-    reason = (f"{entry['name']}{'' if entry['level'] is None else ' level ' + str(entry['level'])}: "
+    others = ", ".join(f"{e['name']}{'' if e['level'] is None else ' ' + str(e['level'])} x{t.substeps} "
+                       f"{e['run_seconds']:.2f} s (error {e['error']:.1e})" for e, t in measured if e is not entry)
+    reason = (f"{entry['name']}{'' if entry['level'] is None else ' level ' + str(entry['level'])} "
+              f"x{transition.substeps}: "
               f"error {entry['error']:.1e} <= tol {tol:.0e}, {entry['run_seconds']:.2f} s for {steps} steps of "
               f"{n_members} x {enkf_members} states; others: {others}")
     kind = "grid" if entry["name"] == "exponential-grid" else "exact"

@@ -180,6 +180,48 @@ class BoucWenBuilding:
         out[..., 2 * n:] = self.z_rate(z, rate)
         return out
 
+    def _component_major(self, theta_c, ndim: int) -> tuple:
+        """Per-storey constants shaped ``(n, 1, ...)`` for states ``(3n, ...)`` of ``ndim`` axes,
+        and the stiffness terms of ``theta_c (n, ...)``."""
+        n = self.n_storeys
+        col = (n,) + (1,) * (ndim - 1)
+        k = theta_c * self.linear.stiffnesses.reshape(col)
+        alpha = self.alpha.reshape(col)
+        masses = self.linear.masses.reshape(col)
+        return (k * alpha, k * (1 - alpha), self.linear.rayleigh[1] * k, masses, None, self.A.reshape(col),
+                self.beta.reshape(col), self.gamma.reshape(col))
+
+    def _derivative_cm(self, params, Xc, ground_acceleration):
+        """:meth:`derivative` in the component-major layout ``Xc (3n, ...)``."""
+        n = self.n_storeys
+        k_elastic, k_hysteretic, k_damping, masses, _, A, beta, gamma = params
+        x, v, z = Xc[:n], Xc[n:2 * n], Xc[2 * n:]
+        out = np.empty_like(Xc)
+        out[:n] = v
+        drift = x.copy()
+        drift[1:] -= x[:-1]
+        rate = v.copy()
+        rate[1:] -= v[:-1]
+        storey = k_elastic * drift  # r_i + a1 k_i delta_i' (Rayleigh stiffness part)
+        storey += k_hysteretic * z
+        storey += k_damping * rate
+        acc = out[n:2 * n]
+        np.negative(storey, out=acc)
+        acc[:-1] += storey[1:]  # -D^T s
+        acc /= masses
+        acc -= self.linear.rayleigh[0] * v
+        acc -= ground_acceleration
+        if self.exponent == 1.0:
+            zr = out[2 * n:]
+            np.multiply(A, rate, out=zr)
+            zr -= beta * np.abs(rate) * z
+            zr -= gamma * rate * np.abs(z)
+        else:
+            abs_z = np.abs(z)
+            out[2 * n:] = (A * rate - beta * np.abs(rate) * abs_z ** (self.exponent - 1) * z
+                           - gamma * rate * abs_z**self.exponent)
+        return out
+
     def z_rate(self, z: np.ndarray, drift_rate: np.ndarray) -> np.ndarray:
         """Bouc-Wen ``z' (..., n)`` from ``z`` and the drift velocities."""
         if self.exponent == 1.0:  # beta |d'| z + gamma d' |z|
@@ -338,18 +380,22 @@ class BoucWenRK4:
 
     def propagate(self, model: BoucWenModel, X, u_prev, u_now, eta=None):
         b = self.building
-        coefficients = b._coefficients(model.theta if X.ndim == 2 else model.theta[:, None, :])
+        # component-major layout (3n, N[, M]): every operation below is on contiguous
+        # (N[, M]) blocks rather than on strided slices of the last axis
+        Xc = np.ascontiguousarray(np.moveaxis(X, -1, 0))
+        theta_c = model.theta.T if X.ndim == 2 else model.theta.T[:, :, None]
+        params = b._component_major(theta_c, Xc.ndim)
         eta = 0.0 if eta is None else eta
         h = self.dt / self.substeps
         du = (u_now - u_prev) / self.substeps
         for j in range(self.substeps):  # loop over sub-steps only
             a_start = u_prev + j * du + eta
-            k1 = b._derivative(coefficients, X, a_start)
-            k2 = b._derivative(coefficients, X + 0.5 * h * k1, a_start + 0.5 * du)
-            k3 = b._derivative(coefficients, X + 0.5 * h * k2, a_start + 0.5 * du)
-            k4 = b._derivative(coefficients, X + h * k3, a_start + du)
-            X = X + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
-        return X
+            k1 = b._derivative_cm(params, Xc, a_start)
+            k2 = b._derivative_cm(params, Xc + 0.5 * h * k1, a_start + 0.5 * du)
+            k3 = b._derivative_cm(params, Xc + 0.5 * h * k2, a_start + 0.5 * du)
+            k4 = b._derivative_cm(params, Xc + h * k3, a_start + du)
+            Xc = Xc + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
+        return np.ascontiguousarray(np.moveaxis(Xc, 0, -1))
 
 
 class BoucWenExponential:
@@ -437,20 +483,36 @@ class BoucWenExponential:
         return X
 
     def _advance_z(self, z, rate_k, rate_next):
-        """RK4 on ``z'`` over one sub-step, drift rate linear in time between its ends."""
+        """RK4 on ``z'`` over one sub-step, drift rate linear in time between its ends
+        (in the component-major layout, contiguous per storey)."""
         b = self.building
+        n = b.n_storeys
+        col = (n,) + (1,) * (z.ndim - 1)
+        A, beta, gamma = b.A.reshape(col), b.beta.reshape(col), b.gamma.reshape(col)
+
+        def rate_of(zc, rc):
+            if b.exponent == 1.0:
+                out = A * rc
+                out -= beta * np.abs(rc) * zc
+                out -= gamma * rc * np.abs(zc)
+                return out
+            abs_z = np.abs(zc)
+            return A * rc - beta * np.abs(rc) * abs_z ** (b.exponent - 1) * zc - gamma * rc * abs_z**b.exponent
+
+        zc = np.ascontiguousarray(np.moveaxis(z, -1, 0))
+        r_k = np.ascontiguousarray(np.moveaxis(rate_k, -1, 0))
+        slope = np.ascontiguousarray(np.moveaxis(rate_next, -1, 0)) - r_k
         h = 1.0 / self.z_substeps
         dt = self.dt / self.substeps
-        slope = rate_next - rate_k
         for j in range(self.z_substeps):  # loop over z sub-steps only (t in units of the sub-step)
             t0 = j * h
-            r0, rm, r1 = rate_k + t0 * slope, rate_k + (t0 + 0.5 * h) * slope, rate_k + (t0 + h) * slope
-            k1 = b.z_rate(z, r0)
-            k2 = b.z_rate(z + 0.5 * h * dt * k1, rm)
-            k3 = b.z_rate(z + 0.5 * h * dt * k2, rm)
-            k4 = b.z_rate(z + h * dt * k3, r1)
-            z = z + (h * dt / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
-        return z
+            r0, rm, r1 = r_k + t0 * slope, r_k + (t0 + 0.5 * h) * slope, r_k + (t0 + h) * slope
+            k1 = rate_of(zc, r0)
+            k2 = rate_of(zc + 0.5 * h * dt * k1, rm)
+            k3 = rate_of(zc + 0.5 * h * dt * k2, rm)
+            k4 = rate_of(zc + h * dt * k3, r1)
+            zc = zc + (h * dt / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
+        return np.moveaxis(zc, 0, -1)
 
 
 def bouc_wen_transition(building: BoucWenBuilding, dt: float, integrator: str = "exponential",
