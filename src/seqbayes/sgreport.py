@@ -270,7 +270,13 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     parts.append(f"<p>Storey stiffness k_i = theta_i k_i^u; Rayleigh damping {cfg.damping_ratios[0]:g} / "
                  f"{cfg.damping_ratios[1]:g} in modes {cfg.damping_modes[0]} / {cfg.damping_modes[1]} of the "
                  f"undamaged building (coefficients fixed, so the damping ratios change with the stiffness); "
-                 f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}.</p>")
+                 f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}"
+                 + (f", times a scale factor estimated with the ratios ({cfg.settings['noise_parameters']}; "
+                    f"log_noise_scale is its logarithm, log-uniform prior over "
+                    f"{tuple(cfg.settings.get('noise_scale_bounds', (0.25, 4.0)))})"
+                    if cfg.settings.get("noise_parameters") else "")
+                 + (f"; transition chosen at init by surrogate = \"auto\": {html.escape(cfg.surrogate_choice)}"
+                    if cfg.surrogate_choice else "") + ".</p>")
 
     parts.append("<h2>Stiffness ratios</h2>")
     parts.append(_figure_html(plot_sg_ratios(store, truth), "Posterior mean and 95 % band of the storey stiffness "

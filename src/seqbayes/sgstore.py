@@ -35,7 +35,9 @@ shear building, its sensors, the prior box of the storey stiffness ratios and th
     [sampler]
     n_members = 500
     seed = 1
-    # any other SGEnMCMC keyword: ess_threshold, proposal, moves_per_particle, likelihood, level, ...
+    # any other SGEnMCMC keyword: ess_threshold, proposal, moves_per_particle, likelihood, level,
+    # noise_parameters ("channel" or "shared": noise scales estimated with the ratios), ...;
+    # surrogate = "auto" is measured once, at init, and pinned as a level
 
 :class:`SGRunStore` keeps such a run in one NetCDF-4 file. Each ``update`` assimilates the next
 block of the record (a CSV or NetCDF file with the columns above) with
@@ -174,6 +176,11 @@ class SGRunConfig:
     n_members, seed : int
     settings : dict
         Further :class:`~seqbayes.sgenmcmc.SGEnMCMC` keywords.
+    units : dict
+        ``{column: unit}`` of the block columns not in SI (``[data] units``).
+    surrogate_choice : str or None
+        With ``surrogate = "auto"`` in ``[sampler]``: why the transition was chosen; the choice is
+        made once, when the configuration is read, and pinned as ``settings["level"]``.
     building_module, building_sha256 : str or None
         With ``[building] module``: the ``module:function`` and its file's SHA-256 (run at init only).
     search_path : str or None
@@ -199,6 +206,7 @@ class SGRunConfig:
     settings: dict = field(default_factory=dict)
     time: str | None = None
     units: dict = field(default_factory=dict)
+    surrogate_choice: str | None = None
     building_module: str | None = None
     building_sha256: str | None = None
     search_path: str | None = None
@@ -215,8 +223,15 @@ class SGRunConfig:
 
     @property
     def names(self) -> tuple:
-        """Parameter names: ``theta_1 .. theta_n``, the storey stiffness ratios."""
-        return tuple(f"theta_{j + 1}" for j in range(len(self.masses)))
+        """Parameter names: ``theta_1 .. theta_n``, the storey stiffness ratios, then with
+        ``noise_parameters`` the log noise-scale factors (as :attr:`SGEnMCMC.parameter_names`)."""
+        names = tuple(f"theta_{j + 1}" for j in range(len(self.masses)))
+        noise = self.settings.get("noise_parameters")
+        if noise == "shared":
+            return names + ("log_noise_scale",)
+        if noise == "channel":
+            return names + tuple(f"log_noise_scale_{c + 1}" for c in range(len(self.responses)))
+        return names
 
     @property
     def n_storeys(self) -> int:
@@ -414,9 +429,16 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     except ValueError as err:
         _fail(source, "building" if not str(err).startswith("dt") else "data.dt", str(err))
     try:
-        config.build_identifier()
+        identifier = config.build_identifier()
     except (TypeError, ValueError) as err:
         _fail(source, "sampler", str(err))
+    choice = getattr(identifier, "surrogate_choice", None)
+    if choice is not None:
+        # surrogate = "auto" measures the transitions' cost now, once: the choice is pinned as a
+        # level (a timing-dependent choice at every update would break bit-identical resume)
+        settings = {k: v for k, v in sampler.items() if k not in ("surrogate", "surrogate_options")}
+        settings["level"] = choice.level
+        config = dataclasses.replace(config, settings=settings, surrogate_choice=choice.reason)
     return config
 
 
@@ -835,7 +857,7 @@ class SGRunStore:
         if not self.n_steps:
             raise ValueError(f"{self.path}: no block assimilated yet")
         theta, w = self.posterior_samples(step)
-        return modal_summary(self.config.build_building(), theta, w, identified_shapes)
+        return modal_summary(self.config.build_building(), theta[:, :self.config.n_storeys], w, identified_shapes)
 
     # ----------------------------------------------------------------------- writing
     def _step_texts(self, k: int) -> tuple:

@@ -398,3 +398,31 @@ def test_blocks_in_g_are_stored_in_si(workdir, tmp_path):
     raw["data"]["units"] = {"t": "s"}
     with pytest.raises(ConfigError, match=r"data.units.t: not an input or response column"):
         parse_sg_config(raw, "run.toml")
+
+
+def test_noise_parameters_and_a_pinned_surrogate(workdir, tmp_path):
+    """[sampler] noise_parameters: the noise scales are stored, shown and resumed with the ratios;
+    surrogate = "auto" is measured once, when the configuration is read, and pinned as a level."""
+    import tomllib
+
+    from seqbayes.sgreport import render_sg_report
+
+    raw = tomllib.loads(TOML)
+    raw["sampler"]["noise_parameters"] = "shared"
+    config = parse_sg_config(raw, "run.toml")
+    assert config.names == config.build_identifier().parameter_names == ("theta_1", "theta_2", "log_noise_scale")
+    one = SGRunStore.create(tmp_path / "one.nc", config)
+    SGRunStore.create(tmp_path / "two.nc", config)
+    for k in range(2):
+        one.update(workdir / f"b{k + 1}.csv")
+        SGRunStore.open(tmp_path / "two.nc").update(workdir / f"b{k + 1}.csv")
+    assert_same_store(tmp_path / "one.nc", tmp_path / "two.nc")
+    post = one.block_posterior()
+    assert set(post) == set(config.names) and abs(post["log_noise_scale"]["mean"]) < 0.3   # the true noise
+    assert one.modal().frequency_mean.shape == (2,)
+    assert "log_noise_scale" in render_sg_report(one)
+    raw = tomllib.loads(TOML)
+    raw["sampler"]["surrogate"] = "auto"
+    pinned = parse_sg_config(raw, "run.toml")
+    assert "surrogate" not in pinned.settings and "level" in pinned.settings and pinned.surrogate_choice
+    assert "surrogate" not in parse_sg_config(raw, "run.toml").settings
