@@ -41,12 +41,14 @@ import numpy as np
 
 from .density import (PREDICTIVE_METHODS, GaussianMixture, HistoryPrior, RunningStatistics, SubsampledPrior,
                       predictive_density)
-from .evidence import importance_step, step_standard_errors
+from .evidence import DefensiveProposal, importance_step, step_standard_errors
 from .kernels import MarkovKernel, jump_step_fields
 from .nested import (NestedState, ParticleInnerFilter, after_joint_first_step, assimilate_nested, nested_split,
                      start_nested)
 from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_step_size,
                     paper_target_acceptance, stretch_sweep, weighted_covariance)
+from .moves.scaled import (DifferentialMove, FittedGaussian, differential_sweep, independence_sweep,
+                           whitened_jumps)
 from .parallel import evaluate_loglike
 from .density import kept_copy
 from .priors import as_samples, inside_support, support_of
@@ -75,6 +77,18 @@ class InnerFilterWarning(RuntimeWarning):
 
 class TemperingLimitError(RuntimeError):
     """Bridging to a dataset took more tempering stages than allowed (``max_stages``)."""
+
+
+#: Above this many parameters the default moves are the scaled ones (``SamplerConfig.scaled_moves``).
+HIGH_DIMENSION = 10
+#: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
+JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
+#: ``economy``: the importance sweeps continue until the increment's standard error is below this.
+ECONOMY_EVIDENCE_SE = 0.02
+#: ``economy``: the scaled moves stop once this fraction of the particles has moved (at most ``moved_fraction``).
+ECONOMY_MOVED_FRACTION = 0.7
+#: Acceptance rate the scaled moves' local step aims at (Eq. 9 adapts its scale within a stage; Roberts et al. 1997).
+LOCAL_ACCEPTANCE = 0.234
 
 
 @dataclass(frozen=True)
@@ -192,6 +206,29 @@ class SamplerConfig:
         mixture's components (pseudo-marginal moves, exact in distribution; ``O(N M)`` per sweep
         instead of ``O(N^2)``) where a pilot shows the estimate accurate, else exactly
         (:class:`~seqbayes.density.SubsampledPrior`).
+    scaled_moves : bool or None
+        Moves that keep working as the dimension grows (:mod:`seqbayes.moves.scaled`, issue 14). Each
+        round at a stage is an independence-MH sweep (every particle proposes a fresh draw of a density
+        fitted to the particles before the stage's moves: the Gaussian of their mean and covariance above
+        d = 10, the evidence's kernel density + Student t up to d = 10), then a local sweep (SMC: the
+        random walk with ``2.38 / sqrt(d)`` times the particles' covariance factor; SEMC: the
+        differential-evolution move, half against half; both scaled by a factor that Eq. 9 adapts towards
+        acceptance 0.234). Rounds stop when the particles have travelled on average ``2 d`` squared
+        whitened units (the distance between two independent draws; half that with ``economy``) and
+        ``moved_fraction`` of them have moved, after at least ``n_moves`` rounds (1 with ``economy``) and
+        at most ``max_moves`` (SMC) / ``max_virtual`` (SEMC). Above d = 10 the evidence's importance
+        density uses the fitted Gaussian in place of the kernel density. ``None`` (default): on when
+        d > 10 or with ``economy``, so that runs with up to 10 parameters are unchanged.
+        ``proposal_scale``, ``step_size`` and ``target_acceptance`` do not apply to these moves.
+    economy : bool
+        Fewer likelihood calls for expensive models (docs/core.md, "Economy of likelihood calls"): the
+        scaled moves (whatever d), stopped at half the travel and 70 % moved (or ``moved_fraction`` if
+        lower), plus one more move at the last stage of a tempered step; no restart from the restricted
+        prior while at least d + 1 particles have a non-zero likelihood (the restart's rejection sampling
+        costs N / (valid fraction) calls); the importance density refitted once to the particles after
+        ``n_independent`` independence sweeps, and the evidence estimated from all the sweeps' draws
+        after that refit, sweeping on until the increment's standard error is below 0.02 nats (at most
+        ``n_independent + 2 max_refits`` sweeps).
     """
 
     move: str
@@ -225,6 +262,8 @@ class SamplerConfig:
     remedy_ess: float = 0.05
     remedy_lag: int = 10
     pseudo_marginal_from: int = 4096
+    scaled_moves: bool | None = None
+    economy: bool = False
 
     def __post_init__(self):
         if self.move not in ("stretch", "gaussian"):
@@ -276,6 +315,16 @@ class SamplerConfig:
         if (isinstance(self.pseudo_marginal_from, bool) or int(self.pseudo_marginal_from) != self.pseudo_marginal_from
                 or self.pseudo_marginal_from < 0):
             raise ValueError(f"pseudo_marginal_from: must be an integer >= 0, got {self.pseudo_marginal_from}")
+        if self.scaled_moves not in (None, True, False):
+            raise ValueError(f"scaled_moves: expected True, False or None, got {self.scaled_moves!r}")
+        if self.economy not in (True, False):
+            raise ValueError(f"economy: expected True or False, got {self.economy!r}")
+
+    def uses_scaled_moves(self, dim: int) -> bool:
+        """Whether the moves of :mod:`seqbayes.moves.scaled` run for ``dim`` parameters (see ``scaled_moves``)."""
+        if self.scaled_moves is not None:
+            return bool(self.scaled_moves)
+        return self.economy or dim > HIGH_DIMENSION
 
 
 @dataclass(frozen=True, eq=False)
@@ -423,7 +472,11 @@ def _mutate(problem, config, state_step_size, walkers, components, beta, prior_l
             return False
         return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
 
-    if config.move == "gaussian":
+    if config.uses_scaled_moves(walkers.shape[1]):
+        position, components, stats, n_virtual = _scaled_moves(config, position, components, component_fn,
+                                                               coefficients, support, rng)
+        step_size = state_step_size if config.move == "stretch" else float("nan")
+    elif config.move == "gaussian":
         stats = SweepStats()
         n_done = 0
         while not enough(n_done) and n_done < config.max_moves:
@@ -457,6 +510,62 @@ def _mutate(problem, config, state_step_size, walkers, components, beta, prior_l
     else:
         walkers = position
     return walkers, components, stats, step_size, n_virtual
+
+
+def _scaled_moves(config, position, components, component_fn, coefficients, support, rng):
+    """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
+
+    Parameters
+    ----------
+    position : (N, d) array
+        The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
+        ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
+
+    Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
+    stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
+    :class:`~seqbayes.evidence.DefensiveProposal` up to it), then a local sweep: SMC's random walk with
+    ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
+    factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
+    the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
+    (``ECONOMY_JUMP_TARGET`` with ``economy``) and ``moved_fraction`` of them have moved
+    (``ECONOMY_MOVED_FRACTION`` at most, with ``economy``), after at least ``n_moves`` rounds (1 with
+    ``economy``) and at most ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
+
+    Returns
+    -------
+    position, components : arrays after the moves
+    stats : SweepStats
+        Of every sweep (independence and local).
+    n_rounds : int
+    """
+    n, d = position.shape
+    fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
+    # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel
+    globally = fitted if d > HIGH_DIMENSION else DefensiveProposal(position, np.zeros(n))
+    target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
+    min_rounds = 1 if config.economy else config.n_moves
+    max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
+    moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
+    scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
+    while n_rounds < max_rounds:
+        before = position
+        position, components, sweep = independence_sweep(position, components, component_fn, coefficients,
+                                                         globally, rng, support)
+        stats = stats + sweep
+        if config.move == "gaussian":
+            local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
+            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
+                                                         rng, support)
+        else:
+            position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
+                                                             DifferentialMove(scale), rng, support)
+        scale = float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))  # Eq. (9)
+        stats = stats + sweep
+        travelled += whitened_jumps(before, position, fitted)
+        n_rounds += 1
+        if n_rounds >= min_rounds and travelled.mean() >= target and np.mean(travelled > 0) >= moved_fraction:
+            break
+    return position, components, stats, n_rounds
 
 
 class _Counter:
@@ -637,7 +746,7 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
     if not valid.any() and (inside.all() or exact_prior):
         raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
                                   f"{_prior_name(step)} is too far from the data")
-    if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+    if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < _min_valid(config, particles)):
         particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
                                                                              rng, step, counter)
         log_weights, restarted = np.full(n, -np.log(n)), True
@@ -651,6 +760,16 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
         else:
             components[carried, 1] = prior_logpdf(particles[carried])
     return _Cloud(particles, log_weights, components), log_restricted_mass, n_found
+
+
+def _min_valid(config, particles) -> float:
+    """Fewest particles with a non-zero likelihood that start a step without the restricted-prior restart
+    (``min_valid_fraction * N``; with ``economy`` at most ``d + 1``, enough for a full-rank fitted covariance:
+    the restart's rejection sampling costs N / (valid fraction) likelihood calls, 65,000 of them at N = 1000
+    for the Coulomb experiment's first dataset, where the tempering's resample-move spreads the ~15 valid
+    particles instead)."""
+    threshold = config.min_valid_fraction * particles.shape[0]
+    return min(threshold, particles.shape[1] + 1.0) if config.economy else threshold
 
 
 def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
@@ -711,7 +830,8 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
             index = resample(config.resampling, weights, rng, n)
             particles, components = particles[index], components[index]
             log_weights = np.full(n, -np.log(n))
-        if resampled or move_every_stage:
+        # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
+        if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             if isinstance(prior_logpdf, SubsampledPrior):  # back to exact evaluation if the estimate got poor
                 components = prior_logpdf.refreshed(particles, components)
             particles, components, stats, step_size, n_virtual = _mutate(
@@ -739,14 +859,24 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
         return cloud, log_increment_path, float("nan"), 0
     particles, components = cloud.particles, cloud.components
     n_independent = 0
-    for _ in range(1 + config.max_refits):
+    scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
+    if config.uses_scaled_moves(particles.shape[1]):
+        scaled["gaussian"] = particles.shape[1] > HIGH_DIMENSION
+        if config.economy:
+            scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=config.n_independent + 2 * config.max_refits,
+                          min_fraction=config.min_evidence_ess)
+    # economy: the first n_independent sweeps only move the particles (their fit is to the cut-short moves' cloud;
+    # where it was poor, 1 in 5 Coulomb seeds, the posterior means were 0.3-0.45 sd off); q is refitted to the
+    # swept particles for the estimate, which costs n_independent N calls and brings those means within 0.15 sd
+    warm_up = 1 if config.economy else 0
+    for attempt in range(warm_up + 1 + config.max_refits):
         # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
         # them and estimate again (each q is independent of its own draws, so every estimate is valid)
         log_increment, evidence_ess, particles, components, accepted = importance_step(
             particles, cloud.log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
-            config.n_independent)
+            config.n_independent, **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
         n_independent += accepted
-        if evidence_ess >= config.min_evidence_ess * n:
+        if attempt >= warm_up and evidence_ess >= config.min_evidence_ess * n:
             break
     # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
     # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
@@ -981,6 +1111,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     # least 2 (L + 1) per stage. benchmarks/bench_abrupt.py, 10 seeds, worst mean error over the steps of run 9
     # (T2) / the abrupt drop, SEMC and SMC: 0.44, 0.35 / 0.25, 0.36 exact sds with L + 1 moves, 0.22, 0.17 /
     # 0.31, 0.26 with 2 (L + 1), at twice the cost of a path-space step
+    # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
+    config = replace(config, scaled_moves=config.uses_scaled_moves(d))
     path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
                           n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual, 2 * (length + 1))))
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
@@ -1463,7 +1595,7 @@ class SEMC(_SequentialSampler):
     tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
 predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
 move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
-conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from
+conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from, scaled_moves, economy
         The fields of :class:`SamplerConfig` of the same names, with its defaults and
         validation (see there for what each does).
 
@@ -1494,7 +1626,8 @@ conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096):
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096,
+                 scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
@@ -1527,7 +1660,8 @@ class SMC(_SequentialSampler):
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096):
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096,
+                 scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
