@@ -112,6 +112,9 @@ class DifferentialMove:
         """
         n, d = walkers.shape
         m = complement.shape[0]
+        if m < 2:
+            raise ValueError(f"complement: the differential-evolution move needs at least 2 walkers, got {m} "
+                             f"(n_samples >= 4)")
         first = rng.integers(m, size=n)
         second = (first + 1 + rng.integers(m - 1, size=n)) % m  # uniform over the others
         gamma = self.scale * 2.38 / np.sqrt(2.0 * d)
