@@ -74,12 +74,19 @@ to the end. Validated against the exact evidence (quadrature over ``theta`` and
 ``delta`` and a sum over the change boundaries, each term an exact Kalman
 likelihood) in ``tests/statistical/test_stiffness_drop.py``; detection and
 false alarms measured in ``benchmarks/bench_drop.py`` (docs/shake_table.md).
+
+A session is stopped and resumed with :meth:`StiffnessDropMonitor.snapshot`
+(named numpy arrays, ``np.savez``-able without pickle) and
+:meth:`StiffnessDropMonitor.restore` on a monitor built with the same
+arguments; the continuation is bit-identical to an uninterrupted run
+(``tests/unit/test_stiffness_drop_resume.py``).
 """
 
 from __future__ import annotations
 
+import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -87,7 +94,7 @@ from .filters.kalman import (
     KalmanBank, check_filter_inputs, kalman_filter, kalman_log_likelihood, measurement_covariance,
 )
 from .resampling import resample
-from .rng import as_generator
+from .rng import as_generator, generator_from_state, generator_state
 from .sgenmcmc import _blas_limit, _next_exponent
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise, simulate
 from .weights import logsumexp, normalise
@@ -420,6 +427,7 @@ class StiffnessDropMonitor:
         self.measurement_noise, self.process_noise_std = measurement_noise, float(process_noise_std)
         self.n_particles, self.drop_range = int(n_particles), (lo, hi)
         self.hazard, self.jump_proposal, self.change_every = hazard, q, int(change_every)
+        self.change_rate = float(change_rate)
         self.prior_no_change, self.threshold = float(prior_no_change), float(threshold)
         if not isinstance(prune_after, (int, np.integer)) or prune_after < 1:
             raise ValueError(f"prune_after: expected a positive integer, got {prune_after!r}")
@@ -480,6 +488,127 @@ class StiffnessDropMonitor:
     def detection(self) -> DropBlock | None:
         """The first block at which a change was detected (None if none yet)."""
         return next((b for b in self.history if b.detected), None)
+
+    # ------------------------------------------------------- stop and resume
+    #: DropBlock fields with one value per class (stacked over blocks as ``(B, C)``).
+    _PER_CLASS = ("log_evidence", "log_evidence_increments", "class_probabilities", "changed", "drop_mean",
+                  "change_time_mean", "active")
+    #: Per-class sampler arrays of the snapshot (``class_<name>``, stacked over classes).
+    _CLASS_ARRAYS = ("theta", "delta", "tau", "mean", "cov", "past", "logw")
+
+    def _settings(self) -> dict:
+        """The constructor arguments a snapshot must agree on, as arrays, keyed by
+        argument name (the order is the order of the checks in :meth:`restore`)."""
+        b = self.building
+        R = measurement_covariance(self.measurement_noise, discretise(b, self.lower, self.dt,
+                                                                      channels=self.channels).H.shape[1])
+        values = {"n_storeys": b.n_storeys, "n_particles": self.n_particles, "channels": self.channels,
+                  "dt": self.dt,
+                  "building": np.concatenate([b.masses, b.stiffnesses, np.asarray(b.damping_ratios, float),
+                                              np.asarray(b.damping_modes, float)]),
+                  "lower": self.lower, "upper": self.upper, "measurement_noise": R,
+                  "process_noise_std": self.process_noise_std, "drop_range": np.array(self.drop_range),
+                  "change_rate": self.change_rate, "change_every": self.change_every,
+                  "jump_proposal": self.jump_proposal, "prior_no_change": self.prior_no_change,
+                  "threshold": self.threshold, "prune_below": self.prune_below, "prune_after": self.prune_after,
+                  "ess_threshold": self.ess_threshold, "moves_per_particle": self.moves_per_particle,
+                  "max_sweeps": self.max_sweeps, "resampling": str(self.resampling)}
+        return {name: np.array(value) for name, value in values.items()}
+
+    def snapshot(self) -> dict:
+        """The monitoring session's state as named numpy arrays (no objects), so
+        that ``np.savez(path, **snapshot)`` and ``dict(np.load(path))`` (no pickle)
+        carry it: :meth:`restore` on a monitor built with the same arguments
+        continues bit for bit as this one would have.
+
+        Returns
+        -------
+        dict
+            ``setting_<argument>``: the constructor arguments the run depends on
+            (checked by :meth:`restore`); ``rng_state``: the bit generator's state
+            as a JSON string (0-d unicode array); the record so far ``u (T,)``,
+            ``y (T, p)``; the pruning state ``active (C,)``, ``low_steps (C,)``;
+            per class (stacked, ``C = d + 1``, ``N`` particles) ``class_theta (C, N, d)``,
+            ``class_delta (C, N)``, ``class_tau (C, N)``, the filtered moments
+            ``class_mean (C, N, m)``, ``class_cov (C, N, m, m)``, ``class_past``,
+            ``class_logw (C, N)``, ``class_log_evidence (C,)``, ``class_events (C,)``
+            and the Kalman bank's matrices ``class_A``, ``class_B0``, ``class_B1``,
+            ``class_H``; and every :class:`DropBlock` so far as ``history_<field>``
+            (stacked over the ``B`` blocks). The arrays are copies.
+        """
+        run = self._run
+        if run is None:
+            raise ValueError("snapshot: nothing to snapshot; call reset() first")
+        classes = run["classes"]
+        out = {f"setting_{name}": value for name, value in self._settings().items()}
+        out["rng_state"] = np.array(json.dumps(generator_state(run["rng"])))
+        out.update(u=run["u"], y=run["y"], active=run["active"], low_steps=run["low_steps"])
+        for name in self._CLASS_ARRAYS:
+            out[f"class_{name}"] = np.stack([getattr(c, name) for c in classes])
+        out["class_log_evidence"] = np.array([c.log_evidence for c in classes], float)
+        out["class_events"] = np.array([c.events for c in classes], int)
+        for name in ("A", "B0", "B1", "H"):
+            out[f"class_{name}"] = np.stack([getattr(c.bank.model, name) for c in classes])
+        C, d, history = len(classes), self.lower.size, run["history"]
+        for f in fields(DropBlock):
+            shape = (-1, C) if f.name in self._PER_CLASS else (-1, C, d) if f.name == "theta_mean" else (-1,)
+            out[f"history_{f.name}"] = np.array([getattr(b, f.name) for b in history]).reshape(shape)
+        return {key: np.array(value, copy=True) for key, value in out.items()}
+
+    def restore(self, snapshot) -> None:
+        """Continue the monitoring session of a :meth:`snapshot` (bit for bit).
+
+        Parameters
+        ----------
+        snapshot : mapping
+            As returned by :meth:`snapshot`, or loaded back from ``np.savez``
+            (an ``NpzFile`` or a dict of its arrays).
+
+        Raises
+        ------
+        ValueError
+            A key is missing, or the snapshot was made with other constructor
+            arguments (the message names the first that differs).
+        """
+        settings = self._settings()
+        required = [f"setting_{name}" for name in settings] + [
+            "rng_state", "u", "y", "active", "low_steps", "class_log_evidence", "class_events"] + [
+            f"class_{name}" for name in self._CLASS_ARRAYS + ("A", "B0", "B1", "H")] + [
+            f"history_{f.name}" for f in fields(DropBlock)]
+        missing = [key for key in required if key not in snapshot]
+        if missing:
+            raise ValueError(f"snapshot: missing {missing}")
+        for name, own in settings.items():
+            theirs = np.asarray(snapshot[f"setting_{name}"])
+            if theirs.shape != own.shape or not np.array_equal(theirs, own):
+                raise ValueError(f"restore: the snapshot was made with {name}={theirs.tolist()}, this monitor has "
+                                 f"{name}={own.tolist()}")
+        state = snapshot["rng_state"]
+        rng = generator_from_state(json.loads(str(state)) if not isinstance(state, dict) else state)
+        probe = discretise(self.building, self.lower, self.dt, channels=self.channels)
+        R = measurement_covariance(self.measurement_noise, probe.H.shape[1])
+        log_z = np.asarray(snapshot["class_log_evidence"], float)
+        events = np.asarray(snapshot["class_events"], int)
+        classes = []
+        for c in range(self.lower.size + 1):
+            matrices = {name: np.array(snapshot[f"class_{name}"][c], float) for name in ("A", "B0", "B1", "H")}
+            model = DiscreteModel(**matrices, dt=probe.dt, hold=probe.hold)
+            arrays = {name: np.array(snapshot[f"class_{name}"][c]) for name in self._CLASS_ARRAYS}
+            arrays["tau"] = arrays["tau"].astype(int)
+            classes.append(_ClassState(storey=c, bank=KalmanBank(model, R, self.process_noise_std),
+                                       log_evidence=float(log_z[c]), events=int(events[c]), **arrays))
+        history = []
+        n_blocks = np.asarray(snapshot["history_stop"]).shape[0]
+        for i in range(n_blocks):
+            values = {f.name: np.array(snapshot[f"history_{f.name}"][i]) for f in fields(DropBlock)}
+            for name, kind in (("stop", int), ("storey", int), ("time", float), ("change_probability", float),
+                               ("seconds", float), ("detected", bool)):
+                values[name] = kind(values[name])
+            history.append(DropBlock(**values))
+        self._run = {"rng": rng, "R": R, "probe": probe, "u": np.array(snapshot["u"], float),
+                     "y": np.array(snapshot["y"], float).reshape(-1, R.shape[0]), "classes": classes,
+                     "active": np.array(snapshot["active"], bool), "low_steps": np.array(snapshot["low_steps"], int),
+                     "history": history}
 
     def _summary(self, run, before, seconds) -> DropBlock:
         classes = run["classes"]
