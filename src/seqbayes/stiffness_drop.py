@@ -502,7 +502,8 @@ class StiffnessDropMonitor:
         b = self.building
         R = measurement_covariance(self.measurement_noise, discretise(b, self.lower, self.dt,
                                                                       channels=self.channels).H.shape[1])
-        values = {"n_storeys": b.n_storeys, "n_particles": self.n_particles, "channels": self.channels,
+        channels = self.channels if isinstance(self.channels, str) else repr(self.channels)  # a Sensors layout
+        values = {"n_storeys": b.n_storeys, "n_particles": self.n_particles, "channels": channels,
                   "dt": self.dt,
                   "building": np.concatenate([b.masses, b.stiffnesses, np.asarray(b.damping_ratios, float),
                                               np.asarray(b.damping_modes, float)]),

@@ -10,6 +10,7 @@ import pytest
 
 from seqbayes.stiffness_drop import DropBlock, StiffnessDropMonitor, simulate_drop
 from seqbayes.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
+from seqbayes.structures.shear_building import Sensors
 
 DT = 0.02
 BLOCK = 30
@@ -106,6 +107,24 @@ def test_snapshot_survives_savez_without_pickle(case, uninterrupted, tmp_path):
     assert mine.keys() == snap.keys()
     for key, value in snap.items():
         assert np.array_equal(mine[key], value, equal_nan=value.dtype.kind == "f"), key
+
+
+def test_a_sensor_layout_is_stored_as_text(case, tmp_path):
+    layout = Sensors(accelerations=(2,), drifts=(1,))
+    mon = monitor(case, channels=layout)
+    mon.reset(rng=3)
+    feed(mon, case, range(1))
+    snap = mon.snapshot()
+    assert snap["setting_channels"].dtype.kind == "U"
+    np.savez(tmp_path / "s.npz", **snap)
+    resumed = monitor(case, channels=layout)
+    with np.load(tmp_path / "s.npz", allow_pickle=False) as loaded:
+        resumed.restore(loaded)
+    feed(mon, case, range(1, 2))
+    feed(resumed, case, range(1, 2))
+    assert_same_blocks(resumed.history, mon.history)
+    with pytest.raises(ValueError, match="channels="):
+        monitor(case, channels=Sensors(accelerations=(1,), drifts=(2,))).restore(snap)
 
 
 def test_snapshot_does_not_alias_the_run(case):
