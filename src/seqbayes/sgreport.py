@@ -29,7 +29,9 @@ ESS_NOTE_SG = ("ESS: effective sample size (sum w)^2 / sum w^2 of the particles'
 def sg_status_rows(store: SGRunStore, level: float = 0.95) -> list[dict]:
     """One dict per block: ``step, dataset, rows, first_sample, time_start, time_end, ess, moves, acceptance,
     log_evidence_increment, log_evidence, wall_time, parameters`` (``parameters`` maps each ratio to
-    ``{mean, sd, lower, upper}``, the central ``level`` interval of the posterior at the block's end)."""
+    ``{mean, sd, lower, upper}``, the central ``level`` interval of the posterior at the block's end), and
+    with ``[monitor]`` ``monitor``: ``{class_probabilities, change_probability, detected, storey,
+    wall_time}`` of the stiffness-drop monitor at the block's end."""
     rows = []
     dt = store.config.dt
     for i, info in enumerate(store.infos):
@@ -41,6 +43,8 @@ def sg_status_rows(store: SGRunStore, level: float = 0.95) -> list[dict]:
                      "log_evidence_increment": float(info["log_evidence_increment"]),
                      "log_evidence": float(info["log_evidence"]), "wall_time": float(info["wall_time"]),
                      "parameters": store.block_posterior(i, level)})
+        if "monitor" in info:  # [monitor]: the stiffness-drop classes at the block's end
+            rows[-1]["monitor"] = {k: v for k, v in info["monitor"].items() if k != "rng_state"}
     return rows
 
 
@@ -74,6 +78,21 @@ def format_sg_status(store: SGRunStore, level: float = 0.95) -> str:
         for name, p in r["parameters"].items():
             lines.append(f"{r['step']:>4}  {name:<10} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
                          f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
+    if cfg.monitor is not None:
+        lines += [""] + textwrap.wrap("stiffness-drop monitor: probability of each model class at the end of "
+                                      "each block (none: no change; storey j: a drop in storey j), P(changed by "
+                                      f"now) and detection (P > {cfg.build_monitor().threshold:g}):", 100)
+        lines += [f"{'step':>4}  {'none':>9} " + " ".join(f"{'storey ' + str(j + 1):>9}" for j in range(cfg.n_storeys))
+                  + f" {'P(changed)':>10}  detected"]
+        for r in rows:
+            m = r["monitor"]
+            flag = f"yes, storey {m['storey']}" if m["detected"] else "no"
+            lines.append(f"{r['step']:>4}  " + " ".join(f"{p:9.3g}" for p in m["class_probabilities"])
+                         + f" {m['change_probability']:10.4g}  {flag}")
+        first = next((r for r in rows if r["monitor"]["detected"]), None)
+        lines.append("no change detected" if first is None else
+                     f"change first detected at the end of step {first['step']} (t = {first['time_end']:.2f} s), "
+                     f"attributed to storey {first['monitor']['storey']}")
     return "\n".join(lines)
 
 

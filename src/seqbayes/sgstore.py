@@ -39,6 +39,12 @@ shear building, its sensors, the prior box of the storey stiffness ratios and th
     # noise_parameters ("channel" or "shared": noise scales estimated with the ratios), ...;
     # surrogate = "auto" is measured once, at init, and pinned as a level
 
+    [monitor]                           # optional: on-line stiffness-drop detection alongside
+    n_particles = 200                   # (seqbayes.stiffness_drop.StiffnessDropMonitor; one model
+    threshold = 0.99                    # class per storey); any of its keywords: drop_range,
+    seed = 2                            # change_rate, change_every, prune_below, ... (seed: default
+                                        # the sampler's seed + 1)
+
 :class:`SGRunStore` keeps such a run in one NetCDF-4 file. Each ``update`` assimilates the next
 block of the record (a CSV or NetCDF file with the columns above) with
 :meth:`SGEnMCMC.update <seqbayes.sgenmcmc.SGEnMCMC.update>` and appends one *step* to the file:
@@ -62,6 +68,13 @@ in format 4): ``sg_<name> (step, ...)`` for each array of the snapshot that has 
 only by these naming rules: an array whose first axis follows the record must be called
 ``history_*`` or be listed in :data:`_PER_TIME` (its earlier rows may not change after a block);
 any other array is kept whole at every step.
+
+With ``[monitor]``, each ``update`` also runs the :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor`
+on the block and stores its state with the step (``sg_monitor_class_* (step, class, ...)``,
+``sg_monitor_active``, ``sg_monitor_low_steps`` and the block's summary ``sg_monitor_block_*``; its
+generator's state and the class probabilities are in ``step_info["monitor"]``);
+:meth:`SGRunStore.monitor` restores it bit for bit (the summaries' wall time ``seconds`` is not stored:
+0 in restored blocks).
 
 Trust: the configuration's numbers define the building; with ``[building] module`` the function
 runs once, at ``init`` (like a likelihood module, it is located next to the configuration and its
@@ -118,6 +131,12 @@ _OWN_SAMPLER_KEYS = ("n_members", "seed")
 #: SGEnMCMC keywords a configuration may not set (the store decides them or they are not data).
 _FIXED_KEYWORDS = ("building", "dt", "lower", "upper", "measurement_noise", "process_noise_std", "channels",
                    "transition", "sampler", "blas_threads")
+#: [monitor] settings: StiffnessDropMonitor keywords (the building, noise and prior box are the run's).
+_MONITOR_KEYWORDS = ("n_particles", "drop_range", "change_rate", "change_every", "jump_proposal", "prior_no_change",
+                     "threshold", "prune_below", "prune_after", "ess_threshold", "moves_per_particle", "max_sweeps",
+                     "resampling")
+#: DropBlock fields that are NaN where a class has no dropped particle (stored as 0, restored from ``changed``).
+_MONITOR_NAN_FIELDS = ("drop_mean", "change_time_mean")
 
 
 def _fail(source, name, message):
@@ -185,6 +204,9 @@ class SGRunConfig:
         With ``[building] module``: the ``module:function`` and its file's SHA-256 (run at init only).
     search_path : str or None
         The configuration's folder.
+    monitor : dict or None
+        With ``[monitor]``: the :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` keywords and its
+        ``seed``.
     """
 
     name: str
@@ -210,6 +232,7 @@ class SGRunConfig:
     building_module: str | None = None
     building_sha256: str | None = None
     search_path: str | None = None
+    monitor: dict | None = None
 
     kind = RUN_KIND
     #: what :mod:`seqbayes.datasets` reads: any number of rows, the table as an array
@@ -265,9 +288,23 @@ class SGRunConfig:
                         n_members=self.n_members, channels=self.build_sensors(), sampler="resample-move",
                         **self.settings)
 
+    def build_monitor(self):
+        """A fresh :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` (None without it)."""
+        if self.monitor is None:
+            return None
+        from .stiffness_drop import StiffnessDropMonitor
+
+        n = self.n_storeys
+        settings = {k: (tuple(v) if isinstance(v, list) else v) for k, v in self.monitor.items() if k != "seed"}
+        return StiffnessDropMonitor(self.build_building(), self.dt, np.array(self.lower[:n]),
+                                    np.array(self.upper[:n]), np.array(self.measurement_std),
+                                    process_noise_std=self.process_std, channels=self.build_sensors(), **settings)
+
     def to_dict(self) -> dict:
         """Plain JSON-able dict (stored in the run store)."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if out["monitor"] is None:  # absent, so runs without a monitor keep their fingerprint
+            del out["monitor"]
         out = {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
         out["kind"] = RUN_KIND
         return out
@@ -291,7 +328,8 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     ------
     ConfigError
     """
-    _keys(raw, {"model", "building", "sensors", "data", "priors", "noise", "sampler"}, source, "<top level>")
+    _keys(raw, {"model", "building", "sensors", "data", "priors", "noise", "sampler", "monitor"}, source,
+          "<top level>")
     model = raw.get("model", {})
     _keys(model, {"name", "type"}, source, "model")
     if model.get("type", RUN_KIND) != RUN_KIND:
@@ -439,6 +477,17 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
         settings = {k: v for k, v in sampler.items() if k not in ("surrogate", "surrogate_options")}
         settings["level"] = choice.level
         config = dataclasses.replace(config, settings=settings, surrogate_choice=choice.reason)
+    if "monitor" in raw:
+        monitor = dict(raw["monitor"])
+        _keys(monitor, set(_MONITOR_KEYWORDS) | {"seed"}, source, "monitor")
+        monitor_seed = monitor.setdefault("seed", seed + 1)
+        if isinstance(monitor_seed, bool) or not isinstance(monitor_seed, int) or monitor_seed < 0:
+            _fail(source, "monitor.seed", f"expected a non-negative integer, got {monitor_seed!r}")
+        config = dataclasses.replace(config, monitor=monitor)
+        try:
+            config.build_monitor()
+        except (TypeError, ValueError) as err:
+            _fail(source, "monitor", str(err))
     return config
 
 
@@ -707,6 +756,52 @@ class SGRunStore:
             sampler.restore(self.snapshot_at(step))
         return sampler
 
+    def monitor(self, step: int | None = None):
+        """The :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` restored to the state
+        after ``step`` blocks (default: the last; ``0``: reset, ready for the first block), bit for bit as
+        an uninterrupted monitor; its :attr:`~seqbayes.stiffness_drop.StiffnessDropMonitor.history` holds
+        every block's summary (``seconds`` 0: wall times are not stored).
+
+        Raises
+        ------
+        ValueError
+            The run has no ``[monitor]`` section, or ``step`` is out of range.
+        """
+        step = self.n_steps if step is None else int(step)
+        monitor = self.config.build_monitor()
+        if monitor is None:
+            raise ValueError(f"{self.path}: the run has no [monitor] section")
+        if not 0 <= step <= self.n_steps:
+            raise ValueError(f"step: must lie in [0, {self.n_steps}], got {step}")
+        if step == 0:
+            monitor.reset(as_generator(int(self.config.monitor["seed"])))
+            return monitor
+        record = np.concatenate(self.tables[:step])
+        offset = 1 if self.config.time else 0
+        last = self.fixed[step - 1]
+        snap = {f"setting_{k}": v for k, v in monitor._settings().items()}
+        snap.update({key[len("monitor_"):]: np.array(value) for key, value in last.items()
+                     if key.startswith("monitor_") and not key.startswith("monitor_block_")})
+        snap.update(u=record[:, offset], y=record[:, offset + 1:],
+                    rng_state=np.array(json.dumps(self.infos[step - 1]["monitor"]["rng_state"])))
+        from .stiffness_drop import DropBlock
+
+        blocks = self.fixed[:step]
+        for f in dataclasses.fields(DropBlock):
+            if f.name == "seconds":
+                snap["history_seconds"] = np.zeros(step)
+                continue
+            values = np.stack([np.asarray(b[f"monitor_block_{f.name}"]) for b in blocks])
+            if f.name in _MONITOR_NAN_FIELDS:
+                changed = np.stack([np.asarray(b["monitor_block_changed"], float) for b in blocks])
+                values = np.where(changed > 0, values, np.nan)
+                values[:, 0] = np.nan
+            elif f.name in ("active", "detected"):
+                values = values.astype(bool)
+            snap[f"history_{f.name}"] = values
+        monitor.restore(snap)
+        return monitor
+
     def result(self):
         """The :class:`~seqbayes.sgenmcmc.SGEnMCMCResult` of the record so far (histories per sample)."""
         if not self.n_steps:
@@ -794,6 +889,14 @@ class SGRunStore:
                     "wall_time": wall}
             fixed = {key: np.array(value) for key, value in snap.items()
                      if key not in _NOT_ARRAYS and not _is_per_time(key)}
+            if self.config.monitor is not None:
+                monitor = self.monitor()
+                block = monitor.update(table[:, offset], table[:, offset + 1:])
+                fixed.update(_monitor_arrays(monitor.snapshot()))
+                info["monitor"] = {"class_probabilities": block.class_probabilities.tolist(),
+                                   "change_probability": block.change_probability, "detected": block.detected,
+                                   "storey": block.storey, "wall_time": block.seconds,
+                                   "rng_state": generator_state(monitor._run["rng"])}
             per_time = {key: np.array(value) for key, value in snap.items() if _is_per_time(key)}
             # commit to memory only now that the block succeeded
             self.tables.append(table)
@@ -1016,6 +1119,20 @@ class SGRunStore:
         self._written(attrs["content_sha256"], record_hashes)
         _fault("after-replace")
         return True
+
+
+def _monitor_arrays(snapshot: dict) -> dict:
+    """The per-step arrays of a monitor's snapshot: its state (``monitor_class_*``, ``monitor_active``,
+    ``monitor_low_steps``) and the last block's summary (``monitor_block_<field>``, NaN stored as 0)."""
+    out = {f"monitor_{key}": np.array(value) for key, value in snapshot.items()
+           if key.startswith("class_") or key in ("active", "low_steps")}
+    for key, value in snapshot.items():
+        if key.startswith("history_") and key != "history_seconds":
+            last = np.array(value[-1])
+            if key[len("history_"):] in _MONITOR_NAN_FIELDS:
+                last = np.nan_to_num(last, nan=0.0)
+            out[f"monitor_block_{key[len('history_'):]}"] = last
+    return out
 
 
 def _is_per_time(key: str) -> bool:
