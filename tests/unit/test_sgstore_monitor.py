@@ -5,6 +5,8 @@ setting is a one-line error naming it."""
 
 from __future__ import annotations
 
+import os
+import signal
 from dataclasses import fields
 
 import numpy as np
@@ -16,6 +18,7 @@ from seqbayes.rng import as_generator
 from seqbayes.sgreport import format_sg_status
 from seqbayes.sgstore import SGRunStore, parse_sg_config
 from seqbayes.stiffness_drop import DropBlock, simulate_drop
+from seqbayes.store import FAULT_ENV
 
 TOML = """
 [model]
@@ -135,3 +138,34 @@ def test_monitor_errors_name_the_setting(edit, match):
     raw["monitor"].update(edit)
     with pytest.raises(ConfigError, match=match):
         parse_sg_config(raw, "run.toml")
+
+
+def fork_update(run, block, fault):
+    """``seqbayes update`` in a child killed at the journal's fault point ``fault`` (as test_sgstore)."""
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 70
+        try:
+            os.environ[FAULT_ENV] = fault
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 1)
+            os.dup2(devnull, 2)
+            code = cli.main(["update", str(run), str(block)])
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    return status
+
+
+@pytest.mark.parametrize("fault", ["mid-write", "mid-apply"])
+def test_killed_update_keeps_the_monitor_bit_identical(workdir, tmp_path, fault):
+    root, config, table = workdir
+    run = tmp_path / "run.nc"
+    SGRunStore.create(run, config).update(root / "b1.csv")
+    status = fork_update(run, root / "b2.csv", fault)  # the append of step 2 is killed
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+    after = SGRunStore.open(run)
+    assert after.n_steps == (2 if fault == "mid-apply" else 1)
+    for k in range(after.n_steps + 1, N_BLOCKS + 1):
+        assert cli.main(["update", str(run), str(root / f"b{k}.csv")]) == 0
+    assert_same_blocks(SGRunStore.open(run).monitor().history, direct(config, table).history)
