@@ -112,6 +112,10 @@ def main():
     parser.add_argument("--problems", default="run9-T2,drop")
     parser.add_argument("--off", action="store_true", help="conflict_remedy=False")
     parser.add_argument("--settings", default="{}", help="JSON of extra SamplerConfig settings")
+    parser.add_argument("--samplers", default="SEMC,SMC")
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--per-seed", action="store_true",
+                        help="also the distribution over seeds: per seed the worst mean error, its step and parameter")
     parser.add_argument("--mixture-target", action="store_true",
                         help="only the predictive mixture's own step-3 posterior error on run 9 (T2), N = 1000, 16000")
     args = parser.parse_args()
@@ -125,15 +129,18 @@ def main():
         settings["conflict_remedy"] = False
     names = args.problems.split(",")
     refs = {name: reference(name) for name in names}
-    tasks = [(name, s, seed, args.samples, settings) for name in names for s in ("SEMC", "SMC") for seed in range(args.seeds)]
+    samplers = args.samplers.split(",")
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    tasks = [(name, s, seed, args.samples, settings) for name in names for s in samplers for seed in seeds]
     results = map_tasks(task, tasks, args.workers, "bench_abrupt", "run", progress=False)
-    print(f"N = {args.samples}, seeds 0..{args.seeds - 1}, settings {settings}")
+    print(f"N = {args.samples}, seeds {seeds.start}..{seeds.stop - 1}, settings {settings}")
     print()
     print("| problem | sampler | max abs mean error [exact sd] | max abs log-evidence error [nats] | per step: worst mean error / worst evidence error / runs on the path space | wall per run [s] |")
     print("|---|---|---:|---:|---|---:|")
+    per_seed = []
     for name in names:
         ref = refs[name]
-        for sampler in ("SEMC", "SMC"):
+        for sampler in samplers:
             rows = [r for r in results if r["name"] == name and r["sampler"] == sampler]
             err = [ref.errors(r["mean"], r["std"], r["log_evidence"]) for r in rows]
             mean_err = np.array([np.abs(e["mean_sd"]).max(axis=1) for e in err])      # (seeds, S)
@@ -143,6 +150,15 @@ def main():
             wall = np.array([r["wall"] for r in rows])
             print(f"| {name} | {sampler} | {mean_err.max():.2f} | {ev_err.max():.2f} | {steps} | "
                   f"{np.median(wall):.1f} (max {wall.max():.1f}) |")
+            if args.per_seed:
+                worst = [np.unravel_index(np.argmax(np.abs(e["mean_sd"])), e["mean_sd"].shape) for e in err]
+                per_seed.append(f"{name} {sampler}: per seed worst mean error [exact sd] (step, parameter) / worst "
+                                f"evidence error: " + ", ".join(
+                                    f"{r['seed']}: {abs(e['mean_sd'][w]):.2f} ({w[0] + 1},{w[1]})/{v.max():.2f}"
+                                    for r, e, w, v in zip(rows, err, worst, ev_err))
+                                + f"; median {np.median(mean_err.max(1)):.2f}, 90 % {np.quantile(mean_err.max(1), 0.9):.2f}")
+    for line in per_seed:
+        print(line)
 
 
 if __name__ == "__main__":

@@ -661,6 +661,24 @@ def _inside(points, support) -> np.ndarray:
     return inside_support(points, support)
 
 
+def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, support) -> np.ndarray:
+    """``StepInfo.prior_data_conflict`` per parameter, ``(d,)``: how many sds of the step's prior the
+    posterior mean lies from the prior mean (:func:`seqbayes.results.prior_data_conflict`).
+
+    The step's prior is the predictive restricted to the parameter space (the likelihood is zero
+    outside, so that mass is lost, as in the samplers' steps and the exact grid references): its
+    moments are those of the prior draws inside ``support`` (all of them when none is inside). A
+    predictive that spills over a bound (a drift taking a damping below 0) thus does not count as a
+    conflict with the data; on the damped-oscillator study the unrestricted moments fired on run 0
+    (T6, 4.05 prior sds at step 6, with no predictive draw inside the box) where the exact shift is
+    at most 3.0 (benchmarks/bench_conflict.py --exact).
+    """
+    inside = _inside(prior, support)
+    if inside.any() and not inside.all():
+        prior, prior_log_weights = prior[inside], prior_log_weights[inside]
+    return prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weights)
+
+
 def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
     """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
     by rejection, their log-likelihoods, the log of the restricted prior mass (the acceptance
@@ -1110,11 +1128,16 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     # 1997), so gamma for d dimensions becomes gamma / sqrt(L + 1), and a path decorrelates in O(dim) moves: at
     # least 2 (L + 1) per stage. benchmarks/bench_abrupt.py, 10 seeds, worst mean error over the steps of run 9
     # (T2) / the abrupt drop, SEMC and SMC: 0.44, 0.35 / 0.25, 0.36 exact sds with L + 1 moves, 0.22, 0.17 /
-    # 0.31, 0.26 with 2 (L + 1), at twice the cost of a path-space step
+    # 0.31, 0.26 with 2 (L + 1), at twice the cost of a path-space step. SEMC's stretch move mixes more slowly
+    # in the 2 (L + 1) path dimensions (its autocorrelation grows with the dimension): with 2 (L + 1) sweeps its
+    # mean of k at the abrupt drop's step 5 was biased by +0.09 +- 0.02 exact sds over 20 seeds (worst 0.31), with
+    # 4 (L + 1) by +0.05 +- 0.02 (bench_abrupt.py --per-seed; SMC's moves keep 2 (L + 1))
+    per_state = 4 if config.move == "stretch" else 2
     # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
     config = replace(config, scaled_moves=config.uses_scaled_moves(d))
     path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
-                          n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual, 2 * (length + 1))))
+                          n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
+                                                          per_state * (length + 1))))
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
         cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
     log_z = log_z + log_restricted_mass
@@ -1126,7 +1149,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     marginal = _Cloud(posterior, cloud.log_weights, cloud.components)
     density, predictive, _ = _propagate(state, marginal, dataset, log_increment, log_evidence, method, problem,
                                         config, rng)
-    conflict = prior_data_conflict(state.particles, state.log_weights, posterior, cloud.log_weights)
+    conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights, problem.support)
     _, ancestors = ancestor_draws(kernel, posterior, state.posterior, state.posterior_log_weights,
                                   later_log_weights=cloud.log_weights)
     increment_se, evidence_se, evidence_variance = step_standard_errors(
@@ -1277,10 +1300,10 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         if deferred:
             particles, log_weights, log_prior, moves, rejuvenated = _rejuvenate_deferred(
                 state, problem, config, prior_logpdf, moves, rng)
-    prior_particles, prior_log_weights = particles, log_weights
     cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config,
                                                  counter, prior_logpdf, rng)
     weights_before = np.exp(cloud.log_weights)
+    weighed = cloud  # the step's prior draws (restricted to {inside, L > 0} after a restart)
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
         cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng)
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
@@ -1293,7 +1316,8 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     density, predictive, next_log_prior = _propagate(state, cloud, dataset, log_increment, log_evidence, method,
                                                      problem, config, rng)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
-    conflict = prior_data_conflict(prior_particles, prior_log_weights, cloud.particles, cloud.log_weights)
+    conflict = step_conflict(weighed.particles, weighed.log_weights, cloud.particles, cloud.log_weights,
+                             problem.support)
     ancestors, window, paths = float("nan"), (), None
     if _remedy_applies(config, method, problem.kernel):  # keep what the path-space remedy needs
         keep = config.remedy_lag - 1
@@ -1505,7 +1529,7 @@ class _SequentialSampler:
                           f"predictive='transition'",
                           InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         if record.info.prior_data_conflict > self.config.conflict_threshold:
-            conflict = prior_data_conflict(*prior, record.posterior, record.log_weights)
+            conflict = step_conflict(*prior, record.posterior, record.log_weights, self.problem.support)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
                             if value > self.config.conflict_threshold) or \
                 f"{self.names[record.info.conflict_parameter]} {record.info.prior_data_conflict:.1f}"

@@ -8,7 +8,7 @@ import pytest
 from seqbayes import SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.results import prior_data_conflict
-from seqbayes.sequential import PriorDataConflictWarning
+from seqbayes.sequential import PriorDataConflictWarning, step_conflict
 
 
 def test_shift_in_prior_sds_exactly():
@@ -16,6 +16,22 @@ def test_shift_in_prior_sds_exactly():
     posterior = np.array([[9.0, 11.0], [9.0, 11.0]])
     conflict = prior_data_conflict(prior, np.zeros(4), posterior, np.log([0.5, 0.5]))
     np.testing.assert_allclose(conflict, [6.0 / np.sqrt(5.0), 0.0], atol=1e-12)
+
+
+def test_the_steps_prior_is_the_predictive_restricted_to_the_parameter_space():
+    # half of the predictive draws of the second parameter lie below its bound 0: the step's prior (the model's,
+    # and the exact grid references') is the inside half, so a posterior at the inside draws' mean is no conflict
+    prior = np.array([[1.0, -3.0], [1.0, -1.0], [1.0, 1.0], [3.0, 3.0]])
+    posterior = np.array([[2.0, 2.0]])
+    support = np.array([[0.0, 10.0], [0.0, 10.0]])
+    inside = step_conflict(prior, np.zeros(4), posterior, np.zeros(1), support)
+    np.testing.assert_allclose(inside, [0.0, 0.0], atol=1e-12)                     # inside draws: means (2, 2)
+    np.testing.assert_allclose(prior_data_conflict(prior, np.zeros(4), posterior, np.zeros(1)),
+                               [0.5 / np.sqrt(0.75), 2.0 / np.sqrt(5.0)], atol=1e-12)  # unrestricted
+    # no draw inside: the unrestricted moments (the restart's draws carry the step's prior then)
+    outside = prior - [0.0, 10.0]
+    np.testing.assert_allclose(step_conflict(outside, np.zeros(4), posterior, np.zeros(1), support),
+                               prior_data_conflict(outside, np.zeros(4), posterior, np.zeros(1)), atol=1e-12)
 
 
 def drifting_problem():
