@@ -79,7 +79,8 @@ class StepInfo:
         Seconds spent in the step.
     prior_data_conflict : float
         How far the step's posterior lies in the tail of its prior (the predictive distribution
-        for ``s > 1``): the largest over parameters of ``|posterior mean - prior mean| / prior sd``.
+        restricted to the parameter space for ``s > 1``): the largest over parameters of
+        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.sequential.step_conflict``).
         Under the model this exceeds 4 with probability below ~1e-4 per parameter; larger values
         flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
     conflict_parameter : int
