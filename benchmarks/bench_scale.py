@@ -3,7 +3,7 @@
 d = 4 parameters, a cheap Gaussian likelihood (5 observations of every parameter per
 dataset, noise sd 0.5, prior N(0, 1)), static parameters (default predictive: the
 exact history prior) and drifting ones (random walk, noise sd 0.1: the exact
-transition mixture of Eq. A3; from N = 4096 on, ``--pseudo-marginal-from``, its moves are pseudo-marginal:
+transition mixture of Eq. A3; from N = 2048 on (``--pseudo-marginal-from``), its moves are pseudo-marginal:
 :class:`seqbayes.density.SubsampledPrior`) and slowly drifting ones (noise sd 0.005: the mixture's
 bandwidth is then ~1/20 of the posterior's spread, where its k-d tree truncation works). For each N, one sampler assimilates a first dataset
 (untimed: its prior is the initial one) and then ``--steps`` more, each timed. The
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", action="store_true", help="interleave the all-particle proposal (old code)")
     parser.add_argument("--mixture", action="store_true", help="time the mixture evaluation alone")
     parser.add_argument("--pseudo-marginal-from", type=int, default=None,
-                        help="the samplers' pseudo_marginal_from (default: the library's, 4096)")
+                        help="the samplers' pseudo_marginal_from (default: the library's, 2048)")
     parser.add_argument("--profile", nargs=2, metavar=("KIND", "N"), help="cProfile of 3 updates (after the first)")
     args = parser.parse_args(argv)
     if args.mixture:

@@ -201,7 +201,7 @@ class SamplerConfig:
         path's product of mean weights alone (Eq. 1, the paper's). Both estimates are
         recorded in :class:`StepInfo`.
     pseudo_marginal_from : int
-        From this many particles on (4096; 0 never), a step under the ``"transition"`` mixture prior
+        From this many particles on (2048; 0 never), a step under the ``"transition"`` mixture prior
         (Eq. A3) lets its moves evaluate the prior by an unbiased estimate from a subsample of the
         mixture's components (pseudo-marginal moves, exact in distribution; ``O(N M)`` per sweep
         instead of ``O(N^2)``) where a pilot shows the estimate accurate, else exactly
@@ -261,7 +261,7 @@ class SamplerConfig:
     conflict_remedy: bool = True
     remedy_ess: float = 0.05
     remedy_lag: int = 10
-    pseudo_marginal_from: int = 4096
+    pseudo_marginal_from: int = 2048
     scaled_moves: bool | None = None
     economy: bool = False
 
@@ -1650,7 +1650,7 @@ conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from, scaled_moves, eco
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096,
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
@@ -1684,7 +1684,7 @@ class SMC(_SequentialSampler):
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 4096,
+                 remedy_lag: int = 10, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
