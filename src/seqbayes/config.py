@@ -50,14 +50,13 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from .modules import (ConfigError, ModuleSource, _split_likelihood, file_sha256, load_likelihood, load_located,
-                      locate_module)
+                      locate_module, read_toml)
 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
            "load_located", "ModuleSource", "file_sha256"]
@@ -533,17 +532,7 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
     :func:`seqbayes.sgstore.parse_sg_config` and returned as a :class:`~seqbayes.sgstore.SGRunConfig`.
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a folder, not a TOML run configuration") from None
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: invalid TOML: {err}") from None
+    raw = read_toml(path)
     if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.sgstore)
         from .sgstore import parse_sg_config
 

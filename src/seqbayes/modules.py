@@ -19,6 +19,7 @@ import importlib
 import importlib.machinery
 import importlib.util
 import sys
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,23 @@ __all__ = ["ConfigError", "ModuleSource", "locate_module", "import_module_source
 
 class ConfigError(ValueError):
     """A run configuration (or the module it names) is invalid; the message names the file and the field."""
+
+
+def read_toml(path) -> dict:
+    """The TOML run configuration at ``path`` as a dict; a missing or unreadable file, a folder or
+    invalid TOML is a one-line :class:`ConfigError` naming the file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a TOML run configuration") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: invalid TOML: {err}") from None
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,6 @@ import inspect
 import json
 import math
 import os
-import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,12 +98,12 @@ from pathlib import Path
 import numpy as np
 
 from .datasets import DataError, check_table, dataset_digest, read_datafile
-from .modules import ConfigError, load_located, locate_module
+from .modules import ConfigError, load_located, locate_module, read_toml
 from .rng import as_generator, generator_from_state, generator_state
 from .store import (StoreError, DuplicateDatasetError, _apply_with_journal, _check_finite, _check_free_space,
                     _content_hash, _extend, _fault, _fsync_dir, _json, _json_list, _netcdf_bytes, _now, _os_message,
                     _PendingWrites, _plain, _read_file, _read_journal, _read_token, _record_hash, _recover_journal, _write_file,
-                    lock_file, store_lock)
+                    _write_whole, lock_file, store_lock)
 
 __all__ = ["SGRunConfig", "SGRunStore", "parse_sg_config", "load_sg_config", "run_kind", "SG_FORMAT_VERSION",
            "RUN_KIND"]
@@ -523,13 +522,7 @@ def _parse_units(raw, column_input, responses, n_accelerations, source) -> dict:
 def load_sg_config(path: str | os.PathLike) -> SGRunConfig:
     """Read and validate an SG-EnMCMC TOML configuration (:func:`parse_sg_config`)."""
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: invalid TOML: {err}") from None
+    raw = read_toml(path)
     return parse_sg_config(raw, str(path), base_dir=path.parent)
 
 
@@ -1032,47 +1025,7 @@ class SGRunStore:
             self._write_locked()
 
     def _write_locked(self) -> None:
-        folder = self.path.resolve().parent
-        if self.path.is_dir():
-            raise StoreError(f"{self.path}: is a folder, not a run store file")
-        prefix = f".{self.path.name}.tmp-"
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            for entry in os.listdir(folder):  # left by a killed writer (the lock is held: no live one)
-                if entry.startswith(prefix) and entry[len(prefix):].isdigit():
-                    with contextlib.suppress(OSError):
-                        os.remove(folder / entry)
-        except OSError as err:
-            raise StoreError(f"{self.path}: cannot write in {folder}: {_os_message(err)}") from None
-        _recover_journal(self.path)
-        if self._append():
-            return
-        ds = self.to_xarray()
-        mode = None
-        with contextlib.suppress(OSError):
-            mode = os.stat(self.path).st_mode & 0o7777
-        content = _netcdf_bytes(ds, _encoding(ds), unlimited_dims=[d for d in _GROWING if d in ds.dims])
-        _check_free_space(self.path, folder, len(content))
-        _fault("before-write")
-        tmp = folder / f"{prefix}{os.getpid()}"
-        try:
-            _write_file(tmp, content)
-            if mode is not None:
-                os.chmod(tmp, mode)
-            _fault("before-replace")
-            os.replace(tmp, self.path)
-        except OSError as err:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise StoreError(f"{self.path}: cannot write the run store: {_os_message(err)}; the previous store is "
-                             f"kept") from None
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise
-        _fsync_dir(folder)
-        self._written(ds.attrs["content_sha256"], [str(h) for h in ds["record_sha256"].values] if self.n_steps else [])
-        _fault("after-replace")
+        _write_whole(self, _GROWING)
 
     def _written(self, content_hash: str, record_hashes: list) -> None:
         self._record_hashes = list(record_hashes)
@@ -1147,18 +1100,6 @@ def _fixed_dims(key: str, ndim: int) -> tuple:
     return dims if dims is not None and len(dims) == ndim else tuple(f"{key}_{a}" for a in range(1, ndim + 1))
 
 
-def _encoding(ds) -> dict:
-    """Fletcher-32 on the numeric arrays; chunks of a few steps (or samples) along the growing dimensions."""
-    encoding = {}
-    for name, var in ds.variables.items():
-        enc = {}
-        if var.dtype.kind in "fiu" and var.ndim and (var.size or var.dims[0] in _GROWING):
-            enc["fletcher32"] = True
-        if var.dims and var.dims[0] in _GROWING:
-            enc["chunksizes"] = (_GROWING[var.dims[0]],) + tuple(max(1, s) for s in var.shape[1:])
-        if enc:
-            encoding[name] = enc
-    return encoding
 
 
 import typing as _typing  # noqa: E402

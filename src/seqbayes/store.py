@@ -633,52 +633,7 @@ class RunStore:
             self._write_locked()
 
     def _write_locked(self) -> None:
-        folder = self.path.resolve().parent
-        if self.path.is_dir():
-            raise StoreError(f"{self.path}: is a folder, not a run store file")
-        prefix = f".{self.path.name}.tmp-"
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            for entry in os.listdir(folder):  # left by a killed writer (the lock is held: no live one)
-                if entry.startswith(prefix) and entry[len(prefix):].isdigit():
-                    with contextlib.suppress(OSError):
-                        os.remove(folder / entry)
-        except OSError as err:
-            raise StoreError(f"{self.path}: cannot write in {folder}: {_os_message(err)}") from None
-        _recover_journal(self.path)
-        if self._append():
-            return
-        ds = self.to_xarray()
-        mode = None
-        with contextlib.suppress(OSError):
-            mode = os.stat(self.path).st_mode & 0o7777
-        # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
-        # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
-        content = _netcdf_bytes(ds, _encoding(ds), unlimited_dims=[d for d in _GROWING if d in ds.dims])
-        _check_free_space(self.path, folder, len(content))
-        _fault("before-write")
-        tmp = folder / f"{prefix}{os.getpid()}"
-        try:
-            _write_file(tmp, content)
-            if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
-                os.truncate(tmp, len(content) // 2)
-                _fault("mid-write")
-            if mode is not None:
-                os.chmod(tmp, mode)
-            _fault("before-replace")
-            os.replace(tmp, self.path)
-        except OSError as err:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise StoreError(f"{self.path}: cannot write the run store: {_os_message(err)}; the previous "
-                             f"store is kept") from None
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-            raise
-        _fsync_dir(folder)
-        self._written(ds.attrs["content_sha256"], [str(h) for h in ds["record_sha256"].values] if self.n_steps else [])
-        _fault("after-replace")
+        _write_whole(self, _GROWING)
 
     def _written(self, content_hash: str, record_hashes: list) -> None:
         self._record_hashes = list(record_hashes)
@@ -1207,16 +1162,70 @@ _BARE_DIMS = {"rng_state": "rng_index", "dataset_values": "dataset_row",
               **{name: f"{name}_row" for name in snapshot.RAGGED}}
 
 
-def _encoding(ds) -> dict:
+def _write_whole(store, growing: dict) -> None:
+    """Write a run store (``store``: a :class:`RunStore` or :class:`~seqbayes.sgstore.SGRunStore`,
+    with the lock held): in place through the journal when ``store._append()`` can, else the whole
+    file to a temporary file that replaces it (fsync-ed, the file mode kept; a killed writer's
+    temporary files are removed first). ``growing``: the dimensions that grow with the run."""
+    folder = store.path.resolve().parent
+    if store.path.is_dir():
+        raise StoreError(f"{store.path}: is a folder, not a run store file")
+    prefix = f".{store.path.name}.tmp-"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for entry in os.listdir(folder):  # left by a killed writer (the lock is held: no live one)
+            if entry.startswith(prefix) and entry[len(prefix):].isdigit():
+                with contextlib.suppress(OSError):
+                    os.remove(folder / entry)
+    except OSError as err:
+        raise StoreError(f"{store.path}: cannot write in {folder}: {_os_message(err)}") from None
+    _recover_journal(store.path)
+    if store._append():
+        return
+    ds = store.to_xarray()
+    mode = None
+    with contextlib.suppress(OSError):
+        mode = os.stat(store.path).st_mode & 0o7777
+    # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
+    # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
+    content = _netcdf_bytes(ds, _encoding(ds, growing), unlimited_dims=[d for d in growing if d in ds.dims])
+    _check_free_space(store.path, folder, len(content))
+    _fault("before-write")
+    tmp = folder / f"{prefix}{os.getpid()}"
+    try:
+        _write_file(tmp, content)
+        if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
+            os.truncate(tmp, len(content) // 2)
+            _fault("mid-write")
+        if mode is not None:
+            os.chmod(tmp, mode)
+        _fault("before-replace")
+        os.replace(tmp, store.path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise StoreError(f"{store.path}: cannot write the run store: {_os_message(err)}; the previous "
+                         f"store is kept") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+    _fsync_dir(folder)
+    store._written(ds.attrs["content_sha256"], [str(h) for h in ds["record_sha256"].values] if store.n_steps else [])
+    _fault("after-replace")
+
+
+def _encoding(ds, growing: dict | None = None) -> dict:
     """HDF5 Fletcher-32 checksums on the numeric arrays (verified on read) and, along the growing
     dimensions, chunks of a few steps, so that appending a step writes a few chunks."""
+    growing = _GROWING if growing is None else growing
     encoding = {}
     for name, var in ds.variables.items():
         enc = {}
-        if var.dtype.kind in "fiu" and var.ndim and (var.size or var.dims[0] in _GROWING):
+        if var.dtype.kind in "fiu" and var.ndim and (var.size or var.dims[0] in growing):
             enc["fletcher32"] = True
-        if var.dims and var.dims[0] in _GROWING:
-            enc["chunksizes"] = (_GROWING[var.dims[0]],) + tuple(var.shape[1:])
+        if var.dims and var.dims[0] in growing:
+            enc["chunksizes"] = (growing[var.dims[0]],) + tuple(max(1, s) for s in var.shape[1:])
         if enc:
             encoding[name] = enc
     return encoding

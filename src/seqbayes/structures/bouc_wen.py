@@ -51,7 +51,7 @@ import numpy as np
 
 from .. import sparsegrid
 from ..rng import as_generator
-from .shear_building import Sensors, ShearBuilding, _as_theta, _check_dt, batched_expm
+from .shear_building import Sensors, ShearBuilding, _as_theta, _check_dt, batched_expm, sensor_rows
 
 __all__ = ["BoucWenBuilding", "BoucWenModel", "BoucWenRK4", "BoucWenExponential", "bouc_wen_transition",
            "simulate_bouc_wen", "INTEGRATORS"]
@@ -248,14 +248,7 @@ class BoucWenBuilding:
         n = self.n_storeys
         theta = _as_theta(theta, n)
         if isinstance(channels, Sensors):
-            channels.check(n)
-            rows = []
-            if channels.accelerations:
-                rows.append(self.observation_matrix(theta, "absolute_acceleration")[:, [f - 1 for f in
-                                                                                      channels.accelerations]])
-            if channels.drifts:
-                rows.append(self.observation_matrix(theta, "drift")[:, [f - 1 for f in channels.drifts]])
-            return np.concatenate(rows, axis=1)
+            return sensor_rows(self.observation_matrix, theta, channels, n)
         D = self.drift_operator
         N = theta.shape[0]
         if channels == "drift":

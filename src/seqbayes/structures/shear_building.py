@@ -161,6 +161,19 @@ class DiscreteModel:
                              self.dt, self.hold)
 
 
+def sensor_rows(observation_matrix, theta: np.ndarray, sensors: "Sensors", n_storeys: int) -> np.ndarray:
+    """``H (N, p, .)`` of a :class:`Sensors` layout: the rows of ``observation_matrix(theta, kind)``
+    (every floor's ``"absolute_acceleration"``, every storey's ``"drift"``) at its floors, the
+    accelerations first (shared by the linear and the Bouc-Wen building)."""
+    sensors.check(n_storeys)
+    rows = []
+    if sensors.accelerations:
+        rows.append(observation_matrix(theta, "absolute_acceleration")[:, [f - 1 for f in sensors.accelerations]])
+    if sensors.drifts:
+        rows.append(observation_matrix(theta, "drift")[:, [f - 1 for f in sensors.drifts]])
+    return np.concatenate(rows, axis=1)
+
+
 @dataclass(frozen=True)
 class ShearBuilding:
     """An n-storey shear building with storey stiffness ``theta_i * k_i^u``.
@@ -296,14 +309,7 @@ class ShearBuilding:
         n = self.n_storeys
         theta = _as_theta(theta, n)
         if isinstance(channels, Sensors):
-            channels.check(n)
-            rows = []
-            if channels.accelerations:
-                rows.append(self.observation_matrix(theta, "absolute_acceleration")[:, [f - 1 for f in
-                                                                                      channels.accelerations]])
-            if channels.drifts:
-                rows.append(self.observation_matrix(theta, "drift")[:, [f - 1 for f in channels.drifts]])
-            return np.concatenate(rows, axis=1)
+            return sensor_rows(self.observation_matrix, theta, channels, n)
         if channels == "absolute_acceleration":
             A, _ = self.continuous_state_space(theta)
             return A[:, n:, :].copy()  # x'' + a_g = -M^-1 (K x + C x')
