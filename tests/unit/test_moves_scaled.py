@@ -35,9 +35,10 @@ def test_differential_move_partners_are_distinct_and_symmetric():
     rng = np.random.default_rng(1)
     walkers = np.zeros((1000, 4))
     complement = np.arange(3.0)[:, None] * np.ones((3, 4))  # three partners: a difference is never zero
-    proposals, log_hastings = DifferentialMove(1.0).propose(walkers, complement, rng)
+    proposals, log_hastings, identical = DifferentialMove(1.0).propose(walkers, complement, rng)
     assert np.all(np.abs(proposals).sum(axis=1) > 0)
     assert np.all(log_hastings == 0)
+    assert not identical.any()
     with pytest.raises(ValueError, match="scale"):
         DifferentialMove(0.0)
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import SweepStats, combine, evaluate_inside, metropolis_accept
+from .stretch import stretch_sweep
 
 __all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "whitened_jumps"]
 
@@ -108,7 +109,10 @@ class DifferentialMove:
     def propose(self, walkers, complement, rng: np.random.Generator):
         """Proposals for ``walkers (n, d)`` from two distinct partners in ``complement (m, d)``, m >= 2.
 
-        Returns ``(proposals (n, d), log_hastings (n,))``: the move is symmetric given the complement.
+        Returns ``(proposals (n, d), log_hastings (n,), identical (n,) bool)``, the triple of
+        :meth:`~seqbayes.moves.StretchMove.propose`: the move is symmetric given the complement, and
+        ``identical`` is all False (a proposal that equals its walker, from two equal partners, is
+        evaluated like any other).
         """
         n, d = walkers.shape
         m = complement.shape[0]
@@ -118,32 +122,15 @@ class DifferentialMove:
         first = rng.integers(m, size=n)
         second = (first + 1 + rng.integers(m - 1, size=n)) % m  # uniform over the others
         gamma = self.scale * 2.38 / np.sqrt(2.0 * d)
-        return walkers + gamma * (complement[first] - complement[second]), np.zeros(n)
+        return walkers + gamma * (complement[first] - complement[second]), np.zeros(n), np.zeros(n, dtype=bool)
 
 
 def differential_sweep(walkers, components, component_fn, coefficients, move: DifferentialMove,
                        rng: np.random.Generator, support):
-    """One sweep of :class:`DifferentialMove`, half of the walkers against the other half (as
-    :func:`~seqbayes.moves.stretch_sweep`, whose arguments and returns it shares)."""
-    walkers = walkers.copy()
-    components = components.copy()
-    log_target = combine(components, coefficients)
-    n, k = components.shape
-    order = rng.permutation(n)
-    halves = (order[: n // 2], order[n // 2:])
-    n_accepted = n_evaluations = 0
-    for active, passive in (halves, halves[::-1]):
-        proposals, log_hastings = move.propose(walkers[active], walkers[passive], rng)
-        proposal_components, n_eval = evaluate_inside(component_fn, proposals, support, k)
-        proposal_target = combine(proposal_components, coefficients)
-        accept = metropolis_accept(log_target[active], proposal_target, log_hastings, rng)
-        moved = active[accept]
-        walkers[moved] = proposals[accept]
-        components[moved] = proposal_components[accept]
-        log_target[moved] = proposal_target[accept]
-        n_accepted += int(np.count_nonzero(accept))
-        n_evaluations += n_eval
-    return walkers, components, SweepStats(n, n_accepted, 0, n_evaluations)
+    """One sweep of :class:`DifferentialMove`, half of the walkers against the other half: the
+    stretch move's sweep (:func:`~seqbayes.moves.stretch_sweep`, whose arguments and returns it
+    shares) with this move's proposals."""
+    return stretch_sweep(walkers, components, component_fn, coefficients, move, rng, support)
 
 
 def whitened_jumps(before, after, proposal: FittedGaussian) -> np.ndarray:

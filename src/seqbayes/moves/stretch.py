@@ -65,7 +65,9 @@ def stretch_sweep(walkers, components, component_fn, coefficients, move: Stretch
         the target is ``components @ coefficients``.
     component_fn : callable ``(n, d) -> (n, k)``
     coefficients : (k,) array
-    move : StretchMove
+    move : StretchMove or DifferentialMove
+        Any move whose ``propose(walkers, complement, rng)`` returns ``(proposals, log_hastings,
+        identical)``.
     rng : numpy.random.Generator
     support : (d, 2) array
         Proposals outside are rejected without evaluation.
