@@ -45,7 +45,7 @@ from .priors import as_samples
 from .weights import logsumexp, normalise
 
 __all__ = ["GaussianMixture", "MixtureSum", "HistoryPrior", "RunningStatistics", "SubsampledPrior", "silverman_bandwidth",
-           "predictive_density", "PREDICTIVE_METHODS"]
+           "predictive_density", "grouped_ancestor_variance", "AncestorSpread", "PREDICTIVE_METHODS"]
 
 #: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, ``"smc2"`` (nested
 #: filters, :mod:`seqbayes.nested`) for one with static and drifting components, else ``"transition"``.
@@ -61,6 +61,86 @@ _TREE_MIN_CENTRES = 4096
 #: From this many centres on, :meth:`GaussianMixture.ancestor_ess` is estimated from this many rows
 #: (``O(rows x N)`` instead of ``O(N^2)``); below, every row is used (bit for bit as before).
 _ANCESTOR_ROWS = 512
+
+
+def _groups(labels, n):
+    """``(order, starts)``: the ``n`` columns sorted by ``labels (n,)`` (stable) and where each label's run
+    starts in that order, for :func:`numpy.add.reduceat`; ``None`` for ``labels=None`` (every column its own)."""
+    if labels is None:
+        return None
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or labels.dtype.kind not in "iu" or (n and labels.min() < 0):
+        raise ValueError(f"labels: expected ({n},) non-negative integers, got shape {labels.shape}, dtype {labels.dtype}")
+    order = np.argsort(labels, kind="stable")
+    ordered = labels[order]
+    return order, np.flatnonzero(np.concatenate([[True], ordered[1:] != ordered[:-1]]))
+
+
+def _grouped(values, groups):
+    """Sums of ``values (..., n)`` over the groups of :func:`_groups` along the last axis."""
+    if groups is None:
+        return values
+    order, starts = groups
+    return np.add.reduceat(values[..., order], starts, axis=-1)
+
+
+def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
+    """``sum_e (A_e - V_e)^2``: the relative variance of the evidence carried by dependent ancestors.
+
+    ``A_e = sum_{j: labels_j = e} mass_j`` is the later posterior's mass on the ancestors labelled ``e``
+    and ``V_e`` their weight (both sum to one). The label of an ancestor is the index of the initial draw
+    it descends from (:attr:`~seqbayes.sequential.SamplerState.lineage`), so ancestors that resampling
+    copied from one draw form one group (Chan & Lai 2013; Lee & Whiteley 2018). With distinct labels it
+    is ``sum_j (mass_j - W_j)^2``, ``1 / ESS_a - 1 / N`` for equal weights.
+
+    Parameters
+    ----------
+    mass, weights : (N,) arrays
+    labels : (N,) int array, optional
+        Distinct if omitted.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25)), 12)
+    0.13
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25), np.array([0, 0, 1, 1])), 12)
+    0.18
+    """
+    mass, weights = np.asarray(mass, dtype=float), np.asarray(weights, dtype=float)
+    groups = _groups(labels, mass.shape[0])
+    difference = _grouped(mass, groups) - _grouped(weights, groups)
+    return float(np.dot(difference, difference))
+
+
+@dataclass(frozen=True, eq=False)
+class AncestorSpread:
+    """How a later posterior spreads over a mixture's components (:meth:`GaussianMixture.ancestor_spread`).
+
+    Attributes
+    ----------
+    ess : float
+        ``1 / sum_i a_i^2``, ``a_i`` the later posterior's mass on component ``i``.
+    variance : float
+        ``sum_e (A_e - V_e)^2`` over the components' labels (:func:`grouped_ancestor_variance`).
+    mass : (N,) array or None
+        ``a`` itself, when every row was summed.
+    draws : (K,) int array or None
+        Else one component per selected row, drawn (stratified, no random draw) from its
+        responsibilities: ``a`` is their empirical distribution in expectation.
+    """
+
+    ess: float
+    variance: float
+    mass: np.ndarray | None = None
+    draws: np.ndarray | None = None
+
+
+#: Fractional part of the golden ratio: the stratified positions of :meth:`GaussianMixture.ancestor_spread`'s draws.
+_GOLDEN = 0.6180339887498949
 
 
 def _weighted_moments(samples, log_weights):
@@ -192,15 +272,7 @@ class GaussianMixture:
         ``a_i = sum_k v_k r_ki`` is the mass that the points (weights ``v``) give to component ``i``,
         ``r_ki = W_i N(theta_k; c_i, h^2) / p(theta_k)`` its responsibility for point ``k``. For a
         posterior under the predictive prior of Eq. (A3), ``a_i`` is the posterior probability of
-        ancestor ``i`` and ``1 / ESS_a - 1 / N`` the relative variance of the evidence that the N
-        ancestors carry (:func:`~seqbayes.evidence.increment_variance`).
-
-        With fewer than ``_TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
-        in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with
-        probabilities ``v`` (systematic selection, fixed offset 1/2: no random draw) and
-        ``sum_i a_i^2 = E[r_k . r_k']`` (``k, k'`` independent draws of ``v``) is estimated by the
-        U-statistic ``(|sum_p r_p|^2 - sum_p |r_p|^2) / (K (K - 1))`` over distinct pairs of the
-        selected rows, ``O(K N)`` (measured against all rows in ``tests/unit/test_density.py``).
+        ancestor ``i``. The first value of :meth:`ancestor_spread` (see there for the cost).
 
         Parameters
         ----------
@@ -212,28 +284,149 @@ class GaussianMixture:
         -------
         float
         """
+        return self.ancestor_spread(theta, log_weights).ess
+
+    def ancestor_spread(self, theta: np.ndarray, log_weights: np.ndarray | None = None,
+                        labels: np.ndarray | None = None) -> AncestorSpread:
+        """The ancestor ESS ``1 / sum_i a_i^2`` (:meth:`ancestor_ess`) and the grouped variance
+        ``sum_e (A_e - V_e)^2`` of the weighted points ``theta (m, d)``, in one pass.
+
+        ``A_e = sum_{i: labels_i = e} a_i`` and ``V_e = sum_{i: labels_i = e} W_i`` (the components'
+        weights): :func:`grouped_ancestor_variance`, the relative variance of the evidence that the
+        components carry when components with one label are dependent (copies of one draw,
+        :attr:`~seqbayes.sequential.SamplerState.lineage`; :func:`~seqbayes.evidence.step_standard_errors`).
+
+        With fewer than ``_TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
+        in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with
+        probabilities ``v`` (systematic selection, fixed offset 1/2: no random draw) and
+        ``sum_i a_i^2 = E[r_k . r_k']`` (``k, k'`` independent draws of ``v``) is estimated by the
+        U-statistic ``(|sum_p r_p|^2 - sum_p |r_p|^2) / (K (K - 1))`` over distinct pairs of the
+        selected rows, ``O(K N)`` (measured against all rows in ``tests/unit/test_density.py``); the
+        grouped variance likewise, ``sum_e A_e^2`` by the U-statistic of the rows' responsibilities
+        summed per label (``R_pe``), ``sum_e A_e V_e`` by ``sum_p R_p . V / K``; each selected row also
+        draws one component from its responsibilities (at the stratified position ``frac((p + 1/2) g)``,
+        ``g`` the golden ratio's fractional part: no random draw) for :meth:`backward_spread`.
+
+        Parameters
+        ----------
+        theta : (m, d) array
+        log_weights : (m,) array, optional
+            The points' log-weights (equal if omitted).
+        labels : (N,) int array, optional
+            One label per component (distinct if omitted).
+
+        Returns
+        -------
+        AncestorSpread
+            With the mass ``a`` when every row was summed, else the selected rows' draws.
+        """
         theta = as_samples(theta, self.dim)
-        m = theta.shape[0]
+        m, n = theta.shape[0], self.centres.shape[0]
+        groups = _groups(labels, n)
         v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
+        weight = _grouped(np.exp(self.log_weights), groups)                     # V_e
         x = (theta - self._shift) / self.bandwidth
-        if min(m, self.centres.shape[0]) >= _TREE_MIN_CENTRES:
+        if min(m, n) >= _TREE_MIN_CENTRES:
             cumulative = np.cumsum(v)
             cumulative[-1] = 1.0
             rows = np.searchsorted(cumulative, (np.arange(_ANCESTOR_ROWS) + 0.5) / _ANCESTOR_ROWS)
-            total = np.zeros(self.centres.shape[0])
-            squares = 0.0
-            for _, _, scaled, _ in self._scaled_terms(x[rows], np.float64):
+            total, grouped_total = np.zeros(n), np.zeros(weight.shape[0])
+            squares = grouped_squares = 0.0
+            draws = np.empty(_ANCESTOR_ROWS, dtype=np.intp)
+            position = np.modf((np.arange(_ANCESTOR_ROWS) + 0.5) * _GOLDEN)[0]
+            for block, _, scaled, _ in self._scaled_terms(x[rows], np.float64):
                 scaled /= scaled.sum(axis=1, keepdims=True)   # responsibilities r_ki of the selected rows
+                cumulative = np.cumsum(scaled, axis=1)
+                draws[block] = np.minimum((cumulative < position[block, None] * cumulative[:, -1:]).sum(axis=1), n - 1)
                 total += scaled.sum(axis=0)
                 squares += float(np.einsum("ij,ij->", scaled, scaled))
+                if groups is not None:
+                    scaled = _grouped(scaled, groups)        # R_pe: a row's responsibilities per label
+                    grouped_total += scaled.sum(axis=0)
+                    grouped_squares += float(np.einsum("ij,ij->", scaled, scaled))
+            if groups is None:
+                grouped_total, grouped_squares = total, squares
             k = float(_ANCESTOR_ROWS)
             sum_squares = (np.dot(total, total) - squares) / (k * (k - 1.0))
-            return float(1.0 / max(sum_squares, 1.0 / self.centres.shape[0]))
-        mass = np.zeros(self.centres.shape[0])
+            grouped_sum_squares = (np.dot(grouped_total, grouped_total) - grouped_squares) / (k * (k - 1.0))
+            variance = grouped_sum_squares - 2.0 * np.dot(grouped_total, weight) / k + np.dot(weight, weight)
+            return AncestorSpread(float(1.0 / max(sum_squares, 1.0 / n)), float(max(variance, 0.0)), draws=draws)
+        mass = np.zeros(n)
         for rows, _, scaled, _ in self._scaled_terms(x, np.float64):
             scaled /= scaled.sum(axis=1, keepdims=True)   # responsibilities r_ki
             mass += v[rows] @ scaled
-        return float(1.0 / np.dot(mass, mass))
+        difference = _grouped(mass, groups) - weight
+        return AncestorSpread(float(1.0 / np.dot(mass, mass)), float(np.dot(difference, difference)), mass=mass)
+
+    def _responsibilities(self, points):
+        """Blocks ``(rows, r)`` of the responsibilities ``r (b, N)`` of the components for ``points (m, d)``."""
+        x = (as_samples(points, self.dim) - self._shift) / self.bandwidth
+        for rows, _, scaled, _ in self._scaled_terms(x, np.float64):
+            scaled /= scaled.sum(axis=1, keepdims=True)
+            yield rows, scaled
+
+    def backward_spread(self, points: np.ndarray, log_weights: np.ndarray, later: AncestorSpread,
+                        labels: np.ndarray | None = None) -> tuple[float, float]:
+        """The part of the next evidence increment's error that comes from this mixture's components, two steps back.
+
+        This mixture is the prior of step ``s - 1`` (components: the posterior particles ``x_j`` of step
+        ``s - 2``, weights ``W_j``); ``points (N, d)`` with ``log_weights`` are the posterior of step ``s - 1``
+        (weights ``W'_i``), whose particles are the components of step ``s``'s mixture, and ``later`` says how
+        step ``s``'s posterior spreads over them (:meth:`ancestor_spread`, mass ``a``). With ``R`` the
+        responsibilities of this mixture's components for ``points``, ``c = a - W'`` and ``u = c R``:
+
+        * ``variance = sum_e U_e^2`` (``U_e`` the sum of ``u_j`` over the components labelled ``e``): the
+          increment ``Z_s = Z_{s-1:s} / Z_{s-1}`` depends on the components of step ``s - 1``'s mixture
+          through ``sum_j W_j h_j / sum_j W_j g_j`` (``h_j``, ``g_j`` the two- and one-step evidence through
+          ``x_j``), whose relative variance is ``sum_j (b_j - a'_j)^2`` with ``b = a R`` and ``a' = W' R``
+          the posterior masses of ``x_j`` after steps ``s`` and ``s - 1`` (backward, with the exact
+          responsibilities: the sampled genealogy is cut by the independence sweeps);
+        * ``covariance = sum_e (A'_e - V_e) U_e``: the same components' share of the covariance of the
+          increments ``s - 1`` and ``s`` (the first is ``sum_e (A'_e - V_e)^2``).
+
+        Every row of ``R`` is summed when ``later`` has the mass (``O(N^2)`` in blocks). Else the rows of
+        ``later.draws`` and ``K`` rows selected by ``W'`` (systematic, offset 1/2) give ``u`` as the difference
+        of two row means and both sums by U-statistics over distinct pairs, ``O(K N)``.
+
+        Parameters
+        ----------
+        points : (N, d) array
+        log_weights : (N,) array
+        later : AncestorSpread
+        labels : (M,) int array, optional
+            One label per component (distinct if omitted).
+
+        Returns
+        -------
+        variance, covariance : float
+        """
+        points = as_samples(points, self.dim)
+        n_points = points.shape[0]
+        groups = _groups(labels, self.centres.shape[0])
+        weights = np.exp(normalise(log_weights))
+        weight = _grouped(np.exp(self.log_weights), groups)                     # V_e
+        if later.mass is not None:
+            change = later.mass - weights                                       # c = a - W'
+            u, previous = np.zeros(self.centres.shape[0]), np.zeros(self.centres.shape[0])
+            for rows, r in self._responsibilities(points):
+                u += change[rows] @ r
+                previous += weights[rows] @ r                                   # a' = W' R
+            u, difference = _grouped(u, groups), _grouped(previous, groups) - weight
+            return float(np.dot(u, u)), float(np.dot(difference, u))
+        k = later.draws.shape[0]
+        rows = np.concatenate([later.draws, _systematic_rows(log_weights, k)])
+        selected = np.empty((2 * k, weight.shape[0]))
+        for block, r in self._responsibilities(points[rows]):
+            selected[block] = _grouped(r, groups)
+        after, before = selected[:k], selected[k:]                              # rows of b = a R and of a' = W' R
+        sum_after, sum_before = after.sum(axis=0), before.sum(axis=0)
+        pairs = float(k * (k - 1))
+        square_after = (np.dot(sum_after, sum_after) - np.einsum("ij,ij->", after, after)) / pairs
+        square_before = (np.dot(sum_before, sum_before) - np.einsum("ij,ij->", before, before)) / pairs
+        cross = np.dot(sum_after, sum_before) / float(k * k)
+        variance = square_after - 2.0 * cross + square_before                  # |b - a'|^2
+        covariance = cross - square_before - np.dot(weight, sum_after - sum_before) / k   # (a' - V) . (b - a')
+        return float(max(variance, 0.0)), float(covariance)
 
     def _ancestor_proposal(self) -> dict:
         """The clusters of the centres that :meth:`subsample_logpdf` draws its components through (built once).

@@ -50,7 +50,7 @@ from .moves import (GaussianMove, StretchMove, SweepStats, gaussian_sweep, next_
 from .moves.scaled import (DifferentialMove, FittedGaussian, differential_sweep, independence_sweep,
                            whitened_jumps)
 from .parallel import evaluate_loglike
-from .density import kept_copy
+from .density import AncestorSpread, grouped_ancestor_variance, kept_copy
 from .priors import as_samples, inside_support, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord, prior_data_conflict
@@ -358,6 +358,17 @@ class SamplerState:
         (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
     log_evidence_variance : float
         Estimated variance of ``log_evidence`` (:func:`~seqbayes.evidence.step_standard_errors`).
+    lineage : (N, 2) int array or None
+        Labels of the last two posteriors' particles, for the evidence's standard error
+        (:func:`~seqbayes.evidence.step_standard_errors`): column 0 of ``posterior``'s, the index of the
+        step's initial draw each particle descends from (the predictive draw, restart draw or path-space
+        walker; resampling copies it, moves keep it), column 1 the previous posterior's (the components of
+        ``previous_prior``). ``None`` (before the first step, a state from an older run store) counts every
+        particle as its own.
+    previous_prior : GaussianMixture or None
+        The mixture prior the last step used (components: the previous posterior's particles), for the
+        part of the next increment's standard error that comes from it
+        (:meth:`~seqbayes.density.GaussianMixture.backward_spread`); ``None`` for any other prior.
     """
 
     step: int
@@ -372,6 +383,8 @@ class SamplerState:
     window: tuple = ()
     paths: np.ndarray | None = None
     log_evidence_variance: float = 0.0
+    lineage: np.ndarray | None = None
+    previous_prior: object = None
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -682,7 +695,8 @@ def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, su
 def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
     """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
     by rejection, their log-likelihoods, the log of the restricted prior mass (the acceptance
-    fraction of the rejection sampler) and the number of distinct draws found."""
+    fraction of the rejection sampler), the number of distinct draws found and ``(n,)`` labels
+    (:attr:`SamplerState.lineage`): the index of each draw among the distinct ones (copies share it)."""
     kept, kept_ll, n_drawn, n_kept = [], [], 0, 0
     while n_kept < n and n_drawn < max_rounds * n:
         draws = prior.sample(n, rng)
@@ -700,19 +714,23 @@ def _restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
             f"non-zero likelihood); the {_prior_name(step)} is too far "
             f"from the data")
     kept, kept_ll = np.concatenate(kept), np.concatenate(kept_ll)
+    labels = np.arange(n)
     if n_kept < n:  # almost no mass: duplicate what there is (the caller is told through n_kept)
         index = rng.integers(n_kept, size=n)
-        kept, kept_ll = kept[index], kept_ll[index]
-    return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn)), n_kept
+        kept, kept_ll, labels = kept[index], kept_ll[index], index
+    return kept[:n], kept_ll[:n], float(np.log(n_kept / n_drawn)), n_kept, labels
 
 
 @dataclass(frozen=True, eq=False)
 class _Cloud:
-    """The weighted particles of one step between stages, with their ``(log L, log p_s)`` components."""
+    """The weighted particles of one step between stages, with their ``(log L, log p_s)`` components and
+    their labels: the index of the step's initial draw each descends from (resampling copies it, moves keep it;
+    :attr:`SamplerState.lineage`)."""
 
     particles: np.ndarray
     log_weights: np.ndarray
     components: np.ndarray
+    labels: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -731,23 +749,28 @@ class _Moves:
 def _rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
     """IBIS's schedule: the last step's resample-move, deferred to this dataset's arrival (its target
     is this step's prior, the last posterior). Returns the particles, their log-weights, their prior
-    values (or None), the moves and whether it ran."""
+    values (or None), the moves, whether it ran and the particles' labels (the index of the last
+    posterior's particle each descends from)."""
     n = config.n_samples
     particles, log_weights = state.particles, state.log_weights
     if ess(log_weights) >= config.ess_threshold * n:
-        return particles, log_weights, state.log_prior, moves, False
+        return particles, log_weights, state.log_prior, moves, False, np.arange(n)
     index = resample(config.resampling, np.exp(log_weights), rng, n)
     values = prior_logpdf(particles) if state.log_prior is None else state.log_prior
     particles, components, stats, step_size, n_virtual = _mutate(
         problem, config, moves.step_size, particles[index], np.column_stack([np.zeros(n), values[index]]), 0.0,
         prior_logpdf, rng, lambda theta: np.zeros(theta.shape[0]))
-    return particles, np.full(n, -np.log(n)), components[:, 1], moves.then(stats, step_size, n_virtual, config.move), True
+    return (particles, np.full(n, -np.log(n)), components[:, 1], moves.then(stats, step_size, n_virtual, config.move),
+            True, index)
 
 
-def _weigh(state, particles, log_weights, log_prior, problem, config, counter, prior_logpdf, rng):
+def _weigh(state, particles, log_weights, log_prior, problem, config, counter, prior_logpdf, rng, labels=None):
     """Stage 1: the likelihood at the prior particles (Eq. A4). When few of them can carry the step
     (predictive mass outside the parameter space, or a zero-likelihood region such as stick-slip)
     the step restarts from the prior restricted to ``{inside, L > 0}``.
+
+    ``labels (N,)``: the particles' labels (the index of the last posterior's particle each is the
+    draw of; ``arange(N)`` if omitted), the cloud's unless the step restarts (then the restart draws').
 
     Returns the cloud, the log of the restricted prior mass (0 without restart) and the number of
     distinct restart draws (N without restart)."""
@@ -761,12 +784,13 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
         loglike[inside] = counter.loglike(particles[inside])
     valid = np.isfinite(loglike)
     log_restricted_mass, n_found, restarted = 0.0, n, False
+    labels = np.arange(n) if labels is None else labels
     if not valid.any() and (inside.all() or exact_prior):
         raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
                                   f"{_prior_name(step)} is too far from the data")
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < _min_valid(config, particles)):
-        particles, loglike, log_restricted_mass, n_found = _restricted_draws(state.prior, problem.support, n,
-                                                                             rng, step, counter)
+        particles, loglike, log_restricted_mass, n_found, labels = _restricted_draws(state.prior, problem.support,
+                                                                                     n, rng, step, counter)
         log_weights, restarted = np.full(n, -np.log(n)), True
     if log_prior is not None:
         components = np.column_stack([loglike, log_prior])
@@ -777,7 +801,7 @@ def _weigh(state, particles, log_weights, log_prior, problem, config, counter, p
             components[:, 1] = prior_logpdf.start(particles, log_weights, loglike, own_draws=not restarted)
         else:
             components[carried, 1] = prior_logpdf(particles[carried])
-    return _Cloud(particles, log_weights, components), log_restricted_mass, n_found
+    return _Cloud(particles, log_weights, components, labels), log_restricted_mass, n_found
 
 
 def _min_valid(config, particles) -> float:
@@ -836,7 +860,7 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
     Returns the cloud, the path's log-evidence (Eq. 1), the temperatures, the moves, whether the last
     stage resampled and the last stage's ESS (before resampling)."""
     n, step = config.n_samples, counter.step
-    particles, log_weights, components = cloud.particles, cloud.log_weights, cloud.components
+    particles, log_weights, components, labels = cloud.particles, cloud.log_weights, cloud.components, cloud.labels
     beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
         beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(log_weights, components[:, 0], beta,
@@ -847,6 +871,7 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
         if resampled:
             index = resample(config.resampling, weights, rng, n)
             particles, components = particles[index], components[index]
+            labels = None if labels is None else labels[index]   # copies keep their initial draw's label
             log_weights = np.full(n, -np.log(n))
         # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
@@ -855,7 +880,7 @@ def _temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, 
             particles, components, stats, step_size, n_virtual = _mutate(
                 problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
             moves = moves.then(stats, step_size, n_virtual, config.move)
-    return _Cloud(particles, log_weights, components), log_z, tuple(temperatures), moves, resampled, stage_ess
+    return _Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled, stage_ess
 
 
 def _moves_every_stage(config, method) -> bool:
@@ -903,7 +928,7 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
                       f"{n_found} distinct restart draws); using the tempering path's estimate and the "
                       f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
         log_increment = log_increment_path
-    return _Cloud(particles, cloud.log_weights, components), log_increment, evidence_ess, n_independent
+    return _Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent
 
 
 def _propagate(state, cloud, dataset, log_increment, log_evidence, method, problem, config, rng):
@@ -948,6 +973,36 @@ class PastStep:
     path_space: bool = False
 
 
+def _lineage(state, labels) -> np.ndarray:
+    """``(N, 2)`` :attr:`SamplerState.lineage` after a step whose posterior particles descend from the
+    initial draws ``labels (N,)``: those, and the labels of the last posterior (distinct without lineage)."""
+    labels = np.asarray(labels, dtype=np.intp)
+    previous = _posterior_labels(state)
+    return np.column_stack([labels, np.arange(labels.shape[0]) if previous is None else previous])
+
+
+def _posterior_labels(state, column=0):
+    """Column ``column`` of ``state``'s lineage (0: the last posterior's labels, 1: the one's before), or
+    ``None`` (every particle its own) without lineage of the posterior's size."""
+    if state.lineage is None or state.posterior is None or state.lineage.shape[0] != state.posterior.shape[0]:
+        return None
+    return state.lineage[:, column]
+
+
+def _ancestor_terms(state, spread):
+    """``(variance, covariance)`` of the step's increment error from the ancestors of :func:`step_standard_errors`:
+    the last posterior's (``spread``, an :class:`~seqbayes.density.AncestorSpread` or None) and, through the
+    mixture the last step used, the posterior's before (:meth:`GaussianMixture.backward_spread`)."""
+    if spread is None:
+        return float("nan"), 0.0
+    variance, covariance = spread.variance, 0.0
+    if isinstance(state.previous_prior, GaussianMixture) and state.posterior is not None:
+        backward, covariance = state.previous_prior.backward_spread(state.posterior, state.posterior_log_weights,
+                                                                    spread, _posterior_labels(state, 1))
+        variance += backward
+    return variance, covariance
+
+
 def _remedy_applies(config, method, kernel) -> bool:
     """The path-space remedy needs a transition density in every parameter (no static ones)."""
     return config.conflict_remedy and method in ("transition", "kde") and not kernel.static_mask.any()
@@ -984,6 +1039,12 @@ def ancestor_draws(kernel, later, earlier, earlier_log_weights, rng=None, later_
     ancestor_ess : float
         NaN without ``later_log_weights``.
     """
+    index, mass = _ancestor_mass(kernel, later, earlier, earlier_log_weights, rng, later_log_weights)
+    return index, (float(1.0 / np.dot(mass, mass)) if mass is not None else float("nan"))
+
+
+def _ancestor_mass(kernel, later, earlier, earlier_log_weights, rng=None, later_log_weights=None):
+    """:func:`ancestor_draws` with the mass ``a (M,)`` (None without ``later_log_weights``) in place of its ESS."""
     n, m = later.shape[0], earlier.shape[0]
     block = max(1, _PAIR_BLOCK // m)
     index = np.empty(n, dtype=np.intp) if rng is not None else None
@@ -1001,7 +1062,7 @@ def ancestor_draws(kernel, later, earlier, earlier_log_weights, rng=None, later_
             r = np.exp(log_r - peak)
             r /= np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
             mass += np.exp(later_log_weights[start:start + b]) @ r
-    return index, (float(1.0 / np.dot(mass, mass)) if mass is not None else float("nan"))
+    return index, mass
 
 
 def _start_paths(state, kernel, length, rng):
@@ -1108,7 +1169,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     path_counter = _PathCounter(counter, d)
     prior_logpdf = _path_prior(window, kernel, counter, d)
     n = config.n_samples
-    log_weights, log_restricted_mass, n_found = state.posterior_log_weights, 0.0, n
+    log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
     loglike = np.full(n, -np.inf)
     inside = _inside(walkers, path_problem.support)
     loglike[inside] = path_counter.loglike(walkers[inside])
@@ -1116,13 +1177,13 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # as _weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
         extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-        walkers, loglike, log_restricted_mass, n_found = _restricted_draws(extended, path_problem.support, n, rng,
-                                                                           step, path_counter)
+        walkers, loglike, log_restricted_mass, n_found, labels = _restricted_draws(
+            extended, path_problem.support, n, rng, step, path_counter)
         log_weights = np.full(n, -np.log(n))
     components = np.column_stack([loglike, np.full(n, -np.inf)])
     carried = np.isfinite(loglike)
     components[carried, 1] = prior_logpdf(walkers[carried])
-    cloud = _Cloud(walkers, log_weights, components)
+    cloud = _Cloud(walkers, log_weights, components, labels)
     moves = _Moves(step_size=state.step_size)
     # L + 1 times as many dimensions: SMC's random-walk scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
     # 1997), so gamma for d dimensions becomes gamma / sqrt(L + 1), and a path decorrelates in O(dim) moves: at
@@ -1150,11 +1211,15 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     density, predictive, _ = _propagate(state, marginal, dataset, log_increment, log_evidence, method, problem,
                                         config, rng)
     conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights, problem.support)
-    _, ancestors = ancestor_draws(kernel, posterior, state.posterior, state.posterior_log_weights,
-                                  later_log_weights=cloud.log_weights)
+    _, mass = _ancestor_mass(kernel, posterior, state.posterior, state.posterior_log_weights,
+                             later_log_weights=cloud.log_weights)
+    ancestors = float(1.0 / np.dot(mass, mass))
+    spread = AncestorSpread(ancestors, grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights),
+                                                                 _posterior_labels(state)), mass=mass)
+    ancestor_variance, covariance = _ancestor_terms(state, spread)
     increment_se, evidence_se, evidence_variance = step_standard_errors(
         state.log_evidence_variance, n, config.evidence == "importance" and log_increment != log_z, evidence_ess,
-        np.exp(log_weights), cloud.log_weights, len(temperatures), resampled, ancestors, method)
+        np.exp(log_weights), cloud.log_weights, len(temperatures), resampled, ancestor_variance, method, covariance)
     step_size = moves.step_size if config.move == "stretch" else float("nan")
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment), log_evidence=log_evidence, ess=float(stage_ess),
@@ -1178,7 +1243,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
                              posterior=posterior, posterior_log_weights=cloud.log_weights,
                              window=(state.window + (past,))[-keep:],
                              paths=cloud.particles.reshape(n, length + 1, d)[:, -keep:],
-                             log_evidence_variance=evidence_variance)
+                             log_evidence_variance=evidence_variance, lineage=_lineage(state, cloud.labels),
+                             previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
     return new_state, record, marginal
 
 
@@ -1298,10 +1364,10 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     if history:
         log_prior = state.log_prior
         if deferred:
-            particles, log_weights, log_prior, moves, rejuvenated = _rejuvenate_deferred(
+            particles, log_weights, log_prior, moves, rejuvenated, labels = _rejuvenate_deferred(
                 state, problem, config, prior_logpdf, moves, rng)
-    cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config,
-                                                 counter, prior_logpdf, rng)
+    cloud, log_restricted_mass, n_found = _weigh(state, particles, log_weights, log_prior, problem, config, counter,
+                                                 prior_logpdf, rng, labels if rejuvenated else None)
     weights_before = np.exp(cloud.log_weights)
     weighed = cloud  # the step's prior draws (restricted to {inside, L > 0} after a restart)
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
@@ -1318,28 +1384,34 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     step_size = moves.step_size if config.move == "stretch" else float("nan")
     conflict = step_conflict(weighed.particles, weighed.log_weights, cloud.particles, cloud.log_weights,
                              problem.support)
-    ancestors, window, paths = float("nan"), (), None
+    ancestors, spread, window, paths = float("nan"), None, (), None
+    ancestor_labels = _posterior_labels(state)
     if _remedy_applies(config, method, problem.kernel):  # keep what the path-space remedy needs
         keep = config.remedy_lag - 1
         if state.window and state.paths is None and isinstance(state.prior, GaussianMixture):
             # how many of the mixture's own components carry the posterior (the exact transition's with
             # "transition"), by one matrix product instead of the pairwise transition density: run 0 (T1) with
             # SMC, 4 interleaved pairs, CPU time with / without the remedy 1.53x -> 0.92x (within noise)
-            ancestors = state.prior.ancestor_ess(cloud.particles, cloud.log_weights)
+            spread = state.prior.ancestor_spread(cloud.particles, cloud.log_weights, ancestor_labels)
+            ancestors = spread.ess
         elif state.window:
-            index, ancestors = ancestor_draws(problem.kernel, cloud.particles, state.posterior,
-                                              state.posterior_log_weights, None if state.paths is None else rng,
-                                              cloud.log_weights)
+            index, mass = _ancestor_mass(problem.kernel, cloud.particles, state.posterior, state.posterior_log_weights,
+                                         None if state.paths is None else rng, cloud.log_weights)
+            ancestors = float(1.0 / np.dot(mass, mass))
+            spread = AncestorSpread(ancestors, grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights),
+                                                                         ancestor_labels), mass=mass)
             if state.paths is not None:
                 paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
         window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
                                            float(log_increment)),))[-keep:]
-    # the evidence's standard error; Eq. (A3)'s N ancestors carry Z_s (the remedy's ancestor ESS when it has one)
-    carriers = ancestors if np.isfinite(ancestors) or not isinstance(state.prior, GaussianMixture) else \
-        state.prior.ancestor_ess(cloud.particles, cloud.log_weights)
+    # the evidence's standard error; Eq. (A3)'s N ancestors carry Z_s (the remedy's pass gave their spread if it ran)
+    if spread is None and isinstance(state.prior, GaussianMixture):
+        spread = state.prior.ancestor_spread(cloud.particles, cloud.log_weights, ancestor_labels)
+    ancestor_variance, covariance = _ancestor_terms(state, spread)
     increment_se, evidence_se, evidence_variance = step_standard_errors(
         state.log_evidence_variance, config.n_samples, use_importance and log_increment != log_increment_path,
-        evidence_ess, weights_before, cloud.log_weights, len(temperatures), resampled, carriers, method)
+        evidence_ess, weights_before, cloud.log_weights, len(temperatures), resampled, ancestor_variance, method,
+        covariance)
     info = StepInfo(
         step=step, log_evidence_increment=float(log_increment),
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
@@ -1360,7 +1432,9 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
                              step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                              posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
                              log_prior=next_log_prior, window=window, paths=paths,
-                             log_evidence_variance=evidence_variance)
+                             log_evidence_variance=evidence_variance,
+                             lineage=_lineage(state, cloud.labels),
+                             previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
     return new_state, record, cloud
 
 

@@ -31,7 +31,11 @@ past steps (:class:`~seqbayes.sequential.PastStep`: rebuilt from the steps' reco
 priors, so a window needs the datasets), and ``state_paths (L, N, d)``, the particle paths the
 remedy carries forward (``L = 0`` until it first runs; ``L`` changes over the steps, so the run
 store concatenates these arrays, see :data:`RAGGED`). Stores written before them read as 0 and
-no window.
+no window. ``state_lineage (N, 2)``: the labels of the last two posteriors' particles
+(:attr:`~seqbayes.sequential.SamplerState.lineage`, integers stored as floats); a store written
+before it reads as no lineage (every particle its own label), which changes only the standard
+errors of the log-evidence. The state's ``previous_prior`` is the prior density of the step before,
+rebuilt from that step's arrays.
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from .results import StepRecord
 from .sequential import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
-           "check_state", "is_state_variable", "UnsupportedState"]
+           "check_state", "is_state_variable", "fill_missing", "UnsupportedState"]
 
 
 class UnsupportedState(TypeError):
@@ -106,7 +110,7 @@ _NESTED = "nested_"
 #: log-evidence (its standard error carries over the steps), the length of the conflict remedy's
 #: window of past steps (rebuilt from the steps' records, datasets and priors) and the paths of the
 #: last path-space step carried forward (``(L, N, d)``, ``L`` of 0 before the remedy first ran).
-_COMMON = ("state_log_evidence_variance", "state_window", "state_paths")
+_COMMON = ("state_log_evidence_variance", "state_window", "state_paths", "state_lineage")
 #: Arrays whose first axis may have another length at every step: the run store concatenates them.
 RAGGED = ("state_paths",)
 
@@ -115,7 +119,7 @@ _DIMS = {"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("para
          "mixture_log_weights": ("sample",), "state_log_prior": ("sample",),
          "mixsum_centres": ("branch", "sample", "parameter"), "mixsum_bandwidth": ("branch", "parameter"),
          "mixsum_component_log_weights": ("branch", "sample"), "mixsum_log_weights": ("branch",),
-         "state_paths": ("path_step", "sample", "parameter")}
+         "state_paths": ("path_step", "sample", "parameter"), "state_lineage": ("sample", "lineage")}
 
 
 def state_arrays(state) -> dict:
@@ -147,6 +151,8 @@ def state_arrays(state) -> dict:
                 arrays = {**to_arrays(state.prior, state.log_prior),
                           "state_log_evidence_variance": state.log_evidence_variance,
                           "state_window": len(state.window), "state_paths": paths}
+                if state.lineage is not None:
+                    arrays["state_lineage"] = state.lineage
                 return {name: np.array(value, dtype=float) for name, value in arrays.items()}
     kind = type(state.prior).__name__ if isinstance(state, SamplerState) else type(state).__name__
     raise UnsupportedState(f"state: cannot store a sampler state whose prior is a {kind}")
@@ -156,6 +162,14 @@ def is_state_variable(name: str) -> bool:
     """Whether a run-store variable ``name`` is one of :func:`state_arrays`' arrays."""
     return (name in _COMMON or name.startswith(_NESTED)
             or any(name.startswith(prefix) for prefix, *_ in _KINDS.values()))
+
+
+def fill_missing(arrays: dict, n_samples: int) -> None:
+    """Add to a step's ``arrays`` (in place) what a store written before ``state_lineage`` lacks: every
+    particle its own label, which is how a state without lineage counts (so the store's steps keep one
+    set of arrays and the next step is appended, not the whole file rewritten)."""
+    if "state_lineage" not in arrays and state_kind(arrays) != "nested":
+        arrays["state_lineage"] = np.repeat(np.arange(float(n_samples))[:, None], 2, axis=1)
 
 
 def state_kind(arrays) -> str:
@@ -247,11 +261,15 @@ def state_from_arrays(arrays_by_step, records, step_size: float, initial_prior, 
                             records[k - 1].info.log_evidence_increment, records[k - 1].info.path_steps > 0)
                    for k in range(step - int(arrays.get("state_window", 0)) + 1, step + 1))
     paths = arrays.get("state_paths")
+    lineage = arrays.get("state_lineage")
+    previous_prior = prior_of(step - 1)[0] if step >= 2 and state_kind(arrays_by_step[-2]) == "mixture" else None
     return SamplerState(step=step, particles=record.predictive, log_weights=record.log_weights,
                         prior=prior, log_evidence=record.info.log_evidence, step_size=float(step_size),
                         posterior=record.posterior, posterior_log_weights=record.log_weights, log_prior=log_prior,
                         window=window, paths=None if paths is None or not len(paths) else np.transpose(paths, (1, 0, 2)),
-                        log_evidence_variance=float(arrays.get("state_log_evidence_variance", 0.0)))
+                        log_evidence_variance=float(arrays.get("state_log_evidence_variance", 0.0)),
+                        lineage=None if lineage is None else np.asarray(lineage).astype(np.intp),
+                        previous_prior=previous_prior)
 
 
 def check_state(state, record: StepRecord) -> None:

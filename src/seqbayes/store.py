@@ -504,6 +504,8 @@ class RunStore:
                 ragged[name] = np.split(variables[name], np.cumsum(rows)[:-1]) if n_steps else []
         states = [{name: ragged[name][i] if name in ragged else variables[name][i] for name in state_names}
                   for i in range(n_steps)]
+        for arrays, posterior in zip(states, variables.get("posterior", ())):
+            snapshot.fill_missing(arrays, posterior.shape[0])   # a state array added since the store was written
         if n_steps and snapshot.state_kind(states[0]) == "mixture" and stored.predictive_method == "history":
             raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
                              f"kernel-density prior; this version uses their exact history prior. Re-create "
