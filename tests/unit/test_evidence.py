@@ -103,8 +103,8 @@ def test_weights_increment_variance_is_the_delta_method():
 
 def test_sampler_reports_a_log_evidence_se_that_matches_the_spread_over_seeds():
     # drifting linear-Gaussian problem (transition mixture: importance + ancestor terms), N = 300, 10 seeds,
-    # 3 datasets: reported 0.108 against an sd of 0.063 over the seeds (ratio 1.7, measured; at N = 1000
-    # benchmarks/bench_evidence_se.py finds 0.87-1.58 over 20 seeds). The sd of 10 seeds is uncertain by
+    # 3 datasets: reported 0.088 against an sd of 0.063 over the seeds (ratio 1.4, measured; at N = 1000
+    # benchmarks/bench_evidence_se.py finds 0.90-1.09 over 100 seeds). The sd of 10 seeds is uncertain by
     # ~24 %, so the ratio is asserted within [0.5, 2.5] at the last step
     from seqbayes import SMC
     from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
@@ -119,6 +119,6 @@ def test_sampler_reports_a_log_evidence_se_that_matches_the_spread_over_seeds():
         errors.append(result.log_evidence[-1] - exact)
         reported.append(result.log_evidence_se[-1])
         assert np.all(np.isfinite(result.log_evidence_se))
-        assert np.all(np.diff(result.log_evidence_se) > 0)  # the increments' variances add
+        assert np.all(result.log_evidence_se > 0)  # (not increasing: consecutive increments' errors are correlated)
     ratio = np.sqrt(np.mean(np.square(reported))) / np.std(errors, ddof=1)
     assert 0.5 < ratio < 2.5

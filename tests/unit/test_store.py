@@ -146,7 +146,7 @@ def test_history_prior_run_resumes_bit_for_bit_and_replaces_last(tmp_path, sampl
     store = RunStore.open(tmp_path / "run.nc")
     assert_same_steps(reference.result.steps, store.result.steps)
     assert [set(arrays) for arrays in store.states] == [{"state_log_prior", "state_log_evidence_variance", "state_window",
-                                                          "state_paths"}] * 4
+                                                          "state_paths", "state_lineage"}] * 4
     assert [int(arrays["state_window"]) for arrays in store.states] == [0] * 4   # no remedy for static parameters
     for stored, d in zip(store.tables, data):
         np.testing.assert_array_equal(stored, d)
@@ -292,7 +292,7 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
     for d in datasets(2):
         store.assimilate(d)
     ds = store.to_xarray().drop_vars(["record_sha256", "state_window", "state_paths", "state_paths_rows",
-                                      "state_log_evidence_variance"], errors="ignore")
+                                      "state_log_evidence_variance", "state_lineage"], errors="ignore")
     ds.attrs["seqbayes_store_format"] = 3
     variables = {name: ds[name].values for name in ds.variables}
     ds.attrs["content_sha256"] = _content_hash_v3(ds.attrs, variables)
@@ -310,6 +310,42 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
     assert again.n_steps == 3 and again.sources[-1] == "d3"
     assert_same_steps(store.result.steps, again.result.steps[:2])
     assert xr.open_dataset(tmp_path / "v3.nc", engine="h5netcdf").attrs["seqbayes_store_format"] == FORMAT_VERSION
+
+
+def test_a_store_written_before_the_lineage_opens_and_continues_with_distinct_labels(tmp_path):
+    """A format-4 store without ``state_lineage`` (written before the evidence se's labels) reads as every
+    particle its own label (the lineage only enters the log-evidence standard errors); the next update
+    writes the lineage of every step, and the sampling is the uninterrupted run's."""
+    from seqbayes import snapshot
+
+    (tmp_path / "remedymodel.py").write_text(REMEDY_MODEL)
+    (tmp_path / "run.toml").write_text(REMEDY_CONFIG)
+    cfg = load_config(tmp_path / "run.toml")
+    rng = np.random.default_rng(5)
+    data = [(0.05 * s + 0.5 * rng.standard_normal(25))[:, None] for s in range(4)]
+    reference = cfg.build_sampler()
+    for d in data:
+        reference.update(d)
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    for i, d in enumerate(data[:3]):
+        store.assimilate(d, f"d{i}")
+    assert all(arrays["state_lineage"].shape == (300, 2) for arrays in store.states)
+    store.to_xarray().drop_vars(["state_lineage"]).to_netcdf(tmp_path / "old.nc", engine="h5netcdf")
+    old = RunStore.open(tmp_path / "old.nc")
+    distinct = np.repeat(np.arange(300.0)[:, None], 2, axis=1)
+    for arrays in old.states:
+        np.testing.assert_array_equal(arrays["state_lineage"], distinct)
+    old.assimilate(data[3], "d3")
+    again = RunStore.open(tmp_path / "old.nc")
+    assert all("state_lineage" in arrays for arrays in again.states)
+    # the new step's own labels are the uninterrupted run's; those of the step before were not stored
+    lineage = again.states[-1]["state_lineage"]
+    np.testing.assert_array_equal(lineage[:, 0], snapshot.state_arrays(reference.state)["state_lineage"][:, 0])
+    np.testing.assert_array_equal(lineage[:, 1], np.arange(300.0))
+    for a, b in zip(reference.result.steps, again.result.steps):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        np.testing.assert_array_equal(a.predictive, b.predictive)
+        assert a.info.log_evidence == b.info.log_evidence and a.info.ess == b.info.ess
 
 
 def test_write_removes_stale_temporary_files(tmp_path):
