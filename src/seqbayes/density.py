@@ -64,24 +64,29 @@ _ANCESTOR_ROWS = 512
 
 
 def _groups(labels, n):
-    """``(order, starts)``: the ``n`` columns sorted by ``labels (n,)`` (stable) and where each label's run
-    starts in that order, for :func:`numpy.add.reduceat`; ``None`` for ``labels=None`` (every column its own)."""
+    """The ``(n, G)`` 0/1 membership matrix (sparse) of the ``G`` distinct ``labels (n,)`` and each column's group
+    index; ``None`` for ``labels=None`` or ``n`` distinct labels (every column its own group)."""
     if labels is None:
         return None
     labels = np.asarray(labels)
     if labels.shape != (n,) or labels.dtype.kind not in "iu" or (n and labels.min() < 0):
         raise ValueError(f"labels: expected ({n},) non-negative integers, got shape {labels.shape}, dtype {labels.dtype}")
-    order = np.argsort(labels, kind="stable")
-    ordered = labels[order]
-    return order, np.flatnonzero(np.concatenate([[True], ordered[1:] != ordered[:-1]]))
+    _, inverse = np.unique(labels, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    n_groups = int(inverse.max()) + 1 if n else 0
+    if n_groups == n:
+        return None
+    return sparse.csr_matrix((np.ones(n), (np.arange(n), inverse)), shape=(n, n_groups)), inverse, n_groups
 
 
 def _grouped(values, groups):
-    """Sums of ``values (..., n)`` over the groups of :func:`_groups` along the last axis."""
+    """Sums of ``values`` (``(n,)`` or ``(k, n)``) over the groups of :func:`_groups` along the last axis."""
     if groups is None:
         return values
-    order, starts = groups
-    return np.add.reduceat(values[..., order], starts, axis=-1)
+    membership, inverse, n_groups = groups
+    if values.ndim == 1:
+        return np.bincount(inverse, weights=values, minlength=n_groups)
+    return np.asarray((membership.T @ values.T).T)
 
 
 def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
