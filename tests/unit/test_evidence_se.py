@@ -106,19 +106,24 @@ def _two_steps_back(seed, n=6000):
 
 def test_subsampled_rows_estimate_the_spread_and_the_backward_term(monkeypatch):
     # N = 6000 >= 4096: 512 selected rows (U-statistics) against every row. Measured on seeds 0-2: the grouped
-    # variance 0.85-1.05 of the all-rows value, the backward term 0.61-1.16, its covariance 0.93-1.14 (it is the
-    # part of the se with the fewest rows behind it); asserted for seed 0 (0.85, 1.05, 0.93) with margins
+    # variance 0.95-1.05 of the all-rows value; the backward term 0.79-1.13 from the selected rows' draws,
+    # 0.75-1.16 from rows drawn from the all-rows mass (N > 2048), its covariance 0.94-1.10 (the backward term
+    # has the fewest rows behind it); asserted for seed 0 with margins
     older, mixture, previous, previous_log_w, posterior, log_w, labels, older_labels = _two_steps_back(0)
     sub = mixture.ancestor_spread(posterior, log_w, labels)
     assert sub.mass is None and sub.draws.shape == (512,)
     sub_backward = older.backward_spread(previous, previous_log_w, sub, older_labels)
     monkeypatch.setattr(density_module, "_TREE_MIN_CENTRES", 10**9)   # every row
     every = mixture.ancestor_spread(posterior, log_w, labels)
+    mass_backward = older.backward_spread(previous, previous_log_w, every, older_labels)   # rows drawn from the mass
+    monkeypatch.setattr(density_module, "_BACKWARD_ROWS", 10**9)
     every_backward = older.backward_spread(previous, previous_log_w, every, older_labels)
     assert abs(sub.ess / every.ess - 1) < 0.05
     assert 0.75 < sub.variance / every.variance < 1.25
     assert 0.5 < sub_backward[0] / every_backward[0] < 2.0
     assert 0.75 < sub_backward[1] / every_backward[1] < 1.33
+    assert 0.5 < mass_backward[0] / every_backward[0] < 2.0
+    assert 0.75 < mass_backward[1] / every_backward[1] < 1.33
 
 
 def test_samplers_carry_the_labels_of_the_last_two_posteriors():
