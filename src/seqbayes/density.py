@@ -87,7 +87,7 @@ def _grouped(values, groups):
     if values.ndim == 1:
         return np.bincount(inverse, weights=values, minlength=n_groups)
     # dense (k, n) @ sparse (n, G): ~10x faster than (membership.T @ values.T).T, which copies the transpose
-    return np.asarray(values @ membership)
+    return np.asarray(values @ membership.astype(values.dtype, copy=False))
 
 
 def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
@@ -370,12 +370,11 @@ class GaussianMixture:
         return AncestorSpread(float(1.0 / np.dot(mass, mass)), float(np.dot(difference, difference)), mass=mass)
 
     def _responsibilities(self, points, dtype=np.float64):
-        """Blocks ``(rows, r)`` of the responsibilities ``r (b, N)`` (double precision) of the components for
-        ``points (m, d)``; ``dtype=np.float32`` forms the exponents in single precision (2x faster, relative
-        error ~1e-6: for the selected rows of :meth:`backward_spread`, an estimate)."""
+        """Blocks ``(rows, r)`` of the responsibilities ``r (b, N)`` of the components for ``points (m, d)``, in
+        ``dtype``; ``np.float32`` (relative error ~1e-6: for the selected rows of :meth:`backward_spread`, an
+        estimate) is 1.7x faster with the label grouping after it (512 + 512 rows x 16,000 components)."""
         x = (as_samples(points, self.dim) - self._shift) / self.bandwidth
         for rows, _, scaled, _ in self._scaled_terms(x, dtype):
-            scaled = scaled.astype(np.float64, copy=False)
             scaled /= scaled.sum(axis=1, keepdims=True)
             yield rows, scaled
 
