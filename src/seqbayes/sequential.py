@@ -261,6 +261,7 @@ class SamplerConfig:
     conflict_remedy: bool = True
     remedy_ess: float = 0.05
     remedy_lag: int = 10
+    remedy_bridge: str = "auto"
     pseudo_marginal_from: int = 2048
     scaled_moves: bool | None = None
     economy: bool = False
@@ -1135,8 +1136,126 @@ def _path_prior(window, kernel, counter, dim):
     return logpdf
 
 
+@dataclass(frozen=True, eq=False)
+class _PathPriorDraws:
+    """The window's path prior ``p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1})`` on flattened paths
+    ``(M, (L + 1) d)``: draws (``theta_w`` from ``first``, the rest forward through the kernel) and log-density."""
+
+    first: object
+    kernel: MarkovKernel
+    n_states: int
+    dim: int
+
+    def sample(self, n, rng):
+        states = [as_samples(self.first.sample(int(n), rng), self.dim, "prior.sample(n, rng)")]
+        for _ in range(1, self.n_states):
+            states.append(self.kernel.propagate(states[-1], rng))
+        return np.concatenate(states, axis=1)
+
+    def logpdf(self, walkers):
+        states = walkers.reshape(walkers.shape[0], -1, self.dim)
+        out = np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy()
+        for t in range(1, states.shape[1]):
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            out[alive] += self.kernel.logpdf(states[alive, t], states[alive, t - 1])
+        return out
+
+
+class _WindowCounter:
+    """The likelihood of every dataset of the window and the new one on flattened paths:
+    ``sum_{t=w}^{s} log L_t(theta_t)`` (one call per state; a path with one zero likelihood stops there)."""
+
+    def __init__(self, counter, datasets, dim):
+        self.counter, self.datasets, self.dim, self.step = counter, tuple(datasets), dim, counter.step
+
+    def loglike(self, walkers):
+        states = walkers.reshape(walkers.shape[0], -1, self.dim)
+        out = np.zeros(walkers.shape[0])
+        for t, dataset in enumerate(self.datasets):
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            out[alive] += self.counter.loglike_on(states[alive, t], dataset)
+        return out
+
+
+def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, counter, moves, rng):
+    """The window's posterior reached from its path PRIOR by tempering all its likelihoods jointly.
+
+    The path-space target of :func:`assimilate_paths` (``w`` the window's first step, ``s`` this one),
+
+        pi(theta_{w:s}) = p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}) prod_{t=w}^{s} L_t(theta_t) / Z_{w:s},
+        Z_{w:s} = p(D^{w:s} | D^{1:w-1}) = prod_{t=w}^{s} Z_t,
+
+    is bridged from the path prior ``pi_0 = p_w prod T`` (sampled forward: ``theta_w ~ p_w``, then the
+    kernel; restricted to the parameter space by rejection, whose acceptance fraction ``m`` enters the
+    evidence as in :func:`_restricted_draws`) through
+
+        pi_beta prop. to pi_0(theta_{w:s}) [prod_{t=w}^{s} L_t(theta_t)]^beta,   0 = beta_0 < ... < beta_K = 1,
+
+    with the sampler's own reweight-resample-move stages (Eq. A5, the moves on the whole path). Every
+    choice of which dataset a path gives up is weighed afresh, not inherited from the previous steps'
+    particles, so a mode of ``pi`` whose earlier states the earlier data had ruled out given the stored
+    paths is reached. The stages' product of mean weights (Eq. 1) estimates ``log Z_{w:s} = log m +
+    sum_k log mean_i w_i^(k)``; the step's increment is that minus the window's stored increments
+    ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of :func:`_path_prior`), so the cumulative evidence
+    becomes the window's own estimate.
+
+    Returns
+    -------
+    cloud : _Cloud
+        Equal-weight (or weighted) paths ``(N, (L + 1) d)`` of ``pi``, with components
+        ``(sum_t log L_t, log pi_0)``.
+    log_z_window : float
+        ``log Z_{w:s}`` estimated by the tempering path (with the restricted mass).
+    temperatures, moves, resampled, stage_ess, n_found
+        As :func:`_temper_resample_move`; ``n_found`` distinct draws of the restricted path prior.
+    """
+    d, n = kernel.dim, path_config.n_samples
+    path_prior = _PathPriorDraws(window[0].prior, kernel, len(window) + 1, d)
+    window_counter = _WindowCounter(counter, [past.dataset for past in window] + [dataset], d)
+    walkers, loglike, log_restricted_mass, n_found = _restricted_draws(path_prior, path_problem.support, n, rng,
+                                                                       counter.step, window_counter)
+    components = np.column_stack([loglike, path_prior.logpdf(walkers)])
+    cloud = _Cloud(walkers, np.full(n, -np.log(n)), components)
+    cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
+        cloud, path_problem, path_config, window_counter, path_prior.logpdf, moves, True, False, rng)
+    return cloud, log_z + log_restricted_mass, temperatures, moves, resampled, stage_ess, n_found
+
+
+def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, rng):
+    """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
+    ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`_weigh`, a restart from the path
+    predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
+
+    Returns the cloud (components ``(log L_s, log path prior)``), its log-weights before the step, the log
+    of the restricted mass (0 without restart) and the number of distinct restart draws (N without)."""
+    d, n = kernel.dim, config.n_samples
+    length = path_problem.support.shape[0] // d - 1
+    paths = _start_paths(state, kernel, length, rng)
+    walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
+        paths.shape[0], -1)
+    log_weights, log_restricted_mass, n_found = state.posterior_log_weights, 0.0, n
+    loglike = np.full(n, -np.inf)
+    inside = _inside(walkers, path_problem.support)
+    loglike[inside] = path_counter.loglike(walkers[inside])
+    valid = np.isfinite(loglike)
+    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+        # as _weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
+        extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
+        walkers, loglike, log_restricted_mass, n_found = _restricted_draws(extended, path_problem.support, n, rng,
+                                                                           path_counter.step, path_counter)
+        log_weights = np.full(n, -np.log(n))
+    components = np.column_stack([loglike, np.full(n, -np.inf)])
+    carried = np.isfinite(loglike)
+    components[carried, 1] = prior_logpdf(walkers[carried])
+    return _Cloud(walkers, log_weights, components), log_weights, log_restricted_mass, n_found
+
+
 def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, counter,
-                     method: str, start: float) -> tuple[SamplerState, StepRecord, _Cloud]:
+                     method: str, start: float, bridge: bool = False) -> tuple[SamplerState, StepRecord, _Cloud]:
     """The exact remedy for prior-data conflict: assimilate ``dataset`` on the path space.
 
     The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
@@ -1161,29 +1280,11 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     kernel, d = problem.kernel, problem.kernel.dim
     length = min(len(state.window), config.remedy_lag - 1)
     window = state.window[-length:]
-    paths = _start_paths(state, kernel, length, rng)
-    walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
-        paths.shape[0], -1)
     path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                            problem.executor, problem.n_chunks)
     path_counter = _PathCounter(counter, d)
     prior_logpdf = _path_prior(window, kernel, counter, d)
     n = config.n_samples
-    log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
-    loglike = np.full(n, -np.inf)
-    inside = _inside(walkers, path_problem.support)
-    loglike[inside] = path_counter.loglike(walkers[inside])
-    valid = np.isfinite(loglike)
-    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
-        # as _weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
-        extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-        walkers, loglike, log_restricted_mass, n_found, labels = _restricted_draws(
-            extended, path_problem.support, n, rng, step, path_counter)
-        log_weights = np.full(n, -np.log(n))
-    components = np.column_stack([loglike, np.full(n, -np.inf)])
-    carried = np.isfinite(loglike)
-    components[carried, 1] = prior_logpdf(walkers[carried])
-    cloud = _Cloud(walkers, log_weights, components, labels)
     moves = _Moves(step_size=state.step_size)
     # L + 1 times as many dimensions: SMC's random-walk scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
     # 1997), so gamma for d dimensions becomes gamma / sqrt(L + 1), and a path decorrelates in O(dim) moves: at
@@ -1199,9 +1300,23 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
                           n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
                                                           per_state * (length + 1))))
-    cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
-        cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
-    log_z = log_z + log_restricted_mass
+    if bridge:
+        cloud, log_z_window, temperatures, moves, resampled, stage_ess, n_found = _bridge_from_path_prior(
+            window, dataset, kernel, path_problem, path_config, counter, moves, rng)
+        log_weights = np.full(n, -np.log(n))  # the bridge's start: equal-weight draws of the path prior
+        # back to the decomposition of the other branch, (log L_s, log of the normalised path prior of Eq. above),
+        # for the importance estimate of the increment: log L_s costs N calls, the rest is a difference
+        last = path_counter.loglike(cloud.particles)
+        normaliser = sum(past.log_evidence_increment for past in window)
+        cloud = _Cloud(cloud.particles, cloud.log_weights,
+                       np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]))
+        log_z = log_z_window - normaliser
+    else:
+        cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
+                                                                                path_counter, prior_logpdf, config, rng)
+        cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
+            cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
+        log_z = log_z + log_restricted_mass
     cloud, log_increment, evidence_ess, n_independent = _evidence(
         cloud, log_z, n_found, path_problem, config, path_counter, prior_logpdf, config.evidence == "importance",
         rng)
@@ -1340,7 +1455,8 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
     if state.window and _remedy_applies(config, method, problem.kernel) and (
             info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold):
         try:
-            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start)
+            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start,
+                                                    bridge=config.remedy_bridge == "always")
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
             pass
     return new_state, record
@@ -1693,7 +1809,7 @@ class SEMC(_SequentialSampler):
     tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
 predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
 move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
-conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from, scaled_moves, economy
+conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, scaled_moves, economy
         The fields of :class:`SamplerConfig` of the same names, with its defaults and
         validation (see there for what each does).
 
@@ -1724,7 +1840,7 @@ conflict_remedy, remedy_ess, remedy_lag, pseudo_marginal_from, scaled_moves, eco
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 2048,
+                 remedy_lag: int = 10, remedy_bridge: str = "auto", pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
@@ -1758,7 +1874,7 @@ class SMC(_SequentialSampler):
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, pseudo_marginal_from: int = 2048,
+                 remedy_lag: int = 10, remedy_bridge: str = "auto", pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
