@@ -261,7 +261,7 @@ class SamplerConfig:
     conflict_remedy: bool = True
     remedy_ess: float = 0.05
     remedy_lag: int = 10
-    remedy_bridge: str = "auto"
+    remedy_bridge: bool = True
     pseudo_marginal_from: int = 2048
     scaled_moves: bool | None = None
     economy: bool = False
@@ -311,6 +311,8 @@ class SamplerConfig:
             raise ValueError(f"remedy_ess: must lie in [0, 1], got {self.remedy_ess}")
         if isinstance(self.remedy_lag, bool) or int(self.remedy_lag) != self.remedy_lag or self.remedy_lag < 2:
             raise ValueError(f"remedy_lag: must be an integer >= 2, got {self.remedy_lag}")
+        if self.remedy_bridge not in (True, False):
+            raise ValueError(f"remedy_bridge: expected True or False, got {self.remedy_bridge!r}")
         if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
             raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
         if (isinstance(self.pseudo_marginal_from, bool) or int(self.pseudo_marginal_from) != self.pseudo_marginal_from
@@ -1294,7 +1296,11 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     # in the 2 (L + 1) path dimensions (its autocorrelation grows with the dimension): with 2 (L + 1) sweeps its
     # mean of k at the abrupt drop's step 5 was biased by +0.09 +- 0.02 exact sds over 20 seeds (worst 0.31), with
     # 4 (L + 1) by +0.05 +- 0.02 (bench_abrupt.py --per-seed; SMC's moves keep 2 (L + 1))
-    per_state = 4 if config.move == "stretch" else 2
+    # The bridge from the path prior (remedy_bridge) makes 4 (L + 1) moves per stage with either sampler: its first
+    # stages hold the whole prior's spread along the window's likelihood ridges, where SMC's random walk at
+    # gamma / sqrt(L + 1) with 2 (L + 1) moves let the paths collapse (run 9, T4, sampler seed 0, step 5: importance
+    # ESS 7 of 1000, 1.75 exact sds and 35 nats off; with 4 (L + 1): 0.03 sds, 0.01 nats)
+    per_state = 4 if config.move == "stretch" or bridge else 2
     # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
     config = replace(config, scaled_moves=config.uses_scaled_moves(d))
     path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
@@ -1456,7 +1462,7 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
             info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold):
         try:
             new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start,
-                                                    bridge=config.remedy_bridge == "always")
+                                                    bridge=config.remedy_bridge)
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
             pass
     return new_state, record
@@ -1840,7 +1846,7 @@ conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, sc
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: str = "auto", pseudo_marginal_from: int = 2048,
+                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
@@ -1874,7 +1880,7 @@ class SMC(_SequentialSampler):
                  evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: str = "auto", pseudo_marginal_from: int = 2048,
+                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
