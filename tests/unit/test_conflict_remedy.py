@@ -93,15 +93,19 @@ def test_ancestor_draws_follow_the_responsibilities():
 
 
 # Tolerances: 5 seeds per sampler with the remedy (N = 1000) gave |mean error| <= 0.09 exact sd
-# (seed sd <= 0.06) and |log-evidence error| <= 0.05 nats (sd <= 0.03) at every step; 0.25 sd and
-# 0.25 nats are over 4 of those sds. Without the remedy: up to 0.93 sd and 4.2 nats (sd 0.2-0.3 and
-# 0.35-1.5 from step 4 on).
+# (seed sd <= 0.06) and |log-evidence error| <= 0.05 nats (sd <= 0.03) at every step starting from the
+# stored paths; with the bridge from the path prior (the default) <= 0.11 sd (seed sd <= 0.07) and <= 0.04
+# nats (sd <= 0.03); 0.25 sd and 0.25 nats are over 3.5 of those sds. Without the remedy: up to 0.93 sd
+# and 4.2 nats (sd 0.2-0.3 and 0.35-1.5 from step 4 on).
 @pytest.mark.parametrize("cls", [SEMC, SMC])
-def test_the_remedy_matches_the_kalman_filter_through_a_conflict(cls):
+@pytest.mark.parametrize("bridge", [True, False])
+def test_the_remedy_matches_the_kalman_filter_through_a_conflict(cls, bridge):
+    # bridge: the path-space step tempers every likelihood of the window from the path prior (the default);
+    # False: it starts from the stored paths and tempers only the new dataset
     ys = datasets()
     exact = kalman(ys)
     for seed in (0, 1):
-        result, mean, log_evidence = run(cls, ys, seed)
+        result, mean, log_evidence = run(cls, ys, seed, remedy_bridge=bridge)
         assert [r.info.path_steps for r in result.steps][3] == 4  # the jump step ran on the path space
         assert np.all(np.abs(mean - exact[:, 0]) / exact[:, 1] < 0.25)
         assert np.all(np.abs(log_evidence - exact[:, 2]) < 0.25)
@@ -160,7 +164,8 @@ def test_the_remedy_does_not_apply_to_static_parameters():
 
 
 @pytest.mark.parametrize("name, value", [("remedy_ess", 1.5), ("remedy_ess", -0.1), ("remedy_lag", 1),
-                                         ("remedy_lag", 2.5), ("remedy_lag", True)])
+                                         ("remedy_lag", 2.5), ("remedy_lag", True), ("remedy_bridge", "yes"),
+                                         ("remedy_bridge", None)])
 def test_bad_remedy_settings_are_refused(name, value):
     with pytest.raises(ValueError, match=name):
         SamplerConfig(move="gaussian", **{name: value})
@@ -175,3 +180,22 @@ def test_semc_makes_four_sweeps_per_path_state_at_every_stage():
     assert remedied
     for info in remedied:
         assert info.n_virtual >= info.n_stages * min(30, 4 * info.path_steps)
+
+
+def test_the_path_prior_draws_and_density_are_the_windows_prior_times_the_transitions():
+    # exact: the log-density is log p_w(theta_w) + sum_t log T(theta_t | theta_{t-1}); statistical: theta_3 of the
+    # draws is N(0, PRIOR_SD^2 + 2 q^2) (4 standard errors of the mean and of the variance, 20000 draws)
+    q = 0.3
+    kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=q)])
+    path_prior = sequential._PathPriorDraws(PRIOR, kernel, 3, 1)
+    draws = path_prior.sample(20000, np.random.default_rng(0))
+    assert draws.shape == (20000, 3)
+    expected = (stats.norm.logpdf(draws[:, 0], 0.0, PRIOR_SD) + stats.norm.logpdf(draws[:, 1], draws[:, 0], q)
+                + stats.norm.logpdf(draws[:, 2], draws[:, 1], q))
+    np.testing.assert_allclose(path_prior.logpdf(draws), expected, rtol=1e-12)
+    sd = np.sqrt(PRIOR_SD**2 + 2 * q**2)
+    assert abs(draws[:, 2].mean()) < 4 * sd / np.sqrt(20000)
+    assert abs(draws[:, 2].var() / sd**2 - 1.0) < 4 * np.sqrt(2 / 20000)
+    rho = PRIOR_SD / np.hypot(PRIOR_SD, q)  # corr(theta_1, theta_2); the sample correlation's sd is (1 - rho^2) / sqrt(n)
+    assert abs(np.corrcoef(draws[:, 0], draws[:, 1])[0, 1] - rho) < 4 * (1 - rho**2) / np.sqrt(20000)
+
