@@ -182,6 +182,15 @@ class SamplerConfig:
     remedy_lag : int
         Steps kept for the path-space target (10): exact when the run has at most that many steps,
         else the window's first state takes the (mixture) prior that step used.
+    remedy_bridge : bool
+        How the path-space step reaches its target. ``True`` (default): from the window's path prior
+        (the window's first prior, then the kernel), tempering every likelihood of the window jointly, so
+        that each mode of the path posterior (one per choice of the dataset a path gives up, under a
+        kernel the data contradict) is weighed afresh and the window's evidence estimated directly.
+        ``False``: from the stored paths of the previous posterior, tempering only the new dataset (about
+        half the cost; it cannot reach a mode whose earlier states the earlier steps ruled out: run 9 of
+        the oscillator study under T3-T5 ended 1-24 exact sds and ~40 nats off). Both
+        :func:`assimilate_paths`; docs/prior_data_conflict.md.
     n_inner : int
         SMC^2 (static and drifting parameters): particles of the default inner filter
         (:class:`~seqbayes.nested.ParticleInnerFilter`) per outer particle (100).
@@ -1269,12 +1278,16 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         p(theta_{w:s} | D^{1:s}) prop. to p_w(theta_w) prod_{t=w}^{s} L_t(theta_t) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}),
 
     whose marginal in ``theta_s`` is the model's exact posterior (``p_w`` is the initial prior when
-    the window reaches step 1). The particles start from the previous posterior's paths (kept from
-    the last path-space step, or drawn backwards with the exact transition), are extended by
-    ``theta_s ~ T(. | theta_{s-1})``, tempered in ``L_s`` (Eq. A5) and moved by the sampler's own
-    MCMC move on the whole path, which carries the earlier states into the tails the data call for.
-    The evidence increment is Eq. (1) or the importance estimate of :mod:`seqbayes.evidence` on
-    the path space; the cost of a move is one likelihood call per state of the window.
+    the window reaches step 1). With ``bridge`` (``SamplerConfig.remedy_bridge``, the default) the
+    particles are drawn from the path prior ``p_w prod T`` and every likelihood of the window is
+    tempered jointly (:func:`_bridge_from_path_prior`), so that every mode of the path posterior is
+    weighed afresh. Without it they start from the previous posterior's paths (kept from the last
+    path-space step, or drawn backwards with the exact transition), are extended by
+    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
+    by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
+    the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    :mod:`seqbayes.evidence` on the path space; the cost of a move is one likelihood call per state of
+    the window.
 
     Returns the new state (with the paths), the record (``StepInfo.path_steps = L``) and the cloud.
     """
