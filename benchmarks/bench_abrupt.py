@@ -6,9 +6,11 @@
 
 Problems:
 
-- ``run9-T1``, ``run9-T2``: run 9 of ``seqbayes example oscillator`` (seed 0) under kernels T1 / T2,
-  the prior-data conflict of issue 11 (the exact reference is the bundled table,
-  ``seqbayes.models.oscillator.load_exact_references``);
+- ``run9-T1`` ... ``run9-T6``: run 9 of ``seqbayes example oscillator`` (seed 0) under the study's kernel
+  T1 ... T6, the prior-data conflict of issue 11 (the exact reference is the bundled table,
+  ``seqbayes.models.oscillator.load_exact_references``); under the losing kernels T3-T5 the window's path
+  posterior has several modes (``--settings '{"remedy_bridge": false}'`` starts the path-space steps from
+  the stored paths instead of the bridge from the path prior, and misses the major one);
 - ``drop``: the synthetic abrupt drop (``seqbayes.studies.abrupt_drop.simulate(1)``: eight inspections,
   slow decay, ``k`` drops 30 % at step 5) under the smooth kernel that generated it (decay rates
   0.02 / month, process noise 0.02 and 0.005); its exact reference is computed here by
