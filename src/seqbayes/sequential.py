@@ -1164,7 +1164,7 @@ class _PathPriorDraws:
         return np.concatenate(states, axis=1)
 
     def logpdf(self, walkers):
-        states = walkers.reshape(walkers.shape[0], -1, self.dim)
+        states = walkers.reshape(walkers.shape[0], self.n_states, self.dim)  # explicit: no draw may be inside
         out = np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy()
         for t in range(1, states.shape[1]):
             alive = np.isfinite(out)
@@ -1182,7 +1182,7 @@ class _WindowCounter:
         self.counter, self.datasets, self.dim, self.step = counter, tuple(datasets), dim, counter.step
 
     def loglike(self, walkers):
-        states = walkers.reshape(walkers.shape[0], -1, self.dim)
+        states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
         out = np.zeros(walkers.shape[0])
         for t, dataset in enumerate(self.datasets):
             alive = np.isfinite(out)
