@@ -77,12 +77,25 @@ def task(args):
         warnings.simplefilter("ignore")
         smp = cls(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed,
                   **SAMPLER_OPTIONS[sampler], **settings)
-        result = smp.run(datasets)
-    return {"name": name, "sampler": sampler, "seed": seed, "wall": time.perf_counter() - start,
-            "mean": np.array([r.mean() for r in result.steps]), "std": np.array([r.std() for r in result.steps]),
-            "log_evidence": np.array([r.info.log_evidence for r in result.steps]),
-            "path_steps": np.array([r.info.path_steps for r in result.steps]),
-            "conflict": np.array([r.info.prior_data_conflict for r in result.steps])}
+        failed = None
+        for dataset in datasets:  # a step that raises (ZeroLikelihoodError) ends the run: its steps are NaN
+            try:
+                smp.update(dataset)
+            except sequential.ZeroLikelihoodError:
+                failed = smp.state.step + 1
+                break
+        result = smp.result
+    pad = len(datasets) - len(result.steps)
+
+    def column(values, shape=()):
+        return np.concatenate([np.array(values, dtype=float).reshape((-1,) + shape), np.full((pad,) + shape, np.nan)])
+
+    d = kernel.dim
+    return {"name": name, "sampler": sampler, "seed": seed, "wall": time.perf_counter() - start, "failed": failed,
+            "mean": column([r.mean() for r in result.steps], (d,)), "std": column([r.std() for r in result.steps], (d,)),
+            "log_evidence": column([r.info.log_evidence for r in result.steps]),
+            "path_steps": column([r.info.path_steps for r in result.steps]),
+            "conflict": column([r.info.prior_data_conflict for r in result.steps])}
 
 
 def mixture_target_error(n_samples: int, seed: int = 1) -> float:
@@ -148,17 +161,24 @@ def main():
             mean_err = np.array([np.abs(e["mean_sd"]).max(axis=1) for e in err])      # (seeds, S)
             ev_err = np.array([np.abs(e["log_evidence"]) for e in err])                # (seeds, S)
             paths = np.array([r["path_steps"] > 0 for r in rows]).sum(axis=0)
-            steps = " ".join(f"{m:.2f}/{v:.2f}/{p}" for m, v, p in zip(mean_err.max(0), ev_err.max(0), paths))
+            # a run that raised (ZeroLikelihoodError) has NaN from its failed step on: the maxima are over the rest,
+            # and the failures are listed
+            failed = ", ".join(f"seed {r['seed']} at step {r['failed']}" for r in rows if r["failed"])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN steps
+                steps = " ".join(f"{m:.2f}/{v:.2f}/{p}" for m, v, p in zip(np.nanmax(mean_err, 0), np.nanmax(ev_err, 0),
+                                                                            paths))
             wall = np.array([r["wall"] for r in rows])
-            print(f"| {name} | {sampler} | {mean_err.max():.2f} | {ev_err.max():.2f} | {steps} | "
-                  f"{np.median(wall):.1f} (max {wall.max():.1f}) |")
+            print(f"| {name}{' (failed: ' + failed + ')' if failed else ''} | {sampler} | {np.nanmax(mean_err):.2f} | "
+                  f"{np.nanmax(ev_err):.2f} | {steps} | {np.median(wall):.1f} (max {wall.max():.1f}) |")
             if args.per_seed:
-                worst = [np.unravel_index(np.argmax(np.abs(e["mean_sd"])), e["mean_sd"].shape) for e in err]
+                worst = [np.unravel_index(np.nanargmax(np.abs(e["mean_sd"])), e["mean_sd"].shape) for e in err]
+                seed_worst = np.nanmax(mean_err, axis=1)
                 per_seed.append(f"{name} {sampler}: per seed worst mean error [exact sd] (step, parameter) / worst "
                                 f"evidence error: " + ", ".join(
-                                    f"{r['seed']}: {abs(e['mean_sd'][w]):.2f} ({w[0] + 1},{w[1]})/{v.max():.2f}"
+                                    f"{r['seed']}: {abs(e['mean_sd'][w]):.2f} ({w[0] + 1},{w[1]})/{np.nanmax(v):.2f}"
                                     for r, e, w, v in zip(rows, err, worst, ev_err))
-                                + f"; median {np.median(mean_err.max(1)):.2f}, 90 % {np.quantile(mean_err.max(1), 0.9):.2f}")
+                                + f"; median {np.median(seed_worst):.2f}, 90 % {np.quantile(seed_worst, 0.9):.2f}")
     for line in per_seed:
         print(line)
 

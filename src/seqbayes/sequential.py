@@ -1466,7 +1466,20 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
                                            cloud.particles, record.predictive)
         return new_state, record
     method = resolve_predictive(config.predictive, problem.kernel)
-    new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
+    try:
+        new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
+    except ZeroLikelihoodError as error:
+        # No predictive draw of the mixture lands where the likelihood is non-zero (run 9 of the oscillator study
+        # under T6: the drift takes every predicted k below 0), yet the model's path posterior may have mass there,
+        # paths whose earlier states the data put elsewhere: the bridge from the path prior can find them
+        if not (config.remedy_bridge and state.window and _remedy_applies(config, method, problem.kernel)):
+            raise
+        try:
+            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start,
+                                                    bridge=True)
+        except ZeroLikelihoodError:
+            raise error from None
+        return new_state, record
     info = record.info
     # after a path-space step the mixture's own posterior understates the conflict (its target cannot reach
     # the tail, so fewer ancestors look involved): stay on the path space until 5x the threshold
