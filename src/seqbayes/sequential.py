@@ -1231,10 +1231,10 @@ def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, 
     path_config = replace(path_config, tempering_threshold=path_config.tempering_ess)
     path_prior = _PathPriorDraws(window[0].prior, kernel, len(window) + 1, d)
     window_counter = _WindowCounter(counter, [past.dataset for past in window] + [dataset], d)
-    walkers, loglike, log_restricted_mass, n_found = _restricted_draws(path_prior, path_problem.support, n, rng,
-                                                                       counter.step, window_counter)
+    walkers, loglike, log_restricted_mass, n_found, labels = _restricted_draws(
+        path_prior, path_problem.support, n, rng, counter.step, window_counter)
     components = np.column_stack([loglike, path_prior.logpdf(walkers)])
-    cloud = _Cloud(walkers, np.full(n, -np.log(n)), components)
+    cloud = _Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
     cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
         cloud, path_problem, path_config, window_counter, path_prior.logpdf, moves, True, False, rng)
     return cloud, log_z + log_restricted_mass, temperatures, moves, resampled, stage_ess, n_found
@@ -1252,7 +1252,7 @@ def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, pri
     paths = _start_paths(state, kernel, length, rng)
     walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
         paths.shape[0], -1)
-    log_weights, log_restricted_mass, n_found = state.posterior_log_weights, 0.0, n
+    log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
     loglike = np.full(n, -np.inf)
     inside = _inside(walkers, path_problem.support)
     loglike[inside] = path_counter.loglike(walkers[inside])
@@ -1260,13 +1260,13 @@ def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, pri
     if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # as _weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
         extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-        walkers, loglike, log_restricted_mass, n_found = _restricted_draws(extended, path_problem.support, n, rng,
-                                                                           path_counter.step, path_counter)
+        walkers, loglike, log_restricted_mass, n_found, labels = _restricted_draws(
+            extended, path_problem.support, n, rng, path_counter.step, path_counter)
         log_weights = np.full(n, -np.log(n))
     components = np.column_stack([loglike, np.full(n, -np.inf)])
     carried = np.isfinite(loglike)
     components[carried, 1] = prior_logpdf(walkers[carried])
-    return _Cloud(walkers, log_weights, components), log_weights, log_restricted_mass, n_found
+    return _Cloud(walkers, log_weights, components, labels), log_weights, log_restricted_mass, n_found
 
 
 def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, counter,
@@ -1332,7 +1332,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         last = path_counter.loglike(cloud.particles)
         normaliser = sum(past.log_evidence_increment for past in window)
         cloud = _Cloud(cloud.particles, cloud.log_weights,
-                       np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]))
+                       np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
+                       cloud.labels)
         log_z = log_z_window - normaliser
     else:
         cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
