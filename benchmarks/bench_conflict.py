@@ -7,8 +7,9 @@ Runs every (run, kernel, sampler) task of ``seqbayes example oscillator`` (seed 
 prints, per kernel and run, the largest ``StepInfo.prior_data_conflict`` over the six steps and the
 two samplers: how many prior sds the posterior mean moved. ``SamplerConfig.conflict_threshold``
 (4) warns above it. With the conflict remedy on (default) a remedied step records the shift of the
-exact posterior, which is larger; ``--off`` (``conflict_remedy=False``) gives the diagnostic as it
-is before the remedy, on the mixture's own posterior.
+exact posterior, which is larger; ``--off`` (the remedy never triggered) gives the diagnostic as it
+is before the remedy, on the mixture's own posterior, and a second table of the smallest ancestor ESS
+(the remedy's other trigger, below ``remedy_ess * N``).
 
 ``--exact`` prints the same table for the exact quantity the diagnostic estimates, from the grid
 filter of ``seqbayes.models.oscillator.exact_grid_reference`` (3 points per sd): per step the exact
@@ -28,16 +29,22 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from seqbayes.sequential import SamplerConfig  # noqa: E402
 from seqbayes.studies import oscillator as study  # noqa: E402
+
+REMEDY_ESS = SamplerConfig(move="gaussian").remedy_ess
+#: ``--off``: the remedy's bookkeeping on (so the mixture step's ancestor ESS is recorded) but never triggered:
+#: the same draws as ``conflict_remedy=False``, whose steps record no ancestor ESS
+NEVER_REMEDY = {"remedy_ess": 1e-300, "conflict_threshold": 1e300}
 
 
 def task(args):
     run, kernel, sampler, off = args
-    options = dict(study.DEFAULT_OPTIONS[sampler], **({"conflict_remedy": False} if off else {}))
+    options = dict(study.DEFAULT_OPTIONS[sampler], **(NEVER_REMEDY if off else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out = study.run_task(0, run, kernel, sampler, options=options)
-    return run, kernel, sampler, out["prior_data_conflict"]
+    return run, kernel, sampler, out["prior_data_conflict"], np.asarray(out["ancestor_ess"], dtype=float) / 1000.0  # run_task default N
 
 
 def exact_shifts(args):
@@ -71,7 +78,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--off", action="store_true", help="conflict_remedy=False: the diagnostic before the remedy")
+    parser.add_argument("--off", action="store_true", help="the remedy never triggered: the diagnostic before the remedy")
     parser.add_argument("--exact", action="store_true", help="the exact shifts from the grid filter")
     args = parser.parse_args()
     if args.exact:
@@ -93,8 +100,16 @@ def main():
     print("| kernel | " + " | ".join(f"run {r}" for r in range(args.runs)) + " |")
     print("|---|" + "---|" * args.runs)
     for kernel in study.KERNELS:
-        cells = [max(np.nanmax(c) for (run, k, _, c) in results if run == r and k == kernel) for r in range(args.runs)]
+        cells = [max(np.nanmax(c) for (run, k, _, c, _) in results if run == r and k == kernel) for r in range(args.runs)]
         print(f"| {kernel} | " + " | ".join(f"**{v:.1f}**" if v > 4 else f"{v:.1f}" for v in cells) + " |")
+    # the other half of the trigger of the remedy: the ancestor ESS (StepInfo.ancestor_ess, NaN at step 1)
+    print(f"\nSmallest ancestor ESS / N over the steps and both samplers (bold: below remedy_ess = {REMEDY_ESS}, "
+          "where the remedy starts even without a shift above 4)\n")
+    print("| kernel | " + " | ".join(f"run {r}" for r in range(args.runs)) + " |")
+    print("|---|" + "---|" * args.runs)
+    for kernel in study.KERNELS:
+        cells = [min(np.nanmin(a) for (run, k, _, _, a) in results if run == r and k == kernel) for r in range(args.runs)]
+        print(f"| {kernel} | " + " | ".join(f"**{v:.3f}**" if v < REMEDY_ESS else f"{v:.3f}" for v in cells) + " |")
 
 
 if __name__ == "__main__":

@@ -70,3 +70,24 @@ def test_threshold_is_a_validated_setting():
     problem = drifting_problem()
     with pytest.raises(ValueError, match="conflict_threshold"):
         SMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0, conflict_threshold=-1.0)
+
+
+def test_a_step_in_the_mixtures_tail_warns_through_the_ancestor_ess():
+    # the other half of the diagnostic: with the shift's threshold out of reach, the jump still warns, because
+    # only a few of the previous posterior's particles carry the step (ancestor ESS below remedy_ess * N, which
+    # starts the remedy); without the remedy nothing is recorded there and only the shift could warn
+    problem = drifting_problem()
+    data, _ = problem.simulate(4, rng=3)
+    data[3] += 2.0
+    for remedy in (True, False):
+        sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=1,
+                      conflict_threshold=1e6, conflict_remedy=remedy)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            infos = [sampler.update(y) for y in data]
+        conflicts = [str(w.message) for w in caught if issubclass(w.category, PriorDataConflictWarning)]
+        if remedy:
+            assert infos[3].ancestor_ess < 0.05 * 500 and infos[3].path_steps == 4
+            assert len(conflicts) == 1 and "step 4" in conflicts[0] and "StepInfo.ancestor_ess" in conflicts[0]
+        else:
+            assert conflicts == [] and infos[3].path_steps == 0
