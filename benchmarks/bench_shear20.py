@@ -1,40 +1,40 @@
 """High dimension on a structure: a 20-storey shear building's 20 stiffness ratios (issue 14, item 2).
 
-    python benchmarks/bench_shear20.py [all | reference | run | cost] [--reference PATH]
-        [--walkers 100] [--steps 10000] [--burn 2000] [--is-draws 200000]     (reference)
-        [--samplers SMC SEMC] [--n 2000] [--seeds 0 1 2] [--economy] [--jsonl runs.jsonl]   (run)
+    python benchmarks/bench_shear20.py [all | reference | run | cost] [--floors all | 4,8,12,16,20]
+        [--reference PATH] [--walkers 100] [--steps 4000] [--burn 500] [--is-draws 200000]  (reference)
+        [--samplers SMC SEMC] [--n 2000] [--seeds 0 1 2] [--economy] [--jsonl runs.jsonl]  (run)
     python benchmarks/bench_shear20.py table runs.jsonl
 
-The problem (:func:`problem`): a linear 20-storey shear building (20 t floors, 16 t roof, storey
+The problem (:class:`Shear20`): a linear 20-storey shear building (20 t floors, 16 t roof, storey
 stiffness 36 -> 16 kN/mm bottom to top, Rayleigh damping 2 % / 4 % on modes 1 and 2; modes
 0.47-12.7 Hz), storey stiffness ``k_i = theta_i k_i^u``. Prior: ``theta_i`` independent
 lognormal with median 1 and log-sd 0.2. Truth: 0.95 everywhere, storey 3 at 0.75 and storey 11 at
-0.85. One dataset: 3 s (150 samples at 50 Hz) of 0.5-22.5 Hz white-noise ground acceleration,
-absolute accelerations of floors 4, 8, 12, 16 and 20, each with Gaussian noise of 5 % of its RMS.
-The likelihood is the exact Kalman log-likelihood
+0.85. One dataset: 3 s (150 samples at 50 Hz) of 0.5-22.5 Hz white-noise ground acceleration and
+the absolute accelerations of every floor (``--floors``: a subset), each with Gaussian noise of
+5 % of its RMS. The likelihood is the exact Kalman log-likelihood
 (:func:`seqbayes.filters.kalman.kalman_log_likelihood`) of the exact first-order-hold
-discretisation, from rest with no process noise (so it is the output-error likelihood; the
+discretisation, from rest with no process noise (so it is the output-error likelihood: the
 filter's gain is zero). Rows whose highest mode is at or above Nyquist (25 Hz: only if some
 ``theta_i`` is several times its prior median, prior mass below 1e-10) get ``-inf``.
 
 ``reference`` computes the reference once and saves it (``.npz``):
 
-(a) posterior means and sds from emcee (``vectorize=True``, stretch move), walkers started from a
-    Laplace approximation at the posterior mode (L-BFGS in log theta), ``--burn`` steps dropped;
-    the Monte Carlo error of each mean is ``sd * sqrt(tau / (walkers * kept steps))`` with the
-    integrated autocorrelation time ``tau`` from ``emcee.autocorr.integrated_time``; the sds'
-    errors from the two halves of the kept chain.
-(b) the log-evidence by importance sampling with a multivariate-t proposal (5 degrees of
-    freedom) fitted to (a)'s samples, ``--is-draws`` draws; its standard error by the delta
-    method, its ESS, and its own posterior means and sds (a check on (a)).
+(b) the log-evidence, posterior means and sds by importance sampling in ``log theta`` with a
+    multivariate-t proposal (5 degrees of freedom, 1.2 times the scale of the Laplace
+    approximation at the mode found by L-BFGS), ``--is-draws`` draws; standard errors by the
+    delta method, the ESS, and the two halves of the sample as a check;
+(a) emcee (``vectorize=True``, stretch move) started from an equal-weight resample of (b),
+    ``--burn`` steps dropped; the Monte Carlo error of each mean is ``sd * sqrt(tau / (walkers *
+    kept steps))`` with ``tau`` from ``emcee.autocorr.integrated_time``; its means and sds are
+    compared with (b)'s.
 
 ``run`` runs SMC and SEMC (``from seqbayes import SMC, SEMC``, a static kernel, the defaults:
 above d = 10 the scaled moves; ``--economy`` for ``economy=True``) and prints, per run, the
-log-evidence error, the largest |mean error| in reference posterior sds, the smallest and largest
-ratio of the sampler's posterior sd to the reference's, the likelihood calls and the wall time;
-``--jsonl`` appends each run. ``table`` summarises a JSONL file per (sampler, N, economy); ``cost`` times one batched
-likelihood evaluation. ``all`` (the default, e.g. under ``make bench``) builds the reference if
-the file is missing, then runs and tabulates (~15 min for the reference, ~2 min per default run).
+log-evidence error against (b), the largest |mean error| in reference posterior sds, the smallest
+and largest ratio of the sampler's posterior sd to the reference's, the likelihood calls and the
+wall time; ``--jsonl`` appends each run. ``table`` summarises a JSONL file per (sampler, N,
+economy); ``cost`` times one batched likelihood evaluation. ``all`` (the default, e.g. under
+``make bench``) builds the reference if the file is missing, then runs and tabulates.
 Run with ``OPENBLAS_NUM_THREADS=1`` (set here if unset).
 """
 
@@ -60,7 +60,7 @@ from seqbayes.structures.ground_motion import band_limited_white_noise  # noqa: 
 N_STOREYS = 20
 DT = 0.02
 N_SAMPLES = 150  # 3 s record
-SENSORS = Sensors(accelerations=(4, 8, 12, 16, 20))
+ALL_FLOORS = tuple(range(1, N_STOREYS + 1))
 NOISE_FRACTION = 0.05
 PRIOR_LOG_SD = 0.2
 DEFAULT_REFERENCE = os.path.join(tempfile.gettempdir(), "seqbayes_shear20_reference.npz")
@@ -75,12 +75,13 @@ class Shear20:
     truth : (20,) array
         The stiffness ratios that generated the data.
     data : dict
-        ``{"u": (T,) ground acceleration [m/s^2], "y": (T, 5) measured accelerations [m/s^2]}``.
-    noise_std : (5,) array
+        ``{"u": (T,) ground acceleration [m/s^2], "y": (T, p) measured accelerations [m/s^2]}``.
+    noise_std : (p,) array
         Measurement noise standard deviations [m/s^2].
     """
 
-    def __init__(self, seed: int = 0):
+    def __init__(self, floors=ALL_FLOORS, seed: int = 0):
+        self.sensors = Sensors(accelerations=tuple(floors))
         masses = np.full(N_STOREYS, 2.0e4)
         masses[-1] = 1.6e4
         self.building = ShearBuilding(masses, np.linspace(3.6e7, 1.6e7, N_STOREYS), (0.02, 0.04))
@@ -89,7 +90,7 @@ class Shear20:
         self.truth = truth
         rng = np.random.default_rng([14, 20, seed])
         u = band_limited_white_noise((N_SAMPLES - 1) * DT, DT, rms_g=0.02, rng=rng).acceleration
-        clean = simulate(discretise(self.building, truth, DT, channels=SENSORS), u)[0]
+        clean = simulate(discretise(self.building, truth, DT, channels=self.sensors), u)[0]
         y, self.noise_std = add_measurement_noise(clean, NOISE_FRACTION, rng)
         self.data = {"u": u, "y": y}
         self.nyquist = 0.5 / DT
@@ -112,7 +113,7 @@ class Shear20:
         else:
             idx = np.zeros(0, dtype=int)
         if idx.size:
-            model = discretise(self.building, theta[idx], DT, channels=SENSORS)
+            model = discretise(self.building, theta[idx], DT, channels=self.sensors)
             out[idx] = kalman_log_likelihood(model, data["u"], data["y"], self.noise_std, 0.0)
         return out
 
@@ -167,75 +168,84 @@ def multivariate_t_logpdf(x, mean, chol, dof):
             - np.log(np.diag(chol)).sum() - 0.5 * (dof + d) * np.log1p(q / dof))
 
 
+def _weighted_moments(theta, log_w):
+    """Self-normalised importance-sampling mean, sd and the delta-method se of the mean."""
+    w = np.exp(log_w - log_w.max())
+    wn = w / w.sum()
+    mean = wn @ theta
+    sd = np.sqrt(wn @ (theta - mean) ** 2)
+    mean_se = np.sqrt((wn ** 2) @ (theta - mean) ** 2)
+    return mean, sd, mean_se
+
+
 def build_reference(problem: Shear20, path: str, walkers: int, steps: int, burn: int, is_draws: int, seed: int):
+    """(b) then (a): importance sampling from a multivariate t(5) fitted to the Laplace
+    approximation in ``log theta`` (scale 1.2x), which gives the reference log-evidence, means and
+    sds with their own standard errors; then emcee started from the importance sample as an
+    independent check of the means and sds (integrated autocorrelation times)."""
     import emcee
 
     t0 = time.perf_counter()
+    rng = np.random.default_rng([14, 20, 1000 + seed])
     z_mode, cov_log, opt = laplace_start(problem)
     print(f"mode found ({opt.nfev} gradient evaluations, success {opt.success}): theta = "
           f"{np.round(np.exp(z_mode), 3).tolist()}; Laplace sds (log theta) "
-          f"{np.round(np.sqrt(np.diag(cov_log)), 3).tolist()}; {time.perf_counter() - t0:.0f} s", flush=True)
-    rng = np.random.default_rng([14, 20, 1000 + seed])
-    start = np.exp(rng.multivariate_normal(z_mode, cov_log, size=walkers))
+          f"{np.round(np.sqrt(np.diag(cov_log)), 4).tolist()}; {time.perf_counter() - t0:.0f} s", flush=True)
+
+    # (b) importance sampling in z = log theta: w = p(y | theta) p(theta) theta_1...theta_d / q(z)
+    dof, inflation = 5.0, 1.2
+    chol = np.linalg.cholesky(cov_log * inflation ** 2 * (dof - 2) / dof)  # the t's covariance = 1.44 x Laplace
+    log_w = np.empty(is_draws)
+    theta_all = np.empty((is_draws, problem.dim))
+    t1 = time.perf_counter()
+    batch = 2000
+    for start in range(0, is_draws, batch):
+        n = min(batch, is_draws - start)
+        z = z_mode + (rng.standard_normal((n, problem.dim)) @ chol.T) * np.sqrt(dof / rng.chisquare(dof, n))[:, None]
+        theta_all[start:start + n] = np.exp(z)
+        log_w[start:start + n] = (problem.log_posterior(np.exp(z)) + z.sum(axis=1)
+                                  - multivariate_t_logpdf(z, z_mode, chol, dof))
+    shift = log_w.max()
+    w = np.exp(log_w - shift)
+    log_z = float(shift + np.log(w.mean()))
+    log_z_se = float(w.std(ddof=1) / np.sqrt(is_draws) / w.mean())  # delta method
+    ess = float(w.sum() ** 2 / (w ** 2).sum())
+    mean, sd, mean_se = _weighted_moments(theta_all, log_w)
+    halves = [_weighted_moments(theta_all[h], log_w[h]) for h in (slice(0, is_draws // 2), slice(is_draws // 2, None))]
+    print(f"importance sampling: {is_draws} t(5) draws in log theta, log Z = {log_z:.4f} +- {log_z_se:.4f}, "
+          f"ESS {ess:.0f} ({100 * ess / is_draws:.1f} %), largest normalised weight {w.max() / w.sum():.2e}, "
+          f"largest mean se {(mean_se / sd).max():.4f} sd; halves: log Z "
+          f"{[round(float(shift + np.log(w[h].mean())), 4) for h in (slice(0, is_draws // 2), slice(is_draws // 2, None))]}"
+          f", sd ratio {(halves[0][1] / halves[1][1]).min():.4f}-{(halves[0][1] / halves[1][1]).max():.4f}; "
+          f"{time.perf_counter() - t1:.0f} s", flush=True)
+
+    # (a) emcee from an equal-weight resample of the importance sample
+    start_idx = rng.choice(is_draws, size=walkers, replace=False, p=w / w.sum()) if ess > 2 * walkers else None
+    if start_idx is None:
+        raise SystemExit(f"importance sampling ESS {ess:.0f} too small to start {walkers} walkers")
     sampler = emcee.EnsembleSampler(walkers, problem.dim, problem.log_posterior, vectorize=True,
                                     moves=emcee.moves.StretchMove())
     sampler.random_state = np.random.RandomState(seed).get_state()  # emcee's own RNG, seeded
-    t1 = time.perf_counter()
-    sampler.run_mcmc(start, steps, progress=False)
+    t2 = time.perf_counter()
+    sampler.run_mcmc(theta_all[start_idx], steps, progress=False)
     chain = sampler.get_chain(discard=burn)  # (kept, walkers, d)
     tau = emcee.autocorr.integrated_time(chain, quiet=True)
     kept = chain.shape[0]
     flat = chain.reshape(-1, problem.dim)
-    mean, sd = flat.mean(0), flat.std(0, ddof=1)
-    mean_se = sd * np.sqrt(tau / (walkers * kept))
-    half = kept // 2
-    sd_halves = np.array([chain[:half].reshape(-1, problem.dim).std(0, ddof=1),
-                          chain[half:].reshape(-1, problem.dim).std(0, ddof=1)])
-    mean_halves = np.array([chain[:half].reshape(-1, problem.dim).mean(0),
-                            chain[half:].reshape(-1, problem.dim).mean(0)])
+    mc_mean, mc_sd = flat.mean(0), flat.std(0, ddof=1)
+    mc_mean_se = mc_sd * np.sqrt(tau / (walkers * kept))
+    gap = (mc_mean - mean) / np.hypot(mc_mean_se, mean_se)
     print(f"emcee: {walkers} walkers x {steps} steps ({burn} burn), acceptance "
           f"{sampler.acceptance_fraction.mean():.3f}, tau {tau.min():.0f}-{tau.max():.0f} steps "
-          f"(kept / tau >= {kept / tau.max():.0f}), {time.perf_counter() - t1:.0f} s", flush=True)
-
-    # (b) importance sampling with a multivariate t fitted to the chain
-    dof = 5.0
-    prop_mean = mean
-    prop_cov = np.cov(flat.T) * (dof - 2) / dof  # the t's covariance equals the chain's
-    chol = np.linalg.cholesky(prop_cov)
-    log_w = np.empty(is_draws)
-    draws_mean = np.zeros(problem.dim)
-    t2 = time.perf_counter()
-    batch = 2000
-    theta_all = np.empty((is_draws, problem.dim))
-    for start_i in range(0, is_draws, batch):
-        n = min(batch, is_draws - start_i)
-        g = rng.standard_normal((n, problem.dim))
-        chi = rng.chisquare(dof, n)
-        x = prop_mean + (g @ chol.T) * np.sqrt(dof / chi)[:, None]
-        theta_all[start_i:start_i + n] = x
-        log_w[start_i:start_i + n] = problem.log_posterior(x) - multivariate_t_logpdf(x, prop_mean, chol, dof)
-    shift = log_w.max()
-    w = np.exp(log_w - shift)
-    log_z = float(shift + np.log(w.mean()))
-    log_z_se = float(w.std(ddof=1) / np.sqrt(is_draws) / w.mean())
-    ess = float(w.sum() ** 2 / (w ** 2).sum())
-    wn = w / w.sum()
-    is_mean = wn @ theta_all
-    is_sd = np.sqrt(wn @ (theta_all - is_mean) ** 2)
-    del draws_mean
-    print(f"importance sampling: {is_draws} t(5) draws, log Z = {log_z:.3f} +- {log_z_se:.3f}, ESS {ess:.0f} "
-          f"({100 * ess / is_draws:.1f} %), largest weight {wn.max():.2e}, {time.perf_counter() - t2:.0f} s",
-          flush=True)
-    mean_gap = np.abs(is_mean - mean) / sd
-    print(f"IS vs emcee: largest |mean difference| {mean_gap.max():.3f} sd, sd ratios "
-          f"{(is_sd / sd).min():.3f}-{(is_sd / sd).max():.3f}; emcee halves: largest |mean difference| "
-          f"{(np.abs(mean_halves[0] - mean_halves[1]) / sd).max():.3f} sd, sd ratio "
-          f"{(sd_halves[0] / sd_halves[1]).min():.3f}-{(sd_halves[0] / sd_halves[1]).max():.3f}", flush=True)
-    np.savez(path, mean=mean, sd=sd, mean_se=mean_se, tau=tau, sd_halves=sd_halves, mean_halves=mean_halves,
-             log_z=log_z, log_z_se=log_z_se, ess=ess, is_draws=is_draws, is_mean=is_mean, is_sd=is_sd,
-             walkers=walkers, steps=steps, burn=burn, acceptance=sampler.acceptance_fraction.mean(),
-             mode=np.exp(z_mode), truth=problem.truth, elapsed=time.perf_counter() - t0)
-    print(f"saved {path}")
+          f"(kept / tau >= {kept / tau.max():.1f}), {time.perf_counter() - t2:.0f} s", flush=True)
+    print(f"emcee vs importance sampling: largest |mean difference| {(np.abs(mc_mean - mean) / sd).max():.3f} sd "
+          f"= {np.abs(gap).max():.2f} combined se (rms {np.sqrt(np.mean(gap ** 2)):.2f}); sd ratios "
+          f"{(mc_sd / sd).min():.3f}-{(mc_sd / sd).max():.3f}", flush=True)
+    np.savez(path, mean=mean, sd=sd, mean_se=mean_se, log_z=log_z, log_z_se=log_z_se, ess=ess, is_draws=is_draws,
+             mc_mean=mc_mean, mc_sd=mc_sd, mc_mean_se=mc_mean_se, tau=tau, walkers=walkers, steps=steps, burn=burn,
+             acceptance=sampler.acceptance_fraction.mean(), mode=np.exp(z_mode), truth=problem.truth,
+             floors=np.array(problem.sensors.accelerations), elapsed=time.perf_counter() - t0)
+    print(f"saved {path} ({time.perf_counter() - t0:.0f} s)")
 
 
 def load_reference(path: str) -> dict:
@@ -296,10 +306,12 @@ def main():
     parser.add_argument("command", nargs="?", default="all", choices=("all", "reference", "run", "table", "cost"),
                         help="all (default): the reference if missing, then run and table")
     parser.add_argument("jsonl_file", nargs="?", help="for table: the JSONL file of runs")
-    parser.add_argument("--reference", default=DEFAULT_REFERENCE)
+    parser.add_argument("--floors", default="all",
+                        help="accelerometer floors, comma-separated (default all 20)")
+    parser.add_argument("--reference", help=f"reference file (default {DEFAULT_REFERENCE} with the floors)")
     parser.add_argument("--walkers", type=int, default=100)
-    parser.add_argument("--steps", type=int, default=10000)
-    parser.add_argument("--burn", type=int, default=2000)
+    parser.add_argument("--steps", type=int, default=4000)
+    parser.add_argument("--burn", type=int, default=500)
     parser.add_argument("--is-draws", type=int, default=200000)
     parser.add_argument("--reference-seed", type=int, default=0)
     parser.add_argument("--samplers", nargs="+", default=["SMC", "SEMC"])
@@ -308,7 +320,11 @@ def main():
     parser.add_argument("--economy", action="store_true")
     parser.add_argument("--jsonl", help="append every run to this file")
     args = parser.parse_args()
-    problem = Shear20()
+    floors = ALL_FLOORS if args.floors == "all" else tuple(int(f) for f in args.floors.split(","))
+    problem = Shear20(floors)
+    if args.reference is None:
+        tag = "all" if floors == ALL_FLOORS else "-".join(map(str, floors))
+        args.reference = DEFAULT_REFERENCE.replace(".npz", f"_{tag}.npz")
     if args.command == "cost":
         rng = np.random.default_rng(0)
         for n in args.n:
