@@ -274,6 +274,7 @@ def one_run(name: str, problem: Shear20, ref: dict, n: int, seed: int, economy: 
             "rms_mean_error_sd": float(np.sqrt(np.mean(mean_err ** 2))),
             "sd_ratio_min": float(sd_ratio.min()), "sd_ratio_max": float(sd_ratio.max()),
             "sd_ratio_mean": float(sd_ratio.mean()), "calls": int(info.n_loglike_evals), "time_s": elapsed,
+            "stages": int(info.n_stages),
             "load": os.getloadavg()[0]}
 
 
@@ -281,24 +282,26 @@ def print_row(r: dict) -> None:
     print(f"{r['sampler']} N={r['n']} economy={r['economy']} seed={r['seed']}: log Z error {r['log_z_error']:+.3f} "
           f"(se {r['reported_se']:.3f}), max |mean error| {r['max_mean_error_sd']:.3f} sd "
           f"(rms {r['rms_mean_error_sd']:.3f}), sd ratio {r['sd_ratio_min']:.2f}-{r['sd_ratio_max']:.2f} "
-          f"(mean {r['sd_ratio_mean']:.2f}), calls {r['calls']:,}, {r['time_s']:.0f} s", flush=True)
+          f"(mean {r['sd_ratio_mean']:.2f}), calls {r['calls']:,}, {r['stages']} stages, {r['time_s']:.0f} s", flush=True)
 
 
 def table(rows: list[dict], dim: int) -> None:
     print("| sampler | N | economy | seeds | mean log Z error | sd | worst abs log Z error | mean reported se "
-          "| worst mean error (sd) | sd ratio range | mean calls | calls / d | mean time (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| worst mean error (sd) | sd ratio range | mean calls | calls / d | stages | mean time (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     keys = sorted({(r["sampler"], r["n"], r["economy"]) for r in rows}, key=lambda k: (k[2], -k[1], k[0] != "SMC"))
     for key in keys:
         sel = [r for r in rows if (r["sampler"], r["n"], r["economy"]) == key]
         z = np.array([r["log_z_error"] for r in sel])
         calls = np.mean([r["calls"] for r in sel])
         sd = f"{z.std(ddof=1):.3f}" if len(z) > 1 else "-"
+        stages = sorted({r["stages"] for r in sel if "stages" in r})
+        stages = "-" if not stages else (f"{stages[0]}" if len(stages) == 1 else f"{stages[0]}-{stages[-1]}")
         print(f"| {key[0]} | {key[1]} | {'yes' if key[2] else 'no'} | {len(sel)} | {z.mean():+.3f} | {sd} "
               f"| {np.abs(z).max():.3f} | {np.mean([r['reported_se'] for r in sel]):.3f} "
               f"| {max(r['max_mean_error_sd'] for r in sel):.3f} "
               f"| {min(r['sd_ratio_min'] for r in sel):.2f}-{max(r['sd_ratio_max'] for r in sel):.2f} "
-              f"| {calls:,.0f} | {calls / dim:,.0f} | {np.mean([r['time_s'] for r in sel]):.0f} |")
+              f"| {calls:,.0f} | {calls / dim:,.0f} | {stages} | {np.mean([r['time_s'] for r in sel]):.0f} |")
 
 
 def main():
