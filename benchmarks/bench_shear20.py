@@ -211,11 +211,12 @@ def build_reference(problem: Shear20, path: str, walkers: int, steps: int, burn:
     log_z_se = float(w.std(ddof=1) / np.sqrt(is_draws) / w.mean())  # delta method
     ess = float(w.sum() ** 2 / (w ** 2).sum())
     mean, sd, mean_se = _weighted_moments(theta_all, log_w)
-    halves = [_weighted_moments(theta_all[h], log_w[h]) for h in (slice(0, is_draws // 2), slice(is_draws // 2, None))]
+    parts = (slice(0, is_draws // 2), slice(is_draws // 2, None))
+    halves = [_weighted_moments(theta_all[h], log_w[h]) for h in parts]
     print(f"importance sampling: {is_draws} t(5) draws in log theta, log Z = {log_z:.4f} +- {log_z_se:.4f}, "
           f"ESS {ess:.0f} ({100 * ess / is_draws:.1f} %), largest normalised weight {w.max() / w.sum():.2e}, "
           f"largest mean se {(mean_se / sd).max():.4f} sd; halves: log Z "
-          f"{[round(float(shift + np.log(w[h].mean())), 4) for h in (slice(0, is_draws // 2), slice(is_draws // 2, None))]}"
+          f"{[round(float(shift + np.log(w[h].mean())), 4) for h in parts]}"
           f", sd ratio {(halves[0][1] / halves[1][1]).min():.4f}-{(halves[0][1] / halves[1][1]).max():.4f}; "
           f"{time.perf_counter() - t1:.0f} s", flush=True)
 
@@ -282,7 +283,8 @@ def print_row(r: dict) -> None:
     print(f"{r['sampler']} N={r['n']} economy={r['economy']} seed={r['seed']}: log Z error {r['log_z_error']:+.3f} "
           f"(se {r['reported_se']:.3f}), max |mean error| {r['max_mean_error_sd']:.3f} sd "
           f"(rms {r['rms_mean_error_sd']:.3f}), sd ratio {r['sd_ratio_min']:.2f}-{r['sd_ratio_max']:.2f} "
-          f"(mean {r['sd_ratio_mean']:.2f}), calls {r['calls']:,}, {r['stages']} stages, {r['time_s']:.0f} s", flush=True)
+          f"(mean {r['sd_ratio_mean']:.2f}), calls {r['calls']:,}, {r['stages']} stages, {r['time_s']:.0f} s",
+          flush=True)
 
 
 def table(rows: list[dict], dim: int) -> None:
