@@ -1003,6 +1003,14 @@ def _posterior_labels(state, column=0):
     return state.lineage[:, column]
 
 
+def _mass_spread(state, mass) -> AncestorSpread:
+    """The :class:`~seqbayes.density.AncestorSpread` of the last posterior's particles from the mass ``a (N,)``
+    that this step's posterior gives them (the exact transition's responsibilities, :func:`_ancestor_mass`)."""
+    return AncestorSpread(float(1.0 / np.dot(mass, mass)),
+                          grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights), _posterior_labels(state)),
+                          mass=mass)
+
+
 def _ancestor_terms(state, spread):
     """``(variance, covariance)`` of the step's increment error from the ancestors of :func:`step_standard_errors`:
     the last posterior's (``spread``, an :class:`~seqbayes.density.AncestorSpread` or None) and, through the
@@ -1123,6 +1131,28 @@ class _PathCounter:
         return self.counter.loglike(walkers[:, -self.dim:])
 
 
+def _add_transitions(out, states, kernel):
+    """Add ``sum_{t>=1} log T(theta_t | theta_{t-1})`` along paths ``states (M, T, d)`` to ``out (M,)`` in place,
+    for the paths still finite (the rest stay -inf); returns ``out``."""
+    for t in range(1, states.shape[1]):
+        alive = np.isfinite(out)
+        if not alive.any():
+            break
+        out[alive] += kernel.logpdf(states[alive, t], states[alive, t - 1])
+    return out
+
+
+def _add_loglikes(out, states, datasets, counter):
+    """Add ``sum_t log L_t(theta_t)`` (dataset ``t`` at state ``t`` of ``states (M, T, d)``) to ``out (M,)`` in place,
+    one likelihood call per dataset for the paths still finite; returns ``out``."""
+    for t, dataset in enumerate(datasets):
+        alive = np.isfinite(out)
+        if not alive.any():
+            break
+        out[alive] += counter.loglike_on(states[alive, t], dataset)
+    return out
+
+
 def _path_prior(window, kernel, counter, dim):
     """``log p(theta_{w:s-1} | D^{w:s-1}) + log T(theta_s | theta_{s-1})`` for flattened paths ``(M, L d)``.
 
@@ -1134,17 +1164,8 @@ def _path_prior(window, kernel, counter, dim):
     def logpdf(walkers):
         states = walkers.reshape(walkers.shape[0], -1, dim)
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
-        for t in range(1, states.shape[1]):  # transitions into steps w+1..s
-            alive = np.isfinite(out)
-            if not alive.any():
-                break
-            out[alive] += kernel.logpdf(states[alive, t], states[alive, t - 1])
-        for t, past in enumerate(window):  # the past datasets' likelihood
-            alive = np.isfinite(out)
-            if not alive.any():
-                break
-            out[alive] += counter.loglike_on(states[alive, t], past.dataset)
-        return out
+        _add_transitions(out, states, kernel)  # transitions into steps w+1..s
+        return _add_loglikes(out, states, [past.dataset for past in window], counter)  # the past datasets'
 
     return logpdf
 
@@ -1167,13 +1188,7 @@ class _PathPriorDraws:
 
     def logpdf(self, walkers):
         states = walkers.reshape(walkers.shape[0], self.n_states, self.dim)  # explicit: no draw may be inside
-        out = np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy()
-        for t in range(1, states.shape[1]):
-            alive = np.isfinite(out)
-            if not alive.any():
-                break
-            out[alive] += self.kernel.logpdf(states[alive, t], states[alive, t - 1])
-        return out
+        return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
 
 
 class _WindowCounter:
@@ -1185,13 +1200,7 @@ class _WindowCounter:
 
     def loglike(self, walkers):
         states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
-        out = np.zeros(walkers.shape[0])
-        for t, dataset in enumerate(self.datasets):
-            alive = np.isfinite(out)
-            if not alive.any():
-                break
-            out[alive] += self.counter.loglike_on(states[alive, t], dataset)
-        return out
+        return _add_loglikes(np.zeros(walkers.shape[0]), states, self.datasets, self.counter)
 
 
 def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, counter, moves, rng):
@@ -1354,9 +1363,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights, problem.support)
     _, mass = _ancestor_mass(kernel, posterior, state.posterior, state.posterior_log_weights,
                              later_log_weights=cloud.log_weights)
-    ancestors = float(1.0 / np.dot(mass, mass))
-    spread = AncestorSpread(ancestors, grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights),
-                                                                 _posterior_labels(state)), mass=mass)
+    spread = _mass_spread(state, mass)
+    ancestors = spread.ess
     ancestor_variance, covariance = _ancestor_terms(state, spread)
     increment_se, evidence_se, evidence_variance = step_standard_errors(
         state.log_evidence_variance, n, config.evidence == "importance" and log_increment != log_z, evidence_ess,
@@ -1552,9 +1560,8 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         elif state.window:
             index, mass = _ancestor_mass(problem.kernel, cloud.particles, state.posterior, state.posterior_log_weights,
                                          None if state.paths is None else rng, cloud.log_weights)
-            ancestors = float(1.0 / np.dot(mass, mass))
-            spread = AncestorSpread(ancestors, grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights),
-                                                                         ancestor_labels), mass=mass)
+            spread = _mass_spread(state, mass)
+            ancestors = spread.ess
             if state.paths is not None:
                 paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
         window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
