@@ -20,7 +20,9 @@ Problems:
 For SEMC and SMC (N = ``--samples``) and sampler seeds ``0..seeds-1`` it prints per problem and
 sampler the largest |mean error| in exact posterior sds and the largest |cumulative log-evidence error|
 in nats over the steps and parameters, per step the worst over seeds, how often each step used the
-path-space remedy (``StepInfo.path_steps > 0``) and the wall time. ``--off`` runs with
+path-space remedy (``StepInfo.path_steps > 0``) and the wall time; then, per step, the RMS over seeds of
+the cumulative log-evidence's error against the RMS of its reported standard error
+(``StepInfo.log_evidence_se``). ``--off`` runs with
 ``conflict_remedy=False`` (the mixture target) for comparison.
 """
 
@@ -94,6 +96,7 @@ def task(args):
     return {"name": name, "sampler": sampler, "seed": seed, "wall": time.perf_counter() - start, "failed": failed,
             "mean": column([r.mean() for r in result.steps], (d,)), "std": column([r.std() for r in result.steps], (d,)),
             "log_evidence": column([r.info.log_evidence for r in result.steps]),
+            "log_evidence_se": column([r.info.log_evidence_se for r in result.steps]),
             "path_steps": column([r.info.path_steps for r in result.steps]),
             "conflict": column([r.info.prior_data_conflict for r in result.steps])}
 
@@ -152,7 +155,7 @@ def main():
     print()
     print("| problem | sampler | max abs mean error [exact sd] | max abs log-evidence error [nats] | per step: worst mean error / worst evidence error / runs on the path space | wall per run [s] |")
     print("|---|---|---:|---:|---|---:|")
-    per_seed = []
+    per_seed, calibration = [], []
     for name in names:
         ref = refs[name]
         for sampler in samplers:
@@ -171,6 +174,13 @@ def main():
             wall = np.array([r["wall"] for r in rows])
             print(f"| {name}{' (failed: ' + failed + ')' if failed else ''} | {sampler} | {np.nanmax(mean_err):.2f} | "
                   f"{np.nanmax(ev_err):.2f} | {steps} | {np.median(wall):.1f} (max {wall.max():.1f}) |")
+            # the reported se of the cumulative log-evidence against the errors: RMS over seeds, per step
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                rms_err = np.sqrt(np.nanmean(ev_err**2, axis=0))
+                rms_se = np.sqrt(np.nanmean(np.array([r["log_evidence_se"] for r in rows]) ** 2, axis=0))
+            calibration.append(f"{name} {sampler}: RMS error / RMS reported se of the cumulative log-evidence per step: "
+                               + " ".join(f"{e:.3f}/{v:.3f}" for e, v in zip(rms_err, rms_se)))
             if args.per_seed:
                 worst = [np.unravel_index(np.nanargmax(np.abs(e["mean_sd"])), e["mean_sd"].shape) for e in err]
                 seed_worst = np.nanmax(mean_err, axis=1)
@@ -179,7 +189,7 @@ def main():
                                     f"{r['seed']}: {abs(e['mean_sd'][w]):.2f} ({w[0] + 1},{w[1]})/{np.nanmax(v):.2f}"
                                     for r, e, w, v in zip(rows, err, worst, ev_err))
                                 + f"; median {np.median(seed_worst):.2f}, 90 % {np.quantile(seed_worst, 0.9):.2f}")
-    for line in per_seed:
+    for line in per_seed + calibration:
         print(line)
 
 

@@ -37,9 +37,11 @@ from .priors import inside_support
 from .transforms import BoxTransform
 from .moves import metropolis_accept
 from .moves.scaled import FittedGaussian
+from .resampling import resample
 from .weights import logsumexp, normalise
 
-__all__ = ["importance_step", "step_standard_errors", "DefensiveProposal"]
+__all__ = ["importance_step", "pooled_start", "clustered_parts", "step_standard_errors", "DefensiveProposal",
+           "PooledProposal"]
 
 _T_DOF = 4.0
 
@@ -118,9 +120,156 @@ class DefensiveProposal:
         return draws[rng.permutation(n)]  # the two halves in random order: the pairing in the sweeps is random
 
 
+class PooledProposal:
+    """A mixture of :class:`DefensiveProposal` s, each fitted to one cluster of one of several clouds of the same
+    posterior (:func:`clustered_parts`).
+
+    Two samplers of one posterior may each hold a different mode, or weigh two modes differently (on the path
+    space: the bridge from the path prior and the start from the stored paths,
+    :func:`seqbayes.sequential.assimilate_paths`). Fitted to both, the importance density covers both; its
+    independence sweeps then move particles between the modes, which no local move does, and its estimate counts
+    both modes' mass. One fit to a two-mode cloud would not do: its kernel bandwidth and its t's covariance come
+    from the spread between the modes (run 9, T3, SEMC seed 5, step 5: importance ESS 3-9 of 1000).
+
+    Parameters
+    ----------
+    parts : sequence of DefensiveProposal
+    log_weights : (K,) array
+        The parts' log-weights in the mixture (normalised here).
+    """
+
+    def __init__(self, parts, log_weights):
+        self.parts = tuple(parts)
+        self.log_weights = normalise(np.asarray(log_weights, dtype=float))
+        self.dim = self.parts[0].dim
+
+    def part_logpdfs(self, points) -> np.ndarray:
+        """``(K, n)``: each part's log-density plus its log-weight at ``points (n, d)``."""
+        return np.stack([part.logpdf(points) for part in self.parts]) + self.log_weights[:, None]
+
+    def logpdf(self, points) -> np.ndarray:
+        """``(n,)`` log-density at ``points (n, d)``."""
+        return logsumexp(self.part_logpdfs(points), axis=0)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``(n, d)`` draws: a multinomial split between the parts, in random order."""
+        counts = rng.multinomial(n, np.exp(self.log_weights))
+        draws = np.concatenate([part.sample(int(m), rng) for part, m in zip(self.parts, counts) if m])
+        return draws[rng.permutation(n)]
+
+
+def clustered_parts(clouds, rng, gaussian: bool = False, n_clusters: int = 2):
+    """The parts of a :class:`PooledProposal` for weighted clouds in unconstrained coordinates.
+
+    Each cloud ``(u (M_i, d), log_weights (M_i,))`` is split into ``n_clusters`` clusters by k-means
+    (:func:`scipy.cluster.vq.kmeans2`, k-means++ start from ``rng``, in coordinates scaled by the cloud's sds);
+    a cluster with fewer than ``2 (d + 1)`` particles joins the largest. A one-mode cloud is cut in two, which
+    costs nothing but a slightly narrower fit to each half; a two-mode cloud gets one fit per mode. Each cloud
+    has the same total weight in the mixture, shared among its clusters by their weight.
+
+    Returns
+    -------
+    parts : list of DefensiveProposal
+    log_weights : (K,) array
+        The parts' log-weights in the mixture.
+    members : list of (cloud index, (M,) bool array)
+        Which particles of which cloud each part was fitted to.
+    """
+    from scipy.cluster.vq import kmeans2
+
+    parts, log_weights, members = [], [], []
+    for c, (u, lw) in enumerate(clouds):
+        m, d = u.shape
+        scale = np.std(u, axis=0)
+        scale[~(scale > 0)] = 1.0
+        labels = np.zeros(m, dtype=int)
+        if m >= 2 * n_clusters * (d + 1):
+            _, labels = kmeans2(u / scale, n_clusters, minit="++", rng=rng)
+            sizes = np.bincount(labels, minlength=n_clusters)
+            small = sizes < 2 * (d + 1)
+            labels[small[labels]] = int(np.argmax(sizes))
+        w = np.exp(normalise(lw))
+        for label in np.unique(labels):
+            member = labels == label
+            mass = w[member].sum()
+            if not mass > 0:
+                continue
+            parts.append(DefensiveProposal(u[member], lw[member], gaussian=gaussian))
+            log_weights.append(np.log(mass) - np.log(len(clouds)))
+            members.append((c, member))
+    return parts, np.array(log_weights), members
+
+
+#: How much more the first cloud of :func:`pooled_start` is trusted where the clouds overlap (a factor on its parts'
+#: responsibilities): its particles keep a mode that both hold, another cloud's fill only what it lacks.
+FIRST_CLOUD_PREFERENCE = 30.0
+
+
+def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = False):
+    """One cloud of N particles from several clouds of the same posterior, each cluster of each given its share
+    of the mass.
+
+    Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
+    trapped in a minor one (on the path space: the bridge from the path prior and the start from the stored
+    paths, :func:`seqbayes.sequential.assimilate_paths`). The share of each part of the
+    :class:`PooledProposal` ``q = sum_c alpha_c q_c`` fitted to the clusters of the clouds
+    (:func:`clustered_parts`) is estimated by importance sampling: N draws of ``q``, weights ``w = pi / q``,
+    and part ``c``'s share is ``sum w r_c / sum w`` with ``r_c`` the draw's responsibility, ``alpha_c q_c / q``
+    with the first cloud's parts' terms multiplied by ``FIRST_CLOUD_PREFERENCE``: where the clouds overlap the
+    first one's particles carry the mass, and another's only where the first has none. The first cloud is the
+    one trusted within a mode (the bridge; the stored paths' start tempers one dataset and its particles sat
+    0.3-0.5 exact sds from the bridge's within the shared mode on run 9, T5, step 6, which an even split of the
+    mass between the clouds carried into the start). The particles, each weighted by its part's share times
+    its own weight within the part, are resampled (systematic) to N. The independence sweeps of
+    :func:`importance_step` then correct what the shares leave off (the start is only an approximation; the
+    sweeps leave the posterior invariant).
+
+    Parameters
+    ----------
+    clouds : sequence of (points (M_i, d), log_weights (M_i,))
+        The clouds; N is the first one's size.
+    prior_logpdf, loglike, support, rng, gaussian
+        As :func:`importance_step`.
+
+    Returns
+    -------
+    index : (N,) array of int
+        Indices into the clouds' concatenation.
+    shares : (K,) array
+        The parts' estimated shares (each part its cloud's weight when no draw has a finite target).
+    """
+    n = clouds[0][0].shape[0]
+    transform = BoxTransform(support)
+    parts, part_log_weights, members = clustered_parts(
+        [(transform.forward(points), log_weights) for points, log_weights in clouds], rng, gaussian)
+    q = PooledProposal(parts, part_log_weights)
+    draws = q.sample(n, rng)
+    theta = transform.inverse(draws)
+    inside = inside_support(theta, support) & np.isfinite(theta).all(axis=1)
+    log_w = np.full(n, -np.inf)
+    if inside.any():
+        ti = theta[inside]
+        log_w[inside] = loglike(ti) + prior_logpdf(ti) + transform.log_jacobian(draws[inside])
+    log_w[np.isnan(log_w)] = -np.inf
+    by_part = q.part_logpdfs(draws)
+    log_w -= logsumexp(by_part, axis=0)
+    if np.isfinite(logsumexp(log_w)):
+        preferred = by_part + np.log(FIRST_CLOUD_PREFERENCE) * np.array([c == 0 for c, _ in members])[:, None]
+        responsibilities = preferred - logsumexp(preferred, axis=0)
+        shares = np.exp(logsumexp(responsibilities + log_w, axis=1) - logsumexp(log_w))
+    else:
+        shares = np.exp(q.log_weights)
+    offsets = np.cumsum([0] + [points.shape[0] for points, _ in clouds])
+    weights = np.zeros(offsets[-1])
+    for share, (c, member) in zip(shares, members):
+        within = np.exp(normalise(clouds[c][1][member]))
+        weights[offsets[c]:offsets[c + 1]][member] = share * within
+    return resample("systematic", weights / weights.sum(), rng, n), shares
+
+
 def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_sweeps: int = 1,
                     gaussian: bool = False, se_target: float | None = None, max_sweeps: int | None = None,
-                    min_fraction: float = 0.0):
+                    min_fraction: float = 0.0, other=None):
     """Evidence by defensive importance sampling, then independence-MH sweeps with the same proposal.
 
     Parameters
@@ -147,6 +296,9 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
         after ``n_sweeps`` while the estimate's standard error ``sqrt(1 / ESS - 1 / M)`` (M draws)
         exceeds ``se_target``, up to ``max_sweeps``, and while the pooled ESS is at least ``min_fraction``
         of the draws (below it the caller refits the proposal rather than pool a poor one's draws).
+    other : tuple of (M, d) array and (M,) array, optional
+        Another cloud of the same posterior (points, log-weights), which may hold a mode ``posterior``
+        lacks: the proposal is then the :class:`PooledProposal` of both (:func:`clustered_parts`).
 
     Returns
     -------
@@ -162,7 +314,11 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     n = posterior.shape[0]
     transform = BoxTransform(support)
     u = transform.forward(posterior)
-    q = DefensiveProposal(u, log_weights, gaussian=gaussian)
+    if other is None:
+        q = DefensiveProposal(u, log_weights, gaussian=gaussian)
+    else:
+        q = PooledProposal(*clustered_parts([(u, log_weights), (transform.forward(other[0]), other[1])], rng,
+                                            gaussian)[:2])
     log_q = q.logpdf
 
     posterior, components = posterior.copy(), components.copy()
