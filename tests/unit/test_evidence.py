@@ -124,14 +124,10 @@ def test_sampler_reports_a_log_evidence_se_that_matches_the_spread_over_seeds():
     assert 0.5 < ratio < 2.5
 
 
-def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
-    # Prior N(0, 9 I_2), likelihood 0.95 N(theta; (1, 0), 0.2^2 I) + 0.05 N(theta; (-1, 0), 0.2^2 I): the
-    # posterior has modes A and B with weights 0.95 and 0.05 and log Z in closed form. The particles hold
-    # only A (1000 exact draws); another cloud holds only B (the path-space remedy's stored-path start,
-    # sequential.assimilate_paths). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
-    # with the other cloud the fraction in B is 0.045 +- 0.007 (0.027-0.059) and the error of log Z
-    # +0.002 +- 0.035 (ESS >= 482); without it the fraction is 0.0007 and the error's sd 0.16 (ESS down to 3).
-    # Asserted: fraction in [0.02, 0.08] (4 sd), |error| < 0.15 (4 sd), and the fraction without it < 0.01
+def _two_modes(seed):
+    """Prior N(0, 9 I_2), likelihood 0.95 N(theta; (1, 0), 0.2^2 I) + 0.05 N(theta; (-1, 0), 0.2^2 I): a posterior
+    with modes A and B of weights 0.95 and 0.05 and log Z in closed form. Returns the prior, the log-likelihood,
+    log Z, 1000 exact draws of each mode's component of the posterior and the (unbounded) support."""
     a, b, s, w = np.array([1.0, 0.0]), np.array([-1.0, 0.0]), 0.2, 0.05
     prior = stats.multivariate_normal(np.zeros(2), 9 * np.eye(2))
 
@@ -142,11 +138,20 @@ def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
     marginal = stats.multivariate_normal(np.zeros(2), (9 + s**2) * np.eye(2))
     exact = np.logaddexp(np.log(1 - w) + marginal.logpdf(a), np.log(w) + marginal.logpdf(b))
     post_var = 1 / (1 / 9 + 1 / s**2)
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(seed)
     mode_a = rng.normal(post_var * a / s**2, np.sqrt(post_var), size=(1000, 2))
     mode_b = rng.normal(post_var * b / s**2, np.sqrt(post_var), size=(1000, 2))
+    return prior, loglike, exact, mode_a, mode_b, np.array([[-np.inf, np.inf]] * 2)
+
+
+def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
+    # The particles hold only mode A of _two_modes; another cloud holds only B (the path-space remedy's stored-path
+    # start, sequential.assimilate_paths). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
+    # with the other cloud the fraction in B is 0.045 +- 0.007 (0.029-0.065) and the error of log Z
+    # -0.005 +- 0.030 (ESS >= 486); without it the fraction is 0.0007 and the error's sd 0.16 (ESS down to 3).
+    # Asserted: fraction in [0.02, 0.08] (4 sd), |error| < 0.15 (5 sd), and the fraction without it < 0.01
+    prior, loglike, exact, mode_a, mode_b, support = _two_modes(7)
     components = np.column_stack([loglike(mode_a), prior.logpdf(mode_a)])
-    support = np.array([[-np.inf, np.inf]] * 2)
     log_z, ess, swept, swept_components, _ = importance_step(
         mode_a, np.zeros(1000), components, prior.logpdf, loglike, support, np.random.default_rng(8), 3,
         other=(mode_b, np.zeros(1000)))
@@ -172,30 +177,19 @@ def test_pooled_proposal_is_the_average_of_its_parts():
 
 
 def test_pooled_start_gives_each_cloud_its_share_of_the_mass():
-    # The bimodal target of the test above (modes A, B with weights 0.95, 0.05), a cloud in each mode: over
-    # seeds 0-39 (scratch script) the start's fraction drawn from B's cloud is 0.0495 +- 0.0028; asserted within
-    # [0.035, 0.065] (5 sd). A cloud trapped where the target is ~e^-90 of its peak (a tempering caught in a minor
-    # mode), even as the preferred first cloud, gets parts' shares of at most 0.0027 over those seeds: < 0.01.
-    a, b, s, w = np.array([1.0, 0.0]), np.array([-1.0, 0.0]), 0.2, 0.05
-    prior = stats.multivariate_normal(np.zeros(2), 9 * np.eye(2))
-
-    def loglike(theta):
-        return np.logaddexp(np.log(1 - w) + stats.multivariate_normal(a, s**2 * np.eye(2)).logpdf(theta),
-                            np.log(w) + stats.multivariate_normal(b, s**2 * np.eye(2)).logpdf(theta))
-
-    def cloud(points):
-        return points, np.zeros(points.shape[0])
-
-    post_var = 1 / (1 / 9 + 1 / s**2)
-    rng = np.random.default_rng(11)
-    mode_a = rng.normal(post_var * a / s**2, np.sqrt(post_var), size=(1000, 2))
-    mode_b = rng.normal(post_var * b / s**2, np.sqrt(post_var), size=(1000, 2))
-    trapped = rng.normal([0.0, 2.5], 0.05, size=(1000, 2))
-    support = np.array([[-np.inf, np.inf]] * 2)
-    index, shares = evidence.pooled_start([cloud(mode_a), cloud(mode_b)], prior.logpdf, loglike, support, rng)
+    # _two_modes (modes A, B with weights 0.95, 0.05), a cloud in each mode: over seeds 0-39 (scratch script) the
+    # start's fraction drawn from B's cloud is 0.0495 +- 0.0028; asserted within [0.035, 0.065] (5 sd). A cloud
+    # trapped where the target is ~e^-90 of its peak (a tempering caught in a minor mode), even as the preferred
+    # first cloud, gets parts' shares of at most 0.0027 over those seeds: < 0.01.
+    prior, loglike, _, mode_a, mode_b, support = _two_modes(11)
+    trapped = np.random.default_rng(12).normal([0.0, 2.5], 0.05, size=(1000, 2))
+    rng = np.random.default_rng(13)
+    index, shares = evidence.pooled_start([(mode_a, np.zeros(1000)), (mode_b, np.zeros(1000))], prior.logpdf,
+                                          loglike, support, rng)
     assert index.shape == (1000,) and shares.sum() == pytest.approx(1.0)
     assert 0.035 <= np.mean(index >= 1000) <= 0.065
-    index, shares = evidence.pooled_start([cloud(trapped), cloud(mode_a)], prior.logpdf, loglike, support, rng)
+    index, _ = evidence.pooled_start([(trapped, np.zeros(1000)), (mode_a, np.zeros(1000))], prior.logpdf, loglike,
+                                     support, rng)
     assert np.mean(index < 1000) < 0.01
 
 
