@@ -960,7 +960,9 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
             estimates.append((log_increment, evidence_ess))
     else:
         pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
-        if len(pooled) > 1:
+        # only when one fit at least is reliable on its own (below, the floor of the fallback to the path estimate):
+        # six fits of a collapsed posterior with ESS 2 each are not one of ESS 12
+        if len(pooled) > 1 and max(e for _, e in pooled) >= max(10.0, 0.01 * n):
             log_z, fit_ess = np.array(pooled).T
             total = float(fit_ess.sum())
             log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
