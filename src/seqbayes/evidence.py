@@ -25,12 +25,21 @@ particles, so the sweep leaves the posterior invariant; it costs no extra
 likelihood evaluation and moves particles across a funnel that the local moves
 cross slowly. Why by hand: no library offers defensive importance sampling
 against an arbitrary vectorised prior density.
+
+Two clouds of the same posterior (the conflict remedy's bridge and stored-path
+start, :func:`seqbayes.sequential.assimilate_paths`) are pooled: :func:`clustered_parts`
+fits one defensive proposal per k-means cluster of each (SciPy's ``kmeans2``),
+:func:`pooled_start` gives each cluster its importance-sampling share of the mass,
+and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of them.
 """
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 from scipy import stats
+from scipy.cluster.vq import kmeans2
 
 from .density import GaussianMixture, silverman_bandwidth
 from .priors import inside_support
@@ -44,6 +53,9 @@ __all__ = ["importance_step", "pooled_start", "clustered_parts", "step_standard_
            "PooledProposal"]
 
 _T_DOF = 4.0
+
+#: kmeans2's keyword for the random generator: ``rng`` from SciPy 1.15, ``seed`` before (both take a Generator).
+_KMEANS_RNG = "rng" if "rng" in inspect.signature(kmeans2).parameters else "seed"
 
 #: Most kernel-density components of the proposal (see docs/core.md, "Cost per update").
 MAX_PROPOSAL_COMPONENTS = 1000
@@ -175,8 +187,6 @@ def clustered_parts(clouds, rng, gaussian: bool = False, n_clusters: int = 2):
     members : list of (cloud index, (M,) bool array)
         Which particles of which cloud each part was fitted to.
     """
-    from scipy.cluster.vq import kmeans2
-
     parts, log_weights, members = [], [], []
     for c, (u, lw) in enumerate(clouds):
         m, d = u.shape
@@ -184,7 +194,7 @@ def clustered_parts(clouds, rng, gaussian: bool = False, n_clusters: int = 2):
         scale[~(scale > 0)] = 1.0
         labels = np.zeros(m, dtype=int)
         if m >= 2 * n_clusters * (d + 1):
-            _, labels = kmeans2(u / scale, n_clusters, minit="++", rng=rng)
+            _, labels = kmeans2(u / scale, n_clusters, minit="++", **{_KMEANS_RNG: rng})
             sizes = np.bincount(labels, minlength=n_clusters)
             small = sizes < 2 * (d + 1)
             labels[small[labels]] = int(np.argmax(sizes))
