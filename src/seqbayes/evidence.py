@@ -210,6 +210,23 @@ def clustered_parts(clouds, rng, gaussian: bool = False, n_clusters: int = 2):
     return parts, np.array(log_weights), members
 
 
+def _target_at(draws, transform, support, loglike, prior_logpdf):
+    """The target at proposal draws ``(M, d)`` in unconstrained coordinates: the draws in the parameter space
+    ``theta``, which of them are inside, their components ``(log L, log p)`` (``(M, 2)``, -inf outside) and
+    ``log target = log L + log p + log |d theta / d u|`` (-inf outside or where NaN)."""
+    n = draws.shape[0]
+    theta = transform.inverse(draws)
+    inside = inside_support(theta, support) & np.isfinite(theta).all(axis=1)
+    components = np.full((n, 2), -np.inf)
+    log_target = np.full(n, -np.inf)
+    if inside.any():
+        ti = theta[inside]
+        components[inside] = np.column_stack([loglike(ti), prior_logpdf(ti)])
+        log_target[inside] = components[inside].sum(axis=1) + transform.log_jacobian(draws[inside])
+    log_target[np.isnan(log_target)] = -np.inf
+    return theta, inside, components, log_target
+
+
 #: How much more the first cloud of :func:`pooled_start` is trusted where the clouds overlap (a factor on its parts'
 #: responsibilities): its particles keep a mode that both hold, another cloud's fill only what it lacks.
 FIRST_CLOUD_PREFERENCE = 30.0
@@ -254,15 +271,8 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
         [(transform.forward(points), log_weights) for points, log_weights in clouds], rng, gaussian)
     q = PooledProposal(parts, part_log_weights)
     draws = q.sample(n, rng)
-    theta = transform.inverse(draws)
-    inside = inside_support(theta, support) & np.isfinite(theta).all(axis=1)
-    log_w = np.full(n, -np.inf)
-    if inside.any():
-        ti = theta[inside]
-        log_w[inside] = loglike(ti) + prior_logpdf(ti) + transform.log_jacobian(draws[inside])
-    log_w[np.isnan(log_w)] = -np.inf
     by_part = q.part_logpdfs(draws)
-    log_w -= logsumexp(by_part, axis=0)
+    log_w = _target_at(draws, transform, support, loglike, prior_logpdf)[3] - logsumexp(by_part, axis=0)
     if np.isfinite(logsumexp(log_w)):
         preferred = by_part + np.log(FIRST_CLOUD_PREFERENCE) * np.array([c == 0 for c, _ in members])[:, None]
         responsibilities = preferred - logsumexp(preferred, axis=0)
@@ -340,15 +350,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
                                and ess >= min_fraction * n * sweep  # a poor fit: refit rather than pool
                                and np.sqrt(max(1.0 / max(ess, 1e-300) - 1.0 / (n * sweep), 0.0)) > se_target):
         draws = q.sample(n, rng)
-        theta = transform.inverse(draws)
-        inside = inside_support(theta, support) & np.isfinite(theta).all(axis=1)
-        new_components = np.full((n, 2), -np.inf)
-        log_target = np.full(n, -np.inf)
-        if inside.any():
-            ti = theta[inside]
-            new_components[inside] = np.column_stack([loglike(ti), prior_logpdf(ti)])
-            log_target[inside] = new_components[inside].sum(axis=1) + transform.log_jacobian(draws[inside])
-        log_target[np.isnan(log_target)] = -np.inf
+        theta, inside, new_components, log_target = _target_at(draws, transform, support, loglike, prior_logpdf)
         log_terms = log_target - log_q(draws)
         if sweep == 0 or se_target is not None:
             pooled.append(log_terms)

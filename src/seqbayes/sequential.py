@@ -942,16 +942,17 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
             labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
         cloud = _Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
                        np.concatenate([cloud.components, other.components])[index], labels)
-        other = (other.particles, other.log_weights)
+    also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
     particles, components = cloud.particles, cloud.components
     warm_up = 1 if config.economy else 0
+    reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
     estimates = []
     for attempt in range(warm_up + 1 + config.max_refits):
         # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
         # them and estimate again (each q is independent of its own draws, so every estimate is valid)
         log_increment, evidence_ess, particles, components, accepted = importance_step(
             particles, cloud.log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
-            config.n_independent, other=other,
+            config.n_independent, other=also_fit,
             **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
         n_independent += accepted
         if attempt >= warm_up:
@@ -960,9 +961,9 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
             estimates.append((log_increment, evidence_ess))
     else:
         pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
-        # only when one fit at least is reliable on its own (below, the floor of the fallback to the path estimate):
-        # six fits of a collapsed posterior with ESS 2 each are not one of ESS 12
-        if len(pooled) > 1 and max(e for _, e in pooled) >= max(10.0, 0.01 * n):
+        # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
+        # not one of ESS 12
+        if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
             log_z, fit_ess = np.array(pooled).T
             total = float(fit_ess.sum())
             log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
@@ -970,7 +971,7 @@ def _evidence(cloud, log_increment_path, n_found, problem, config, counter, prio
             evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
     # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
     # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
-    if not evidence_ess >= max(10.0, 0.01 * n) or n_found < 0.1 * n:
+    if not evidence_ess >= reliable or n_found < 0.1 * n:
         warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
                       f"{n_found} distinct restart draws); using the tempering path's estimate and the "
                       f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
