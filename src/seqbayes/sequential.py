@@ -1326,6 +1326,19 @@ def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, pri
     return _Cloud(walkers, log_weights, components, labels), log_weights, log_restricted_mass, n_found
 
 
+def _stored_paths_start(state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, path_config, moves,
+                        rng):
+    """The path-space step from the stored paths (:func:`_paths_from_previous`) tempered in ``L_s``
+    (:func:`_temper_resample_move`). Returns the cloud, the increment by the tempering path (with the restart's
+    restricted mass), the temperatures, moves, whether the last stage resampled, its ESS, the number of distinct
+    restart draws and the log-weights before the step."""
+    cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
+                                                                            path_counter, prior_logpdf, config, rng)
+    cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
+        cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
+    return cloud, log_z + log_restricted_mass, temperatures, moves, resampled, stage_ess, n_found, log_weights
+
+
 def _variance_before(state) -> float:
     """:attr:`PastStep.log_evidence_variance` of the step after ``state``: its cumulative variance, as the square of
     the se the last record reports, which is what a restored run rebuilds it from (:mod:`seqbayes.snapshot`), so that
@@ -1373,8 +1386,9 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     weighed afresh; the stored paths' start below (or, where it cannot carry the step, a second bridge)
     runs as well, and the two clouds are pooled, each cluster given its importance-sampling share of the
     mass, before the importance sweeps (:func:`_evidence`), because a tempering can weigh a mode wrongly
-    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths (kept from the last
-    path-space step, or drawn backwards with the exact transition), are extended by
+    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the
+    previous posterior's paths (kept from the last path-space step, or drawn backwards with the exact
+    transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
     by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
     the data call for. The evidence increment is Eq. (1) or the importance estimate of
@@ -1421,19 +1435,15 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         # the stored paths cannot carry the step (T6: the drift takes every extended path out of the box), a second
         # bridge, as a bridge's tempering can also end trapped in a minor mode (run 9, T6, step 6: 6.3 sds, 89 nats)
         try:
-            other, _, _, _ = _paths_from_previous(state, dataset, kernel, path_problem, path_counter, prior_logpdf,
-                                                  config, rng)
-            other, _, _, moves, _, _ = _temper_resample_move(other, path_problem, path_config, path_counter,
-                                                             prior_logpdf, moves, True, False, rng)
+            other, _, _, moves, *_ = _stored_paths_start(state, dataset, kernel, path_problem, path_counter,
+                                                         prior_logpdf, config, path_config, moves, rng)
         except (ZeroLikelihoodError, TemperingLimitError):
             other, _, _, moves, _, _, _ = _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config,
                                                                   counter, moves, rng)
     else:
-        cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
-                                                                                path_counter, prior_logpdf, config, rng)
-        cloud, log_z, temperatures, moves, resampled, stage_ess = _temper_resample_move(
-            cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
-        log_z, other = log_z + log_restricted_mass, None
+        cloud, log_z, temperatures, moves, resampled, stage_ess, n_found, log_weights = _stored_paths_start(
+            state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, path_config, moves, rng)
+        other = None
     # at least 2 (L + 1) independence sweeps per fit, as the moves: with 3, run 9 under T5 ended step 6 0.3-0.5 exact
     # sds off in c at every seed, from a start within 0.02 sds (the sweeps' transient through the path's earlier
     # states); with 10 (= 2 (L + 1) there), within 0.03 at seeds 1, 2, 4 (SMC, SEMC, SMC)
