@@ -1,0 +1,208 @@
+"""A hash of the studies' results, to show that a restructuring changed nothing numerically.
+
+Runs reduced forms of the Coulomb, damped-oscillator (ordinary and path-space steps), abrupt-drop,
+SMC^2 (Kalman and particle inner filters) and SG-EnMCMC / stiffness-drop studies, and hashes every
+posterior, weight, predictive draw, numeric step diagnostic (wall times excluded), forecast and the
+final generator state. Bit-identical code gives the same hashes::
+
+    python tools/result_hash.py                 # print one hash per study and the total
+    python tools/result_hash.py --save h.json   # keep them
+    python tools/result_hash.py --check h.json  # compare; exit 1 on any difference
+
+Imports go through ``_load`` so the script keeps working while modules move between packages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import importlib
+import json
+import os
+import sys
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+_TIME_FIELDS = {"wall_time", "elapsed", "time"}
+
+
+def _load(name: str, *modules: str):
+    """``name`` from the first of ``modules`` that defines it."""
+    for module in modules:
+        try:
+            found = importlib.import_module(module)
+        except ImportError:
+            continue
+        if hasattr(found, name):
+            return getattr(found, name)
+    raise ImportError(f"{name} not found in any of {modules}")
+
+
+class _Hasher:
+    def __init__(self):
+        self._h = hashlib.sha256()
+
+    def add(self, value, label=""):
+        self._h.update(label.encode())
+        if value is None:
+            self._h.update(b"None")
+        elif isinstance(value, int) and not isinstance(value, bool):  # generator states exceed int64
+            self._h.update(f"int:{value}".encode())
+        elif isinstance(value, (np.ndarray, np.generic, float, bool)):
+            arr = np.ascontiguousarray(np.asarray(value))
+            self._h.update(str(arr.dtype).encode() + str(arr.shape).encode())
+            self._h.update(arr.tobytes())
+        elif isinstance(value, str):
+            self._h.update(value.encode())
+        elif isinstance(value, dict):
+            for key in sorted(value, key=str):
+                if str(key) not in _TIME_FIELDS:
+                    self.add(value[key], f"{label}.{key}")
+        elif isinstance(value, (tuple, list)):
+            for i, item in enumerate(value):
+                self.add(item, f"{label}[{i}]")
+        elif dataclasses.is_dataclass(value):
+            for f in dataclasses.fields(value):
+                if f.name not in _TIME_FIELDS:
+                    self.add(getattr(value, f.name), f"{label}.{f.name}")
+        else:
+            raise TypeError(f"cannot hash {type(value).__name__} at {label}")
+
+    def sampler(self, smp, label):
+        for i, record in enumerate(smp.result.steps):
+            self.add(record.posterior, f"{label}.{i}.posterior")
+            self.add(record.log_weights, f"{label}.{i}.log_weights")
+            self.add(record.predictive, f"{label}.{i}.predictive")
+            self.add(record.info, f"{label}.{i}.info")
+        self.add(smp.rng.bit_generator.state, f"{label}.rng")
+
+    def hexdigest(self):
+        return self._h.hexdigest()
+
+
+def _samplers():
+    return (_load("SEMC", "seqbayes"), _load("SMC", "seqbayes"))
+
+
+def coulomb(h):
+    model = importlib.import_module("seqbayes.models.coulomb")
+    data = model.load_experiment()
+    for cls in _samplers():
+        for kernel in ("T1", "T2"):
+            smp = cls(model.prior(), model.kernel(kernel), model.loglike, n_samples=200, rng=np.random.default_rng(3))
+            smp.run(data)
+            h.sampler(smp, f"coulomb.{cls.__name__}.{kernel}")
+
+
+def oscillator(h):
+    osc = importlib.import_module("seqbayes.models.oscillator")
+    study = importlib.import_module("seqbayes.studies.oscillator")
+    # run 9 takes the path-space remedy (bridge and stored start) under T3 and T6; run 0 is ordinary
+    for run, kernel in ((0, "T1"), (0, "T6"), (9, "T3"), (9, "T6")):
+        problem = osc.make_problem(np.random.default_rng(study._problem_seed(0, run)))
+        for cls in _samplers():
+            smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=300,
+                      rng=np.random.default_rng(7), **study.DEFAULT_OPTIONS[cls.__name__])
+            try:
+                smp.run(problem.datasets)
+                h.add(smp.predict(3), f"osc.{run}.{kernel}.{cls.__name__}.forecast")
+            except Exception as err:  # a failure is a result too (same failure, same place)
+                h.add(f"{type(err).__name__}: {err}", f"osc.{run}.{kernel}.{cls.__name__}.error")
+            h.sampler(smp, f"osc.{run}.{kernel}.{cls.__name__}")
+
+
+def abrupt_drop(h):
+    osc = importlib.import_module("seqbayes.models.oscillator")
+    drop = importlib.import_module("seqbayes.studies.abrupt_drop")
+    data = drop.simulate(np.random.default_rng(1))
+    kernels = drop.candidate_kernels()
+    for name in ("jump", "decay"):
+        for cls in _samplers():
+            smp = cls(osc.prior(), kernels[name], osc.log_likelihood, n_samples=300, rng=np.random.default_rng(5))
+            smp.run(data.datasets)
+            h.sampler(smp, f"drop.{name}.{cls.__name__}")
+
+
+def smc2(h):
+    lg = importlib.import_module("seqbayes.models.linear_gaussian")
+    kalman_inner = _load("KalmanInnerFilter", "seqbayes", "seqbayes.predictive.smc2", "seqbayes.nested")
+    particle_inner = _load("ParticleInnerFilter", "seqbayes", "seqbayes.predictive.smc2", "seqbayes.nested")
+    problem = lg.LinearGaussianStateSpace.mixed()
+    data, _ = problem.simulate(10, rng=11)
+    for cls in _samplers():
+        for name, inner in (("kalman", kalman_inner(problem.observe)), ("particle", particle_inner(20))):
+            smp = cls(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=4, inner_filter=inner)
+            smp.run(data[:6] if name == "particle" else data)
+            h.sampler(smp, f"smc2.{name}.{cls.__name__}")
+
+
+def sg_enmcmc(h):
+    table = importlib.import_module("seqbayes.studies.shake_table")
+    sgenmcmc = _load("SGEnMCMC", "seqbayes")
+    data = table.make_data(table.CASES["wc1"], duration=4.0, rng=0)
+    for sampler in ("resample-move", "paper"):
+        try:
+            sg = sgenmcmc(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
+                          sampler=sampler)
+        except TypeError:
+            continue
+        run = sg.run(data["u"], data["y"], rng=2)
+        h.add(run, f"sg.{sampler}")
+
+
+def stiffness_drop(h):
+    monitor_cls = _load("StiffnessDropMonitor", "seqbayes.structural.stiffness_drop", "seqbayes.stiffness_drop")
+    structures = importlib.import_module("seqbayes.structural.structures" if importlib.util.find_spec(
+        "seqbayes.structural") else "seqbayes.structures")
+    drop_mod = sys.modules[monitor_cls.__module__]
+    dt = 0.02
+    building = structures.ShearBuilding([1.2e4, 1.0e4], [2.0e7, 1.4e7], (0.02, 0.04))
+    u = structures.kanai_tajimi(3.0, dt, 0.07, rng=1).acceleration
+    y, _ = drop_mod.simulate_drop(building, dt, [0.9, 0.8], 1, 0.2, 70, u)
+    y = y + 0.03 * np.std(y, axis=0) * np.random.default_rng(2).standard_normal(y.shape)
+    mon = monitor_cls(building, dt, 0.7, 1.0, 0.03 * np.std(y, axis=0), n_particles=100)
+    mon.reset(rng=7)
+    for start in range(0, 150, 25):
+        mon.update(u[start:start + 25], y[start:start + 25])
+    h.add(list(mon.history), "drop_monitor.history")
+
+
+STUDIES = {"coulomb": coulomb, "oscillator": oscillator, "abrupt_drop": abrupt_drop, "smc2": smc2,
+           "sg_enmcmc": sg_enmcmc, "stiffness_drop": stiffness_drop}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", default=",".join(STUDIES), help="comma-separated studies")
+    parser.add_argument("--save", help="write the hashes to this JSON file")
+    parser.add_argument("--check", help="compare with the hashes in this JSON file")
+    args = parser.parse_args(argv)
+    hashes = {}
+    for name in args.only.split(","):
+        start = time.perf_counter()
+        h = _Hasher()
+        STUDIES[name](h)
+        hashes[name] = h.hexdigest()
+        print(f"{name:15s} {hashes[name][:16]}  ({time.perf_counter() - start:.1f} s)", flush=True)
+    total = hashlib.sha256("".join(hashes[k] for k in sorted(hashes)).encode()).hexdigest()
+    print(f"{'total':15s} {total[:16]}")
+    if args.save:
+        with open(args.save, "w") as fh:
+            json.dump(hashes, fh, indent=1)
+    if args.check:
+        with open(args.check) as fh:
+            expected = json.load(fh)
+        differ = [k for k in hashes if expected.get(k) != hashes[k]]
+        if differ:
+            print("DIFFERENT:", ", ".join(differ))
+            return 1
+        print("bit-identical to", args.check)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
