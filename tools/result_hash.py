@@ -27,7 +27,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-_TIME_FIELDS = {"wall_time", "elapsed", "time"}
+_TIME_FIELDS = {"wall_time", "elapsed", "seconds"}
 
 
 def _load(name: str, *modules: str):
