@@ -48,6 +48,7 @@ from .density import kept_copy
 from .priors import JointPrior, inside_support
 from .resampling import resample
 from .results import StepInfo, StepRecord, prior_data_conflict
+from .tempering import next_increment
 from .transforms import BoxTransform
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
@@ -153,8 +154,6 @@ class ParticleInnerFilter:
         fit the guide (weighted mean, twice the covariance), draw afresh from it; stop once
         ``beta`` reaches 1. The guide only has to cover the posterior: the particles' own weights
         use the exact transition density."""
-        from .sequential import _next_increment
-
         noise = problem.kernel.noise_std[split[1]]
         if not self.guided or not np.all(noise > 0):
             return None
@@ -179,7 +178,7 @@ class ParticleInnerFilter:
             if np.count_nonzero(np.isfinite(loglike)) < 2 * split[1].size + 2:
                 return None
             base = log_predictive - log_proposal
-            beta = _next_increment(base, loglike, 1.0, 0.25, 0.25)
+            beta = next_increment(base, loglike, 1.0, 0.25, 0.25)
             if round_ == 0 and beta >= 1.0:  # the kernel's own draws keep a quarter of their ESS: no guide needed
                 return None
             log_w = np.where(np.isfinite(loglike), base + beta * np.where(np.isfinite(loglike), loglike, 0.0), -np.inf)

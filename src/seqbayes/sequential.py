@@ -32,7 +32,6 @@ and call :func:`assimilate`.
 
 from __future__ import annotations
 
-import contextlib
 import time
 import warnings
 from dataclasses import dataclass, fields, replace
@@ -55,6 +54,7 @@ from .priors import as_samples, inside_support, support_of
 from .resampling import SCHEMES, resample
 from .results import Result, StepInfo, StepRecord, prior_data_conflict
 from .rng import as_generator, generator_from_state, generator_state
+from .tempering import blas_limit, next_increment
 from .transforms import BoxTransform
 from .weights import ess, logsumexp
 
@@ -433,35 +433,6 @@ def _check_dataset(dataset, step):
         raise ValueError(f"dataset: step {step} got an empty array")
     if hasattr(dataset, "__len__") and not isinstance(dataset, (str, bytes)) and len(dataset) == 0:
         raise ValueError(f"dataset: step {step} got an empty dataset")
-
-
-def _next_increment(log_weights, loglike, remaining, target_fraction, threshold_fraction):
-    """The next tempering increment.
-
-    The whole ``remaining`` exponent is taken when it keeps ESS >= ``threshold_fraction * N``;
-    otherwise the largest increment keeping ESS >= ``target_fraction`` of ESS(0+) (the ESS once
-    zero-likelihood particles drop out), found by bisection to ``1e-9`` of ``remaining``."""
-    finite = np.isfinite(loglike) & np.isfinite(log_weights)
-    if not finite.any():  # no weighted particle has a non-zero likelihood: the caller reports it
-        return remaining
-    base, slope = log_weights[finite], loglike[finite]
-
-    def ess_at(delta):  # (sum w)^2 / sum w^2, with the peak taken out
-        w = base + delta * slope
-        w = np.exp(w - w.max())
-        return w.sum() ** 2 / np.dot(w, w)
-
-    if ess_at(remaining) >= threshold_fraction * loglike.size:  # of N: a few survivors never qualify
-        return remaining
-    target = target_fraction * ess_at(0.0)
-    lo, hi = 0.0, remaining
-    while hi - lo > 1e-9 * remaining:
-        mid = 0.5 * (lo + hi)
-        if ess_at(mid) >= target:
-            lo = mid
-        else:
-            hi = mid
-    return lo if lo > 0 else hi
 
 
 def _mutate(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike):
@@ -852,7 +823,7 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
             f"stages; the dataset lies very far from the {_prior_name(step)}"
             f" (check its units and the model), or raise max_stages")
     remaining = 1.0 - beta
-    delta = (_next_increment(log_weights, loglike, remaining, config.tempering_ess, config.tempering_threshold)
+    delta = (next_increment(log_weights, loglike, remaining, config.tempering_ess, config.tempering_threshold)
              if config.tempering else remaining)
     if remaining - delta < 1e-12:
         delta = remaining
@@ -1702,26 +1673,6 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
     return new_state, record, cloud
 
 
-_THREADPOOLS = []
-
-
-def _blas_limit(n_threads):
-    """A context limiting BLAS to ``n_threads`` (``None``: no limit).
-
-    The hot matrix products here have an inner dimension of d (a handful of parameters), where
-    OpenBLAS's threads cost more than they give: a 6-step SMC run (N = 1000) takes 2.3-2.6 s with
-    two threads and 0.76-0.96 s with one, paired in one process (issue 13). One controller is
-    made per process (finding the libraries costs ~7 ms; a limit then costs ~0.01 ms).
-    """
-    if n_threads is None:
-        return contextlib.nullcontext()
-    if not _THREADPOOLS:
-        from threadpoolctl import ThreadpoolController
-
-        _THREADPOOLS.append(ThreadpoolController())
-    return _THREADPOOLS[0].limit(limits=int(n_threads), user_api="blas")
-
-
 class _CountedLikelihood:
     """The likelihood, advancing a progress bar by the samples it evaluates (serial runs)."""
 
@@ -1848,7 +1799,7 @@ class _SequentialSampler:
             bar = tqdm(desc=f"step {self._state.step + 1}", unit="eval", leave=leave)
             problem = replace(problem, loglike=_CountedLikelihood(problem.loglike, bar))
         try:
-            with _blas_limit(self._blas_threads):
+            with blas_limit(self._blas_threads):
                 state, record = assimilate(self._state, dataset, problem, self.config, self._rng)
             if bar is not None:
                 bar.set_postfix(ESS=f"{record.info.ess:.0f}", logZ=f"{record.info.log_evidence:.2f}")

@@ -180,7 +180,6 @@ against the exact posterior (KF likelihood + AIES; docs/shake_table.md):
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -194,6 +193,7 @@ from .results import weighted_quantile
 from .rng import as_generator, generator_from_state, generator_state
 from .structures.bouc_wen import BoucWenBuilding, bouc_wen_transition
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
+from .tempering import blas_limit, next_exponent
 from .weights import logsumexp, normalise
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -649,7 +649,7 @@ class SGEnMCMC:
         rng = as_generator(rng)
         if self.sampler == "resample-move":
             return self._run_resample_move(ground_acceleration, measurements, rng, progress, initial_theta)
-        with _blas_limit(self.blas_threads):
+        with blas_limit(self.blas_threads):
             return self._run_paper(ground_acceleration, measurements, rng, progress, initial_theta)
 
     def _initial_theta(self, initial_theta, rng):
@@ -810,7 +810,7 @@ class SGEnMCMC:
             from tqdm import tqdm
 
             iterator = tqdm(iterator, desc="SG-EnMCMC (resample-move)", unit="step")
-        with _blas_limit(self.blas_threads):
+        with blas_limit(self.blas_threads):
             for k in iterator:  # loop over time only
                 self._step(state, k)
         state.elapsed += time.perf_counter() - started
@@ -827,7 +827,7 @@ class SGEnMCMC:
         mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
         phi = 0.0
         while phi < 1.0:  # tempering of step k's data: phi -> 1
-            new_phi = _next_exponent(logw, inc, phi, target_ess)
+            new_phi = next_exponent(logw, inc, phi, target_ess)
             delta = new_phi - phi
             state.evid[k] += logsumexp(normalise(logw) + delta * inc)  # log sum_i W_i exp(delta l_i)
             logw = logw + delta * inc
@@ -1044,20 +1044,6 @@ class SGEnMCMC:
         return theta, past, inc, mean_k, cov_k, np.array(acceptance), steady
 
 
-_THREADPOOLS: list = []  # one threadpoolctl controller per process (finding the libraries costs ~7 ms)
-
-
-def _blas_limit(n_threads):
-    """A context limiting BLAS to ``n_threads`` (``None``: no limit)."""
-    if n_threads is None:
-        return contextlib.nullcontext()
-    if not _THREADPOOLS:
-        from threadpoolctl import ThreadpoolController
-
-        _THREADPOOLS.append(ThreadpoolController())
-    return _THREADPOOLS[0].limit(limits=int(n_threads), user_api="blas")
-
-
 def _bank_history(bank, u, y, k):
     """Run ``bank`` over ``y_{0:k-1}``: log-likelihoods ``(N,)``, whether the filters
     reached their steady state, and the filtered mean and covariance at ``k - 1``."""
@@ -1080,28 +1066,6 @@ def _weighted_fit(theta, w):
     centred = theta - mean
     cov = (centred * w[:, None]).T @ centred / max(1.0 - float(w @ w), 1e-12)
     return mean, np.atleast_2d(cov)
-
-
-def _next_exponent(log_weights, increments, phi, target_ess, tol: float = 1e-10) -> float:
-    """Largest ``phi' in (phi, 1]`` with ``ESS(log_weights + (phi' - phi) increments) >=
-    target_ess`` (bisection; 1 if the whole remainder fits)."""
-
-    def ess_at(delta):
-        lw = log_weights + delta * increments
-        w = np.exp(lw - lw.max())
-        return w.sum() ** 2 / (w @ w)
-
-    remaining = 1.0 - phi
-    if ess_at(remaining) >= target_ess:
-        return 1.0
-    lo, hi = 0.0, remaining
-    while hi - lo > tol * max(remaining, 1e-300):
-        mid = 0.5 * (lo + hi)
-        if ess_at(mid) >= target_ess:
-            lo = mid
-        else:
-            hi = mid
-    return phi + max(lo, min(tol, remaining))  # always advance
 
 
 class _Stage:

@@ -95,8 +95,8 @@ from .filters.kalman import (
 )
 from .resampling import resample
 from .rng import as_generator, generator_from_state, generator_state
-from .sgenmcmc import _blas_limit, _next_exponent
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise, simulate
+from .tempering import blas_limit, next_exponent
 from .weights import logsumexp, normalise
 
 __all__ = ["StiffnessDropMonitor", "DropBlock", "path_log_likelihood", "simulate_drop", "grid_log_evidence"]
@@ -468,7 +468,7 @@ class StiffnessDropMonitor:
         run["u"] = np.concatenate([run["u"], u_new])
         run["y"] = np.concatenate([run["y"], y_new])
         before = np.array([c.log_evidence for c in run["classes"]])
-        with _blas_limit(self.blas_threads):
+        with blas_limit(self.blas_threads):
             for k in range(first, run["u"].size):  # loop over time only
                 run["classes"] = [self._class_step(c, k, run) if on else c
                                   for c, on in zip(run["classes"], run["active"])]
@@ -670,7 +670,7 @@ class StiffnessDropMonitor:
         phi, events = 0.0, st.events
         target_ess = self.ess_threshold * N
         while phi < 1.0:  # (2) tempering of step k's data
-            new_phi = _next_exponent(logw, inc, phi, target_ess)
+            new_phi = next_exponent(logw, inc, phi, target_ess)
             evidence += logsumexp(normalise(logw) + (new_phi - phi) * inc)  # log sum_i W_i exp(dphi l_i)
             logw = logw + (new_phi - phi) * inc
             phi = new_phi

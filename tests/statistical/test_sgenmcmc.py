@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from seqbayes.sgenmcmc import (
-    SGEnMCMC, _next_exponent, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
+    SGEnMCMC, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
 )
 from seqbayes.studies.shake_table import CASES, exact_posterior, laplace_posterior, make_data
 
@@ -122,17 +122,6 @@ def test_reproducible(wc1, sampler):
     assert np.array_equal(a.final_theta, b.final_theta)
     assert np.array_equal(a.log_evidence_increments, b.log_evidence_increments)
     assert not np.array_equal(a.final_theta, c.final_theta)
-
-
-def test_tempering_exponent_keeps_the_target_ess():
-    rng = np.random.default_rng(0)
-    logw = 0.1 * rng.standard_normal(300)
-    inc = 50 * rng.standard_normal(300)
-    phi = _next_exponent(logw, inc, 0.2, 150.0)
-    assert 0.2 < phi < 1
-    w = np.exp(logw + (phi - 0.2) * inc - np.max(logw + (phi - 0.2) * inc))
-    assert w.sum() ** 2 / (w @ w) == pytest.approx(150.0, rel=1e-6)
-    assert _next_exponent(logw, 1e-3 * inc, 0.2, 150.0) == 1.0  # the whole remainder fits
 
 
 def test_resample_move_with_sparse_grid_and_random_walk_moves(wc1):
