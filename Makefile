@@ -1,25 +1,34 @@
-# Fresh clone -> working environment. Every target creates .venv on first use.
+# Fresh clone -> working environment. Every target creates .venv on first use, from the lock file.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+LOCK   := requirements.lock
+# pytest workers: the machine's cores (2 here); WORKERS=0 runs in one process
+WORKERS ?= auto
 
-.PHONY: run test bench docs docs-regen check-install clean
+.PHONY: run test check layers bench docs docs-regen check-install lock clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,arviz,docs]"
+	$(PY) -m pip install --quiet -c $(LOCK) -e ".[test,arviz,docs]"
 	touch $(STAMP)
 
 run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled real data (quick variant)
 	$(VENV)/bin/seqbayes example coulomb --quick --out coulomb_results
 
-test: $(STAMP)       ## the whole test suite
-	$(PY) -m pytest -q
+test: $(STAMP)        ## the whole test suite (every tier), in parallel over the cores
+	$(PY) -m pytest -q -n $(WORKERS)
+
+check: $(STAMP)       ## the fast tier for the working loop: unit tests, under a minute
+	$(PY) -m pytest -q -n $(WORKERS) -m "not slow" tests/unit
+
+layers: $(STAMP)     ## the import-layers contract (.importlinter): no cycles, no upward imports
+	$(VENV)/bin/lint-imports --no-cache
 
 bench: $(STAMP)       ## benchmarks against emcee, particles, filterpy, pocomc (installs the bench extra)
-	$(PY) -m pip install --quiet -e ".[bench]"
+	$(PY) -m pip install --quiet -c $(LOCK) -e ".[bench]"
 	$(PY) -m pip install --quiet --no-deps "particles>=0.4"   # its numpy<2 pin would break pandas 3
 	for script in benchmarks/bench_*.py; do echo "== $$script"; $(PY) $$script || exit 1; done
 
@@ -31,6 +40,15 @@ docs-regen: $(STAMP)  ## rewrite the guide's outputs and the docs' generated tab
 
 check-install:       ## a clean venv with only the built wheel (no extras) runs examples and a run-store cycle
 	bash .ci/clean_install
+
+lock:                ## re-resolve every dependency to today's newest and rewrite the lock (a deliberate commit)
+	rm -rf .lockenv
+	$(PYTHON) -m venv .lockenv
+	.lockenv/bin/python -m pip install --quiet --upgrade pip
+	.lockenv/bin/python -m pip install --quiet ".[test,arviz,docs]"
+	{ sed -n '1,3p' $(LOCK); .lockenv/bin/pip freeze --exclude-editable | grep -v '^seqbayes'; } > $(LOCK).new
+	mv $(LOCK).new $(LOCK)
+	rm -rf .lockenv
 
 clean:
 	rm -rf $(VENV) build *.egg-info
