@@ -6,7 +6,7 @@ A component maps one column ``(N,)`` to ``(N,)`` and carries its own noise std
 (0 for a time-invariant parameter). :class:`MarkovKernel` stacks them; a user
 with a coupled evolution model passes ``nominal=callable((N, d)) -> (N, d)``.
 
-Sudden damage (issue 11): a :class:`Jump` component is spike and slab, "the base
+Sudden damage: a :class:`Jump` component is spike and slab, "the base
 component's drift or decay with its small noise, with probability ``1 - p``; a drop
 by a random fraction of a reference value, with probability ``p``". Every branch is
 Gaussian, so the transition of each ancestor is a finite mixture of Gaussians whose

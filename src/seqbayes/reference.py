@@ -28,9 +28,8 @@ on scaled exponentials, so the log domain is kept).
 
 The tails are kept that far because a later step whose data conflict with the
 prediction puts its posterior where the predictive is made of the previous posterior's
-far tail: on run 9 of the oscillator study (kernel T2) a cut at 1e-13 (about 7 sds) moved
-the step-4 mean of ``k`` by 0.8 posterior sd, and even 1e-40 left step 6 off by 7e-3 nats
-(the oscillator uses 1e-100). Discontinuities of the integrand (box bounds, a likelihood
+far tail, where a cut at a few sds moves the later posterior by a sizeable fraction of its sd
+(docs/exact_references.md measures it; the oscillator uses 1e-100). Discontinuities of the integrand (box bounds, a likelihood
 that drops to zero beyond a known value) must be passed as hard bounds so that they are
 grid end points.
 

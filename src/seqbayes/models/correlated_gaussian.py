@@ -10,8 +10,8 @@ sds, so that the posterior is 2.5-10 times narrower than the prior in every dire
 * posterior ``N(m, S)``, ``S = (S0^-1 + G^-1)^-1``, ``m = S (S0^-1 m0 + G^-1 y)``;
 * evidence ``p(y) = N(y; m0, S0 + G)``.
 
-This is the high-dimension benchmark of issue 14 (``benchmarks/bench_highdim.py``) and the
-moderate-dimension statistical test (``tests/statistical/test_highdim.py``).
+It is the problem of the high-dimension benchmark and of the moderate-dimension statistical test
+(docs/benchmarks.md).
 """
 
 from __future__ import annotations

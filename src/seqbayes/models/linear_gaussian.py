@@ -172,7 +172,7 @@ class LinearGaussianStateSpace:
 
     @classmethod
     def mixed(cls, m: int = 10, seed: int = 7) -> "LinearGaussianStateSpace":
-        """The long-stream benchmark of issue 10: one AR(1)-decaying, one drifting and two static
+        """The long-stream problem: one AR(1)-decaying, one drifting and two static
         parameters, ``m`` observations per dataset."""
         rng = np.random.default_rng(seed)
         design = np.column_stack([rng.normal(size=(m, 3)), np.ones(m)])

@@ -1,4 +1,4 @@
-"""Synthetic sudden damage on the damped oscillator (issue 11): eight monthly
+"""Synthetic sudden damage on the damped oscillator: eight monthly
 inspections of a structure whose stiffness decays slowly and, at one step, drops by
 30 %; and the smooth-decay variant without the drop.
 
