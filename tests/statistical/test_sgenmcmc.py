@@ -7,7 +7,7 @@ regeneration, reproducibility and bad input."""
 import numpy as np
 import pytest
 
-from seqbayes.sgenmcmc import (
+from seqbayes.structural.sgenmcmc import (
     SGEnMCMC, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
 )
 from seqbayes.studies.shake_table import CASES, exact_posterior, laplace_posterior, make_data
@@ -93,8 +93,8 @@ def test_stage_summaries_equal_the_one_step_helpers():
 
 
 def test_state_regeneration_is_exact_for_a_linear_conditional_model():
-    from seqbayes.sgenmcmc import _Stage
-    from seqbayes.structures import discretise
+    from seqbayes.structural.sgenmcmc import _Stage
+    from seqbayes.structural.structures import discretise
 
     data = make_data(CASES["wc1"], duration=1.0, rng=0)
     rng = np.random.default_rng(3)
@@ -190,7 +190,7 @@ def test_resample_move_with_the_enkf_likelihood():
     # the exact posterior. Measured over 6 sampler seeds (20,000-draw reference): z mean 0.02 / 0.05, sd
     # 0.11 / 0.045; sd ratio mean 0.91 / 0.92 (the 30-member EnKF likelihood is a little too sharp), sd
     # 0.04 / 0.05. The 2,000-draw reference (ESS ~1260) adds 0.03 to z. Bounds: bias + 4 combined sds.
-    from seqbayes.structures import ShearBuilding
+    from seqbayes.structural.structures import ShearBuilding
     from seqbayes.studies.shake_table import synthetic_record
 
     building = ShearBuilding(np.array([12.0, 10.0]) * 1e3, np.array([20.0, 14.0]) * 1e6, damping_ratios=(0.03, 0.03))

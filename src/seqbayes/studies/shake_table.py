@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..filters import AugmentedModel, ekf, ukf
+from ..structural.filters import AugmentedModel, ekf, ukf
 from ..rng import as_generator
-from ..sgenmcmc import SGEnMCMC
-from ..structures import (
+from ..structural.sgenmcmc import SGEnMCMC
+from ..structural.structures import (
     ShearBuilding,
     add_measurement_noise,
     discretise,
@@ -174,7 +174,7 @@ class ReferencePosterior:
 def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng=None,
                         centre=None, spread=None, burn: int | None = None) -> ReferencePosterior:
     """Samples of ``p(theta | y)`` with uniform U(0.7, 1) priors: the exact Kalman
-    marginal likelihood (:func:`~seqbayes.filters.kalman.kalman_log_likelihood`,
+    marginal likelihood (:func:`~seqbayes.structural.filters.kalman.kalman_log_likelihood`,
     batched over the walkers of each half-sweep) sampled by the affine-invariant
     ensemble sampler (:mod:`seqbayes.aies`).
 
@@ -184,7 +184,7 @@ def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng
     """
 
     from .. import aies
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     start = time.perf_counter()
     rng = as_generator(rng)
@@ -227,7 +227,7 @@ def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4
     mode : (d,) array
     covariance : (d, d) array
     """
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     building, u, y = data["building"], data["u"], data["y"]
     theta = np.asarray(start, float).copy()
@@ -309,7 +309,7 @@ class ExactPosterior:
 
 
 def _log_likelihood_batched(data: dict, theta, batch: int = 500) -> np.ndarray:
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     out = np.empty(theta.shape[0])
     for i in range(0, theta.shape[0], batch):  # batches of thetas bound the memory of the steady phase
@@ -565,10 +565,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--level", type=_level, default="auto",
                         help="sparse-grid level, 'exact', or 'auto' (exact matrices for resample-move, 6 for paper)")
     parser.add_argument("--sampler", default="resample-move", choices=["resample-move", "paper"],
-                        help="SG-EnMCMC sampler (see seqbayes.sgenmcmc)")
+                        help="SG-EnMCMC sampler (see seqbayes.structural.sgenmcmc)")
     parser.add_argument("--shrinkage", type=float, default=0.5, help="Liu-West a of the paper sampler")
     parser.add_argument("--state-move", default="regression", choices=["regression", "shift", "inherit"],
-                        help="state of a moved member of the paper sampler (see seqbayes.sgenmcmc)")
+                        help="state of a moved member of the paper sampler (see seqbayes.structural.sgenmcmc)")
     parser.add_argument("--ref-walkers", type=int, default=32)
     parser.add_argument("--ref-steps", type=int, default=150)
     parser.add_argument("--seed", type=int, default=0)

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..rng import as_generator
+from ...rng import as_generator
 
 __all__ = [
     "ShearBuilding",

@@ -1,7 +1,7 @@
 """Augmented-state unscented Kalman filter for joint state and stiffness
 estimation (mentioned by Lin et al. 2024 as the other classical baseline).
 
-Same augmented model as :mod:`seqbayes.filters.ekf`; the ``2(m+d)+1`` sigma
+Same augmented model as :mod:`seqbayes.structural.filters.ekf`; the ``2(m+d)+1`` sigma
 points (scaled unscented transform, Wan and van der Merwe) are propagated
 through the exact discretisation at their own ``theta`` in one batched call
 per step, with no loop over sigma points.
@@ -49,7 +49,7 @@ def _psd(P):
 def ukf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
         theta0: ArrayLike = 0.85, theta0_var: ArrayLike = 0.3**2 / 12, alpha: float = 1.0, beta: float = 2.0,
         kappa: float = 0.0) -> JointFilterResult:
-    """Run the augmented-state UKF from rest (arguments as :func:`~seqbayes.filters.ekf.ekf`)."""
+    """Run the augmented-state UKF from rest (arguments as :func:`~seqbayes.structural.filters.ekf.ekf`)."""
     import time
 
     start = time.perf_counter()

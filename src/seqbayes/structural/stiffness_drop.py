@@ -7,7 +7,7 @@ on-line between ``d + 1`` model classes of the linear shear building:
 
 ``M_0`` (no change)
     ``theta`` constant, uniform prior on the box ``[lower, upper]`` (as
-    :class:`~seqbayes.sgenmcmc.SGEnMCMC`).
+    :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`).
 ``M_j``, ``j = 1..d`` (a drop in storey ``j``)
     ``theta`` constant except that at an unknown change time ``tau`` storey
     ``j``'s ratio drops to ``theta_j (1 - delta)``: the jump kernel
@@ -28,7 +28,7 @@ Prior over classes: ``P(M_0) = prior_no_change``, ``P(M_j) = (1 - prior_no_chang
 Per class, a resample-move SMC sampler over ``(theta, delta, tau)`` with an exact
 Kalman filter per particle (the state integrated out; the Rao-Blackwellised
 form of a particle filter for the jump kernel), the same scheme as the default
-sampler of :mod:`seqbayes.sgenmcmc`:
+sampler of :mod:`seqbayes.structural.sgenmcmc`:
 
 1. At a change boundary ``k``, every particle that has not dropped yet drops
    with probability ``q = jump_proposal`` (more often than the prior ``h``, so
@@ -90,14 +90,14 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from ..resampling import resample
+from ..rng import as_generator, generator_from_state, generator_state
+from ..tempering import blas_limit, next_exponent
+from ..weights import logsumexp, normalise
 from .filters.kalman import (
     KalmanBank, check_filter_inputs, kalman_filter, kalman_log_likelihood, measurement_covariance,
 )
-from .resampling import resample
-from .rng import as_generator, generator_from_state, generator_state
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise, simulate
-from .tempering import blas_limit, next_exponent
-from .weights import logsumexp, normalise
 
 __all__ = ["StiffnessDropMonitor", "DropBlock", "path_log_likelihood", "simulate_drop", "grid_log_evidence"]
 
@@ -193,7 +193,7 @@ def path_log_likelihood(building: ShearBuilding, dt: float, theta, delta, tau, s
     ``theta_i (1 - delta_i e_storey)`` from the transition into step ``tau_i`` on
     (``tau_i < 0`` or ``>= T``: no change). Members are grouped by change step;
     each group is one batched Kalman pass before the change
-    (:func:`~seqbayes.filters.kalman.kalman_log_likelihood`, from rest) and one
+    (:func:`~seqbayes.structural.filters.kalman.kalman_log_likelihood`, from rest) and one
     after it, started from the filtered state predicted through the new matrices.
 
     Parameters
@@ -208,7 +208,7 @@ def path_log_likelihood(building: ShearBuilding, dt: float, theta, delta, tau, s
     ground_acceleration : (T,) array
     measurements : (T, p) array
     measurement_noise, process_noise_std, channels
-        As :class:`~seqbayes.sgenmcmc.SGEnMCMC`.
+        As :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`.
     return_state : bool
         Also return the filtered mean ``(M, m)`` and covariance ``(M, m, m)`` at ``T - 1``.
 
@@ -309,7 +309,7 @@ def grid_log_evidence(building: ShearBuilding, dt: float, ground_acceleration, m
     Trapezoid rule on an ``n_theta x n_delta`` grid of the uniform priors of
     ``theta`` and ``delta`` (on the tests' case within 5e-5 of a grid twice as
     fine), and the sum over the change boundaries with their geometric prior
-    ``h (1 - h)^(b - 1)``; every term is the plain :func:`~seqbayes.filters.kalman.kalman_filter`
+    ``h (1 - h)^(b - 1)``; every term is the plain :func:`~seqbayes.structural.filters.kalman.kalman_filter`
     (no steady-state shortcut), independent of :func:`path_log_likelihood`.
 
     Returns
@@ -380,7 +380,7 @@ class StiffnessDropMonitor:
     prune_after : int
         Steps (default 25 = 0.5 s at 50 Hz).
     ess_threshold, moves_per_particle, max_sweeps, resampling, blas_threads
-        As :class:`~seqbayes.sgenmcmc.SGEnMCMC`.
+        As :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`.
     channels : str
     """
 

@@ -19,10 +19,10 @@ elastic storey stiffness ``theta_i k_i^u``. Floor equations::
 State ``X = [x, x', z]`` (length ``3n``). Measured channels are linear in
 ``X``: floor absolute accelerations ``x'' + a_g = -M^-1 (C x' + D^T r)``
 and drifts ``D x``. With ``alpha = 1`` the model is the linear
-:class:`~seqbayes.structures.ShearBuilding` (``z`` has no effect).
+:class:`~seqbayes.structural.structures.ShearBuilding` (``z`` has no effect).
 
 Two transitions over a sampling step ``dt`` (ground acceleration linear
-between samples, first-order hold, as :func:`~seqbayes.structures.discretise`;
+between samples, first-order hold, as :func:`~seqbayes.structural.structures.discretise`;
 process noise a constant extra ground acceleration over the step, as there):
 
 * :class:`BoucWenRK4` (``integrator="rk4"``): classical 4th-order Runge-Kutta
@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...rng import as_generator
 from .. import sparsegrid
-from ..rng import as_generator
 from .shear_building import Sensors, ShearBuilding, _as_theta, _check_dt, batched_expm, sensor_rows
 
 __all__ = ["BoucWenBuilding", "BoucWenModel", "BoucWenRK4", "BoucWenExponential", "bouc_wen_transition",
@@ -291,7 +291,7 @@ class BoucWenBuilding:
         """FOH matrices of the linear part, flattened ``(N, 2n*2n + 2 * 2n*(1+n))``:
         ``A``, ``G0``, ``G1`` of ``s_{k+1} = A s_k + G0 w_k + G1 w_{k+1}`` (one
         batched matrix exponential of the augmented matrix, as
-        :func:`~seqbayes.structures.discretise`)."""
+        :func:`~seqbayes.structural.structures.discretise`)."""
         dt = _check_dt(dt)
         Ac, Bc = self.linear_part(theta)
         N, s = Ac.shape[:2]
@@ -310,7 +310,7 @@ class BoucWenBuilding:
 class BoucWenModel:
     """The Bouc-Wen transition of ``N`` parameter vectors over one sampling step:
     what the filters need (duck-typed with
-    :class:`~seqbayes.structures.DiscreteModel` for ``H``, ``dt`` and ``take``).
+    :class:`~seqbayes.structural.structures.DiscreteModel` for ``H``, ``dt`` and ``take``).
 
     Attributes
     ----------

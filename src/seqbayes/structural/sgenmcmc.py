@@ -7,7 +7,7 @@ Sequential Monte Carlo over the stiffness ratios ``theta`` (IBIS, Chopin 2002;
 resample-move, Gilks and Berzuini 2001), annealed over the record step by step
 and, within a step whose data would degenerate the weights, tempered. Each of
 the ``N`` particles ``theta_i`` carries an exact Kalman filter of the linear
-shear building (:class:`~seqbayes.filters.kalman.KalmanBank`), which gives the
+shear building (:class:`~seqbayes.structural.filters.kalman.KalmanBank`), which gives the
 exact predictive density ``l_i = p(y_k | y_{0:k-1}, theta_i)``. Per step ``k``:
 
 1. **Reweight** ``log w_i += phi l_i``, with the largest ``phi <= 1`` that keeps
@@ -36,7 +36,7 @@ that ratio does not leave ``p(theta | y_{0:k})`` invariant. Eq. 28 then
 resamples the candidates in proportion to ``alpha``, which is not a
 Metropolis step either. Here the candidate's ``L_k`` costs one batched Kalman
 pass over ``y_{0:k-1}`` for all candidates
-(:func:`~seqbayes.filters.kalman.kalman_log_likelihood`, steady-state gain once
+(:func:`~seqbayes.structural.filters.kalman.kalman_log_likelihood`, steady-state gain once
 the covariance has converged) plus one step of the bank; the current value's
 ``L_k`` is the particle's running sum, kept exactly.
 
@@ -78,7 +78,7 @@ block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record);
 :meth:`SGEnMCMC.snapshot` / :meth:`SGEnMCMC.restore` stop and resume a run bit
 for bit (plain named arrays and the generator state). A stiffness that drops
 during the shaking is detected and attributed to a storey by
-:class:`seqbayes.stiffness_drop.StiffnessDropMonitor`.
+:class:`seqbayes.structural.stiffness_drop.StiffnessDropMonitor`.
 
 Measured (docs/shake_table.md, benchmarks/bench_sgenmcmc.py): on 2-, 3- and
 4-storey buildings and a 2-storey case with the truth at 0.705 of U(0.7, 1),
@@ -185,16 +185,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
+from ..resampling import resample
+from ..results import weighted_quantile
+from ..rng import as_generator, generator_from_state, generator_state
+from ..tempering import blas_limit, next_exponent
+from ..weights import logsumexp, normalise
 from . import sparsegrid
 from .filters.enkf import EnKFBank, enkf_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
-from .resampling import resample
-from .results import weighted_quantile
-from .rng import as_generator, generator_from_state, generator_state
 from .structures.bouc_wen import BoucWenBuilding, bouc_wen_transition
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
-from .tempering import blas_limit, next_exponent
-from .weights import logsumexp, normalise
 
 _LOG_2PI = float(np.log(2 * np.pi))
 _STEADY_TOL = 1e-11  # relative change of the filter covariance below which it is frozen (as kalman_log_likelihood)
@@ -235,8 +235,8 @@ class SparseGridTransition:
         The box of ``theta``.
     level : int
         Sparse-grid level ``n`` (paper: 6).
-    hold, channels, basis : see :func:`~seqbayes.structures.discretise` and
-        :class:`~seqbayes.sparsegrid.SparseGrid`.
+    hold, channels, basis : see :func:`~seqbayes.structural.structures.discretise` and
+        :class:`~seqbayes.structural.sparsegrid.SparseGrid`.
     """
 
     def __init__(self, building: ShearBuilding, dt: float, lower: ArrayLike, upper: ArrayLike, level: int = 6,
@@ -313,7 +313,7 @@ class SGEnMCMCResult:
         the mean acceptance rate per sweep and the number of sweeps.
     surrogate : dict
         With ``surrogate="auto"``: the transition chosen and why
-        (:meth:`seqbayes.surrogate.SurrogateChoice.as_dict`); empty otherwise.
+        (:meth:`seqbayes.structural.surrogate.SurrogateChoice.as_dict`); empty otherwise.
     """
 
     theta_mean: np.ndarray
@@ -385,7 +385,7 @@ class SGEnMCMC:
     ----------
     building : ShearBuilding or BoucWenBuilding
         The linear shear building, or one with Bouc-Wen hysteretic storeys
-        (:mod:`seqbayes.structures.bouc_wen`; needs ``likelihood="enkf"``: the
+        (:mod:`seqbayes.structural.structures.bouc_wen`; needs ``likelihood="enkf"``: the
         exact Kalman likelihood does not apply. ``level=None``/``"auto"``: RK4
         transition, 4 sub-steps; an integer: the exponential integrator, 4
         sub-steps, with its linear part's matrices on a sparse grid of that
@@ -424,7 +424,7 @@ class SGEnMCMC:
         Resample-move: each particle's filter. ``"kalman"`` (default): the exact
         Kalman filter of the linear model. ``"enkf"``: a stochastic EnKF of
         ``enkf_members`` members per particle
-        (:class:`~seqbayes.filters.enkf.EnKFBank`), for models without an exact
+        (:class:`~seqbayes.structural.filters.enkf.EnKFBank`), for models without an exact
         filter: a random, biased likelihood estimate, carried by each particle
         (pseudo-marginal form: a candidate gets a fresh estimate from its own
         EnKF run over the history), so the target is the posterior under the
@@ -444,14 +444,14 @@ class SGEnMCMC:
         ``lower < 1 < upper``; default ``(0.25, 4)``.
     surrogate : {None, "auto"}
         ``"auto"``: choose the transition by measurement at this run's sizes
-        (:func:`seqbayes.surrogate.choose_transition`: the exact discretisation
+        (:func:`seqbayes.structural.surrogate.choose_transition`: the exact discretisation
         or a sparse grid for the linear building; RK4, the exponential
         integrator or its sparse-grid form for Bouc-Wen), overriding
         ``level``; the choice and its reason are in the result's
         ``surrogate``. Timing-dependent: pin the chosen ``level`` to repeat a
         run elsewhere. ``None`` (default): ``level`` decides.
     surrogate_options : dict, optional
-        Keyword arguments of :func:`~seqbayes.surrogate.choose_transition`
+        Keyword arguments of :func:`~seqbayes.structural.surrogate.choose_transition`
         (for Bouc-Wen ``probe``, the run's ground acceleration, is required).
     blas_threads : int or None
         BLAS threads while running (``threadpoolctl``; ``None``: no limit).
@@ -466,7 +466,7 @@ class SGEnMCMC:
         Paper: condition the EnKF moments on theta.
     centre : {"regression", "member"}
         Paper: centre of each member's predictive density (see
-        :func:`~seqbayes.filters.enkf.predictive_log_likelihood`).
+        :func:`~seqbayes.structural.filters.enkf.predictive_log_likelihood`).
     state_move : {"regression", "shift", "inherit"}
         Paper: state of a moved member: regenerated from the fitted ``E[X | theta]``
         at its new ``theta`` plus a residual drawn without replacement from

@@ -7,10 +7,10 @@ per-member discretisation. Whether that pays depends on the model and the
 run's sizes, so :func:`choose_transition` measures it on the machine, at the
 run's sizes, and keeps the cheaper candidate among those accurate enough:
 
-* **Linear shear building** (:class:`~seqbayes.structures.ShearBuilding`):
+* **Linear shear building** (:class:`~seqbayes.structural.structures.ShearBuilding`):
   the candidates are the exact discretisation (one batched matrix exponential
-  per call, :class:`~seqbayes.sgenmcmc.ExactTransition`) and sparse grids of
-  increasing level (:class:`~seqbayes.sgenmcmc.SparseGridTransition`). A
+  per call, :class:`~seqbayes.structural.sgenmcmc.ExactTransition`) and sparse grids of
+  increasing level (:class:`~seqbayes.structural.sgenmcmc.SparseGridTransition`). A
   grid's accuracy is the largest relative error of its ``A, B0, B1`` (each
   block relative to its largest entry) at ``n_test`` random ``theta`` of the
   box (default ``tol`` 3e-6, which keeps a 500-step log-likelihood within
@@ -21,7 +21,7 @@ run's sizes, and keeps the cheaper candidate among those accurate enough:
   ``rows = expected_rows`` (default ``50 * n_members``: the resample-move
   sampler evaluated 27 and 63 rows per particle on a 3-storey 500-step and a
   4-storey 1,500-step run).
-* **Bouc-Wen building** (:class:`~seqbayes.structures.bouc_wen.BoucWenBuilding`):
+* **Bouc-Wen building** (:class:`~seqbayes.structural.structures.bouc_wen.BoucWenBuilding`):
   every step of every ensemble member needs an integration, so the cost is
   per step: the candidates are RK4 with the fewest sub-steps (of
   ``rk4_substeps``, at most ``substeps``) within ``tol``,

@@ -14,7 +14,7 @@ Euler step of Eq. 3). ``A_c(theta)`` and ``H(theta)`` are affine in ``theta``
 a step builds the augmented FOH matrix ``Phi = [[A_c dt, b_c dt, 0], [0, 0, 1],
 [0, 0, 0]]`` from them and takes one exponential with its exact derivatives
 along ``E_j = dPhi/dtheta_j`` (the first block row of ``expm([[Phi, E], [0,
-Phi]])``, Van Loan 1978; :func:`~seqbayes.structures.shear_building.expm_and_derivatives`)
+Phi]])``, Van Loan 1978; :func:`~seqbayes.structural.structures.shear_building.expm_and_derivatives`)
 -- the Jacobian with respect to ``theta`` without finite differences and
 without re-discretising the building ``2d + 1`` times per step (the previous
 version: ~3 ms a step for 4 storeys). The observation is bilinear, so its
@@ -80,7 +80,7 @@ class AugmentedModel:
     theta_walk_std : float
         Std of the random-walk step of ``theta`` per time step.
     channels : str or Sensors
-        ``"absolute_acceleration"``, ``"drift"`` or a sensor layout (:class:`~seqbayes.structures.Sensors`).
+        ``"absolute_acceleration"``, ``"drift"`` or a sensor layout (:class:`~seqbayes.structural.structures.Sensors`).
     fd_step : float
         Unused (the ``theta`` Jacobian is now exact); kept for compatibility.
     theta_floor : float
