@@ -22,7 +22,7 @@ all blocks (a false alarm if above 0.99); wall and CPU seconds.
 one-storey building (5 Hz, 4 s Kanai-Tajimi record, 30 % noise, a 30 % drop at
 step 100, change boundaries every 25 steps with h = 0.1, blocks of 25 steps,
 200 particles) against the exact evidence
-(:func:`seqbayes.structural.stiffness_drop.grid_log_evidence`) over ``--seeds`` sampler
+(:func:`seqbayes.structural.drop_paths.grid_log_evidence`) over ``--seeds`` sampler
 seeds: the Monte Carlo errors behind the tolerances of
 tests/statistical/test_stiffness_drop.py.
 
@@ -39,7 +39,8 @@ import time
 
 import numpy as np
 
-from seqbayes.structural.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, simulate_drop
+from seqbayes.structural.drop_paths import grid_log_evidence, simulate_drop
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
 
 DT = 0.02

@@ -46,7 +46,8 @@ import numpy as np
 from scipy.linalg import expm
 
 from seqbayes.structural.filters.enkf import forecast, perturbed_observation_update, predictive_log_likelihood
-from seqbayes.structural.sgenmcmc import SGEnMCMC, SparseGridTransition
+from seqbayes.structural.sgenmcmc import SGEnMCMC
+from seqbayes.structural.transitions import SparseGridTransition
 from seqbayes.studies.shake_table import CASES, make_data
 from seqbayes.structural.structures import discretise
 

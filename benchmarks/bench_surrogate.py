@@ -38,7 +38,7 @@ import numpy as np
 
 from seqbayes.structural import sparsegrid
 from seqbayes.structural.filters.kalman import kalman_log_likelihood
-from seqbayes.structural.sgenmcmc import ExactTransition, SparseGridTransition
+from seqbayes.structural.transitions import ExactTransition, SparseGridTransition
 from seqbayes.structural.structures import ShearBuilding, discretise, simulate
 from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
 from seqbayes.structural.surrogate import choose_transition

@@ -924,7 +924,7 @@ class SGRunStore:
     def block_posterior(self, step: int = -1, level: float = 0.95) -> dict:
         """The posterior of the stiffness ratios at the end of a block: ``{name: {mean, sd, lower,
         upper}}`` from the weighted particles (the central ``level`` interval)."""
-        from .structural.sgenmcmc import weighted_quantiles
+        from .structural.summaries import weighted_quantiles
 
         if not 0 < level < 1:
             raise ValueError(f"level: must lie in (0, 1), got {level}")

@@ -7,9 +7,8 @@ regeneration, reproducibility and bad input."""
 import numpy as np
 import pytest
 
-from seqbayes.structural.sgenmcmc import (
-    SGEnMCMC, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
-)
+from seqbayes.structural.sgenmcmc import SGEnMCMC
+from seqbayes.structural.summaries import stage_modes, stage_quantiles, weighted_mode, weighted_quantiles
 from seqbayes.studies.shake_table import CASES, exact_posterior, laplace_posterior, make_data
 
 
@@ -93,13 +92,13 @@ def test_stage_summaries_equal_the_one_step_helpers():
 
 
 def test_state_regeneration_is_exact_for_a_linear_conditional_model():
-    from seqbayes.structural.sgenmcmc import _Stage
+    from seqbayes.structural.ensemble import EnsembleStage
     from seqbayes.structural.structures import discretise
 
     data = make_data(CASES["wc1"], duration=1.0, rng=0)
     rng = np.random.default_rng(3)
     theta = 0.9 + 0.01 * rng.standard_normal((50, 3))
-    stage = _Stage(discretise(data["building"], theta, 0.02), theta, conditional=True)
+    stage = EnsembleStage(discretise(data["building"], theta, 0.02), theta, conditional=True)
     alpha, beta = rng.standard_normal(6), rng.standard_normal((3, 6))
     residual = rng.standard_normal((50, 6))
     residual -= stage.basis @ (stage.basis.T @ residual)  # orthogonal to span(1, theta)

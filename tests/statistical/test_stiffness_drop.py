@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from seqbayes.structural.filters.kalman import kalman_filter, measurement_covariance
-from seqbayes.structural.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, path_log_likelihood, simulate_drop
+from seqbayes.structural.drop_paths import grid_log_evidence, path_log_likelihood, simulate_drop
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, discretise, kanai_tajimi, simulate
 
 DT = 0.02

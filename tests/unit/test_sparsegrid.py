@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seqbayes.structural.sparsegrid import SparseGrid, interpolate, point_count
-from seqbayes.structural.sgenmcmc import SparseGridTransition
+from seqbayes.structural.transitions import SparseGridTransition
 from seqbayes.structural.structures import ShearBuilding, discretise
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from seqbayes import SGEnMCMC
-from seqbayes.structural.sgenmcmc import ExactTransition, SparseGridTransition
+from seqbayes.structural.transitions import ExactTransition, SparseGridTransition
 from seqbayes.structural.structures import ShearBuilding
 from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4
 from seqbayes.studies.shake_table import synthetic_record

@@ -20,11 +20,13 @@ Subpackages and modules, lowest layer first:
 """
 
 from . import filters, sparsegrid, structures
-from .sgenmcmc import ExactTransition, SGEnMCMC, SGEnMCMCResult, SparseGridTransition
+from .sgenmcmc import SGEnMCMC
 from .stiffness_drop import DropBlock, StiffnessDropMonitor
 from .structures import DiscreteModel, GroundMotion, Sensors, ShearBuilding, discretise, kanai_tajimi, simulate
 from .structures.bouc_wen import BoucWenBuilding
+from .summaries import SGEnMCMCResult
 from .surrogate import SurrogateChoice, choose_transition
+from .transitions import ExactTransition, SparseGridTransition
 
 __all__ = [
     "filters", "sparsegrid", "structures",

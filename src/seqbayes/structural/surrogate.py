@@ -9,8 +9,8 @@ run's sizes, and keeps the cheaper candidate among those accurate enough:
 
 * **Linear shear building** (:class:`~seqbayes.structural.structures.ShearBuilding`):
   the candidates are the exact discretisation (one batched matrix exponential
-  per call, :class:`~seqbayes.structural.sgenmcmc.ExactTransition`) and sparse grids of
-  increasing level (:class:`~seqbayes.structural.sgenmcmc.SparseGridTransition`). A
+  per call, :class:`~seqbayes.structural.transitions.ExactTransition`) and sparse grids of
+  increasing level (:class:`~seqbayes.structural.transitions.SparseGridTransition`). A
   grid's accuracy is the largest relative error of its ``A, B0, B1`` (each
   block relative to its largest entry) at ``n_test`` random ``theta`` of the
   box (default ``tol`` 3e-6, which keeps a 500-step log-likelihood within
@@ -52,6 +52,7 @@ import numpy as np
 from . import sparsegrid
 from .structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
 from .structures.shear_building import ShearBuilding, discretise
+from .transitions import ExactTransition, SparseGridTransition
 
 __all__ = ["SurrogateChoice", "choose_transition", "DEFAULT_ROWS_PER_PARTICLE"]
 
@@ -192,8 +193,6 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
 
 def _choose_linear(building, dt, lower, upper, n_members, channels, tol, levels, max_points, expected_rows,
                    repeats, n_test, rng):
-    from .sgenmcmc import ExactTransition, SparseGridTransition
-
     d, m = building.n_storeys, building.state_dim
     rows = DEFAULT_ROWS_PER_PARTICLE * n_members if expected_rows is None else int(expected_rows)
     batch = lower + (upper - lower) * rng.random((n_members, d))

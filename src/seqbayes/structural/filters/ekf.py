@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..structures.shear_building import Sensors, ShearBuilding, batched_expm, expm_and_derivatives
+from ..summaries import convergence_step
 from .kalman import measurement_covariance
 
 __all__ = ["AugmentedModel", "JointFilterResult", "ekf"]
@@ -63,9 +64,7 @@ class JointFilterResult:
     elapsed: float
 
     def convergence_step(self, truth: ArrayLike, tol: float = 0.01) -> np.ndarray:
-        from ..sgenmcmc import _convergence_step
-
-        return _convergence_step(self.theta_mean, truth, tol)
+        return convergence_step(self.theta_mean, truth, tol)
 
 
 class AugmentedModel:
