@@ -31,7 +31,7 @@ from ..structures.shear_building import Sensors, ShearBuilding, batched_expm, ex
 from ..summaries import convergence_step
 from .kalman import measurement_covariance
 
-__all__ = ["AugmentedModel", "JointFilterResult", "ekf"]
+__all__ = ["AugmentedModel", "JointFilterResult", "ekf", "joint_initial_state", "check_joint_inputs", "drift_moments"]
 
 _LOG_2PI = np.log(2 * np.pi)
 
@@ -181,7 +181,9 @@ class AugmentedModel:
         return H @ z[:m], J
 
 
-def _initial(model: AugmentedModel, theta0, theta0_var):
+def joint_initial_state(model: AugmentedModel, theta0, theta0_var):
+    """The joint state at rest: mean ``z = [0 (m,), theta0]`` and covariance ``P (m + d, m + d)``
+    with ``theta0_var`` on the parameters' diagonal."""
     d, m = model.d, model.m
     theta0 = np.broadcast_to(np.asarray(theta0, float), (d,))
     var = np.broadcast_to(np.asarray(theta0_var, float), (d,))
@@ -191,7 +193,8 @@ def _initial(model: AugmentedModel, theta0, theta0_var):
     return z, P
 
 
-def _check_inputs(model, u, y):
+def check_joint_inputs(model: AugmentedModel, u, y):
+    """``ground_acceleration (T,)`` and ``measurements (T, p)`` as finite float arrays of matching shapes."""
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     if u.ndim != 1 or not np.all(np.isfinite(u)):
@@ -204,7 +207,7 @@ def _check_inputs(model, u, y):
     return u, y
 
 
-def _summaries(z, P, m, n):
+def drift_moments(z, P, n):
     drift_op = np.eye(n) - np.eye(n, k=-1)
     drift = drift_op @ z[:n]
     drift_var = np.einsum("ij,jk,ik->i", drift_op, P[:n, :n], drift_op)
@@ -227,10 +230,10 @@ def ekf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: Arr
     import time
 
     start = time.perf_counter()
-    u, y = _check_inputs(model, ground_acceleration, measurements)
+    u, y = check_joint_inputs(model, ground_acceleration, measurements)
     m, d, n = model.m, model.d, model.n
     R = measurement_covariance(measurement_noise, y.shape[1])
-    z, P = _initial(model, theta0, theta0_var)
+    z, P = joint_initial_state(model, theta0, theta0_var)
     T = u.size
     th_mean, th_var = np.empty((T, d)), np.empty((T, d))
     x_mean, dr_mean, dr_std = np.empty((T, m)), np.empty((T, n)), np.empty((T, n))
@@ -251,7 +254,7 @@ def ekf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: Arr
         P = IKH @ P @ IKH.T + gain @ R @ gain.T  # Joseph form
         th_mean[k], th_var[k] = z[m:], np.diag(P)[m:]
         x_mean[k] = z[:m]
-        dr_mean[k], dr_std[k] = _summaries(z, P, m, n)
+        dr_mean[k], dr_std[k] = drift_moments(z, P, n)
     return JointFilterResult(th_mean, th_var, x_mean, dr_mean, dr_std, float(loglik), P,
                              time.perf_counter() - start)
 
