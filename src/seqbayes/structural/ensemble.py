@@ -98,6 +98,7 @@ import numpy as np
 from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
 from ..resampling import resample
+from ..tempering import normalised_ess
 from ..weights import normalise
 from .filters.kalman import check_filter_inputs, measurement_covariance
 from .structures.shear_building import DiscreteModel
@@ -180,7 +181,7 @@ def run_ensemble(identifier, theta, ground_acceleration, measurements, rng: np.r
         logw = logw + loglik
         w = np.exp(logw - logw.max())
         w /= w.sum()
-        ess = float(1.0 / (w @ w))
+        ess = normalised_ess(w)
         # (5) state update, gain from the sample moments, perturbed observations (Eq. 22)
         gain = C_xy @ (S_chol_inv.T @ S_chol_inv)  # K = C_xy S^-1
         perturbed = y[k] + noise[:, 1:] @ chol_R.T

@@ -97,13 +97,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, next_exponent
-from ..weights import logsumexp, normalise
+from ..tempering import blas_limit, normalised_ess, temper
+from ..weights import normalise
 from .ensemble import run_ensemble
 from .filters.enkf import EnKFBank, enkf_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
@@ -453,36 +454,13 @@ class SGEnMCMC:
         """One step of the resample-move sampler (module docstring), in place on ``state``."""
         N = self.n_members
         n = self.building.n_storeys
-        u, y, rng, R = state.u, state.y, state.rng, state.R
-        target_ess = self.ess_threshold * N
+        u, y = state.u, state.y
         theta, past, logw, bank, mean, cov = state.theta, state.past, state.logw, state.bank, state.mean, state.cov
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
-        phi = 0.0
-        while phi < 1.0:  # tempering of step k's data: phi -> 1
-            new_phi = next_exponent(logw, inc, phi, target_ess)
-            delta = new_phi - phi
-            state.evid[k] += logsumexp(normalise(logw) + delta * inc)  # log sum_i W_i exp(delta l_i)
-            logw = logw + delta * inc
-            phi = new_phi
-            if phi >= 1.0:
-                break
-            # resample (Eq. 28) and move with MH targeting p(theta | y_{0:k-1}) p(y_k | ...)^phi
-            state.stats.flush(theta)
-            w = np.exp(normalise(logw))
-            fit_mean, fit_cov = _weighted_fit(theta, w)
-            idx = resample(self.resampling, w, rng, N)
-            theta, past, inc = theta[idx], past[idx], inc[idx]
-            mean, mean_k, cov_k = mean[idx], mean_k[idx], cov_k[idx]
-            theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
-                theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng)
-            frozen = bank.frozen is not None and moved_steady
-            bank = self._bank(theta, R, rng)
-            if frozen:  # every covariance (kept and moved) is in its steady state
-                bank = bank.freeze(cov_k)
-            logw = np.zeros(N)
-            state.resampled[k] = True
-            state.events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
+        logw, inc, (theta, past, mean_k, cov_k, bank), state.evid[k] = temper(
+            logw, inc, self.ess_threshold * N, partial(self._resample_move, state, k),
+            (theta, past, mean_k, cov_k, bank), state.evid[k])
         past = past + inc
         if bank.can_freeze and bank.frozen is None and k % 10 == 1 and not state.resampled[k]:  # steady test
             change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
@@ -493,8 +471,29 @@ class SGEnMCMC:
         state_mean, state_cov = bank.moments(mean_k, cov_k)
         drifts = state_mean[:, :n] @ drift_op.T
         drift_var = np.einsum("ij,njk,ik->ni", drift_op, state_cov[:, :n, :n], drift_op)
-        state.stats.record(k, w, float(1.0 / (w @ w)), w @ state_mean, w @ drifts, w @ (drifts**2 + drift_var))
+        state.stats.record(k, w, normalised_ess(w), w @ state_mean, w @ drifts, w @ (drifts**2 + drift_var))
         state.theta, state.past, state.logw, state.bank, state.mean, state.cov = theta, past, logw, bank, mean_k, cov_k
+
+    def _resample_move(self, state, k: int, logw, inc, phi: float, particles):
+        """Resample (Eq. 28) and move with Metropolis-Hastings targeting
+        ``p(theta | y_{0:k-1}) p(y_k | y_{0:k-1}, theta)^phi``: the ``resample_move`` of
+        :func:`~seqbayes.tempering.temper`, recording the event on ``state``."""
+        theta, past, mean_k, cov_k, bank = particles
+        N, R, rng = self.n_members, state.R, state.rng
+        state.stats.flush(theta)
+        w = np.exp(normalise(logw))
+        fit_mean, fit_cov = _weighted_fit(theta, w)
+        idx = resample(self.resampling, w, rng, N)
+        theta, past, inc, mean_k, cov_k = theta[idx], past[idx], inc[idx], mean_k[idx], cov_k[idx]
+        theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
+            theta, past, inc, mean_k, cov_k, phi, k, state.u, state.y, R, fit_mean, fit_cov, rng)
+        frozen = bank.frozen is not None and moved_steady
+        bank = self._bank(theta, R, rng)
+        if frozen:  # every covariance (kept and moved) is in its steady state
+            bank = bank.freeze(cov_k)
+        state.resampled[k] = True
+        state.events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
+        return inc, (theta, past, mean_k, cov_k, bank)
 
     _HISTORY_ARRAYS = ("mean", "var", "mpv", "quantiles", "ess", "state_mean", "drift_mean", "drift_std")
 

@@ -87,12 +87,13 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, fields, replace
+from functools import partial
 
 import numpy as np
 
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, next_exponent
+from ..tempering import blas_limit, temper
 from ..weights import logsumexp, normalise
 from .drop_paths import effective_theta, path_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, measurement_covariance
@@ -493,27 +494,10 @@ class StiffnessDropMonitor:
                                                                          st.storey), R)
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(st.mean, st.cov, y[k], *inputs)
-        past = st.past
-        phi, events = 0.0, st.events
-        target_ess = self.ess_threshold * N
-        while phi < 1.0:  # (2) tempering of step k's data
-            new_phi = next_exponent(logw, inc, phi, target_ess)
-            evidence += logsumexp(normalise(logw) + (new_phi - phi) * inc)  # log sum_i W_i exp(dphi l_i)
-            logw = logw + (new_phi - phi) * inc
-            phi = new_phi
-            if phi >= 1.0:
-                break
-            # (3) resample and move: MH targeting p(path | y_{0:k-1}) p(y_k | y_{0:k-1}, path)^phi
-            w = np.exp(normalise(logw))
-            fits = self._fits(theta, delta, tau, w)
-            idx = resample(self.resampling, w, rng, N)
-            theta, delta, tau, past, inc = theta[idx], delta[idx], tau[idx], past[idx], inc[idx]
-            mean_k, cov_k = mean_k[idx], cov_k[idx]
-            theta, delta, past, inc, mean_k, cov_k = self._move(st.storey, theta, delta, tau, past, inc, mean_k,
-                                                                cov_k, phi, k, u, y, fits, rng)
-            bank = KalmanBank(self._model(effective_theta(theta, delta, tau, st.storey)), R, self.process_noise_std)
-            logw = np.zeros(N)
-            events += 1
+        particles = (theta, delta, tau, st.past, mean_k, cov_k, bank, st.events)
+        logw, inc, particles, evidence = temper(logw, inc, self.ess_threshold * N,  # (2) tempering, (3) moves
+                                                partial(self._resample_move, st.storey, k, run), particles, evidence)
+        theta, delta, tau, past, mean_k, cov_k, bank, events = particles
         if self._collapsed(theta, delta, tau):  # (4) spread a part that is copies of a few particles
             w = np.exp(normalise(logw))
             theta, delta, past, inc, mean_k, cov_k = self._move(st.storey, theta, delta, tau, past, inc, mean_k,
@@ -523,6 +507,22 @@ class StiffnessDropMonitor:
             events += 1
         return replace(st, theta=theta, delta=delta, tau=tau, bank=bank, mean=mean_k, cov=cov_k, past=past + inc,
                        logw=logw, log_evidence=evidence, events=events)
+
+    def _resample_move(self, storey: int, k: int, run: dict, logw, inc, phi: float, particles):
+        """Resample and move with Metropolis-Hastings targeting
+        ``p(path | y_{0:k-1}) p(y_k | y_{0:k-1}, path)^phi``: the ``resample_move`` of
+        :func:`~seqbayes.tempering.temper`."""
+        theta, delta, tau, past, mean_k, cov_k, bank, events = particles
+        rng, R, u, y = run["rng"], run["R"], run["u"], run["y"]
+        w = np.exp(normalise(logw))
+        fits = self._fits(theta, delta, tau, w)
+        idx = resample(self.resampling, w, rng, self.n_particles)
+        theta, delta, tau, past, inc = theta[idx], delta[idx], tau[idx], past[idx], inc[idx]
+        mean_k, cov_k = mean_k[idx], cov_k[idx]
+        theta, delta, past, inc, mean_k, cov_k = self._move(storey, theta, delta, tau, past, inc, mean_k, cov_k, phi,
+                                                            k, u, y, fits, rng)
+        bank = KalmanBank(self._model(effective_theta(theta, delta, tau, storey)), R, self.process_noise_std)
+        return inc, (theta, delta, tau, past, mean_k, cov_k, bank, events + 1)
 
     @staticmethod
     def _collapsed(theta, delta, tau) -> bool:

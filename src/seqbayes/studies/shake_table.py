@@ -41,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..structural.filters import AugmentedModel, ekf, ukf
 from ..rng import as_generator
+from ..structural.filters import AugmentedModel, ekf, ukf
 from ..structural.sgenmcmc import SGEnMCMC
 from ..structural.structures import (
     ShearBuilding,
@@ -54,6 +54,7 @@ from ..structural.structures import (
     scale_to_pga,
     simulate,
 )
+from ..tempering import normalised_ess
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
            "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",
@@ -358,7 +359,7 @@ def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, u
         centred = draws - mode
         cov = (centred * w[:, None]).T @ centred
     sd = np.sqrt(np.diag(cov))
-    ess = float(1 / (w @ w))
+    ess = normalised_ess(w)
     q = weighted_quantile(draws, logw, [0.025, 0.975])
     return ExactPosterior(mode, sd, q[0], q[1], ess, np.full(d, 1 / np.sqrt(ess)), draws, logw,
                           time.perf_counter() - start_time)
