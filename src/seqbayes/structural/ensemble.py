@@ -3,10 +3,9 @@
 The first implementation, kept as an option: one EnKF member per ``theta``,
 importance weights from the per-member EnKF likelihood, resampling and a
 Liu-West kernel move in place of Eq. 27. It has **no guarantee of reaching the
-posterior**: on 4 storeys its means scatter by 0.6-0.8 exact posterior sd
-(rms) around the exact ones and its intervals miss the truth in most seeds
-(measured: docs/shake_table.md, benchmarks/bench_sgenmcmc.py). The rest of
-this docstring describes it.
+posterior**: on 4 storeys its means scatter by several tenths of an exact
+posterior sd around the exact ones and its intervals miss the truth in most
+seeds (docs/shake_table.md). The rest of this docstring describes it.
 
 Each of the ``N`` members carries a parameter vector ``theta_i`` (storey
 stiffness ratios) and a state ``X_i = [x, x']``. Per time step ``k``:
@@ -29,7 +28,7 @@ stiffness ratios) and a state ``X_i = [x, x']``. Per time step ``k``:
    ``N`` members, its error at ``theta_i`` has covariance ``~ h_i C_yy``, and
    that error adds ``h_i tr(S^-1 C_yy)`` to the expected misfit, a spurious
    quadratic penalty in ``theta`` that accumulates over the steps and makes the
-   posterior too narrow (measured below). The spread ``C_yy`` is the sample
+   posterior too narrow (calibration below). The spread ``C_yy`` is the sample
    covariance of the ``Y`` residuals after regressing on ``theta``
    (``conditional=True``, default; the spread of the state *given* theta) or
    the pooled sample covariance of the paper (``conditional=False``).
@@ -72,22 +71,12 @@ theta*) ~ p(x_k | x_{k-1}, theta)``); we regenerate it instead (above).
 
 Calibration (why ``a = 0.5``, the state regeneration and the leverage correction)
 -------------------------------------------------------------------------------------
-Measured on the WC1 replica (40 s, 500 members, level 6, 4-8 seeds each)
-against the exact posterior (KF likelihood + AIES; docs/shake_table.md):
-
-* With inherited states and ``a = 0.95`` the final means scatter by 5-10
-  posterior sds between seeds (up to 50 with ``a = 0.99``), the ensemble sd
-  is 0.4-0.7 of the exact one: the over-confidence. The sparse grid is not the
-  cause (the KF posterior with level-6 interpolated matrices equals the exact
-  one to 1e-5). A member's state remembers its ancestors' theta for ~100
-  steps (H P H' is only 3-30 % of R, so the filter corrects it slowly): the
-  regression of the predictions on theta is attenuated, the weights are
-  noisy, and a small jitter cannot undo a collapse. Regenerated states and
-  ``a = 0.5`` (a kernel that is mostly a Gaussian refit, suited to this
-  near-Gaussian posterior) bring the scatter to ~1 sd.
-* The remaining narrowness (sd ratio 0.40 / 0.66 / 0.82 / 0.97 at 250 / 500
-  / 1000 / 2000 members) is the finite-ensemble error of the fitted centre;
-  the leverage correction removes it (0.9-1.1 at 500 members).
+A moved member that keeps its parent's state remembers its ancestors' ``theta``
+for many steps, which attenuates the regression on ``theta``, makes the weights
+noisy and lets the ensemble collapse: regenerated states and ``a = 0.5`` (a
+mostly Gaussian refit) undo it. The fitted centre's finite-ensemble error
+narrows the posterior; the leverage correction removes it. The measurements
+behind these choices are in docs/shake_table.md.
 """
 
 from __future__ import annotations

@@ -57,8 +57,8 @@ each particle carries its own random likelihood estimate, and a candidate gets
 a fresh one from an EnKF run over the history, the pseudo-marginal form; the
 target is then the posterior under the EnKF likelihood, exact as the ensemble
 grows). Transition matrices: the exact discretisation by default
-(``level="auto"`` with this sampler: issue 12 measured the level-6 sparse grid
-1.1-2x slower than the batched matrix exponential at 3-4 storeys); a
+(``level="auto"`` with this sampler: at a few storeys the batched matrix
+exponential is as fast as the sparse grid, docs/shake_table.md); a
 sparse-grid level can be given.
 
 Noise levels as parameters (``noise_parameters="channel"`` or ``"shared"``,
@@ -69,9 +69,8 @@ prior on ``log s`` over ``log noise_scale_bounds`` (default 1/4 to 4 times the
 nominal level); each particle's Kalman filter has its own ``R = diag(sd^2)``
 and the same Metropolis-Hastings moves act on the joint vector. Candidates'
 histories are filtered by a bank with per-candidate noise (one time loop).
-Measured against the exact joint posterior on a 13^4 grid (2 storeys, 300
-steps, nominal noise 1.5x the true one; tests/statistical/test_noise_parameters.py):
-posterior means within 0.17 exact sd, sds within 9 % over 8 seeds.
+Checked against the exact joint posterior in tests/statistical/test_noise_parameters.py
+(accuracy in docs/shake_table.md).
 
 On-line use: :meth:`SGEnMCMC.reset` then :meth:`SGEnMCMC.update` with each new
 block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record);
@@ -80,11 +79,8 @@ for bit (plain named arrays and the generator state). A stiffness that drops
 during the shaking is detected and attributed to a storey by
 :class:`seqbayes.structural.stiffness_drop.StiffnessDropMonitor`.
 
-Measured (docs/shake_table.md, benchmarks/bench_sgenmcmc.py): on 2-, 3- and
-4-storey buildings and a 2-storey case with the truth at 0.705 of U(0.7, 1),
-10 seeds each, default settings: every posterior mean within 0.13 exact
-posterior sd, every sd within 9 %, the truth inside the 95 % intervals as
-often as inside the exact posterior's; 4 storeys x 1,500 steps in ~4 s of CPU.
+Accuracy against the exact posterior and cost: docs/shake_table.md
+(benchmarks/bench_sgenmcmc.py).
 
 ``sampler="paper"``: the ensemble variant of Lin et al.
 =======================================================
@@ -202,10 +198,8 @@ class SGEnMCMC:
         (for Bouc-Wen ``probe``, the run's ground acceleration, is required).
     blas_threads : int or None
         BLAS threads while running (``threadpoolctl``; ``None``: no limit).
-        Default 1: the products here are batches of small matrices. Measured
-        on 4 storeys x 1,500 steps at load ~4.6 on 2 cores, paired: CPU
-        4.2 s with one thread against 4.6-5.2 s with OpenBLAS's default two,
-        the same wall time within noise (7.7-8.6 s).
+        Default 1: the products here are batches of small matrices, where a
+        second thread costs CPU and gains no wall time (docs/shake_table.md).
     shrinkage : float
         Paper: Liu-West ``a`` in (0, 1]; ``1`` disables the rejuvenation move.
         Default 0.5 (measured calibration; 0.95 is over-confident).

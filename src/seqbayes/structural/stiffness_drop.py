@@ -1,5 +1,5 @@
 """On-line detection of a storey stiffness drop during the shaking, and its
-attribution to a storey by the evidence (issue 12, item 2 and acceptance bullet 3).
+attribution to a storey by the evidence.
 
 Lin et al. (2024) identify constant stiffness ratios. Here the record is
 monitored block by block (:meth:`StiffnessDropMonitor.update`) and compared
@@ -47,8 +47,7 @@ sampler of :mod:`seqbayes.structural.sgenmcmc`:
 4. When a part (not dropped / dropped) holds mostly copies of a few particles
    (after the one particle that proposed the right drop took all the weight),
    the same sweeps at ``phi = 1``: copies weigh the same, so the ESS would never
-   trigger them and ``delta`` would stay at the proposed value (measured: a
-   drop of 0.2 stayed at 0.233 for the rest of a benchmark record).
+   trigger them and ``delta`` would stay at the proposed value.
 
 The evidence of each class is the product of the stage normalisers
 ``sum_i W_i r_i``; the per-block increments are reported. The probability that
@@ -66,11 +65,10 @@ kept as it was) and is left out of the class probabilities from then on, the
 beam pruning of multiple-model trackers. The wait matters: right after a
 drop, a wrong storey's class can explain the first few steps better than the
 right one, whose particles need a few change boundaries to propose a drop of
-the right size (measured: pruning after a single step removed the right class
-in the first benchmark seed). Without pruning, after a drop the wrong
-classes keep re-fitting data they cannot explain, which is most of the cost
-(measured in benchmarks/bench_drop.py); with ``prune_below=0`` every class runs
-to the end. Validated against the exact evidence (quadrature over ``theta`` and
+the right size, so pruning after a single step can remove the right class.
+Without pruning, after a drop the wrong classes keep re-fitting data they
+cannot explain, which is most of the cost; with ``prune_below=0`` every class
+runs to the end. Validated against the exact evidence (quadrature over ``theta`` and
 ``delta`` and a sum over the change boundaries, each term an exact Kalman
 likelihood) in ``tests/statistical/test_stiffness_drop.py``; detection and
 false alarms measured in ``benchmarks/bench_drop.py`` (docs/shake_table.md).

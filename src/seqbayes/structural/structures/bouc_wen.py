@@ -513,10 +513,9 @@ def bouc_wen_transition(building: BoucWenBuilding, dt: float, integrator: str = 
                         channels="absolute_acceleration"):
     """The transition of ``building`` at step ``dt``: :class:`BoucWenRK4` or
     :class:`BoucWenExponential` (exact matrices, or a sparse grid of ``level``),
-    each with ``substeps`` sub-steps per sample (default 4: measured response
-    errors at 2.3-2.5x the yield drift, 50 Hz, against RK4 with 32 sub-steps:
-    RK4 7-9e-4, exponential 3-4e-3; with 1 sub-step the exponential's is
-    6-9e-2, docs/benchmarks.md section surrogate)."""
+    each with ``substeps`` sub-steps per sample (default 4: one sub-step is
+    too coarse for the exponential integrator beyond yield; errors in
+    docs/benchmarks.md, section surrogate)."""
     if integrator == "rk4":
         if level is not None:
             raise ValueError("level: the RK4 transition has no sparse grid (use integrator='exponential')")

@@ -1,6 +1,6 @@
 """Modal results from posterior samples of the stiffness ratios: natural
 frequencies, damping ratios and mode shapes of the shear building, with the
-modal assurance criterion (MAC) against identified mode shapes (issue 12, item 4).
+modal assurance criterion (MAC) against identified mode shapes.
 
 For each sample ``theta_s`` the undamped modes solve ``K(theta_s) phi = w^2 M phi``
 (:meth:`~seqbayes.structural.structures.ShearBuilding.modes`); the damping ratios follow
