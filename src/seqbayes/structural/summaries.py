@@ -121,9 +121,19 @@ def weighted_mode(samples, weights, lower, upper, bins: int = 60, limits=None) -
 
 
 class StageHistories:
-    """Per-step summaries. Weights are buffered over a stage (fixed members) and
-    the weighted mean, variance, quantiles and MPV of all its steps are computed
-    at once when the stage ends (one sort per stage)."""
+    """Per-step summaries of an identification. Weights are buffered over a stage (fixed members)
+    and the weighted mean, variance, quantiles and MPV of all its steps are computed at once when
+    the stage ends (:meth:`flush`, one sort per stage).
+
+    Parameters
+    ----------
+    T, d, m, n : int
+        Steps, parameters, states and storeys.
+    lower, upper : (d,) arrays
+        The prior box (the MPV histograms stay inside it).
+    bins : int
+        Histogram bins of the MPV.
+    """
 
     def __init__(self, T, d, m, n, lower, upper, bins: int = 60):
         self.mean, self.var, self.mpv = np.empty((T, d)), np.empty((T, d)), np.empty((T, d))
@@ -140,12 +150,15 @@ class StageHistories:
             setattr(self, name, np.concatenate([old, np.empty((steps,) + old.shape[1:])]))
 
     def record(self, k, w, ess, state_mean, drift_mean, drift_second_moment):
+        """Step ``k``: buffer its weights ``w (N,)`` and store its ESS, weighted state mean ``(m,)``
+        and drift mean and second moment ``(n,)``."""
         self.steps.append(k)
         self.weights.append(w)
         self.ess[k], self.state_mean[k], self.drift_mean[k] = ess, state_mean, drift_mean
         self.drift_std[k] = np.sqrt(np.maximum(drift_second_moment - drift_mean**2, 0))
 
     def flush(self, theta):
+        """End the stage of the members ``theta (N, d)``: summarise its buffered steps."""
         if not self.steps:
             return
         steps, W = np.array(self.steps), np.array(self.weights)  # (L,), (L, N)
