@@ -8,7 +8,7 @@ noise 5 % of the input RMS, 3 % measurement noise on the four floor
 accelerations. With a drop: storey 2 loses ``--fraction`` (20 %) of its
 stiffness from step 502 (10.04 s, half-way, and deliberately not on the
 monitor's 0.1 s change grid). Without: the same record and noise draws with no
-drop (false alarms). :class:`seqbayes.stiffness_drop.StiffnessDropMonitor` at
+drop (false alarms). :class:`seqbayes.structural.stiffness_drop.StiffnessDropMonitor` at
 default settings is fed blocks of ``--block`` steps (25 = 0.5 s).
 
 Reported per seed: the detection time (end of the first block with P(change) >
@@ -22,7 +22,7 @@ all blocks (a false alarm if above 0.99); wall and CPU seconds.
 one-storey building (5 Hz, 4 s Kanai-Tajimi record, 30 % noise, a 30 % drop at
 step 100, change boundaries every 25 steps with h = 0.1, blocks of 25 steps,
 200 particles) against the exact evidence
-(:func:`seqbayes.stiffness_drop.grid_log_evidence`) over ``--seeds`` sampler
+(:func:`seqbayes.structural.drop_paths.grid_log_evidence`) over ``--seeds`` sampler
 seeds: the Monte Carlo errors behind the tolerances of
 tests/statistical/test_stiffness_drop.py.
 
@@ -39,8 +39,9 @@ import time
 
 import numpy as np
 
-from seqbayes.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, simulate_drop
-from seqbayes.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
+from seqbayes.structural.drop_paths import grid_log_evidence, simulate_drop
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
+from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
 
 DT = 0.02
 TRUTH = np.array([0.91, 0.85, 0.78, 0.94])

@@ -45,10 +45,11 @@ import time
 import numpy as np
 from scipy.linalg import expm
 
-from seqbayes.filters.enkf import forecast, perturbed_observation_update, predictive_log_likelihood
-from seqbayes.sgenmcmc import SGEnMCMC, SparseGridTransition
+from seqbayes.structural.filters.enkf import forecast, perturbed_observation_update, predictive_log_likelihood
+from seqbayes.structural.sgenmcmc import SGEnMCMC
+from seqbayes.structural.transitions import SparseGridTransition
 from seqbayes.studies.shake_table import CASES, make_data
-from seqbayes.structures import discretise
+from seqbayes.structural.structures import discretise
 
 
 def best_of(fn, repeat=5):
@@ -171,8 +172,8 @@ def bench_sparse_grid(data, n=500):
 
 def bench_reference_likelihood(data, n=16):
     """Exact log-likelihood of one AIES half-ensemble (``n`` thetas, 2000 steps)."""
-    from seqbayes.filters import kalman_filter
-    from seqbayes.filters.kalman import kalman_log_likelihood
+    from seqbayes.structural.filters import kalman_filter
+    from seqbayes.structural.filters.kalman import kalman_log_likelihood
 
     theta = data["theta"] + 1e-3 * np.random.default_rng(2).standard_normal((n, 3))
     model = discretise(data["building"], theta, 0.02)
@@ -203,7 +204,7 @@ BUILDINGS = {
 def building_case(name: str, seed: int) -> dict:
     """Record of case ``name`` for one seed: a new Kanai-Tajimi record (El Centro: new
     process and measurement noise)."""
-    from seqbayes.structures import ShearBuilding
+    from seqbayes.structural.structures import ShearBuilding
     from seqbayes.studies.shake_table import synthetic_record
 
     c = BUILDINGS[name]
@@ -278,7 +279,7 @@ TABLE_HEADER = ("| case | sampler | seeds with all means within 0.3 exact sd | m
 
 def bench_four_storey_speed(repeat: int = 3) -> dict:
     """Acceptance bullet 2: 4 storeys, 1,500 steps, default settings; EKF and UKF in the same run."""
-    from seqbayes.filters import AugmentedModel, ekf, ukf
+    from seqbayes.structural.filters import AugmentedModel, ekf, ukf
     from seqbayes.studies.shake_table import exact_posterior
 
     data = building_case("b4", 100)

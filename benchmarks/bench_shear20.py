@@ -12,7 +12,7 @@ lognormal with median 1 and log-sd 0.2. Truth: 0.95 everywhere, storey 3 at 0.75
 0.85. One dataset: 3 s (150 samples at 50 Hz) of 0.5-22.5 Hz white-noise ground acceleration and
 the absolute accelerations of every floor (``--floors``: a subset), each with Gaussian noise of
 5 % of its RMS. The likelihood is the exact Kalman log-likelihood
-(:func:`seqbayes.filters.kalman.kalman_log_likelihood`) of the exact first-order-hold
+(:func:`seqbayes.structural.filters.kalman.kalman_log_likelihood`) of the exact first-order-hold
 discretisation, from rest with no process noise (so it is the output-error likelihood: the
 filter's gain is zero). Rows whose highest mode is at or above Nyquist (25 Hz: only if some
 ``theta_i`` is several times its prior median, prior mass below 1e-10) get ``-inf``.
@@ -53,9 +53,9 @@ import numpy as np  # noqa: E402
 from scipy import optimize, special, stats  # noqa: E402
 
 import seqbayes  # noqa: E402
-from seqbayes.filters.kalman import kalman_log_likelihood  # noqa: E402
-from seqbayes.structures import Sensors, ShearBuilding, add_measurement_noise, discretise, simulate  # noqa: E402
-from seqbayes.structures.ground_motion import band_limited_white_noise  # noqa: E402
+from seqbayes.structural.filters.kalman import kalman_log_likelihood  # noqa: E402
+from seqbayes.structural.structures import Sensors, ShearBuilding, add_measurement_noise, discretise, simulate  # noqa: E402
+from seqbayes.structural.structures.ground_motion import band_limited_white_noise  # noqa: E402
 
 N_STOREYS = 20
 DT = 0.02

@@ -21,7 +21,7 @@ B. Bouc-Wen storeys (yield drift 4 mm, alpha 0.3; the record is scaled so
    sub-steps. Times are medians of interleaved rounds.
 
 Each case also shows what ``surrogate="auto"``
-(:func:`seqbayes.surrogate.choose_transition`) picks on this machine.
+(:func:`seqbayes.structural.surrogate.choose_transition`) picks on this machine.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_surrogate.py
 [--storeys 2,3,4,6,8,12,16,20] [--bw-storeys 2,4,8] [--pairs 7] [--json out.json]``
@@ -36,12 +36,12 @@ import time
 
 import numpy as np
 
-from seqbayes import sparsegrid
-from seqbayes.filters.kalman import kalman_log_likelihood
-from seqbayes.sgenmcmc import ExactTransition, SparseGridTransition
-from seqbayes.structures import ShearBuilding, discretise, simulate
-from seqbayes.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
-from seqbayes.surrogate import choose_transition
+from seqbayes.structural import sparsegrid
+from seqbayes.structural.filters.kalman import kalman_log_likelihood
+from seqbayes.structural.transitions import ExactTransition, SparseGridTransition
+from seqbayes.structural.structures import ShearBuilding, discretise, simulate
+from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
+from seqbayes.structural.surrogate import choose_transition
 
 DT = 0.02
 

@@ -158,11 +158,12 @@ def stiffness_drop(h):
     monitor_cls = _load("StiffnessDropMonitor", "seqbayes.structural.stiffness_drop", "seqbayes.stiffness_drop")
     structures = importlib.import_module("seqbayes.structural.structures" if importlib.util.find_spec(
         "seqbayes.structural") else "seqbayes.structures")
-    drop_mod = sys.modules[monitor_cls.__module__]
+    simulate_drop = _load("simulate_drop", "seqbayes.structural.drop_paths", "seqbayes.structural.stiffness_drop",
+                          "seqbayes.stiffness_drop")
     dt = 0.02
     building = structures.ShearBuilding([1.2e4, 1.0e4], [2.0e7, 1.4e7], (0.02, 0.04))
     u = structures.kanai_tajimi(3.0, dt, 0.07, rng=1).acceleration
-    y, _ = drop_mod.simulate_drop(building, dt, [0.9, 0.8], 1, 0.2, 70, u)
+    y, _ = simulate_drop(building, dt, [0.9, 0.8], 1, 0.2, 70, u)
     y = y + 0.03 * np.std(y, axis=0) * np.random.default_rng(2).standard_normal(y.shape)
     mon = monitor_cls(building, dt, 0.7, 1.0, 0.03 * np.std(y, axis=0), n_particles=100)
     mon.reset(rng=7)

@@ -6,7 +6,7 @@ structural side of Lin et al. (2024): shear buildings, ground motions, filters,
 sparse grids and the SG-EnMCMC identifier.
 """
 
-from . import aies, filters, nested, prognostics, reference, sparsegrid, structures
+from . import aies, nested, prognostics, reference, structural
 from .density import GaussianMixture, MixtureSum, RunningStatistics, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
 from .nested import KalmanInnerFilter, ParticleInnerFilter
@@ -18,7 +18,7 @@ from .rng import as_generator
 from .selection import ModelComparison, compare
 from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
                          ZeroLikelihoodError, assimilate)
-from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
+from .structural import SGEnMCMC, SGEnMCMCResult, SparseGridTransition, filters, sparsegrid, structures
 from .config import load_config
 from .store import RunStore, posterior_to_arviz
 from .sgstore import SGRunStore

@@ -359,4 +359,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from numpy.typing import ArrayLike
 
     from .sgstore import SGRunStore
-    from .structures.modal import ModalSummary
+    from .structural.structures.modal import ModalSummary

@@ -109,3 +109,59 @@ def blas_limit(n_threads: int | None):
 
         _THREADPOOLS.append(ThreadpoolController())
     return _THREADPOOLS[0].limit(limits=int(n_threads), user_api="blas")
+
+
+# ------------------------------------------------------------------ one tempered reweighting
+from .weights import logsumexp, normalise  # noqa: E402
+
+
+def normalised_ess(weights: np.ndarray) -> float:
+    """ESS ``1 / sum_i w_i^2`` of normalised weights ``w (N,)`` (summing to 1).
+
+    >>> normalised_ess(np.full(4, 0.25))
+    4.0
+    """
+    return float(1.0 / (weights @ weights))
+
+
+def temper(log_weights, increments, target_ess: float, resample_move, particles, log_evidence: float = 0.0):
+    """Weigh particles by one step's log-likelihood increments, tempered so that the ESS stays at ``target_ess``.
+
+    The exponent ``phi`` of the increments rises from 0 to 1 in the steps :func:`next_exponent`
+    allows. At each, the evidence gains ``log sum_i W_i exp((phi' - phi) l_i)`` and the weights
+    are updated; while ``phi < 1`` the particles are then resampled and moved toward the target
+    tempered at ``phi`` (``resample_move``), after which they weigh the same.
+
+    Parameters
+    ----------
+    log_weights, increments : (N,) arrays
+        Finite log-weights and log-likelihood increments ``l_i`` of the step's data.
+    target_ess : float
+        Absolute ESS to keep.
+    resample_move : callable
+        ``resample_move(log_weights, increments, phi, particles) -> (increments, particles)``:
+        resample by ``log_weights``, move toward the target at ``phi`` and return the moved
+        particles with their increments.
+    particles : object
+        The caller's particle state, handed to ``resample_move`` and returned.
+    log_evidence : float
+        Running log-evidence; the increments are added to it one by one.
+
+    Returns
+    -------
+    log_weights : (N,) array
+    increments : (N,) array
+    particles : object
+    log_evidence : float
+    """
+    phi = 0.0
+    while True:
+        new_phi = next_exponent(log_weights, increments, phi, target_ess)
+        tempered = (new_phi - phi) * increments
+        log_evidence += logsumexp(normalise(log_weights) + tempered)  # log sum_i W_i exp(dphi l_i)
+        log_weights = log_weights + tempered
+        phi = new_phi
+        if phi >= 1.0:
+            return log_weights, increments, particles, log_evidence
+        increments, particles = resample_move(log_weights, increments, phi, particles)
+        log_weights = np.zeros_like(log_weights)

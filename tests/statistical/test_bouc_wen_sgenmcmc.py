@@ -10,8 +10,8 @@ within 1.5 posterior sd. Tolerance: error <= 0.01 and within 3.5 sd.
 import numpy as np
 
 from seqbayes import SGEnMCMC
-from seqbayes.structures import ShearBuilding, add_measurement_noise
-from seqbayes.structures.bouc_wen import BoucWenBuilding, BoucWenRK4, simulate_bouc_wen
+from seqbayes.structural.structures import ShearBuilding, add_measurement_noise
+from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenRK4, simulate_bouc_wen
 
 
 def test_enkf_sgenmcmc_recovers_bouc_wen_stiffness():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from seqbayes import SGEnMCMC
-from seqbayes.filters.kalman import KalmanBank
-from seqbayes.structures import ShearBuilding, discretise
+from seqbayes.structural.filters.kalman import KalmanBank
+from seqbayes.structural.structures import ShearBuilding, discretise
 from seqbayes.studies.shake_table import synthetic_record
 
 

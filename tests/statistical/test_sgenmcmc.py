@@ -7,9 +7,8 @@ regeneration, reproducibility and bad input."""
 import numpy as np
 import pytest
 
-from seqbayes.sgenmcmc import (
-    SGEnMCMC, stage_modes, stage_quantiles, weighted_mode, weighted_quantiles,
-)
+from seqbayes.structural.sgenmcmc import SGEnMCMC
+from seqbayes.structural.summaries import stage_modes, stage_quantiles, weighted_mode, weighted_quantiles
 from seqbayes.studies.shake_table import CASES, exact_posterior, laplace_posterior, make_data
 
 
@@ -93,13 +92,13 @@ def test_stage_summaries_equal_the_one_step_helpers():
 
 
 def test_state_regeneration_is_exact_for_a_linear_conditional_model():
-    from seqbayes.sgenmcmc import _Stage
-    from seqbayes.structures import discretise
+    from seqbayes.structural.ensemble import EnsembleStage
+    from seqbayes.structural.structures import discretise
 
     data = make_data(CASES["wc1"], duration=1.0, rng=0)
     rng = np.random.default_rng(3)
     theta = 0.9 + 0.01 * rng.standard_normal((50, 3))
-    stage = _Stage(discretise(data["building"], theta, 0.02), theta, conditional=True)
+    stage = EnsembleStage(discretise(data["building"], theta, 0.02), theta, conditional=True)
     alpha, beta = rng.standard_normal(6), rng.standard_normal((3, 6))
     residual = rng.standard_normal((50, 6))
     residual -= stage.basis @ (stage.basis.T @ residual)  # orthogonal to span(1, theta)
@@ -190,7 +189,7 @@ def test_resample_move_with_the_enkf_likelihood():
     # the exact posterior. Measured over 6 sampler seeds (20,000-draw reference): z mean 0.02 / 0.05, sd
     # 0.11 / 0.045; sd ratio mean 0.91 / 0.92 (the 30-member EnKF likelihood is a little too sharp), sd
     # 0.04 / 0.05. The 2,000-draw reference (ESS ~1260) adds 0.03 to z. Bounds: bias + 4 combined sds.
-    from seqbayes.structures import ShearBuilding
+    from seqbayes.structural.structures import ShearBuilding
     from seqbayes.studies.shake_table import synthetic_record
 
     building = ShearBuilding(np.array([12.0, 10.0]) * 1e3, np.array([20.0, 14.0]) * 1e6, damping_ratios=(0.03, 0.03))

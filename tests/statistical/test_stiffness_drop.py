@@ -1,4 +1,4 @@
-"""On-line stiffness-drop detection (seqbayes.stiffness_drop): the path likelihood
+"""On-line stiffness-drop detection (seqbayes.structural.stiffness_drop): the path likelihood
 against the plain Kalman filter, the per-block evidence of every class against the
 exact evidence (quadrature over theta and the drop, sum over the change
 boundaries, each term an exact Kalman likelihood), reproducibility, a reduced
@@ -7,9 +7,10 @@ detection run and input validation."""
 import numpy as np
 import pytest
 
-from seqbayes.filters.kalman import kalman_filter, measurement_covariance
-from seqbayes.stiffness_drop import StiffnessDropMonitor, grid_log_evidence, path_log_likelihood, simulate_drop
-from seqbayes.structures import ShearBuilding, add_measurement_noise, discretise, kanai_tajimi, simulate
+from seqbayes.structural.filters.kalman import kalman_filter, measurement_covariance
+from seqbayes.structural.drop_paths import grid_log_evidence, path_log_likelihood, simulate_drop
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
+from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, discretise, kanai_tajimi, simulate
 
 DT = 0.02
 

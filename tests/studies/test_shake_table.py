@@ -71,7 +71,7 @@ def test_exact_posterior_by_importance_sampling_agrees_with_laplace():
 
 
 def test_synthetic_record_of_any_building():
-    from seqbayes.structures import ShearBuilding
+    from seqbayes.structural.structures import ShearBuilding
 
     b = ShearBuilding(np.array([12.0, 10.0]) * 1e3, np.array([20.0, 14.0]) * 1e6)
     one = shake_table.synthetic_record(b, [0.8, 0.9], 2.0, rng=4)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from seqbayes import SGEnMCMC
-from seqbayes.filters.enkf import EnKFBank
-from seqbayes.structures import Sensors, ShearBuilding, discretise, simulate
-from seqbayes.structures.bouc_wen import (
+from seqbayes.structural.filters.enkf import EnKFBank
+from seqbayes.structural.structures import Sensors, ShearBuilding, discretise, simulate
+from seqbayes.structural.structures.bouc_wen import (
     BoucWenBuilding,
     BoucWenExponential,
     BoucWenRK4,

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from seqbayes.filters import (
+from seqbayes.structural.filters import (
     AugmentedModel, ekf, enkf_filter, ensemble_moments, kalman_filter, predictive_log_likelihood, ukf,
 )
-from seqbayes.filters.kalman import kalman_log_likelihood
-from seqbayes.structures import ShearBuilding, add_measurement_noise, discretise, simulate
+from seqbayes.structural.filters.kalman import kalman_log_likelihood
+from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, discretise, simulate
 
 FRAME = ShearBuilding(np.array([15.51, 15.32, 14.66]) * 1e3, np.array([20.85, 9.23, 8.37]) * 1e6)
 THETA = np.array([0.9079, 0.9197, 0.9424])
@@ -140,7 +140,7 @@ def test_mismatched_channels_and_nan_are_rejected():
 
 
 def test_kalman_bank_steps_equal_the_batched_filter():
-    from seqbayes.filters.kalman import KalmanBank
+    from seqbayes.structural.filters.kalman import KalmanBank
 
     model, u, y, std, sw = _data(120)
     thetas = np.array([[0.8, 0.9, 1.0], [0.9, 0.9, 0.9], [0.7, 0.75, 0.95]])
@@ -197,7 +197,7 @@ def test_ekf_jacobian_is_the_derivative_of_the_exact_discretisation():
 
 
 def test_enkf_bank_likelihood_approaches_the_kalman_likelihood():
-    from seqbayes.filters.enkf import enkf_log_likelihood
+    from seqbayes.structural.filters.enkf import enkf_log_likelihood
 
     model, u, y, std, sw = _data(60)
     batch = discretise(FRAME, THETA, 0.02)

@@ -5,9 +5,9 @@ sampling rate, baseline correction, band-pass filtering, decimation; modal resul
 import numpy as np
 import pytest
 
-from seqbayes.structures import G, ShearBuilding
-from seqbayes.structures.modal import mac, modal_summary
-from seqbayes.structures.records import ResponseRecord, read_csv, read_hdf5
+from seqbayes.structural.structures import G, ShearBuilding
+from seqbayes.structural.structures.modal import mac, modal_summary
+from seqbayes.structural.structures.records import ResponseRecord, read_csv, read_hdf5
 
 
 def _sines(fs=200.0, seconds=20.0, freqs=(1.0, 30.0)):

@@ -24,7 +24,7 @@ from seqbayes.config import ConfigError, load_config
 from seqbayes.datasets import DataError
 from seqbayes.sgstore import SGRunStore, parse_sg_config
 from seqbayes.store import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
-from seqbayes.structures.shear_building import discretise, simulate
+from seqbayes.structural.structures.shear_building import discretise, simulate
 
 TOML = """
 [model]
@@ -279,7 +279,7 @@ def test_edited_store_is_refused(workdir, tmp_path):
 
 def test_building_from_a_user_module(tmp_path):
     (tmp_path / "mybuilding.py").write_text(
-        "from seqbayes.structures import ShearBuilding\n"
+        "from seqbayes.structural.structures import ShearBuilding\n"
         "def building():\n    return ShearBuilding([2e4, 1.6e4], [3e7, 2e7], (0.02, 0.03))\n")
     text = TOML.replace('masses = [20000.0, 16000.0]\nstiffnesses = [3.0e7, 2.0e7]\ndamping_ratios = [0.02, 0.03]',
                         'module = "mybuilding:building"')
@@ -308,8 +308,8 @@ def direct_modes(building, theta):
 
 
 def test_modal_results_match_a_direct_eigen_solution():
-    from seqbayes.structures import ShearBuilding
-    from seqbayes.structures.modal import modal_summary
+    from seqbayes.structural.structures import ShearBuilding
+    from seqbayes.structural.structures.modal import modal_summary
 
     building = ShearBuilding([3e4, 2.5e4, 2e4], [4e7, 3e7, 2e7], (0.02, 0.05), (1, 3))
     thetas = np.array([[0.9, 0.8, 1.1], [1.0, 0.7, 0.95], [0.85, 0.9, 0.75]])
@@ -328,7 +328,7 @@ def test_modal_results_match_a_direct_eigen_solution():
     assert np.all(summary.frequency_interval[1] <= f.max(0) + 1e-12)
     # one sample: the mean shapes are the direct ones (MAC 1), the identified shapes given in reverse order
     one = modal_summary(building, thetas[:1], identified_shapes=direct[0][3][:, ::-1])
-    from seqbayes.structures.modal import mac
+    from seqbayes.structural.structures.modal import mac
 
     assert np.allclose(np.diag(mac(one.shapes, direct[0][3])), 1.0, atol=1e-12)
     expected = mac(direct[0][3], direct[0][3][:, ::-1])   # not the identity: the shapes are M-orthogonal
@@ -340,7 +340,7 @@ def test_modal_results_match_a_direct_eigen_solution():
 
 def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
     from seqbayes.sgreport import modal_rows, render_sg_report
-    from seqbayes.structures.modal import modal_summary
+    from seqbayes.structural.structures.modal import modal_summary
 
     store = SGRunStore.open(workdir / "reference.nc")
     theta, w = store.posterior_samples()
@@ -375,7 +375,7 @@ def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
 
 
 def test_blocks_in_g_are_stored_in_si(workdir, tmp_path):
-    from seqbayes.structures.records import UNITS
+    from seqbayes.structural.structures.records import UNITS
 
     (tmp_path / "g.toml").write_text(TOML.replace('time = "t"', 'time = "t"\nunits = "g"'))
     config = load_config(tmp_path / "g.toml")

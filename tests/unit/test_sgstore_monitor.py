@@ -17,7 +17,8 @@ from seqbayes.config import ConfigError, load_config
 from seqbayes.rng import as_generator
 from seqbayes.sgreport import format_sg_status
 from seqbayes.sgstore import SGRunStore, parse_sg_config
-from seqbayes.stiffness_drop import DropBlock, simulate_drop
+from seqbayes.structural.drop_paths import simulate_drop
+from seqbayes.structural.stiffness_drop import DropBlock
 from seqbayes.store import FAULT_ENV
 
 TOML = """

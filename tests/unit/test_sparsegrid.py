@@ -6,9 +6,9 @@ from math import comb
 import numpy as np
 import pytest
 
-from seqbayes.sparsegrid import SparseGrid, interpolate, point_count
-from seqbayes.sgenmcmc import SparseGridTransition
-from seqbayes.structures import ShearBuilding, discretise
+from seqbayes.structural.sparsegrid import SparseGrid, interpolate, point_count
+from seqbayes.structural.transitions import SparseGridTransition
+from seqbayes.structural.structures import ShearBuilding, discretise
 
 
 @pytest.mark.parametrize("d, n", [(1, 1), (1, 5), (2, 3), (3, 6), (4, 4), (6, 3)])
@@ -83,7 +83,7 @@ def test_transition_interpolation_error_falls_with_level():
 def test_no_cap_on_dim_times_level(dim, level):
     # dim * level = 64, 63 > 62: the point keys take two int64 words (11 storeys at level 6, 114,687
     # points, build the same way; too slow for the unit tests)
-    from seqbayes.sparsegrid import SparseGrid, fit
+    from seqbayes.structural.sparsegrid import SparseGrid, fit
 
     grid = SparseGrid(dim, level)
     rng = np.random.default_rng(0)

@@ -8,9 +8,10 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from seqbayes.stiffness_drop import DropBlock, StiffnessDropMonitor, simulate_drop
-from seqbayes.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
-from seqbayes.structures.shear_building import Sensors
+from seqbayes.structural.drop_paths import simulate_drop
+from seqbayes.structural.stiffness_drop import DropBlock, StiffnessDropMonitor
+from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
+from seqbayes.structural.structures.shear_building import Sensors
 
 DT = 0.02
 BLOCK = 30

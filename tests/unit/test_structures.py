@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from seqbayes.structures import (
+from seqbayes.structural.structures import (
     G, ShearBuilding, add_measurement_noise, band_limited_white_noise, discretise, kanai_tajimi,
     load_el_centro, read_at2, read_two_column, resample, scale_to_pga, simulate,
 )
-from seqbayes.structures.shear_building import batched_expm
+from seqbayes.structural.structures.shear_building import batched_expm
 
 FRAME = ShearBuilding(np.array([15.51, 15.32, 14.66]) * 1e3, np.array([20.85, 9.23, 8.37]) * 1e6)
 
@@ -142,7 +142,7 @@ def test_synthetic_generators():
 def test_expm_and_derivatives_equal_scipy_frechet():
     from scipy.linalg import expm, expm_frechet
 
-    from seqbayes.structures.shear_building import expm_and_derivatives
+    from seqbayes.structural.structures.shear_building import expm_and_derivatives
 
     rng = np.random.default_rng(0)
     M = 3 * rng.standard_normal((6, 6))
@@ -158,9 +158,9 @@ def test_sensor_layout_selects_rows_and_runs_through_the_filters():
     # only floors 1 and 3 of 3 carry accelerometers, storey 2 a drift sensor: H holds exactly those rows of the
     # full matrices, the exact Kalman likelihood equals the one of a model built from those rows, and the
     # EKF and the SG-EnMCMC identifier accept the layout
-    from seqbayes.filters import AugmentedModel, ekf, kalman_log_likelihood
-    from seqbayes.sgenmcmc import SGEnMCMC
-    from seqbayes.structures import DiscreteModel, Sensors, add_measurement_noise, kanai_tajimi
+    from seqbayes.structural.filters import AugmentedModel, ekf, kalman_log_likelihood
+    from seqbayes.structural.sgenmcmc import SGEnMCMC
+    from seqbayes.structural.structures import DiscreteModel, Sensors, add_measurement_noise, kanai_tajimi
 
     b = ShearBuilding(np.array([30.0, 26.0, 20.0]) * 1e3, np.array([45.0, 34.0, 22.0]) * 1e6, (0.02, 0.05))
     theta = np.array([[0.88, 0.76, 0.95], [0.8, 0.9, 0.75]])

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from seqbayes import SGEnMCMC
-from seqbayes.sgenmcmc import ExactTransition, SparseGridTransition
-from seqbayes.structures import ShearBuilding
-from seqbayes.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4
+from seqbayes.structural.transitions import ExactTransition, SparseGridTransition
+from seqbayes.structural.structures import ShearBuilding
+from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4
 from seqbayes.studies.shake_table import synthetic_record
-from seqbayes.surrogate import SurrogateChoice, choose_transition
+from seqbayes.structural.surrogate import SurrogateChoice, choose_transition
 
 BUILDING = ShearBuilding([2.2e4, 1.5e4], [2.8e7, 1.9e7], (0.02, 0.05))
 

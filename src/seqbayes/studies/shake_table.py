@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..filters import AugmentedModel, ekf, ukf
 from ..rng import as_generator
-from ..sgenmcmc import SGEnMCMC
-from ..structures import (
+from ..structural.filters import AugmentedModel, ekf, ukf
+from ..structural.sgenmcmc import SGEnMCMC
+from ..structural.structures import (
     ShearBuilding,
     add_measurement_noise,
     discretise,
@@ -54,6 +54,7 @@ from ..structures import (
     scale_to_pga,
     simulate,
 )
+from ..tempering import normalised_ess
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
            "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",
@@ -174,7 +175,7 @@ class ReferencePosterior:
 def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng=None,
                         centre=None, spread=None, burn: int | None = None) -> ReferencePosterior:
     """Samples of ``p(theta | y)`` with uniform U(0.7, 1) priors: the exact Kalman
-    marginal likelihood (:func:`~seqbayes.filters.kalman.kalman_log_likelihood`,
+    marginal likelihood (:func:`~seqbayes.structural.filters.kalman.kalman_log_likelihood`,
     batched over the walkers of each half-sweep) sampled by the affine-invariant
     ensemble sampler (:mod:`seqbayes.aies`).
 
@@ -184,7 +185,7 @@ def reference_posterior(data: dict, n_walkers: int = 32, n_steps: int = 150, rng
     """
 
     from .. import aies
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     start = time.perf_counter()
     rng = as_generator(rng)
@@ -227,7 +228,7 @@ def laplace_posterior(data: dict, start, step: float = 2e-4, iterations: int = 4
     mode : (d,) array
     covariance : (d, d) array
     """
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     building, u, y = data["building"], data["u"], data["y"]
     theta = np.asarray(start, float).copy()
@@ -309,7 +310,7 @@ class ExactPosterior:
 
 
 def _log_likelihood_batched(data: dict, theta, batch: int = 500) -> np.ndarray:
-    from ..filters.kalman import kalman_log_likelihood
+    from ..structural.filters.kalman import kalman_log_likelihood
 
     out = np.empty(theta.shape[0])
     for i in range(0, theta.shape[0], batch):  # batches of thetas bound the memory of the steady phase
@@ -358,7 +359,7 @@ def exact_posterior(data: dict, n: int = 4000, rng=None, lower: float = LOWER, u
         centred = draws - mode
         cov = (centred * w[:, None]).T @ centred
     sd = np.sqrt(np.diag(cov))
-    ess = float(1 / (w @ w))
+    ess = normalised_ess(w)
     q = weighted_quantile(draws, logw, [0.025, 0.975])
     return ExactPosterior(mode, sd, q[0], q[1], ess, np.full(d, 1 / np.sqrt(ess)), draws, logw,
                           time.perf_counter() - start_time)
@@ -565,10 +566,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--level", type=_level, default="auto",
                         help="sparse-grid level, 'exact', or 'auto' (exact matrices for resample-move, 6 for paper)")
     parser.add_argument("--sampler", default="resample-move", choices=["resample-move", "paper"],
-                        help="SG-EnMCMC sampler (see seqbayes.sgenmcmc)")
+                        help="SG-EnMCMC sampler (see seqbayes.structural.sgenmcmc)")
     parser.add_argument("--shrinkage", type=float, default=0.5, help="Liu-West a of the paper sampler")
     parser.add_argument("--state-move", default="regression", choices=["regression", "shift", "inherit"],
-                        help="state of a moved member of the paper sampler (see seqbayes.sgenmcmc)")
+                        help="state of a moved member of the paper sampler (see seqbayes.structural.sgenmcmc)")
     parser.add_argument("--ref-walkers", type=int, default=32)
     parser.add_argument("--ref-steps", type=int, default=150)
     parser.add_argument("--seed", type=int, default=0)

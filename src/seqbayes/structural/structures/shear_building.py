@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..rng import as_generator
+from ...rng import as_generator
 
 __all__ = [
     "ShearBuilding",
@@ -94,8 +94,9 @@ class Sensors:
             raise ValueError(f"sensors: floor {top} does not exist in a {n_storeys}-storey building")
 
 
-def _as_theta(theta, n: int, name: str = "theta") -> np.ndarray:
-    """``theta`` as ``(N, n)``; a single vector ``(n,)`` becomes ``(1, n)``."""
+def check_theta(theta, n: int, name: str = "theta") -> np.ndarray:
+    """Stiffness ratios ``theta`` as a validated ``(N, n)`` float array; a single vector ``(n,)``
+    becomes ``(1, n)`` (``ValueError`` naming ``name`` for a wrong shape, NaN/inf or a ratio <= 0)."""
     theta = np.asarray(theta, dtype=float)
     if theta.ndim == 1:
         theta = theta[None, :]
@@ -247,7 +248,7 @@ class ShearBuilding:
     def stiffness_matrix(self, theta: ArrayLike) -> np.ndarray:
         """``K(theta)`` for a batch, shape ``(N, n, n)`` (tridiagonal)."""
         n = self.n_storeys
-        theta = _as_theta(theta, n)
+        theta = check_theta(theta, n)
         k = theta * self.stiffnesses  # (N, n) storey stiffnesses k_i = theta_i k_i^u
         K = np.zeros((theta.shape[0], n, n))
         idx = np.arange(n)
@@ -307,7 +308,7 @@ class ShearBuilding:
         ``"absolute_acceleration"`` (every floor), ``"drift"`` (every storey) or a
         :class:`Sensors` layout (some floors)."""
         n = self.n_storeys
-        theta = _as_theta(theta, n)
+        theta = check_theta(theta, n)
         if isinstance(channels, Sensors):
             return sensor_rows(self.observation_matrix, theta, channels, n)
         if channels == "absolute_acceleration":
@@ -326,7 +327,7 @@ class ShearBuilding:
         The highest natural frequency (at ``theta``, default 1) must be below
         ``0.5 / dt``; otherwise the discrete response aliases.
         """
-        dt = _check_dt(dt)
+        dt = check_dt(dt)
         theta = np.ones(self.n_storeys) if theta is None else theta
         f_max = float(np.max(self.modes(theta)[0]))
         if f_max >= 0.5 / dt:
@@ -389,7 +390,8 @@ def expm_and_derivatives(M: np.ndarray, directions: np.ndarray, degree: int = 14
     return R, dR
 
 
-def _check_dt(dt) -> float:
+def check_dt(dt) -> float:
+    """The sampling step ``dt`` as a positive finite float (``TypeError`` / ``ValueError`` otherwise)."""
     try:
         dt = float(dt)
     except (TypeError, ValueError):
@@ -427,10 +429,10 @@ def discretise(building: ShearBuilding, theta: ArrayLike, dt: float, hold: str =
     ``E12`` and ``E13``; then ``B0 = E12 - E13`` and ``B1 = E13`` (FOH), or
     ``B0 = E12`` (ZOH).
     """
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     if hold not in HOLDS:
         raise ValueError(f"hold: expected one of {HOLDS}, got {hold!r}")
-    theta = _as_theta(theta, building.n_storeys)
+    theta = check_theta(theta, building.n_storeys)
     building.check_sampling(dt, theta)
     A_c, b_c = building.continuous_state_space(theta)
     N, m = theta.shape[0], A_c.shape[1]

@@ -7,7 +7,7 @@ Sequential Monte Carlo over the stiffness ratios ``theta`` (IBIS, Chopin 2002;
 resample-move, Gilks and Berzuini 2001), annealed over the record step by step
 and, within a step whose data would degenerate the weights, tempered. Each of
 the ``N`` particles ``theta_i`` carries an exact Kalman filter of the linear
-shear building (:class:`~seqbayes.filters.kalman.KalmanBank`), which gives the
+shear building (:class:`~seqbayes.structural.filters.kalman.KalmanBank`), which gives the
 exact predictive density ``l_i = p(y_k | y_{0:k-1}, theta_i)``. Per step ``k``:
 
 1. **Reweight** ``log w_i += phi l_i``, with the largest ``phi <= 1`` that keeps
@@ -36,7 +36,7 @@ that ratio does not leave ``p(theta | y_{0:k})`` invariant. Eq. 28 then
 resamples the candidates in proportion to ``alpha``, which is not a
 Metropolis step either. Here the candidate's ``L_k`` costs one batched Kalman
 pass over ``y_{0:k-1}`` for all candidates
-(:func:`~seqbayes.filters.kalman.kalman_log_likelihood`, steady-state gain once
+(:func:`~seqbayes.structural.filters.kalman.kalman_log_likelihood`, steady-state gain once
 the covariance has converged) plus one step of the bank; the current value's
 ``L_k`` is the particle's running sum, kept exactly.
 
@@ -57,8 +57,8 @@ each particle carries its own random likelihood estimate, and a candidate gets
 a fresh one from an EnKF run over the history, the pseudo-marginal form; the
 target is then the posterior under the EnKF likelihood, exact as the ensemble
 grows). Transition matrices: the exact discretisation by default
-(``level="auto"`` with this sampler: issue 12 measured the level-6 sparse grid
-1.1-2x slower than the batched matrix exponential at 3-4 storeys); a
+(``level="auto"`` with this sampler: at a few storeys the batched matrix
+exponential is as fast as the sparse grid, docs/shake_table.md); a
 sparse-grid level can be given.
 
 Noise levels as parameters (``noise_parameters="channel"`` or ``"shared"``,
@@ -69,134 +69,47 @@ prior on ``log s`` over ``log noise_scale_bounds`` (default 1/4 to 4 times the
 nominal level); each particle's Kalman filter has its own ``R = diag(sd^2)``
 and the same Metropolis-Hastings moves act on the joint vector. Candidates'
 histories are filtered by a bank with per-candidate noise (one time loop).
-Measured against the exact joint posterior on a 13^4 grid (2 storeys, 300
-steps, nominal noise 1.5x the true one; tests/statistical/test_noise_parameters.py):
-posterior means within 0.17 exact sd, sds within 9 % over 8 seeds.
+Checked against the exact joint posterior in tests/statistical/test_noise_parameters.py
+(accuracy in docs/shake_table.md).
 
 On-line use: :meth:`SGEnMCMC.reset` then :meth:`SGEnMCMC.update` with each new
 block of the record (bit-identical to :meth:`SGEnMCMC.run` on the whole record);
 :meth:`SGEnMCMC.snapshot` / :meth:`SGEnMCMC.restore` stop and resume a run bit
 for bit (plain named arrays and the generator state). A stiffness that drops
 during the shaking is detected and attributed to a storey by
-:class:`seqbayes.stiffness_drop.StiffnessDropMonitor`.
+:class:`seqbayes.structural.stiffness_drop.StiffnessDropMonitor`.
 
-Measured (docs/shake_table.md, benchmarks/bench_sgenmcmc.py): on 2-, 3- and
-4-storey buildings and a 2-storey case with the truth at 0.705 of U(0.7, 1),
-10 seeds each, default settings: every posterior mean within 0.13 exact
-posterior sd, every sd within 9 %, the truth inside the 95 % intervals as
-often as inside the exact posterior's; 4 storeys x 1,500 steps in ~4 s of CPU.
+Accuracy against the exact posterior and cost: docs/shake_table.md
+(benchmarks/bench_sgenmcmc.py).
 
 ``sampler="paper"``: the ensemble variant of Lin et al.
 =======================================================
-The first implementation, kept as an option: one EnKF member per ``theta``,
-importance weights from the per-member EnKF likelihood, resampling and a
-Liu-West kernel move in place of Eq. 27. It has **no guarantee of reaching the
-posterior**: on 4 storeys its means scatter by 0.6-0.8 exact posterior sd
-(rms) around the exact ones and its intervals miss the truth in most seeds
-(measured: docs/shake_table.md, benchmarks/bench_sgenmcmc.py). The rest of
-this docstring describes it.
-
-Each of the ``N`` members carries a parameter vector ``theta_i`` (storey
-stiffness ratios) and a state ``X_i = [x, x']``. Per time step ``k``:
-
-1. **Forecast** (Eq. 21): ``X_i <- A(theta_i) X_i + B0(theta_i) u_{k-1} +
-   B1(theta_i) u_k + b(theta_i) eta_i``. The matrices of the exact (FOH)
-   discretisation are interpolated over ``theta`` by a level-``n`` sparse
-   grid built once on the prior box (Eqs. 12-20), so a batch of members costs
-   one sparse-matrix product instead of one matrix exponential each. They are
-   re-evaluated only for members whose ``theta`` changed.
-2. **Moments and likelihood** (Eqs. 9, 25): predicted observations
-   ``Y_i = H(theta_i) X_i``; per-member predictive log-likelihood
-   ``l_i = log N(y_k; c_i, C_yy + R)``, centred at the least-squares fit of
-   ``Y`` on ``theta`` evaluated at ``theta_i`` (``centre="regression"``,
-   default: the ensemble's estimate of ``E[y_k | theta_i]``, free of the
-   member's own state noise) or at ``Y_i`` (``centre="member"``, the
-   paper's). With the regression centre, ``l_i`` gets the **leverage
-   correction** ``+ h_i tr(S^-1 C_yy) / 2`` (``S = C_yy + R``, ``h_i`` the
-   diagonal of the hat matrix of ``[1, theta]``): the fit is estimated from
-   ``N`` members, its error at ``theta_i`` has covariance ``~ h_i C_yy``, and
-   that error adds ``h_i tr(S^-1 C_yy)`` to the expected misfit, a spurious
-   quadratic penalty in ``theta`` that accumulates over the steps and makes the
-   posterior too narrow (measured below). The spread ``C_yy`` is the sample
-   covariance of the ``Y`` residuals after regressing on ``theta``
-   (``conditional=True``, default; the spread of the state *given* theta) or
-   the pooled sample covariance of the paper (``conditional=False``).
-3. **Weighting and resampling of theta** (Eqs. 27-28): ``log w_i += l_i``;
-   when the effective sample size falls below ``ess_threshold * N``, the
-   members are resampled with probabilities ``w_i / sum w`` (Eq. 28), and
-   then **rejuvenated** by a kernel move (Liu and West 2001):
-   ``theta_i <- a theta_i + (1 - a) mean + h eps``, ``eps ~ N(0, Cov(theta))``,
-   ``a^2 + h^2 = 1``, which keeps the ensemble mean and covariance and stops
-   the parameter ensemble collapsing onto a few values. Moves that leave the
-   prior box are reflected back inside. The state of a moved member is
-   **regenerated** (``state_move="regression"``): ``X_i = mean(X) +
-   beta^T (theta_i - mean(theta)) + e_pi(i)``, the least-squares fit of the
-   states on theta (before resampling) at the new theta plus the residual
-   ``e`` of a member drawn without replacement (a random permutation ``pi``).
-   This is an exact draw from the conditional-Gaussian model ``X | theta ~
-   N(alpha + beta^T theta, Sigma)`` that the conditional moments and the
-   regression-centred likelihood already assume; the residuals carry no
-   weight information (the likelihood depends on theta only through the
-   fit), so the permutation loses no state diversity and every state is
-   consistent with its own theta.
-4. **State update** (Eq. 22): perturbed-observation EnKF with gain
-   ``K = C_xy (C_yy + R)^-1`` from the same (conditional) sample moments.
-
-What of Eq. 27 is approximated, and what we chose
--------------------------------------------------
-Eq. 27 writes a Metropolis ratio between the EnKF likelihood of a candidate
-at step ``k`` and that of the current value at ``k - 1``, and Eq. 28 turns
-the ratios into resampling probabilities. Two parts are not computable as
-written: (a) a candidate's likelihood ``p(y_k | y_{1:k-1}, theta*)`` needs
-the whole history filtered with ``theta*``, which would cost a filter run
-per candidate; (b) the ratio mixes two different time steps, so it is not a
-valid Metropolis-Hastings ratio for ``p(theta | y_{1:k})``. We therefore
-use the sequential importance weights ``w_i prop. to prod_k l_i`` of each
-member's own filtered history (what ``alpha`` of Eq. 28 becomes when the
-candidate is the member's own value), resample with them (Eq. 28), and
-replace the Metropolis candidate move by the Liu-West kernel move. Eq. 27
-implicitly keeps the parent's state for the candidate (``p(x_k | x_{k-1},
-theta*) ~ p(x_k | x_{k-1}, theta)``); we regenerate it instead (above).
-
-Calibration (why ``a = 0.5``, the state regeneration and the leverage correction)
--------------------------------------------------------------------------------------
-Measured on the WC1 replica (40 s, 500 members, level 6, 4-8 seeds each)
-against the exact posterior (KF likelihood + AIES; docs/shake_table.md):
-
-* With inherited states and ``a = 0.95`` the final means scatter by 5-10
-  posterior sds between seeds (up to 50 with ``a = 0.99``), the ensemble sd
-  is 0.4-0.7 of the exact one: the over-confidence. The sparse grid is not the
-  cause (the KF posterior with level-6 interpolated matrices equals the exact
-  one to 1e-5). A member's state remembers its ancestors' theta for ~100
-  steps (H P H' is only 3-30 % of R, so the filter corrects it slowly): the
-  regression of the predictions on theta is attenuated, the weights are
-  noisy, and a small jitter cannot undo a collapse. Regenerated states and
-  ``a = 0.5`` (a kernel that is mostly a Gaussian refit, suited to this
-  near-Gaussian posterior) bring the scatter to ~1 sd.
-* The remaining narrowness (sd ratio 0.40 / 0.66 / 0.82 / 0.97 at 250 / 500
-  / 1000 / 2000 members) is the finite-ensemble error of the fitted centre;
-  the leverage correction removes it (0.9-1.1 at 500 members).
+The first implementation, kept as an option: one EnKF member per ``theta`` and a Liu-West
+kernel move in place of Eq. 27, with no guarantee of reaching the posterior. It is described,
+with its calibration, in :mod:`seqbayes.structural.ensemble`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
-from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
-from . import sparsegrid
+from ..resampling import resample
+from ..rng import as_generator, generator_from_state, generator_state
+from ..tempering import blas_limit, normalised_ess, temper
+from ..weights import normalise
+from .ensemble import run_ensemble
 from .filters.enkf import EnKFBank, enkf_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likelihood, measurement_covariance
-from .resampling import resample
-from .results import weighted_quantile
-from .rng import as_generator, generator_from_state, generator_state
 from .structures.bouc_wen import BoucWenBuilding, bouc_wen_transition
-from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
-from .tempering import blas_limit, next_exponent
-from .weights import logsumexp, normalise
+from .structures.shear_building import DiscreteModel, ShearBuilding
+from .summaries import SGEnMCMCResult, StageHistories
+from .surrogate import choose_transition
+from .transitions import ExactTransition, SparseGridTransition
 
-_LOG_2PI = float(np.log(2 * np.pi))
 _STEADY_TOL = 1e-11  # relative change of the filter covariance below which it is frozen (as kalman_log_likelihood)
 
 STATE_MOVES = ("regression", "shift", "inherit")
@@ -205,177 +118,7 @@ PROPOSALS = ("mixture", "independent", "random_walk")
 LIKELIHOODS = ("kalman", "enkf")
 NOISE_PARAMETERS = ("channel", "shared")
 
-__all__ = ["SparseGridTransition", "ExactTransition", "SGEnMCMC", "SGEnMCMCStep", "SGEnMCMCResult",
-           "STATE_MOVES", "SAMPLERS", "PROPOSALS", "weighted_quantiles", "weighted_mode", "stage_quantiles",
-           "stage_modes"]
-
-
-class ExactTransition:
-    """Discrete matrices from one matrix exponential per member (the reference)."""
-
-    def __init__(self, building: ShearBuilding, dt: float, hold: str = "foh",
-                 channels: str = "absolute_acceleration"):
-        self.building, self.dt, self.hold, self.channels = building, float(dt), hold, channels
-
-    def __call__(self, theta) -> DiscreteModel:
-        return discretise(self.building, theta, self.dt, self.hold, self.channels)
-
-
-class SparseGridTransition:
-    """``A, B0, B1`` of the exact discretisation interpolated over ``theta`` (Eqs. 18, 21).
-
-    The observation matrix ``H(theta)`` is affine in ``theta`` and is evaluated
-    exactly. Built once on the box ``[lower, upper]`` (the prior support).
-
-    Parameters
-    ----------
-    building : ShearBuilding
-    dt : float
-    lower, upper : (d,) arrays
-        The box of ``theta``.
-    level : int
-        Sparse-grid level ``n`` (paper: 6).
-    hold, channels, basis : see :func:`~seqbayes.structures.discretise` and
-        :class:`~seqbayes.sparsegrid.SparseGrid`.
-    """
-
-    def __init__(self, building: ShearBuilding, dt: float, lower: ArrayLike, upper: ArrayLike, level: int = 6,
-                 hold: str = "foh", channels: str = "absolute_acceleration", basis: str = "modified"):
-        self.building, self.dt, self.hold, self.channels = building, float(dt), hold, channels
-        self.m = building.state_dim
-        lower = np.asarray(lower, float)
-        upper = np.asarray(upper, float)
-        building.check_sampling(dt, upper)  # stiffest corner: highest mode
-
-        def matrices(theta):
-            model = discretise(building, theta, dt, hold, channels)
-            return np.concatenate([model.A.reshape(len(theta), -1), model.B0, model.B1], axis=1)
-
-        self.interpolant = sparsegrid.interpolate(matrices, building.n_storeys, level, lower, upper,
-                                                  basis=basis)
-
-    @property
-    def n_points(self) -> int:
-        return self.interpolant.grid.n_points
-
-    def __call__(self, theta) -> DiscreteModel:
-        theta = np.atleast_2d(np.asarray(theta, float))
-        flat = self.interpolant(theta)
-        m, n = self.m, theta.shape[0]
-        A = flat[:, : m * m].reshape(n, m, m)
-        B0 = flat[:, m * m : m * m + m]
-        B1 = flat[:, m * m + m :]
-        H = self.building.observation_matrix(theta, self.channels)
-        return DiscreteModel(A, B0, B1, H, self.dt, self.hold)
-
-
-@dataclass(frozen=True)
-class SGEnMCMCStep:
-    """Per-step summary (one row of the histories in :class:`SGEnMCMCResult`)."""
-
-    k: int
-    ess: float
-    resampled: bool
-    log_evidence_increment: float
-
-
-@dataclass(frozen=True)
-class SGEnMCMCResult:
-    """Histories of an SG-EnMCMC run over ``T`` steps with ``N`` members, ``d`` parameters.
-
-    Attributes
-    ----------
-    theta_mean, theta_var, theta_mpv : (T, d) arrays
-        Weighted mean, variance and most probable value (mode of a
-        per-parameter histogram of the weighted members) after step ``k``.
-    theta_quantiles : (T, 3, d) array
-        Weighted 2.5 %, 50 % and 97.5 % quantiles.
-    ess : (T,) array
-        Effective sample size after weighting at step ``k`` (before resampling).
-    resampled : (T,) bool array
-    log_evidence_increments : (T,) array
-        ``log sum_i w_hat_i exp(l_i)``; their sum estimates ``log p(y | model)``.
-    state_mean : (T, m) array
-        Weighted mean of the updated states.
-    drift_mean, drift_std : (T, n) arrays
-        Inter-storey drifts of the updated states (mean and spread).
-    final_theta : (N, d) array
-        The final members (after a last resampling, equally weighted).
-    final_log_weights : (N,) array
-    elapsed : float
-        Wall-clock seconds of the run.
-    names : tuple of str
-    sampler : str
-        ``"resample-move"`` or ``"paper"``.
-    move_steps, move_exponents, move_acceptance, move_sweeps : (E,) arrays
-        Resample-move only: for each of the ``E`` resample-move events, the
-        step, the tempering exponent ``phi`` of that step's data it targeted,
-        the mean acceptance rate per sweep and the number of sweeps.
-    surrogate : dict
-        With ``surrogate="auto"``: the transition chosen and why
-        (:meth:`seqbayes.surrogate.SurrogateChoice.as_dict`); empty otherwise.
-    """
-
-    theta_mean: np.ndarray
-    theta_var: np.ndarray
-    theta_mpv: np.ndarray
-    theta_quantiles: np.ndarray
-    ess: np.ndarray
-    resampled: np.ndarray
-    log_evidence_increments: np.ndarray
-    state_mean: np.ndarray
-    drift_mean: np.ndarray
-    drift_std: np.ndarray
-    final_theta: np.ndarray
-    final_log_weights: np.ndarray
-    elapsed: float
-    names: tuple = field(default=())
-    sampler: str = "paper"
-    move_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    move_exponents: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    move_acceptance: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    move_sweeps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    surrogate: dict = field(default_factory=dict)
-
-    @property
-    def log_evidence(self) -> float:
-        return float(self.log_evidence_increments.sum())
-
-    def convergence_step(self, truth: ArrayLike, tol: float = 0.01) -> np.ndarray:
-        """First step after which the mean stays within ``tol`` of ``truth``, per parameter
-        (``T`` if never)."""
-        return _convergence_step(self.theta_mean, truth, tol)
-
-
-def _convergence_step(history, truth, tol):
-    ok = np.abs(np.asarray(history) - np.asarray(truth)) <= tol  # (T, d)
-    T = ok.shape[0]
-    # last step that is outside, +1
-    bad = ~ok
-    last_bad = np.where(bad.any(axis=0), T - 1 - np.argmax(bad[::-1], axis=0), -1)
-    return last_bad + 1
-
-
-def weighted_quantiles(samples, weights, probs) -> np.ndarray:
-    """Per-column weighted quantiles: ``samples (N, d)``, ``weights (N,)`` -> ``(len(probs), d)``
-    (:func:`seqbayes.results.weighted_quantile` with plain weights)."""
-    with np.errstate(divide="ignore"):
-        return weighted_quantile(samples, np.log(weights), probs)
-
-
-def weighted_mode(samples, weights, lower, upper, bins: int = 60, limits=None) -> np.ndarray:
-    """Most probable value per parameter: centre of the heaviest bin of a weighted
-    histogram over the ensemble's weighted 1st-99th percentile range (one bincount);
-    ``limits = (lo, hi)`` gives that range if already known."""
-    lo, hi = weighted_quantiles(samples, weights, [0.01, 0.99]) if limits is None else limits
-    lo = np.maximum(lo, lower)
-    hi = np.maximum(np.minimum(hi, upper), lo + 1e-12)
-    d = samples.shape[1]
-    b = np.clip(((samples - lo) / (hi - lo) * bins).astype(np.int64), 0, bins - 1)  # (N, d)
-    counts = np.bincount((b + bins * np.arange(d)).ravel(), weights=np.repeat(weights, d),
-                         minlength=bins * d).reshape(d, bins)
-    i = np.argmax(counts, axis=1)
-    return lo + (i + 0.5) * (hi - lo) / bins
+__all__ = ["SGEnMCMC", "STATE_MOVES", "SAMPLERS", "PROPOSALS", "LIKELIHOODS", "NOISE_PARAMETERS"]
 
 
 class SGEnMCMC:
@@ -385,7 +128,7 @@ class SGEnMCMC:
     ----------
     building : ShearBuilding or BoucWenBuilding
         The linear shear building, or one with Bouc-Wen hysteretic storeys
-        (:mod:`seqbayes.structures.bouc_wen`; needs ``likelihood="enkf"``: the
+        (:mod:`seqbayes.structural.structures.bouc_wen`; needs ``likelihood="enkf"``: the
         exact Kalman likelihood does not apply. ``level=None``/``"auto"``: RK4
         transition, 4 sub-steps; an integer: the exponential integrator, 4
         sub-steps, with its linear part's matrices on a sparse grid of that
@@ -424,7 +167,7 @@ class SGEnMCMC:
         Resample-move: each particle's filter. ``"kalman"`` (default): the exact
         Kalman filter of the linear model. ``"enkf"``: a stochastic EnKF of
         ``enkf_members`` members per particle
-        (:class:`~seqbayes.filters.enkf.EnKFBank`), for models without an exact
+        (:class:`~seqbayes.structural.filters.enkf.EnKFBank`), for models without an exact
         filter: a random, biased likelihood estimate, carried by each particle
         (pseudo-marginal form: a candidate gets a fresh estimate from its own
         EnKF run over the history), so the target is the posterior under the
@@ -444,21 +187,19 @@ class SGEnMCMC:
         ``lower < 1 < upper``; default ``(0.25, 4)``.
     surrogate : {None, "auto"}
         ``"auto"``: choose the transition by measurement at this run's sizes
-        (:func:`seqbayes.surrogate.choose_transition`: the exact discretisation
+        (:func:`seqbayes.structural.surrogate.choose_transition`: the exact discretisation
         or a sparse grid for the linear building; RK4, the exponential
         integrator or its sparse-grid form for Bouc-Wen), overriding
         ``level``; the choice and its reason are in the result's
         ``surrogate``. Timing-dependent: pin the chosen ``level`` to repeat a
         run elsewhere. ``None`` (default): ``level`` decides.
     surrogate_options : dict, optional
-        Keyword arguments of :func:`~seqbayes.surrogate.choose_transition`
+        Keyword arguments of :func:`~seqbayes.structural.surrogate.choose_transition`
         (for Bouc-Wen ``probe``, the run's ground acceleration, is required).
     blas_threads : int or None
         BLAS threads while running (``threadpoolctl``; ``None``: no limit).
-        Default 1: the products here are batches of small matrices. Measured
-        on 4 storeys x 1,500 steps at load ~4.6 on 2 cores, paired: CPU
-        4.2 s with one thread against 4.6-5.2 s with OpenBLAS's default two,
-        the same wall time within noise (7.7-8.6 s).
+        Default 1: the products here are batches of small matrices, where a
+        second thread costs CPU and gains no wall time (docs/shake_table.md).
     shrinkage : float
         Paper: Liu-West ``a`` in (0, 1]; ``1`` disables the rejuvenation move.
         Default 0.5 (measured calibration; 0.95 is over-confident).
@@ -466,7 +207,7 @@ class SGEnMCMC:
         Paper: condition the EnKF moments on theta.
     centre : {"regression", "member"}
         Paper: centre of each member's predictive density (see
-        :func:`~seqbayes.filters.enkf.predictive_log_likelihood`).
+        :func:`~seqbayes.structural.filters.enkf.predictive_log_likelihood`).
     state_move : {"regression", "shift", "inherit"}
         Paper: state of a moved member: regenerated from the fitted ``E[X | theta]``
         at its new ``theta`` plus a residual drawn without replacement from
@@ -556,8 +297,6 @@ class SGEnMCMC:
                 raise ValueError(f"surrogate: expected None or 'auto', got {surrogate!r}")
             if transition is not None:
                 raise ValueError("surrogate: 'auto' chooses the transition; do not pass transition= as well")
-            from .surrogate import choose_transition
-
             options = dict(surrogate_options or {})
             if isinstance(building, BoucWenBuilding):
                 options.setdefault("enkf_members", enkf_members)
@@ -625,20 +364,6 @@ class SGEnMCMC:
         parameters = np.atleast_2d(np.asarray(parameters, float))
         return self.nominal_noise_std * np.exp(parameters[:, self.n_theta:])
 
-    # ----------------------------------------------------------------- the move
-    def _rejuvenate(self, theta, rng):
-        """Liu-West kernel move, reflected into the prior box."""
-        a = self.shrinkage
-        if a >= 1:
-            return theta
-        mean = theta.mean(axis=0)
-        cov = np.atleast_2d(np.cov(theta.T))
-        L = np.linalg.cholesky(cov + 1e-14 * np.eye(cov.shape[0]) * max(np.trace(cov), 1e-30))
-        new = a * theta + (1 - a) * mean + np.sqrt(1 - a * a) * rng.standard_normal(theta.shape) @ L.T
-        width = self.upper - self.lower
-        z = np.mod(new - self.lower, 2 * width)  # reflect into the box
-        return self.lower + np.where(z > width, 2 * width - z, z)
-
     def run(self, ground_acceleration: ArrayLike, measurements: ArrayLike, rng: int | np.random.Generator | None = None,
             progress: bool = False, initial_theta: ArrayLike | None = None) -> SGEnMCMCResult:
         """Identify ``theta`` on-line from ``measurements (T, p)`` under ``ground_acceleration (T,)``.
@@ -650,7 +375,8 @@ class SGEnMCMC:
         if self.sampler == "resample-move":
             return self._run_resample_move(ground_acceleration, measurements, rng, progress, initial_theta)
         with blas_limit(self.blas_threads):
-            return self._run_paper(ground_acceleration, measurements, rng, progress, initial_theta)
+            return run_ensemble(self, self._initial_theta(initial_theta, rng), ground_acceleration, measurements, rng,
+                                progress)
 
     def _initial_theta(self, initial_theta, rng):
         N, d = self.n_members, self.lower.size
@@ -660,102 +386,6 @@ class SGEnMCMC:
         if theta.shape != (N, d):
             raise ValueError(f"initial_theta: expected shape ({N}, {d}), got {theta.shape}")
         return theta
-
-    def _run_paper(self, ground_acceleration, measurements, rng, progress, initial_theta) -> SGEnMCMCResult:
-        import time
-
-        probe = self.transition(self.lower[None, :self.n_theta])
-        u, y = check_filter_inputs(probe, ground_acceleration, measurements)
-        T = u.size
-        N, d = self.n_members, self.lower.size
-        p = probe.H.shape[1]
-        R = measurement_covariance(self.measurement_noise, p)
-        chol_R = np.linalg.cholesky(R)
-        start = time.perf_counter()
-        theta = self._initial_theta(initial_theta, rng)
-        m = probe.A.shape[1]
-        X = np.zeros((N, m))
-        logw = np.zeros(N)
-        n = self.building.n_storeys
-        drift_op = np.eye(n) - np.eye(n, k=-1)
-        stats = _Histories(T, d, m, n, self.lower, self.upper)
-        evid = np.empty(T)
-        res_hist = np.zeros(T, bool)
-        noise_scale = np.concatenate([[self.process_noise_std], np.ones(p)])
-        half_log_2pi_p = 0.5 * p * _LOG_2PI
-        iterator = range(T)
-        if progress:
-            from tqdm import tqdm
-
-            iterator = tqdm(iterator, desc="SG-EnMCMC", unit="step")
-        stage = _Stage(self.transition(theta), theta, self.conditional)
-        for k in iterator:  # loop over time only
-            noise = rng.standard_normal((N, 1 + p)) * noise_scale  # process noise | observation perturbation
-            if k > 0:  # (1) forecast with the interpolated transition (Eq. 21), states and predictions at once
-                W = stage.forecast(X, u[k - 1], u[k], noise[:, 0])
-            else:
-                W = np.concatenate([X, np.einsum("npm,nm->np", stage.model.H, X)], axis=1)
-            X, Y = W[:, :m], W[:, m:]
-            # (2) forecast moments, conditional on theta (Eq. 21 / Eq. 9)
-            fitted_y, C_xy, C_yy = stage.moments(W, m)
-            S = C_yy + R
-            S_chol = np.linalg.cholesky(0.5 * (S + S.T))
-            S_chol_inv, _ = _lapack_trtri(S_chol, lower=1)
-            # (3) per-member EnKF predictive log-likelihood (Eq. 25)
-            centres = fitted_y if self.centre == "regression" else Y
-            z = (y[k] - centres) @ S_chol_inv.T
-            loglik = -0.5 * (z * z).sum(axis=1) - (np.log(np.diag(S_chol)).sum() + half_log_2pi_p)
-            if self.leverage_correction and self.centre == "regression" and stage.centred is not None:
-                # remove the expected extra misfit of an estimated fit (see module docstring):
-                # E|noise_i|^2_{S^-1} = h_i tr(S^-1 C_yy), h_i the leverage of member i; centred
-                # over members (a constant changes no weight and would bias the evidence)
-                loglik += 0.5 * stage.leverage_centred * np.sum((S_chol_inv @ C_yy) * S_chol_inv)
-            # weights (log domain) and the evidence increment log sum_i w_hat_i exp(l_i)
-            shift = logw.max()
-            w_prev = np.exp(logw - shift)
-            w_prev /= w_prev.sum()
-            top = loglik.max()
-            evid[k] = float(np.log(w_prev @ np.exp(loglik - top)) + top)
-            logw = logw + loglik
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
-            ess = float(1.0 / (w @ w))
-            # (5) state update, gain from the sample moments, perturbed observations (Eq. 22)
-            gain = C_xy @ (S_chol_inv.T @ S_chol_inv)  # K = C_xy S^-1
-            perturbed = y[k] + noise[:, 1:] @ chol_R.T
-            X = X + (perturbed - Y) @ gain.T
-            drifts = X[:, :n] @ drift_op.T
-            stats.record(k, w, ess, w @ X, w @ drifts, w @ drifts**2)
-            # (4) resample theta with its state (Eq. 28) and rejuvenate
-            if ess < self.ess_threshold * N:
-                stats.flush(stage.theta)
-                idx = resample(self.resampling, w, rng, N)
-                parent = theta[idx]
-                new_theta = self._rejuvenate(parent, rng)
-                if self.state_move == "regression":
-                    # states from the fitted E[X | theta] at the new theta plus residuals
-                    # drawn without replacement from all members (see module docstring)
-                    X = stage.regenerate(X, new_theta, rng.permutation(N))
-                elif self.state_move == "shift":  # move each inherited state along E[X | theta]
-                    X = X[idx] + (new_theta - parent) @ stage.slope(X)
-                else:
-                    X = X[idx]
-                theta = new_theta
-                stage = _Stage(self.transition(theta), theta, self.conditional)
-                logw = np.zeros(N)
-                res_hist[k] = True
-        stats.flush(stage.theta)
-        final_w = np.exp(normalise(logw))
-        idx = resample(self.resampling, final_w, rng, N)
-        elapsed = time.perf_counter() - start
-        return SGEnMCMCResult(
-            theta_mean=stats.mean, theta_var=stats.var, theta_mpv=stats.mpv, theta_quantiles=stats.quantiles,
-            ess=stats.ess, resampled=res_hist, log_evidence_increments=evid, state_mean=stats.state_mean,
-            drift_mean=stats.drift_mean, drift_std=stats.drift_std, final_theta=theta[idx],
-            final_log_weights=np.zeros(N), elapsed=elapsed,
-            names=tuple(f"theta_{j + 1}" for j in range(d)),
-            surrogate={} if self.surrogate_choice is None else self.surrogate_choice.as_dict())
-
 
     # ------------------------------------------------------------ resample-move
     def _run_resample_move(self, ground_acceleration, measurements, rng, progress,
@@ -784,7 +414,7 @@ class SGEnMCMC:
         self._online = _Online(
             rng=rng, R=R, probe=probe, theta=theta, bank=bank, mean=mean, cov=cov, past=np.zeros(N),
             logw=np.zeros(N), u=np.zeros(0), y=np.zeros((0, p)),
-            stats=_Histories(0, d, m, n, self.lower, self.upper), evid=np.zeros(0), resampled=np.zeros(0, bool),
+            stats=StageHistories(0, d, m, n, self.lower, self.upper), evid=np.zeros(0), resampled=np.zeros(0, bool),
             events=[], elapsed=0.0)
 
     def update(self, ground_acceleration: ArrayLike, measurements: ArrayLike,
@@ -792,8 +422,6 @@ class SGEnMCMC:
         """Process the next block of the record: ``measurements (n, p)`` under
         ``ground_acceleration (n,)``, continuing from the previous blocks (call
         :meth:`reset` first). Returns :meth:`result` (histories of all steps so far)."""
-        import time
-
         state = getattr(self, "_online", None)
         if state is None:
             raise ValueError("update: call reset() first (or run() for a whole record)")
@@ -820,36 +448,13 @@ class SGEnMCMC:
         """One step of the resample-move sampler (module docstring), in place on ``state``."""
         N = self.n_members
         n = self.building.n_storeys
-        u, y, rng, R = state.u, state.y, state.rng, state.R
-        target_ess = self.ess_threshold * N
+        u, y = state.u, state.y
         theta, past, logw, bank, mean, cov = state.theta, state.past, state.logw, state.bank, state.mean, state.cov
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
-        phi = 0.0
-        while phi < 1.0:  # tempering of step k's data: phi -> 1
-            new_phi = next_exponent(logw, inc, phi, target_ess)
-            delta = new_phi - phi
-            state.evid[k] += logsumexp(normalise(logw) + delta * inc)  # log sum_i W_i exp(delta l_i)
-            logw = logw + delta * inc
-            phi = new_phi
-            if phi >= 1.0:
-                break
-            # resample (Eq. 28) and move with MH targeting p(theta | y_{0:k-1}) p(y_k | ...)^phi
-            state.stats.flush(theta)
-            w = np.exp(normalise(logw))
-            fit_mean, fit_cov = _weighted_fit(theta, w)
-            idx = resample(self.resampling, w, rng, N)
-            theta, past, inc = theta[idx], past[idx], inc[idx]
-            mean, mean_k, cov_k = mean[idx], mean_k[idx], cov_k[idx]
-            theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
-                theta, past, inc, mean_k, cov_k, phi, k, u, y, R, fit_mean, fit_cov, rng)
-            frozen = bank.frozen is not None and moved_steady
-            bank = self._bank(theta, R, rng)
-            if frozen:  # every covariance (kept and moved) is in its steady state
-                bank = bank.freeze(cov_k)
-            logw = np.zeros(N)
-            state.resampled[k] = True
-            state.events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
+        logw, inc, (theta, past, mean_k, cov_k, bank), state.evid[k] = temper(
+            logw, inc, self.ess_threshold * N, partial(self._resample_move, state, k),
+            (theta, past, mean_k, cov_k, bank), state.evid[k])
         past = past + inc
         if bank.can_freeze and bank.frozen is None and k % 10 == 1 and not state.resampled[k]:  # steady test
             change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
@@ -860,8 +465,29 @@ class SGEnMCMC:
         state_mean, state_cov = bank.moments(mean_k, cov_k)
         drifts = state_mean[:, :n] @ drift_op.T
         drift_var = np.einsum("ij,njk,ik->ni", drift_op, state_cov[:, :n, :n], drift_op)
-        state.stats.record(k, w, float(1.0 / (w @ w)), w @ state_mean, w @ drifts, w @ (drifts**2 + drift_var))
+        state.stats.record(k, w, normalised_ess(w), w @ state_mean, w @ drifts, w @ (drifts**2 + drift_var))
         state.theta, state.past, state.logw, state.bank, state.mean, state.cov = theta, past, logw, bank, mean_k, cov_k
+
+    def _resample_move(self, state, k: int, logw, inc, phi: float, particles):
+        """Resample (Eq. 28) and move with Metropolis-Hastings targeting
+        ``p(theta | y_{0:k-1}) p(y_k | y_{0:k-1}, theta)^phi``: the ``resample_move`` of
+        :func:`~seqbayes.tempering.temper`, recording the event on ``state``."""
+        theta, past, mean_k, cov_k, bank = particles
+        N, R, rng = self.n_members, state.R, state.rng
+        state.stats.flush(theta)
+        w = np.exp(normalise(logw))
+        fit_mean, fit_cov = _weighted_fit(theta, w)
+        idx = resample(self.resampling, w, rng, N)
+        theta, past, inc, mean_k, cov_k = theta[idx], past[idx], inc[idx], mean_k[idx], cov_k[idx]
+        theta, past, inc, mean_k, cov_k, acceptance, moved_steady = self._move(
+            theta, past, inc, mean_k, cov_k, phi, k, state.u, state.y, R, fit_mean, fit_cov, rng)
+        frozen = bank.frozen is not None and moved_steady
+        bank = self._bank(theta, R, rng)
+        if frozen:  # every covariance (kept and moved) is in its steady state
+            bank = bank.freeze(cov_k)
+        state.resampled[k] = True
+        state.events.append((k, phi, float(np.mean(acceptance)), len(acceptance)))
+        return inc, (theta, past, mean_k, cov_k, bank)
 
     _HISTORY_ARRAYS = ("mean", "var", "mpv", "quantiles", "ess", "state_mean", "drift_mean", "drift_std")
 
@@ -918,7 +544,7 @@ class SGEnMCMC:
         bank = self._bank(theta, R, rng)
         if bool(snapshot["frozen"]):
             bank = bank.freeze(cov)
-        stats = _Histories(0, self.lower.size, m, self.building.n_storeys, self.lower, self.upper)
+        stats = StageHistories(0, self.lower.size, m, self.building.n_storeys, self.lower, self.upper)
         for name in self._HISTORY_ARRAYS:
             setattr(stats, name, np.array(snapshot[f"history_{name}"], float))
         stats.steps = [int(k) for k in snapshot["buffer_steps"]]
@@ -1068,54 +694,6 @@ def _weighted_fit(theta, w):
     return mean, np.atleast_2d(cov)
 
 
-class _Stage:
-    """Everything fixed between two resamplings: the members' ``theta``, their
-    transition and observation matrices stacked so one product gives the forecast
-    states and predictions ``[X, Y]``, and the projection onto ``span(1, theta)``
-    (factorised once, so a step needs no LAPACK call)."""
-
-    def __init__(self, model: DiscreteModel, theta, conditional: bool):
-        self.model, self.theta = model, theta
-        H = model.H
-        self.stacked_A = np.concatenate([model.A, H @ model.A], axis=1)  # (N, m + p, m)
-        self.stacked_B0 = np.concatenate([model.B0, np.einsum("npm,nm->np", H, model.B0)], axis=1)
-        self.stacked_B1 = np.concatenate([model.B1, np.einsum("npm,nm->np", H, model.B1)], axis=1)
-        self.stacked_b = self.stacked_B0 + self.stacked_B1  # noise input b = B0 + B1
-        N = theta.shape[0]
-        if conditional:
-            self.theta_mean = theta.mean(axis=0)
-            self.centred = theta - self.theta_mean
-            self.basis, _ = np.linalg.qr(np.column_stack([np.ones(N), self.centred]))
-        else:
-            self.centred = None
-            self.basis = np.full((N, 1), 1 / np.sqrt(N))
-        self.dof = N - self.basis.shape[1]  # N - 1 - q
-        leverage = np.einsum("nq,nq->n", self.basis, self.basis)  # diagonal of the hat matrix
-        self.leverage_centred = leverage - leverage.mean()
-
-    def forecast(self, X, u_now, u_next, eta):
-        """``[X', H X']`` with ``X' = A X + B0 u_now + B1 u_next + b eta`` (Eq. 21)."""
-        return (np.einsum("nij,nj->ni", self.stacked_A, X) + self.stacked_B0 * u_now
-                + self.stacked_B1 * u_next + self.stacked_b * eta[:, None])
-
-    def moments(self, W, m: int):
-        """Fitted ``Y (N, p)``, ``C_xy (m, p)``, ``C_yy (p, p)`` of ``W = [X, Y]`` given theta (Eq. 9)."""
-        fitted = self.basis @ (self.basis.T @ W)
-        E = W - fitted
-        C = E.T @ E / self.dof
-        return fitted[:, m:], C[:m, m:], C[m:, m:]
-
-    def slope(self, X):
-        """Least-squares slope ``(d, m)`` of ``X`` on ``theta``."""
-        beta, *_ = np.linalg.lstsq(self.centred, X - X.mean(axis=0), rcond=None)
-        return beta
-
-    def regenerate(self, X, new_theta, order):
-        """``mean(X) + slope^T (theta_new - mean(theta)) + residual[order]``."""
-        residual = X - self.basis @ (self.basis.T @ X)
-        return X.mean(axis=0) + (new_theta - self.theta_mean) @ self.slope(X) + residual[order]
-
-
 @dataclass
 class _Online:
     """Mutable state of an on-line resample-move identification (held by
@@ -1134,88 +712,12 @@ class _Online:
     logw: np.ndarray
     u: np.ndarray
     y: np.ndarray
-    stats: "_Histories"
+    stats: StageHistories
     evid: np.ndarray
     resampled: np.ndarray
     events: list
     elapsed: float
 
-
-class _Histories:
-    """Per-step summaries. Weights are buffered over a stage (fixed members) and
-    the weighted mean, variance, quantiles and MPV of all its steps are computed
-    at once when the stage ends (one sort per stage)."""
-
-    def __init__(self, T, d, m, n, lower, upper, bins: int = 60):
-        self.mean, self.var, self.mpv = np.empty((T, d)), np.empty((T, d)), np.empty((T, d))
-        self.quantiles = np.empty((T, 3, d))
-        self.ess = np.empty(T)
-        self.state_mean, self.drift_mean, self.drift_std = np.empty((T, m)), np.empty((T, n)), np.empty((T, n))
-        self.lower, self.upper, self.bins = lower, upper, bins
-        self.steps, self.weights = [], []
-
-    def extend(self, steps: int) -> None:
-        """Room for ``steps`` more steps (on-line use)."""
-        for name in ("mean", "var", "mpv", "quantiles", "ess", "state_mean", "drift_mean", "drift_std"):
-            old = getattr(self, name)
-            setattr(self, name, np.concatenate([old, np.empty((steps,) + old.shape[1:])]))
-
-    def record(self, k, w, ess, state_mean, drift_mean, drift_second_moment):
-        self.steps.append(k)
-        self.weights.append(w)
-        self.ess[k], self.state_mean[k], self.drift_mean[k] = ess, state_mean, drift_mean
-        self.drift_std[k] = np.sqrt(np.maximum(drift_second_moment - drift_mean**2, 0))
-
-    def flush(self, theta):
-        if not self.steps:
-            return
-        steps, W = np.array(self.steps), np.array(self.weights)  # (L,), (L, N)
-        # einsum, not W @ theta: BLAS blocks by the number of rows L, and the same step must give the
-        # same bits however the steps were grouped (on-line updates are bit-identical to one run)
-        mean = np.einsum("ln,nd->ld", W, theta)
-        self.mean[steps] = mean
-        self.var[steps] = np.maximum(np.einsum("ln,nd->ld", W, theta**2) - mean**2, 0)
-        q = stage_quantiles(theta, W, [0.01, 0.025, 0.5, 0.975, 0.99])  # (L, 5, d)
-        self.quantiles[steps] = q[:, 1:4]
-        self.mpv[steps] = stage_modes(theta, W, self.lower, self.upper, q[:, 0], q[:, 4], self.bins)
-        self.steps, self.weights = [], []
-
-
-def stage_quantiles(samples, weights, probs) -> np.ndarray:
-    """Weighted quantiles of fixed ``samples (N, d)`` under many weight vectors
-    ``(L, N)``: ``(L, len(probs), d)``, the same midpoint rule as
-    :func:`weighted_quantiles` (linear interpolation of the sorted values at the
-    mid-cumulative weights, clamped at the ends)."""
-    probs = np.asarray(probs, float)
-    L, N = weights.shape
-    out = np.empty((L, probs.size, samples.shape[1]))
-    rows = np.arange(L)[:, None]
-    for j in range(samples.shape[1]):  # loop over parameters (d)
-        order = np.argsort(samples[:, j])
-        xs = samples[order, j]
-        ws = weights[:, order]
-        cw = np.cumsum(ws, axis=1)
-        cw = (cw - 0.5 * ws) / cw[:, -1:]
-        hi = np.clip((cw[:, None, :] < probs[None, :, None]).sum(axis=2), 1, N - 1)  # (L, P)
-        c0, c1 = cw[rows, hi - 1], cw[rows, hi]
-        frac = np.clip((probs[None, :] - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.0, 1.0)
-        out[:, :, j] = xs[hi - 1] + frac * (xs[hi] - xs[hi - 1])
-    return out
-
-
-def stage_modes(samples, weights, lower, upper, lo, hi, bins: int = 60) -> np.ndarray:
-    """MPV of fixed ``samples (N, d)`` under weights ``(L, N)``: :func:`weighted_mode`
-    for every row at once, with per-row histogram ranges ``lo, hi (L, d)``."""
-    L, N = weights.shape
-    d = samples.shape[1]
-    lo = np.maximum(lo, lower)
-    hi = np.maximum(np.minimum(hi, upper), lo + 1e-12)
-    b = np.clip(((samples[None] - lo[:, None]) / (hi - lo)[:, None] * bins).astype(np.int64), 0, bins - 1)
-    flat = b + bins * (np.arange(d) + d * np.arange(L)[:, None])[:, None, :]  # (L, N, d)
-    counts = np.bincount(flat.ravel(), weights=np.repeat(weights.ravel(), d),
-                         minlength=L * d * bins).reshape(L, d, bins)
-    i = np.argmax(counts, axis=2)
-    return lo + (i + 0.5) * (hi - lo) / bins
 
 import typing as _typing  # noqa: E402
 

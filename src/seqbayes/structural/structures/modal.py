@@ -1,9 +1,9 @@
 """Modal results from posterior samples of the stiffness ratios: natural
 frequencies, damping ratios and mode shapes of the shear building, with the
-modal assurance criterion (MAC) against identified mode shapes (issue 12, item 4).
+modal assurance criterion (MAC) against identified mode shapes.
 
 For each sample ``theta_s`` the undamped modes solve ``K(theta_s) phi = w^2 M phi``
-(:meth:`~seqbayes.structures.ShearBuilding.modes`); the damping ratios follow
+(:meth:`~seqbayes.structural.structures.ShearBuilding.modes`); the damping ratios follow
 from the Rayleigh damping, ``zeta = a0 / (2 w) + a1 w / 2``. Shapes are scaled
 to unit Euclidean norm and their signs aligned with the shape at the posterior
 mean before averaging.

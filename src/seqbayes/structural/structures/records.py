@@ -1,6 +1,6 @@
 """Multichannel response records from measurements: CSV and HDF5 loaders with
 units and sampling rate, baseline correction, band-pass filtering and
-decimation (issue 12, item 4: the path from a shake-table or monitoring record
+decimation (the path from a shake-table or monitoring record
 to the identifiers).
 
 A :class:`ResponseRecord` holds ``T`` samples of ``c`` named channels in SI

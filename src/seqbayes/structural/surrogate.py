@@ -1,5 +1,5 @@
 """Choose by measurement between the exact transition and a sparse-grid surrogate
-(issue 12 item 3: "a surrogate that pays").
+(one that pays for itself at the run's sizes).
 
 Lin et al. (2024, Eq. 18) interpolate the state recursion over the stiffness
 ratios ``theta`` on a sparse grid so that a batch of members needs no
@@ -7,21 +7,20 @@ per-member discretisation. Whether that pays depends on the model and the
 run's sizes, so :func:`choose_transition` measures it on the machine, at the
 run's sizes, and keeps the cheaper candidate among those accurate enough:
 
-* **Linear shear building** (:class:`~seqbayes.structures.ShearBuilding`):
+* **Linear shear building** (:class:`~seqbayes.structural.structures.ShearBuilding`):
   the candidates are the exact discretisation (one batched matrix exponential
-  per call, :class:`~seqbayes.sgenmcmc.ExactTransition`) and sparse grids of
-  increasing level (:class:`~seqbayes.sgenmcmc.SparseGridTransition`). A
+  per call, :class:`~seqbayes.structural.transitions.ExactTransition`) and sparse grids of
+  increasing level (:class:`~seqbayes.structural.transitions.SparseGridTransition`). A
   grid's accuracy is the largest relative error of its ``A, B0, B1`` (each
   block relative to its largest entry) at ``n_test`` random ``theta`` of the
-  box (default ``tol`` 3e-6, which keeps a 500-step log-likelihood within
-  ~0.03 nats); the lowest level within ``tol`` is the grid candidate (levels whose
+  box (default ``tol`` 3e-6, which keeps the log-likelihood of a long record
+  accurate); the lowest level within ``tol`` is the grid candidate (levels whose
   grid would exceed ``max_points`` points are skipped). Cost of a run:
   exact ``rows * t_exact``; grid ``t_build + rows * t_interp``, with ``t`` per
   row measured on a batch of ``n_members`` rows (least of ``repeats``) and
-  ``rows = expected_rows`` (default ``50 * n_members``: the resample-move
-  sampler evaluated 27 and 63 rows per particle on a 3-storey 500-step and a
-  4-storey 1,500-step run).
-* **Bouc-Wen building** (:class:`~seqbayes.structures.bouc_wen.BoucWenBuilding`):
+  ``rows = expected_rows`` (default ``50 * n_members``, about what the
+  resample-move sampler evaluates on a 3-4 storey record; docs/benchmarks.md).
+* **Bouc-Wen building** (:class:`~seqbayes.structural.structures.bouc_wen.BoucWenBuilding`):
   every step of every ensemble member needs an integration, so the cost is
   per step: the candidates are RK4 with the fewest sub-steps (of
   ``rk4_substeps``, at most ``substeps``) within ``tol``,
@@ -52,6 +51,7 @@ import numpy as np
 from . import sparsegrid
 from .structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
 from .structures.shear_building import ShearBuilding, discretise
+from .transitions import ExactTransition, SparseGridTransition
 
 __all__ = ["SurrogateChoice", "choose_transition", "DEFAULT_ROWS_PER_PARTICLE"]
 
@@ -133,11 +133,10 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
     channels : str or Sensors
     tol : float, optional
         Accuracy required: relative matrix error for the linear building
-        (default ``3e-6``: measured on 2-4 storeys, the Kalman log-likelihood
-        of a 500-step record near the posterior moves by ~1e4 x the matrix
-        error -- 0.5 nats at level 4 (5e-5), 0.03 at level 6 (3e-6) -- and
-        the error grows with the record), relative response error for
-        Bouc-Wen (default ``1e-2``).
+        (default ``3e-6``: the log-likelihood error grows with the matrix
+        error and the record; 3e-6 keeps it to a few hundredths of a nat per
+        500 steps, docs/benchmarks.md), relative response error for Bouc-Wen
+        (default ``1e-2``).
     levels : sequence of int
         Grid levels tried, lowest first.
     max_points : int
@@ -192,8 +191,6 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
 
 def _choose_linear(building, dt, lower, upper, n_members, channels, tol, levels, max_points, expected_rows,
                    repeats, n_test, rng):
-    from .sgenmcmc import ExactTransition, SparseGridTransition
-
     d, m = building.n_storeys, building.state_dim
     rows = DEFAULT_ROWS_PER_PARTICLE * n_members if expected_rows is None else int(expected_rows)
     batch = lower + (upper - lower) * rng.random((n_members, d))

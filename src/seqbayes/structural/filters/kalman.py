@@ -97,7 +97,7 @@ def kalman_filter(model: DiscreteModel, ground_acceleration: ArrayLike, measurem
     Parameters
     ----------
     model : DiscreteModel
-        ``N`` members (e.g. :func:`~seqbayes.structures.discretise` at ``N`` thetas).
+        ``N`` members (e.g. :func:`~seqbayes.structural.structures.discretise` at ``N`` thetas).
     ground_acceleration : (T,) array
     measurements : (T, p) array
         ``y_k`` for ``k = 0..T-1``.

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rng import as_generator
+from ...rng import as_generator
 from ..structures.shear_building import DiscreteModel
 from .kalman import check_filter_inputs, measurement_covariance
 
@@ -207,7 +207,7 @@ def enkf_filter(model: DiscreteModel, ground_acceleration: ArrayLike, measuremen
                 P0: ArrayLike | None = None, rng: int | np.random.Generator | None = None) -> EnKFResult:
     """Stochastic EnKF for one linear model (a ``DiscreteModel`` with one member).
 
-    Same model and conventions as :func:`seqbayes.filters.kalman.kalman_filter`;
+    Same model and conventions as :func:`seqbayes.structural.filters.kalman.kalman_filter`;
     ``X_0 ~ N(x0, P0)`` (default exactly at rest).
     """
     if model.A.shape[0] != 1:
@@ -241,7 +241,7 @@ class EnKFBank:
     """``N`` stochastic ensemble Kalman filters of ``M`` members each, advanced
     together one step at a time (no loop over filters or members): the
     on-line EnKF likelihood of a particle filter over parameters, the
-    counterpart of :class:`~seqbayes.filters.kalman.KalmanBank` for models
+    counterpart of :class:`~seqbayes.structural.filters.kalman.KalmanBank` for models
     where an exact filter is not available.
 
     The state of the bank is the ensembles ``X (N, M, m)`` and their sample
@@ -251,7 +251,7 @@ class EnKFBank:
     perturbed-observation update with ``K_i = C_xy,i (C_yy,i + R)^-1``
     (Eq. 22). A model with a ``propagate(X, u_prev, u_now, eta)`` method (a
     nonlinear transition such as
-    :class:`~seqbayes.structures.bouc_wen.BoucWenModel`) forecasts its own
+    :class:`~seqbayes.structural.structures.bouc_wen.BoucWenModel`) forecasts its own
     ensembles; otherwise the linear matrices ``A, B0, B1`` are used. The increment is a random, biased estimate of the exact
     ``log p(y_k | y_{0:k-1}, theta_i)``; for a linear model it converges to
     the Kalman filter's as ``M`` grows.

@@ -14,7 +14,7 @@ Euler step of Eq. 3). ``A_c(theta)`` and ``H(theta)`` are affine in ``theta``
 a step builds the augmented FOH matrix ``Phi = [[A_c dt, b_c dt, 0], [0, 0, 1],
 [0, 0, 0]]`` from them and takes one exponential with its exact derivatives
 along ``E_j = dPhi/dtheta_j`` (the first block row of ``expm([[Phi, E], [0,
-Phi]])``, Van Loan 1978; :func:`~seqbayes.structures.shear_building.expm_and_derivatives`)
+Phi]])``, Van Loan 1978; :func:`~seqbayes.structural.structures.shear_building.expm_and_derivatives`)
 -- the Jacobian with respect to ``theta`` without finite differences and
 without re-discretising the building ``2d + 1`` times per step (the previous
 version: ~3 ms a step for 4 storeys). The observation is bilinear, so its
@@ -28,9 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..structures.shear_building import Sensors, ShearBuilding, batched_expm, expm_and_derivatives
+from ..summaries import convergence_step
 from .kalman import measurement_covariance
 
-__all__ = ["AugmentedModel", "JointFilterResult", "ekf"]
+__all__ = ["AugmentedModel", "JointFilterResult", "ekf", "joint_initial_state", "check_joint_inputs", "drift_moments"]
 
 _LOG_2PI = np.log(2 * np.pi)
 
@@ -63,9 +64,7 @@ class JointFilterResult:
     elapsed: float
 
     def convergence_step(self, truth: ArrayLike, tol: float = 0.01) -> np.ndarray:
-        from ..sgenmcmc import _convergence_step
-
-        return _convergence_step(self.theta_mean, truth, tol)
+        return convergence_step(self.theta_mean, truth, tol)
 
 
 class AugmentedModel:
@@ -80,7 +79,7 @@ class AugmentedModel:
     theta_walk_std : float
         Std of the random-walk step of ``theta`` per time step.
     channels : str or Sensors
-        ``"absolute_acceleration"``, ``"drift"`` or a sensor layout (:class:`~seqbayes.structures.Sensors`).
+        ``"absolute_acceleration"``, ``"drift"`` or a sensor layout (:class:`~seqbayes.structural.structures.Sensors`).
     fd_step : float
         Unused (the ``theta`` Jacobian is now exact); kept for compatibility.
     theta_floor : float
@@ -182,7 +181,9 @@ class AugmentedModel:
         return H @ z[:m], J
 
 
-def _initial(model: AugmentedModel, theta0, theta0_var):
+def joint_initial_state(model: AugmentedModel, theta0, theta0_var):
+    """The joint state at rest: mean ``z = [0 (m,), theta0]`` and covariance ``P (m + d, m + d)``
+    with ``theta0_var`` on the parameters' diagonal."""
     d, m = model.d, model.m
     theta0 = np.broadcast_to(np.asarray(theta0, float), (d,))
     var = np.broadcast_to(np.asarray(theta0_var, float), (d,))
@@ -192,7 +193,8 @@ def _initial(model: AugmentedModel, theta0, theta0_var):
     return z, P
 
 
-def _check_inputs(model, u, y):
+def check_joint_inputs(model: AugmentedModel, u, y):
+    """``ground_acceleration (T,)`` and ``measurements (T, p)`` as finite float arrays of matching shapes."""
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     if u.ndim != 1 or not np.all(np.isfinite(u)):
@@ -205,7 +207,7 @@ def _check_inputs(model, u, y):
     return u, y
 
 
-def _summaries(z, P, m, n):
+def drift_moments(z, P, n):
     drift_op = np.eye(n) - np.eye(n, k=-1)
     drift = drift_op @ z[:n]
     drift_var = np.einsum("ij,jk,ik->i", drift_op, P[:n, :n], drift_op)
@@ -228,10 +230,10 @@ def ekf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: Arr
     import time
 
     start = time.perf_counter()
-    u, y = _check_inputs(model, ground_acceleration, measurements)
+    u, y = check_joint_inputs(model, ground_acceleration, measurements)
     m, d, n = model.m, model.d, model.n
     R = measurement_covariance(measurement_noise, y.shape[1])
-    z, P = _initial(model, theta0, theta0_var)
+    z, P = joint_initial_state(model, theta0, theta0_var)
     T = u.size
     th_mean, th_var = np.empty((T, d)), np.empty((T, d))
     x_mean, dr_mean, dr_std = np.empty((T, m)), np.empty((T, n)), np.empty((T, n))
@@ -252,7 +254,7 @@ def ekf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: Arr
         P = IKH @ P @ IKH.T + gain @ R @ gain.T  # Joseph form
         th_mean[k], th_var[k] = z[m:], np.diag(P)[m:]
         x_mean[k] = z[:m]
-        dr_mean[k], dr_std[k] = _summaries(z, P, m, n)
+        dr_mean[k], dr_std[k] = drift_moments(z, P, n)
     return JointFilterResult(th_mean, th_var, x_mean, dr_mean, dr_std, float(loglik), P,
                              time.perf_counter() - start)
 

@@ -19,10 +19,10 @@ elastic storey stiffness ``theta_i k_i^u``. Floor equations::
 State ``X = [x, x', z]`` (length ``3n``). Measured channels are linear in
 ``X``: floor absolute accelerations ``x'' + a_g = -M^-1 (C x' + D^T r)``
 and drifts ``D x``. With ``alpha = 1`` the model is the linear
-:class:`~seqbayes.structures.ShearBuilding` (``z`` has no effect).
+:class:`~seqbayes.structural.structures.ShearBuilding` (``z`` has no effect).
 
 Two transitions over a sampling step ``dt`` (ground acceleration linear
-between samples, first-order hold, as :func:`~seqbayes.structures.discretise`;
+between samples, first-order hold, as :func:`~seqbayes.structural.structures.discretise`;
 process noise a constant extra ground acceleration over the step, as there):
 
 * :class:`BoucWenRK4` (``integrator="rk4"``): classical 4th-order Runge-Kutta
@@ -49,9 +49,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...rng import as_generator
 from .. import sparsegrid
-from ..rng import as_generator
-from .shear_building import Sensors, ShearBuilding, _as_theta, _check_dt, batched_expm, sensor_rows
+from .shear_building import Sensors, ShearBuilding, batched_expm, check_dt, check_theta, sensor_rows
 
 __all__ = ["BoucWenBuilding", "BoucWenModel", "BoucWenRK4", "BoucWenExponential", "bouc_wen_transition",
            "simulate_bouc_wen", "INTEGRATORS"]
@@ -246,7 +246,7 @@ class BoucWenBuilding:
         """``H (N, p, 3n)`` of the channels (linear in ``X = [x, x', z]``):
         ``"absolute_acceleration"``, ``"drift"`` or a :class:`Sensors` layout."""
         n = self.n_storeys
-        theta = _as_theta(theta, n)
+        theta = check_theta(theta, n)
         if isinstance(channels, Sensors):
             return sensor_rows(self.observation_matrix, theta, channels, n)
         D = self.drift_operator
@@ -272,7 +272,7 @@ class BoucWenBuilding:
         """Continuous ``A_c (N, 2n, 2n)``, ``B_c (N, 2n, 1 + n)`` of
         ``s' = A_c s + B_c [a_g, z]`` for ``s = [x, x']``."""
         n = self.n_storeys
-        theta = _as_theta(theta, n)
+        theta = check_theta(theta, n)
         N = theta.shape[0]
         C = self.linear.damping_matrix(theta)
         D = self.drift_operator
@@ -291,8 +291,8 @@ class BoucWenBuilding:
         """FOH matrices of the linear part, flattened ``(N, 2n*2n + 2 * 2n*(1+n))``:
         ``A``, ``G0``, ``G1`` of ``s_{k+1} = A s_k + G0 w_k + G1 w_{k+1}`` (one
         batched matrix exponential of the augmented matrix, as
-        :func:`~seqbayes.structures.discretise`)."""
-        dt = _check_dt(dt)
+        :func:`~seqbayes.structural.structures.discretise`)."""
+        dt = check_dt(dt)
         Ac, Bc = self.linear_part(theta)
         N, s = Ac.shape[:2]
         q = Bc.shape[2]
@@ -310,7 +310,7 @@ class BoucWenBuilding:
 class BoucWenModel:
     """The Bouc-Wen transition of ``N`` parameter vectors over one sampling step:
     what the filters need (duck-typed with
-    :class:`~seqbayes.structures.DiscreteModel` for ``H``, ``dt`` and ``take``).
+    :class:`~seqbayes.structural.structures.DiscreteModel` for ``H``, ``dt`` and ``take``).
 
     Attributes
     ----------
@@ -365,10 +365,10 @@ class BoucWenRK4:
                  channels="absolute_acceleration"):
         if not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps: expected an integer >= 1, got {substeps!r}")
-        self.building, self.dt, self.substeps, self.channels = building, _check_dt(dt), int(substeps), channels
+        self.building, self.dt, self.substeps, self.channels = building, check_dt(dt), int(substeps), channels
 
     def __call__(self, theta) -> BoucWenModel:
-        theta = _as_theta(theta, self.building.n_storeys)
+        theta = check_theta(theta, self.building.n_storeys)
         return BoucWenModel(theta, self.building.observation_matrix(theta, self.channels), self.dt, self)
 
     def propagate(self, model: BoucWenModel, X, u_prev, u_now, eta=None):
@@ -403,7 +403,7 @@ class BoucWenExponential:
     def __init__(self, building: BoucWenBuilding, dt: float, level: int | None = None, lower=None, upper=None,
                  z_substeps: int = 1, channels="absolute_acceleration", basis: str = "modified",
                  substeps: int = 1, corrections: int = 0):
-        self.building, self.dt, self.channels = building, _check_dt(dt), channels
+        self.building, self.dt, self.channels = building, check_dt(dt), channels
         if not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps: expected an integer >= 1, got {substeps!r}")
         if not isinstance(corrections, (int, np.integer)) or corrections < 0:
@@ -435,7 +435,7 @@ class BoucWenExponential:
         return self.interpolant(theta)
 
     def __call__(self, theta) -> BoucWenModel:
-        theta = _as_theta(theta, self.building.n_storeys)
+        theta = check_theta(theta, self.building.n_storeys)
         return BoucWenModel(theta, self.building.observation_matrix(theta, self.channels), self.dt, self,
                             self.matrices(theta))
 
@@ -513,10 +513,9 @@ def bouc_wen_transition(building: BoucWenBuilding, dt: float, integrator: str = 
                         channels="absolute_acceleration"):
     """The transition of ``building`` at step ``dt``: :class:`BoucWenRK4` or
     :class:`BoucWenExponential` (exact matrices, or a sparse grid of ``level``),
-    each with ``substeps`` sub-steps per sample (default 4: measured response
-    errors at 2.3-2.5x the yield drift, 50 Hz, against RK4 with 32 sub-steps:
-    RK4 7-9e-4, exponential 3-4e-3; with 1 sub-step the exponential's is
-    6-9e-2, docs/benchmarks.md section surrogate)."""
+    each with ``substeps`` sub-steps per sample (default 4: one sub-step is
+    too coarse for the exponential integrator beyond yield; errors in
+    docs/benchmarks.md, section surrogate)."""
     if integrator == "rk4":
         if level is not None:
             raise ValueError("level: the RK4 transition has no sparse grid (use integrator='exponential')")

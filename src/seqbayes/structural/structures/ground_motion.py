@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..rng import as_generator
+from ...rng import as_generator
 
 __all__ = [
     "G",

@@ -1,7 +1,7 @@
 """Augmented-state unscented Kalman filter for joint state and stiffness
 estimation (mentioned by Lin et al. 2024 as the other classical baseline).
 
-Same augmented model as :mod:`seqbayes.filters.ekf`; the ``2(m+d)+1`` sigma
+Same augmented model as :mod:`seqbayes.structural.filters.ekf`; the ``2(m+d)+1`` sigma
 points (scaled unscented transform, Wan and van der Merwe) are propagated
 through the exact discretisation at their own ``theta`` in one batched call
 per step, with no loop over sigma points.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ekf import AugmentedModel, JointFilterResult, _check_inputs, _initial, _summaries
+from .ekf import AugmentedModel, JointFilterResult, check_joint_inputs, drift_moments, joint_initial_state
 from .kalman import measurement_covariance
 
 __all__ = ["ukf", "sigma_points"]
@@ -49,14 +49,14 @@ def _psd(P):
 def ukf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: ArrayLike, measurement_noise: ArrayLike,
         theta0: ArrayLike = 0.85, theta0_var: ArrayLike = 0.3**2 / 12, alpha: float = 1.0, beta: float = 2.0,
         kappa: float = 0.0) -> JointFilterResult:
-    """Run the augmented-state UKF from rest (arguments as :func:`~seqbayes.filters.ekf.ekf`)."""
+    """Run the augmented-state UKF from rest (arguments as :func:`~seqbayes.structural.filters.ekf.ekf`)."""
     import time
 
     start = time.perf_counter()
-    u, y = _check_inputs(model, ground_acceleration, measurements)
+    u, y = check_joint_inputs(model, ground_acceleration, measurements)
     m, d, n = model.m, model.d, model.n
     R = measurement_covariance(measurement_noise, y.shape[1])
-    z, P = _initial(model, theta0, theta0_var)
+    z, P = joint_initial_state(model, theta0, theta0_var)
     P[:m, :m] = 1e-16 * np.eye(m)  # at rest, but keep the Cholesky defined
     T = u.size
     th_mean, th_var = np.empty((T, d)), np.empty((T, d))
@@ -84,7 +84,7 @@ def ukf(model: AugmentedModel, ground_acceleration: ArrayLike, measurements: Arr
         P = _psd(P - gain @ S @ gain.T)
         th_mean[k], th_var[k] = z[m:], np.diag(P)[m:]
         x_mean[k] = z[:m]
-        dr_mean[k], dr_std[k] = _summaries(z, P, m, n)
+        dr_mean[k], dr_std[k] = drift_moments(z, P, n)
     return JointFilterResult(th_mean, th_var, x_mean, dr_mean, dr_std, float(loglik), P,
                              time.perf_counter() - start)
 
