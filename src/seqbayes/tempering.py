@@ -1,4 +1,5 @@
-"""Adaptive tempering: the next exponent from the effective sample size, and the BLAS thread limit.
+"""Adaptive tempering: the next exponent from the effective sample size, one tempered reweighting
+loop, and the BLAS thread limit.
 
 Every tempered sampler in the package (SMC / SEMC steps, SMC^2's guide, SG-EnMCMC's resampling and
 the stiffness-drop monitor) chooses its next exponent here, so that one ESS rule and one bisection
@@ -13,7 +14,9 @@ import contextlib
 
 import numpy as np
 
-__all__ = ["tempered_ess", "bisect_increment", "next_increment", "next_exponent", "blas_limit"]
+from .weights import logsumexp, normalise
+
+__all__ = ["tempered_ess", "bisect_increment", "next_increment", "next_exponent", "temper", "normalised_ess", "blas_limit"]
 
 
 def tempered_ess(log_weights: np.ndarray, increments: np.ndarray, delta: float) -> float:
@@ -109,10 +112,6 @@ def blas_limit(n_threads: int | None):
 
         _THREADPOOLS.append(ThreadpoolController())
     return _THREADPOOLS[0].limit(limits=int(n_threads), user_api="blas")
-
-
-# ------------------------------------------------------------------ one tempered reweighting
-from .weights import logsumexp, normalise  # noqa: E402
 
 
 def normalised_ess(weights: np.ndarray) -> float:
