@@ -38,8 +38,8 @@ from _user_model import decay_tables, write_config, write_model  # noqa: E402
 from test_kill_resume import assert_prefix_of_reference, fork_cli, wait  # noqa: E402
 
 from seqbayes import cli  # noqa: E402
-from seqbayes.config import load_config  # noqa: E402
-from seqbayes.store import RunStore, _read_journal  # noqa: E402
+from seqbayes.store.config import load_config  # noqa: E402
+from seqbayes.store.smc import RunStore, _read_journal  # noqa: E402
 
 
 def setup(folder: Path, n_steps: int) -> RunStore:

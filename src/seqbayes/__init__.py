@@ -19,9 +19,7 @@ from .selection import ModelComparison, compare
 from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
                          ZeroLikelihoodError, assimilate)
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
-from .config import load_config
-from .store import RunStore, posterior_to_arviz
-from .sgstore import SGRunStore
+from .store import RunStore, SGRunStore, load_config, posterior_to_arviz
 
 __version__ = "0.1.0"
 __all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",

@@ -1,9 +1,9 @@
 """The ``seqbayes`` command line: on-line monitoring of one's own model, and the papers' studies.
 
-Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
+Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store.smc`)::
 
-    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.config; a [building]
-                                              # section: an SG-EnMCMC run of a shear building, seqbayes.sgstore)
+    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.store.config; a [building]
+                                              # section: an SG-EnMCMC run of a shear building, seqbayes.store.sg)
     seqbayes update RUN.nc DATA.csv [...]     # assimilate datasets (CSV or NetCDF), one step each
     seqbayes status RUN.nc                    # per step: mean, sd, credible interval, acceptance, ESS, evidence
     seqbayes predict RUN.nc --steps K         # forecast K steps ahead through the Markov kernel
@@ -116,12 +116,12 @@ class _CountingLikelihood:
 
 # --------------------------------------------------------------------- commands
 def cmd_init(args: argparse.Namespace) -> int:
-    from .config import load_config
-    from .store import RunStore
+    from .store.config import load_config
+    from .store.smc import RunStore
 
     config = load_config(args.config)
     if getattr(config, "kind", None) == "sgenmcmc":
-        from .sgstore import SGRunStore
+        from .store.sg import SGRunStore
 
         store = SGRunStore.create(args.run, config, overwrite=args.force)
         sensors = ", ".join([f"acceleration {f}" for f in config.accelerations]
@@ -142,8 +142,8 @@ def cmd_init(args: argparse.Namespace) -> int:
 def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from .datasets import read_datafile
-    from .store import BoundWarning, RunStore, store_lock
+    from .store.datasets import read_datafile
+    from .store.smc import BoundWarning, RunStore, store_lock
 
     if _is_sg(args.run):
         return _update_sg(args)
@@ -189,17 +189,17 @@ def cmd_update(args: argparse.Namespace) -> int:
 
 
 def _is_sg(path) -> bool:
-    """Whether ``path`` is an SG-EnMCMC run store (:mod:`seqbayes.sgstore`)."""
-    from .sgstore import RUN_KIND, run_kind
+    """Whether ``path`` is an SG-EnMCMC run store (:mod:`seqbayes.store.sg`)."""
+    from .store.sg import RUN_KIND, run_kind
 
     return run_kind(path) == RUN_KIND
 
 
 def _update_sg(args: argparse.Namespace) -> int:
     """``seqbayes update`` of an SG-EnMCMC run: each file is the next block of the record."""
-    from .datasets import read_datafile
-    from .sgstore import SGRunStore
-    from .store import store_lock
+    from .store.datasets import read_datafile
+    from .store.sg import SGRunStore
+    from .store.smc import store_lock
 
     if args.replace_last:
         raise CommandError(f"--replace-last: not available for an SG-EnMCMC run ({args.run}): its blocks are one "
@@ -231,9 +231,9 @@ def _update_sg(args: argparse.Namespace) -> int:
 
 def _describe_sg(err, done=()) -> str:
     """One line for an SG-EnMCMC block that failed, saying what the run store holds now."""
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
+    from .store.config import ConfigError
+    from .store.datasets import DataError
+    from .store.smc import StoreError
 
     unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the ones "
                  f"after it were not assimilated" if done else "the run store is unchanged")
@@ -260,9 +260,9 @@ def _raised_in(err, files) -> bool:
 
 def _describe(err, store, done=()) -> str:
     """One line for an update that failed, saying what the run store holds now."""
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
+    from .store.config import ConfigError
+    from .store.datasets import DataError
+    from .store.smc import StoreError
 
     if done:
         unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
@@ -286,12 +286,12 @@ def _describe(err, store, done=()) -> str:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from .report import format_status, status_rows
-    from .store import RunStore
+    from .store.report import format_status, status_rows
+    from .store.smc import RunStore
 
     if _is_sg(args.run):
-        from .sgreport import format_sg_status, sg_status_rows
-        from .sgstore import SGRunStore
+        from .store.sg_report import format_sg_status, sg_status_rows
+        from .store.sg import SGRunStore
 
         store = SGRunStore.open(args.run)
         if args.json:
@@ -311,8 +311,8 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
-    from .report import first_passage_json, forecast_rows, format_first_passage, format_forecast
-    from .store import RunStore
+    from .store.report import first_passage_json, forecast_rows, format_first_passage, format_forecast
+    from .store.smc import RunStore
 
     _not_for_sg(args, "predict (a forecast through the Markov kernel)")
     store = RunStore.open(args.run)
@@ -362,7 +362,7 @@ def _write_forecast(path, store, draws):
 
 
 def _open_for_comparison(paths):
-    from .store import RunStore
+    from .store.smc import RunStore
 
     stores = [RunStore.open(p) for p in paths]
     names = []
@@ -383,7 +383,7 @@ def _open_for_comparison(paths):
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .report import comparison_rows
+    from .store.report import comparison_rows
     from .selection import compare
 
     _not_for_sg(args, "compare")
@@ -405,8 +405,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
-    from .report import write_report
-    from .store import RunStore
+    from .store.report import write_report
+    from .store.smc import RunStore
 
     if _is_sg(args.run):
         return _report_sg(args)
@@ -431,8 +431,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def _report_sg(args: argparse.Namespace) -> int:
     """``seqbayes report`` of an SG-EnMCMC run: ratios over the record, per-block posteriors, modal results."""
-    from .sgreport import read_mode_shapes, write_sg_report
-    from .sgstore import SGRunStore
+    from .store.sg_report import read_mode_shapes, write_sg_report
+    from .store.sg import SGRunStore
 
     store = SGRunStore.open(args.run)
     if args.compare or args.threshold or args.data:
@@ -450,7 +450,7 @@ def _report_sg(args: argparse.Namespace) -> int:
 
 def _assimilated_dataset(store, path) -> tuple:
     """``(step index, table)`` of a data file the run assimilated (found by its content's hash)."""
-    from .datasets import dataset_digest, read_datafile
+    from .store.datasets import dataset_digest, read_datafile
 
     if store.config.predict is None:
         raise CommandError(f"--data: {store.path}'s configuration names no [model] predict function, so there is no "
@@ -474,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("init", help="create a run from a TOML config")
-    p.add_argument("config", help="TOML run configuration (see seqbayes.config)")
+    p.add_argument("config", help="TOML run configuration (see seqbayes.store.config)")
     p.add_argument("run", help="run store to create (a .nc file)")
     p.add_argument("--force", action="store_true", help="overwrite an existing run store")
     p.set_defaults(func=cmd_init)
@@ -544,9 +544,9 @@ def main(argv: list[str] | None = None) -> int:
         return _run_example(args.name, rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
+    from .store.config import ConfigError
+    from .store.datasets import DataError
+    from .store.smc import StoreError
 
     try:
         return int(args.func(args) or 0)

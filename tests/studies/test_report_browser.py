@@ -39,9 +39,9 @@ def finish(proc):
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from seqbayes.config import load_config
-    from seqbayes.report import write_report
-    from seqbayes.store import RunStore
+    from seqbayes.store.config import load_config
+    from seqbayes.store.report import write_report
+    from seqbayes.store.smc import RunStore
 
     root = tmp_path_factory.mktemp("browser")
     write_model(root, "browsermodel", noise=0.05)

@@ -19,9 +19,9 @@ import sys
 import numpy as np
 import pytest
 
-from seqbayes.config import load_config
-from seqbayes.datasets import DataError
-from seqbayes.store import ModelChangedError, RunStore, StoreError
+from seqbayes.store.config import load_config
+from seqbayes.store.datasets import DataError
+from seqbayes.store.smc import ModelChangedError, RunStore, StoreError
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -120,7 +120,7 @@ def test_predict_and_report_import_no_likelihood(tmp_path):
     sys.modules.pop("trustmodel_c", None)
     opened = RunStore.open(tmp_path / "run.nc")
     opened.predict(3)
-    from seqbayes.report import render_report
+    from seqbayes.store.report import render_report
 
     assert "<html" in render_report(opened, forecast_steps=2)
     assert not (tmp_path / "trustmodel_c.ran").exists() and "trustmodel_c" not in sys.modules
@@ -140,7 +140,7 @@ def test_an_edited_module_is_noticed_and_its_hash_recorded_per_step_once_accepte
     assert reopened.module_hashes == [first, sha(tmp_path / "trustmodel_d.py")]
     assert reopened.config.likelihood_sha256 == sha(tmp_path / "trustmodel_d.py")
     reopened.assimilate(tables(3)[2])                     # the new content is now the recorded one
-    from seqbayes.report import format_status, status_rows
+    from seqbayes.store.report import format_status, status_rows
 
     assert [r["likelihood_sha256"] for r in status_rows(reopened)] == reopened.module_hashes
     assert f"note: the likelihood module changed at step 2 (sha256 {first[:12]} -> " in format_status(reopened)
@@ -310,7 +310,7 @@ def rewrite(store_path, edit, target):
     """Write ``target``: the store at ``store_path`` changed by ``edit(ds)``, its content hash redone."""
     import xarray as xr
 
-    from seqbayes.store import _rehash
+    from seqbayes.store.smc import _rehash
 
     with xr.open_dataset(store_path, engine="h5netcdf") as ds:
         ds = ds.load()
@@ -446,7 +446,7 @@ def test_a_bad_second_file_says_what_was_committed(tmp_path, capsys):
 
 
 def test_settings_values_and_datasets_of_the_wrong_type_are_refused(tmp_path):
-    from seqbayes.config import ConfigError
+    from seqbayes.store.config import ConfigError
 
     write_model(tmp_path, "typemodel")
     base = write_cfg(tmp_path, "typemodel").read_text()
@@ -472,7 +472,7 @@ def test_settings_values_and_datasets_of_the_wrong_type_are_refused(tmp_path):
 
 
 def test_a_posterior_piled_up_at_a_prior_bound_is_reported(tmp_path, capsys):
-    from seqbayes.store import BoundWarning
+    from seqbayes.store.smc import BoundWarning
 
     store = make_run(tmp_path, "boundmodel", n_steps=0)
     millivolts = tables(1)[0] * [1.0, 1000.0]             # y in mV instead of V: amplitude ~1500
@@ -499,7 +499,7 @@ def test_invalid_priors_are_refused_with_the_parameter_named():
 
 
 def test_report_keeps_user_strings_out_of_the_markup(tmp_path):
-    from seqbayes.report import write_report
+    from seqbayes.store.report import write_report
 
     store = make_run(tmp_path, "escapemodel", n_steps=1)
     page = write_report(store, tmp_path / "a'b onerror=alert(1) x.html", embed=False, forecast_steps=0)
@@ -547,7 +547,7 @@ def fill(folder, leave_bytes):
 
 
 def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monkeypatch):
-    import seqbayes.store as store_module
+    import seqbayes.store.smc as store_module
 
     make_run(small_disk, "diskmodel", n_steps=1)
     run = small_disk / "run.nc"
@@ -595,7 +595,7 @@ def test_a_read_only_folder_gives_one_line(small_disk, capsys):
 def test_netcdf3_data_files_are_read(tmp_path):
     import xarray as xr
 
-    from seqbayes.datasets import read_datafile
+    from seqbayes.store.datasets import read_datafile
 
     store = make_run(tmp_path, "classicmodel", n_steps=0)
     table = tables(1)[0]
@@ -607,7 +607,7 @@ def test_netcdf3_data_files_are_read(tmp_path):
 
 # ------------------------------------------------------------------ item 7: a step is appended, not the whole file
 def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
-    import seqbayes.store as store_module
+    import seqbayes.store.smc as store_module
 
     calls = []
     original = RunStore._append

@@ -1,4 +1,4 @@
-"""SG-EnMCMC runs in the run store (seqbayes.sgstore) and on the command line.
+"""SG-EnMCMC runs in the run store (seqbayes.store.sg) and on the command line.
 
 * Resume is bit-identical: blocks assimilated by one object, by a fresh object opened before
   every block, and by a forked ``seqbayes update`` killed at the journal's fault points and
@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.config import ConfigError, load_config
-from seqbayes.datasets import DataError
-from seqbayes.sgstore import SGRunStore, parse_sg_config
-from seqbayes.store import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
+from seqbayes.store.config import ConfigError, load_config
+from seqbayes.store.datasets import DataError
+from seqbayes.store.sg import SGRunStore, parse_sg_config
+from seqbayes.store.smc import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
 from seqbayes.structures.shear_building import discretise, simulate
 
 TOML = """
@@ -108,7 +108,7 @@ def test_config_from_toml(workdir):
 
 
 def test_reopen_before_every_block_is_bit_identical(workdir, tmp_path, monkeypatch):
-    from seqbayes import sgstore
+    from seqbayes.store import sg as sgstore
 
     appended = []
     real = sgstore._apply_with_journal
@@ -339,7 +339,7 @@ def test_modal_results_match_a_direct_eigen_solution():
 
 
 def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
-    from seqbayes.sgreport import modal_rows, render_sg_report
+    from seqbayes.store.sg_report import modal_rows, render_sg_report
     from seqbayes.structures.modal import modal_summary
 
     store = SGRunStore.open(workdir / "reference.nc")
@@ -405,7 +405,7 @@ def test_noise_parameters_and_a_pinned_surrogate(workdir, tmp_path):
     surrogate = "auto" is measured once, when the configuration is read, and pinned as a level."""
     import tomllib
 
-    from seqbayes.sgreport import render_sg_report
+    from seqbayes.store.sg_report import render_sg_report
 
     raw = tomllib.loads(TOML)
     raw["sampler"]["noise_parameters"] = "shared"

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.config import ConfigError, load_config
+from seqbayes.store.config import ConfigError, load_config
 from seqbayes.rng import as_generator
-from seqbayes.sgreport import format_sg_status
-from seqbayes.sgstore import SGRunStore, parse_sg_config
+from seqbayes.store.sg_report import format_sg_status
+from seqbayes.store.sg import SGRunStore, parse_sg_config
 from seqbayes.stiffness_drop import DropBlock, simulate_drop
-from seqbayes.store import FAULT_ENV
+from seqbayes.store.smc import FAULT_ENV
 
 TOML = """
 [model]

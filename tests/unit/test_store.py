@@ -9,8 +9,8 @@ import hashlib
 import numpy as np
 import pytest
 
-from seqbayes.config import load_config
-from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _rehash, posterior_to_arviz
+from seqbayes.store.config import load_config
+from seqbayes.store.smc import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _rehash, posterior_to_arviz
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -91,7 +91,7 @@ predictive = "transition"
 
 def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_path):
     """The conflict remedy keeps a window of past steps and, after a path-space step, the particle
-    paths; a store reopened before every step rebuilds both (seqbayes.snapshot) and gives the
+    paths; a store reopened before every step rebuilds both (seqbayes.store.snapshot) and gives the
     uninterrupted run bit for bit. A random walk (sd 0.05 per step) observed through 25 points of
     noise 0.5 jumps by 0.6 (12 kernel sds) at step 4, which runs on the path space (as in
     test_conflict_remedy)."""
@@ -285,7 +285,7 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
     is still read, verified by its own hash, and the next update writes the whole file in format 4."""
     import xarray as xr
 
-    from seqbayes.store import _content_hash_v3
+    from seqbayes.store.smc import _content_hash_v3
 
     cfg = config(tmp_path)
     store = RunStore.create(tmp_path / "run.nc", cfg)
@@ -316,7 +316,7 @@ def test_a_store_written_before_the_lineage_opens_and_continues_with_distinct_la
     """A format-4 store without ``state_lineage`` (written before the evidence se's labels) reads as every
     particle its own label (the lineage only enters the log-evidence standard errors); the next update
     writes the lineage of every step, and the sampling is the uninterrupted run's."""
-    from seqbayes import snapshot
+    from seqbayes.store import snapshot
 
     (tmp_path / "remedymodel.py").write_text(REMEDY_MODEL)
     (tmp_path / "run.toml").write_text(REMEDY_CONFIG)

@@ -99,8 +99,8 @@ import numpy as np
 
 from .datasets import DataError, check_table, dataset_digest, read_datafile
 from .modules import ConfigError, load_located, locate_module, read_toml
-from .rng import as_generator, generator_from_state, generator_state
-from .store import (StoreError, DuplicateDatasetError, _apply_with_journal, _check_finite, _check_free_space,
+from ..rng import as_generator, generator_from_state, generator_state
+from .smc import (StoreError, DuplicateDatasetError, _apply_with_journal, _check_finite, _check_free_space,
                     _content_hash, _extend, _fault, _fsync_dir, _json, _json_list, _netcdf_bytes, _now, _os_message,
                     _PendingWrites, _plain, _read_file, _read_journal, _read_token, _record_hash, _recover_journal, _write_file,
                     _write_whole, lock_file, store_lock)
@@ -261,26 +261,26 @@ class SGRunConfig:
 
     def si_factors(self) -> np.ndarray:
         """Per column of a block (:attr:`columns`), the factor that converts it to SI (``[data] units``)."""
-        from .structures.records import UNITS
+        from ..structures.records import UNITS
 
         return np.array([UNITS[self.units[c]] if c in self.units else 1.0 for c in self.columns])
 
     def build_building(self):
         """The :class:`~seqbayes.structures.ShearBuilding`."""
-        from .structures import ShearBuilding
+        from ..structures import ShearBuilding
 
         return ShearBuilding(np.array(self.masses), np.array(self.stiffnesses), self.damping_ratios,
                              self.damping_modes)
 
     def build_sensors(self):
         """The :class:`~seqbayes.structures.Sensors` layout."""
-        from .structures.shear_building import Sensors
+        from ..structures.shear_building import Sensors
 
         return Sensors(accelerations=self.accelerations, drifts=self.drifts)
 
     def build_identifier(self):
         """A fresh :class:`~seqbayes.sgenmcmc.SGEnMCMC` (``sampler="resample-move"``, the on-line one)."""
-        from .sgenmcmc import SGEnMCMC
+        from ..sgenmcmc import SGEnMCMC
 
         return SGEnMCMC(self.build_building(), self.dt, np.array(self.lower), np.array(self.upper),
                         np.array(self.measurement_std), process_noise_std=self.process_std,
@@ -291,7 +291,7 @@ class SGRunConfig:
         """A fresh :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` (None without it)."""
         if self.monitor is None:
             return None
-        from .stiffness_drop import StiffnessDropMonitor
+        from ..stiffness_drop import StiffnessDropMonitor
 
         n = self.n_storeys
         settings = {k: (tuple(v) if isinstance(v, list) else v) for k, v in self.monitor.items() if k != "seed"}
@@ -357,7 +357,7 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
             raise ConfigError(f"{source}: {str(err).replace('model.likelihood:', 'building.module:', 1)}") from None
         except Exception as err:
             _fail(source, "building.module", f"{module_spec}() raised {type(err).__name__}: {err}")
-        from .structures import ShearBuilding
+        from ..structures import ShearBuilding
 
         if not isinstance(made, ShearBuilding):
             _fail(source, "building.module", f"{module_spec}() must return a seqbayes.structures.ShearBuilding, "
@@ -446,7 +446,7 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     for key, value in (("n_members", n_members), ("seed", seed)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             _fail(source, f"sampler.{key}", f"expected a non-negative integer, got {value!r}")
-    from .sgenmcmc import SGEnMCMC
+    from ..sgenmcmc import SGEnMCMC
 
     keywords = set(inspect.signature(SGEnMCMC).parameters) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
     for key in sampler:
@@ -777,7 +777,7 @@ class SGRunStore:
                      if key.startswith("monitor_") and not key.startswith("monitor_block_")})
         snap.update(u=record[:, offset], y=record[:, offset + 1:],
                     rng_state=np.array(json.dumps(self.infos[step - 1]["monitor"]["rng_state"])))
-        from .stiffness_drop import DropBlock
+        from ..stiffness_drop import DropBlock
 
         blocks = self.fixed[:step]
         for f in dataclasses.fields(DropBlock):
@@ -924,7 +924,7 @@ class SGRunStore:
     def block_posterior(self, step: int = -1, level: float = 0.95) -> dict:
         """The posterior of the stiffness ratios at the end of a block: ``{name: {mean, sd, lower,
         upper}}`` from the weighted particles (the central ``level`` interval)."""
-        from .sgenmcmc import weighted_quantiles
+        from ..sgenmcmc import weighted_quantiles
 
         if not 0 < level < 1:
             raise ValueError(f"level: must lie in (0, 1), got {level}")
@@ -948,7 +948,7 @@ class SGRunStore:
         """Modal results of the posterior at the end of a block
         (:func:`~seqbayes.structures.modal.modal_summary`): natural frequencies, damping ratios and
         mode shapes, with the MAC against ``identified_shapes (n, k)`` if given."""
-        from .structures.modal import modal_summary
+        from ..structures.modal import modal_summary
 
         if not self.n_steps:
             raise ValueError(f"{self.path}: no block assimilated yet")
@@ -960,7 +960,7 @@ class SGRunStore:
         return (json.dumps(self.infos[k]), json.dumps(self.rng_states[k + 1]), self.digests[k], self.sources[k], "")
 
     def _attrs(self, record_hashes) -> dict:
-        from . import __version__
+        from .. import __version__
 
         attrs = {"seqbayes_store_format": SG_FORMAT_VERSION, "run_kind": RUN_KIND, "seqbayes_version": __version__,
                  "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import plotting
+from .. import plotting
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
            "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
@@ -358,5 +358,5 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from matplotlib.figure import Figure
     from numpy.typing import ArrayLike
 
-    from .sgstore import SGRunStore
-    from .structures.modal import ModalSummary
+    from .sg import SGRunStore
+    from ..structures.modal import ModalSummary

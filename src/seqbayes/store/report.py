@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import plotting
+from .. import plotting
 
 if TYPE_CHECKING:
     import os
 
-    from .prognostics import FirstPassage, Threshold
-    from .selection import ModelComparison
-    from .store import RunStore
+    from ..prognostics import FirstPassage, Threshold
+    from ..selection import ModelComparison
+    from .smc import RunStore
 
 __all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
            "first_passage_rows", "first_passage_json", "format_first_passage", "describe_prior", "describe_kernel",
@@ -392,7 +392,7 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
         configuration's ``[model] predict``); default: the last dataset when the store keeps the
         datasets (static or SMC^2 runs), else no panel.
     """
-    from .selection import compare
+    from ..selection import compare
 
     if store.n_steps == 0:
         raise ValueError(f"{store.path}: no step to report yet (run `seqbayes update` first)")

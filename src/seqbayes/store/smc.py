@@ -102,8 +102,8 @@ from . import snapshot
 from .config import NOT_FINGERPRINTED, RunConfig
 from .modules import ConfigError, ModuleSource, load_located, locate_module
 from .datasets import as_likelihood_data, check_table, dataset_digest, read_datafile
-from .prognostics import FirstPassage, time_to_threshold
-from .results import Result, StepInfo, StepRecord
+from ..prognostics import FirstPassage, time_to_threshold
+from ..results import Result, StepInfo, StepRecord
 
 __all__ = ["RunStore", "StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning",
            "FORMAT_VERSION", "store_lock", "lock_file"]
@@ -548,7 +548,7 @@ class RunStore:
 
     def _attrs(self, record_hashes) -> dict:
         """The file's attributes, with the content hash over ``record_hashes``."""
-        from . import __version__
+        from .. import __version__
 
         attrs = {"result_meta": json.dumps(self.result.meta, default=str),
                  "seqbayes_store_format": FORMAT_VERSION, "seqbayes_version": __version__,
@@ -1566,4 +1566,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     import xarray as xr
     from numpy.typing import ArrayLike
 
-    from .sequential import SEMC, SMC
+    from ..sequential import SEMC, SMC
