@@ -117,11 +117,11 @@ class _CountingLikelihood:
 # --------------------------------------------------------------------- commands
 def cmd_init(args: argparse.Namespace) -> int:
     from .store.config import load_config
-    from .store.smc import RunStore
+    from .store import RunStore
 
     config = load_config(args.config)
     if getattr(config, "kind", None) == "sgenmcmc":
-        from .store.sg import SGRunStore
+        from .store import SGRunStore
 
         store = SGRunStore.create(args.run, config, overwrite=args.force)
         sensors = ", ".join([f"acceleration {f}" for f in config.accelerations]
@@ -143,7 +143,8 @@ def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
     from .store.datasets import read_datafile
-    from .store.smc import BoundWarning, RunStore, store_lock
+    from .store import BoundWarning, RunStore
+    from .store.files import store_lock
 
     if _is_sg(args.run):
         return _update_sg(args)
@@ -190,7 +191,8 @@ def cmd_update(args: argparse.Namespace) -> int:
 
 def _is_sg(path) -> bool:
     """Whether ``path`` is an SG-EnMCMC run store (:mod:`seqbayes.store.sg`)."""
-    from .store.sg import RUN_KIND, run_kind
+    from .store.registry import run_kind
+    from .store.sg_config import RUN_KIND
 
     return run_kind(path) == RUN_KIND
 
@@ -198,8 +200,8 @@ def _is_sg(path) -> bool:
 def _update_sg(args: argparse.Namespace) -> int:
     """``seqbayes update`` of an SG-EnMCMC run: each file is the next block of the record."""
     from .store.datasets import read_datafile
-    from .store.sg import SGRunStore
-    from .store.smc import store_lock
+    from .store import SGRunStore
+    from .store.files import store_lock
 
     if args.replace_last:
         raise CommandError(f"--replace-last: not available for an SG-EnMCMC run ({args.run}): its blocks are one "
@@ -233,7 +235,7 @@ def _describe_sg(err, done=()) -> str:
     """One line for an SG-EnMCMC block that failed, saying what the run store holds now."""
     from .store.config import ConfigError
     from .store.datasets import DataError
-    from .store.smc import StoreError
+    from .store import StoreError
 
     unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the ones "
                  f"after it were not assimilated" if done else "the run store is unchanged")
@@ -262,7 +264,7 @@ def _describe(err, store, done=()) -> str:
     """One line for an update that failed, saying what the run store holds now."""
     from .store.config import ConfigError
     from .store.datasets import DataError
-    from .store.smc import StoreError
+    from .store import StoreError
 
     if done:
         unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
@@ -287,11 +289,11 @@ def _describe(err, store, done=()) -> str:
 
 def cmd_status(args: argparse.Namespace) -> int:
     from .store.report import format_status, status_rows
-    from .store.smc import RunStore
+    from .store import RunStore
 
     if _is_sg(args.run):
         from .store.sg_report import format_sg_status, sg_status_rows
-        from .store.sg import SGRunStore
+        from .store import SGRunStore
 
         store = SGRunStore.open(args.run)
         if args.json:
@@ -312,7 +314,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 def cmd_predict(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .store.report import first_passage_json, forecast_rows, format_first_passage, format_forecast
-    from .store.smc import RunStore
+    from .store import RunStore
 
     _not_for_sg(args, "predict (a forecast through the Markov kernel)")
     store = RunStore.open(args.run)
@@ -362,7 +364,7 @@ def _write_forecast(path, store, draws):
 
 
 def _open_for_comparison(paths):
-    from .store.smc import RunStore
+    from .store import RunStore
 
     stores = [RunStore.open(p) for p in paths]
     names = []
@@ -406,7 +408,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .store.report import write_report
-    from .store.smc import RunStore
+    from .store import RunStore
 
     if _is_sg(args.run):
         return _report_sg(args)
@@ -432,7 +434,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def _report_sg(args: argparse.Namespace) -> int:
     """``seqbayes report`` of an SG-EnMCMC run: ratios over the record, per-block posteriors, modal results."""
     from .store.sg_report import read_mode_shapes, write_sg_report
-    from .store.sg import SGRunStore
+    from .store import SGRunStore
 
     store = SGRunStore.open(args.run)
     if args.compare or args.threshold or args.data:
@@ -546,7 +548,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     from .store.config import ConfigError
     from .store.datasets import DataError
-    from .store.smc import StoreError
+    from .store import StoreError
 
     try:
         return int(args.func(args) or 0)

@@ -41,7 +41,7 @@ def finish(proc):
 def report(tmp_path_factory):
     from seqbayes.store.config import load_config
     from seqbayes.store.report import write_report
-    from seqbayes.store.smc import RunStore
+    from seqbayes.store import RunStore
 
     root = tmp_path_factory.mktemp("browser")
     write_model(root, "browsermodel", noise=0.05)

@@ -19,9 +19,7 @@ import sys
 import numpy as np
 import pytest
 
-from seqbayes.store.config import load_config
-from seqbayes.store.datasets import DataError
-from seqbayes.store.smc import ModelChangedError, RunStore, StoreError
+from seqbayes.store import DataError, ModelChangedError, RunStore, StoreError, load_config
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -310,12 +308,12 @@ def rewrite(store_path, edit, target):
     """Write ``target``: the store at ``store_path`` changed by ``edit(ds)``, its content hash redone."""
     import xarray as xr
 
-    from seqbayes.store.smc import _rehash
+    from seqbayes.store.base import rehash
 
     with xr.open_dataset(store_path, engine="h5netcdf") as ds:
         ds = ds.load()
     edit(ds)
-    _rehash(ds)
+    rehash(ds)
     ds.to_netcdf(target, engine="h5netcdf")
     return target
 
@@ -472,7 +470,7 @@ def test_settings_values_and_datasets_of_the_wrong_type_are_refused(tmp_path):
 
 
 def test_a_posterior_piled_up_at_a_prior_bound_is_reported(tmp_path, capsys):
-    from seqbayes.store.smc import BoundWarning
+    from seqbayes.store import BoundWarning
 
     store = make_run(tmp_path, "boundmodel", n_steps=0)
     millivolts = tables(1)[0] * [1.0, 1000.0]             # y in mV instead of V: amplitude ~1500
@@ -547,7 +545,7 @@ def fill(folder, leave_bytes):
 
 
 def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monkeypatch):
-    import seqbayes.store.smc as store_module
+    import seqbayes.store.files as store_files
 
     make_run(small_disk, "diskmodel", n_steps=1)
     run = small_disk / "run.nc"
@@ -558,7 +556,7 @@ def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monk
               r"next.csv: .*run.nc: not enough free space in .*disk: about \d+ KiB needed, \d+ KiB free", run)
     # and when the space runs out during the write itself (the check bypassed): an OS error, no crash.
     # An appended step: the store's growth is allocated before the journal is written
-    monkeypatch.setattr(store_module, "_check_free_space", lambda *args: None)
+    monkeypatch.setattr(store_files, "check_free_space", lambda *args: None)
     (small_disk / "filler").unlink()
     fill(small_disk, 0)
     cli_fails(capsys, ["update", run, small_disk / "next.csv"],
@@ -607,7 +605,7 @@ def test_netcdf3_data_files_are_read(tmp_path):
 
 # ------------------------------------------------------------------ item 7: a step is appended, not the whole file
 def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
-    import seqbayes.store.smc as store_module
+    import seqbayes.store.files as store_files
 
     calls = []
     original = RunStore._append
@@ -620,8 +618,8 @@ def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, m
     store = make_run(tmp_path, "appendmodel", n_steps=3)
     assert calls == [False, False, True, True]     # creation and the first step write it whole; then appends
     journal_bytes = []
-    apply = store_module._apply_with_journal
-    monkeypatch.setattr(store_module, "_apply_with_journal",
+    apply = store_files.apply_with_journal
+    monkeypatch.setattr(store_files, "apply_with_journal",
                         lambda path, journal: journal_bytes.append(sum(len(p) for _, p in journal[2])) or apply(path, journal))
     sizes = []
     inode = (tmp_path / "run.nc").stat().st_ino
@@ -649,4 +647,4 @@ def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, m
     # replace_last rewrites the whole file (its last rows change) and the run goes on appending
     appended.assimilate(tables(6)[5] * 1.01, "fixed", replace_last=True)
     assert calls[-1] is False and RunStore.open(tmp_path / "run.nc").sources[-1] == "fixed"
-    assert store_module._GROWING["step"] > 1
+    assert RunStore.growing["step"] > 1

@@ -248,7 +248,7 @@ def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
 
     from seqbayes.store.config import load_config
     from seqbayes.store.report import status_rows
-    from seqbayes.store.smc import RunStore
+    from seqbayes.store import RunStore
 
     write_model(tmp_path, "jumpstoremodel")
     kernel = ('a = { type = "jump", base = "drift", rate = -0.02, noise_std = 0.02, p = 0.1, drop_mean = 0.3, '

@@ -99,7 +99,7 @@ def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     import textwrap
 
     from seqbayes.store.config import load_config
-    from seqbayes.store.smc import RunStore
+    from seqbayes.store import RunStore
 
     (tmp_path / "parmodel.py").write_text(textwrap.dedent("""
         import numpy as np

@@ -22,8 +22,10 @@ import pytest
 from seqbayes import cli
 from seqbayes.store.config import ConfigError, load_config
 from seqbayes.store.datasets import DataError
-from seqbayes.store.sg import SGRunStore, parse_sg_config
-from seqbayes.store.smc import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
+from seqbayes.store import SGRunStore
+from seqbayes.store.sg_config import parse_sg_config
+from seqbayes.store import DuplicateDatasetError, RunStore, StoreError
+from seqbayes.store.files import FAULT_ENV, read_file
 from seqbayes.structures.shear_building import discretise, simulate
 
 TOML = """
@@ -84,7 +86,7 @@ def workdir(tmp_path_factory):
 
 def arrays(path):
     """Every variable of a store but the per-step wall times (the text of step_info and its hash)."""
-    attrs, variables = _read_file(path)
+    attrs, variables = read_file(path)
     out = {name: value for name, value in variables.items() if name not in ("step_info", "record_sha256")}
     out["infos"] = [{k: v for k, v in json.loads(s).items() if k != "wall_time"} for s in variables["step_info"]]
     return out
@@ -108,11 +110,11 @@ def test_config_from_toml(workdir):
 
 
 def test_reopen_before_every_block_is_bit_identical(workdir, tmp_path, monkeypatch):
-    from seqbayes.store import sg as sgstore
+    from seqbayes.store import files
 
     appended = []
-    real = sgstore._apply_with_journal
-    monkeypatch.setattr(sgstore, "_apply_with_journal", lambda *a: (appended.append(1), real(*a)))
+    real = files.apply_with_journal
+    monkeypatch.setattr(files, "apply_with_journal", lambda *a: (appended.append(1), real(*a)))
     config = load_config(workdir / "run.toml")
     SGRunStore.create(tmp_path / "run.nc", config)
     for k in range(N_BLOCKS):

@@ -16,9 +16,10 @@ from seqbayes import cli
 from seqbayes.store.config import ConfigError, load_config
 from seqbayes.rng import as_generator
 from seqbayes.store.sg_report import format_sg_status
-from seqbayes.store.sg import SGRunStore, parse_sg_config
+from seqbayes.store import SGRunStore
+from seqbayes.store.sg_config import parse_sg_config
 from seqbayes.stiffness_drop import DropBlock, simulate_drop
-from seqbayes.store.smc import FAULT_ENV
+from seqbayes.store.files import FAULT_ENV
 
 TOML = """
 [model]

@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .modules import (ConfigError, ModuleSource, _split_likelihood, file_sha256, load_likelihood, load_located,
+from .modules import (ConfigError, ModuleSource, split_likelihood, file_sha256, load_likelihood, load_located,
                       locate_module, read_toml)
 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
@@ -168,6 +168,9 @@ class RunConfig:
     predict: str | None = None
     observed: str | None = None
 
+    #: the run kind (:mod:`seqbayes.store.registry`): an SMC/SEMC run
+    kind = "semc"
+
     # ------------------------------------------------------------------ builders
     @property
     def names(self) -> tuple:
@@ -213,7 +216,7 @@ class RunConfig:
 
     def locate_likelihood(self) -> "ModuleSource":
         """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
-        return locate_module(_split_likelihood(self.likelihood)[0], self.search_path)
+        return locate_module(split_likelihood(self.likelihood)[0], self.search_path)
 
     def load_likelihood(self) -> Callable[[np.ndarray, Any], np.ndarray]:
         """Import and return the likelihood function (a config is trusted like code)."""
@@ -254,6 +257,20 @@ class RunConfig:
         data = dict(data)
         data["columns"] = tuple(data["columns"])
         return cls(**data)
+
+    def differing_fields(self, other: "RunConfig") -> list[str]:
+        """The fields (``section.key`` inside a table) in which ``other`` defines another model than this one."""
+        mine, theirs = self.to_dict(), other.to_dict()
+        out = []
+        for key in mine:
+            if key in NOT_FINGERPRINTED:
+                continue
+            if isinstance(mine[key], dict) and isinstance(theirs.get(key), dict):
+                out += [f"{key}.{sub}" for sub in sorted(set(mine[key]) | set(theirs[key]))
+                        if mine[key].get(sub) != theirs[key].get(sub)]
+            elif json.dumps(mine[key], sort_keys=True) != json.dumps(theirs.get(key), sort_keys=True):
+                out.append(key)
+        return out
 
     def fingerprint(self) -> str:
         """SHA-256 of everything that defines the model and the random stream.
@@ -529,12 +546,12 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
     """Read and validate a TOML run configuration (the likelihood's module may sit next to it).
 
     A configuration with a ``[building]`` section is an SG-EnMCMC run: it is validated by
-    :func:`seqbayes.sgstore.parse_sg_config` and returned as a :class:`~seqbayes.sgstore.SGRunConfig`.
+    :func:`seqbayes.store.sg_config.parse_sg_config` and returned as a :class:`~seqbayes.store.sg_config.SGRunConfig`.
     """
     path = Path(path)
     raw = read_toml(path)
-    if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.sgstore)
-        from .sg import parse_sg_config
+    if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.store.sg_config)
+        from .sg_config import parse_sg_config
 
         return parse_sg_config(raw, str(path), base_dir=path.parent)
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)

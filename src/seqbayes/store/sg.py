@@ -1,50 +1,8 @@
-"""SG-EnMCMC runs in the run store: a shear building identified on-line, block by block.
+"""The SG-EnMCMC run store: a shear building identified on-line, block by block.
 
-A TOML configuration with a ``[building]`` section (:func:`parse_sg_config`) describes a
-shear building, its sensors, the prior box of the storey stiffness ratios and the
-:class:`~seqbayes.sgenmcmc.SGEnMCMC` settings::
-
-    [model]
-    name = "shake-table"
-
-    [building]                          # or: module = "mybuilding:building" (a function returning a
-    masses = [24e3, 20e3, 20e3, 16e3]   # ShearBuilding, run once at init; its numbers are recorded)
-    stiffnesses = [36e6, 30e6, 24e6, 16e6]    # undamaged storey stiffnesses k^u [N/m]
-    damping_ratios = [0.02, 0.04]       # Rayleigh damping of modes damping_modes (default 1 and 2)
-
-    [sensors]
-    accelerations = [1, 2, 3, 4]        # floors with an accelerometer (absolute acceleration)
-    drifts = []                         # storeys with a drift sensor
-
-    [data]
-    dt = 0.02                           # sampling step [s]
-    input = "ag"                        # column of the ground acceleration [m/s^2]
-    responses = ["a1", "a2", "a3", "a4"]   # one column per sensor: accelerations, then drifts
-    time = "t"                          # optional time column [s]: checked uniform and continuous
-    units = "g"                         # optional: unit of the acceleration columns (default m/s^2), or
-                                        # { ag = "g", d1 = "mm" } per column; blocks are stored in SI
-
-    [priors]
-    lower = 0.7                         # uniform box of the ratios (a number or one per storey)
-    upper = 1.3
-
-    [noise]
-    measurement_std = 0.05              # per channel (a number or one per response column)
-    process_std = 0.0                   # std of the unmeasured input noise [m/s^2]
-
-    [sampler]
-    n_members = 500
-    seed = 1
-    # any other SGEnMCMC keyword: ess_threshold, proposal, moves_per_particle, likelihood, level,
-    # noise_parameters ("channel" or "shared": noise scales estimated with the ratios), ...;
-    # surrogate = "auto" is measured once, at init, and pinned as a level
-
-    [monitor]                           # optional: on-line stiffness-drop detection alongside
-    n_particles = 200                   # (seqbayes.stiffness_drop.StiffnessDropMonitor; one model
-    threshold = 0.99                    # class per storey); any of its keywords: drop_range,
-    seed = 2                            # change_rate, change_every, prune_below, ... (seed: default
-                                        # the sampler's seed + 1)
-
+A TOML configuration with a ``[building]`` section (:mod:`seqbayes.store.sg_config`) describes the
+building, its sensors, the prior box of the storey stiffness ratios and the
+:class:`~seqbayes.sgenmcmc.SGEnMCMC` settings.
 :class:`SGRunStore` keeps such a run in one NetCDF-4 file. Each ``update`` assimilates the next
 block of the record (a CSV or NetCDF file with the columns above) with
 :meth:`SGEnMCMC.update <seqbayes.sgenmcmc.SGEnMCMC.update>` and appends one *step* to the file:
@@ -52,10 +10,11 @@ the block's table, the particles and their Kalman filters at the block's end
 (:meth:`SGEnMCMC.snapshot <seqbayes.sgenmcmc.SGEnMCMC.snapshot>`), the per-sample histories of the
 block (posterior mean, variance, quantiles, ESS, evidence increments) and the generator's state.
 A new process restores the identifier from the file and continues bit for bit as an
-uninterrupted run would (tested). The writing machinery is the SEMC store's
-(:mod:`seqbayes.store`): an exclusive lock per update, in-place append through the redo journal,
-per-step record hashes chained into a content hash, Fletcher-32 on the arrays, a whole write to a
-temporary file and ``os.replace`` for a new layout; a failed update leaves the file unchanged.
+uninterrupted run would (tested). The writing machinery is every store's
+(:mod:`seqbayes.store.base`, :mod:`seqbayes.store.files`): an exclusive lock per update, in-place
+append through the redo journal, per-step record hashes chained into a content hash, Fletcher-32 on
+the arrays, a whole write to a temporary file and ``os.replace`` for a new layout; a failed update
+leaves the file unchanged.
 
 Layout (``seqbayes_store_format = 5``, ``run_kind = "sgenmcmc"``; SEMC/SMC stores are still written
 in format 4): ``sg_<name> (step, ...)`` for each array of the snapshot that has one value per step
@@ -76,42 +35,31 @@ generator's state and the class probabilities are in ``step_info["monitor"]``);
 :meth:`SGRunStore.monitor` restores it bit for bit (the summaries' wall time ``seconds`` is not stored:
 0 in restored blocks).
 
-Trust: the configuration's numbers define the building; with ``[building] module`` the function
-runs once, at ``init`` (like a likelihood module, it is located next to the configuration and its
-SHA-256 recorded), and the building it returns is recorded, so updates, ``status`` and reports run
-no user code.
+
+Trust: updates, ``status`` and reports run no user code (a ``[building] module`` ran once, when the
+configuration was read, and the building it returned is recorded).
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import hashlib
-import inspect
 import json
-import math
 import os
-import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .datasets import DataError, check_table, dataset_digest, read_datafile
-from .modules import ConfigError, load_located, locate_module, read_toml
 from ..rng import as_generator, generator_from_state, generator_state
-from .smc import (StoreError, DuplicateDatasetError, _apply_with_journal, _check_finite, _check_free_space,
-                    _content_hash, _extend, _fault, _fsync_dir, _json, _json_list, _netcdf_bytes, _now, _os_message,
-                    _PendingWrites, _plain, _read_file, _read_journal, _read_token, _record_hash, _recover_journal, _write_file,
-                    _write_whole, lock_file, store_lock)
+from .base import BaseStore, check_finite, json_value, json_values
+from .datasets import DataError, check_table, dataset_digest
+from .errors import StoreError
+from .registry import register
+from .sg_config import RUN_KIND, SGRunConfig
 
-__all__ = ["SGRunConfig", "SGRunStore", "parse_sg_config", "load_sg_config", "run_kind", "SG_FORMAT_VERSION",
-           "RUN_KIND"]
+__all__ = ["SGRunStore", "SG_FORMAT_VERSION"]
 
 #: Layout version of SG-EnMCMC run stores (format 4's machinery plus ``run_kind``).
 SG_FORMAT_VERSION = 5
-#: The ``run_kind`` attribute of an SG-EnMCMC run store.
-RUN_KIND = "sgenmcmc"
 #: Snapshot arrays with one row per sample of the record (only a block's new rows are appended).
 _PER_TIME = ("log_evidence_increments", "resampled")
 _PER_TIME_PREFIX = "history_"
@@ -121,429 +69,12 @@ _PER_TIME_PREFIX = "history_"
 _NOT_ARRAYS = ("u", "y", "rng_state", "buffer_steps", "buffer_weights", "events", "elapsed")
 _PREFIX = "sg_"
 #: Growing dimensions and the chunk length along them.
-_GROWING = {"step": 8, "rng_index": 8, "time": 512, "event": 64}
-#: Variables along a growing dimension without coordinates (extended with it when a step is appended).
-_BARE = ("rng_index", "time", "event")
-_RECORD_TEXT = ("step_info", "rng_state", "dataset_sha256", "dataset_source", "likelihood_sha256")
-#: [sampler] settings handled by the store itself (every other key is an SGEnMCMC keyword).
-_OWN_SAMPLER_KEYS = ("n_members", "seed")
-#: SGEnMCMC keywords a configuration may not set (the store decides them or they are not data).
-_FIXED_KEYWORDS = ("building", "dt", "lower", "upper", "measurement_noise", "process_noise_std", "channels",
-                   "transition", "sampler", "blas_threads")
-#: [monitor] settings: StiffnessDropMonitor keywords (the building, noise and prior box are the run's).
-_MONITOR_KEYWORDS = ("n_particles", "drop_range", "change_rate", "change_every", "jump_proposal", "prior_no_change",
-                     "threshold", "prune_below", "prune_after", "ess_threshold", "moves_per_particle", "max_sweeps",
-                     "resampling")
-#: DropBlock fields that are NaN where a class has no dropped particle (stored as 0, restored from ``changed``).
 _MONITOR_NAN_FIELDS = ("drop_mean", "change_time_mean")
 
 
-def _fail(source, name, message):
-    raise ConfigError(f"{source}: {name}: {message}")
-
-
-def _numbers(value, source, name, n=None, positive=False, allow_empty=False):
-    """A number or a list of numbers as a list of floats (``n``: broadcast a number to ``n``)."""
-    values = value if isinstance(value, list) else [value]
-    if not values and not allow_empty:
-        _fail(source, name, "expected a number or a non-empty list of numbers")
-    out = []
-    for v in values:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            _fail(source, name, f"expected finite numbers, got {value!r}")
-        if positive and v <= 0:
-            _fail(source, name, f"must be positive, got {value!r}")
-        out.append(float(v))
-    if n is not None:
-        if not isinstance(value, list):
-            out = out * n
-        elif len(out) != n:
-            _fail(source, name, f"expected {n} values (one per storey/channel) or one number, got {len(out)}")
-    return out
-
-
-def _keys(table, allowed, source, prefix):
-    if not isinstance(table, dict):
-        _fail(source, prefix, f"expected a table, got {table!r}")
-    for key in table:
-        if key not in allowed:
-            _fail(source, f"{prefix}.{key}", f"unknown setting; expected one of {', '.join(sorted(allowed))}")
-
-
-@dataclass(frozen=True)
-class SGRunConfig:
-    """A validated SG-EnMCMC run configuration (module docstring for the TOML layout).
-
-    Attributes
-    ----------
-    name : str
-    masses, stiffnesses : tuple of float
-        Floor masses [kg] and undamaged storey stiffnesses [N/m], bottom to top.
-    damping_ratios, damping_modes : tuple
-        Rayleigh damping (:class:`~seqbayes.structures.ShearBuilding`).
-    accelerations, drifts : tuple of int
-        The sensor layout (:class:`~seqbayes.structures.Sensors`).
-    dt : float
-    input, responses, time : str, tuple of str, str or None
-        Data columns.
-    lower, upper : tuple of float
-        Prior box of the stiffness ratios (one per storey).
-    measurement_std : tuple of float
-        Measurement noise std of each response column.
-    process_std : float
-    n_members, seed : int
-    settings : dict
-        Further :class:`~seqbayes.sgenmcmc.SGEnMCMC` keywords.
-    units : dict
-        ``{column: unit}`` of the block columns not in SI (``[data] units``).
-    surrogate_choice : str or None
-        With ``surrogate = "auto"`` in ``[sampler]``: why the transition was chosen; the choice is
-        made once, when the configuration is read, and pinned as ``settings["level"]``.
-    building_module, building_sha256 : str or None
-        With ``[building] module``: the ``module:function`` and its file's SHA-256 (run at init only).
-    search_path : str or None
-        The configuration's folder.
-    monitor : dict or None
-        With ``[monitor]``: the :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` keywords and its
-        ``seed``.
-    """
-
-    name: str
-    masses: tuple
-    stiffnesses: tuple
-    damping_ratios: tuple
-    damping_modes: tuple
-    accelerations: tuple
-    drifts: tuple
-    dt: float
-    input: str
-    responses: tuple
-    lower: tuple
-    upper: tuple
-    measurement_std: tuple
-    process_std: float = 0.0
-    n_members: int = 500
-    seed: int = 0
-    settings: dict = field(default_factory=dict)
-    time: str | None = None
-    units: dict = field(default_factory=dict)
-    surrogate_choice: str | None = None
-    building_module: str | None = None
-    building_sha256: str | None = None
-    search_path: str | None = None
-    monitor: dict | None = None
-
-    kind = RUN_KIND
-    #: what :mod:`seqbayes.datasets` reads: any number of rows, the table as an array
-    rows = None
-    data_format = "array"
-
-    @property
-    def columns(self) -> tuple:
-        """Data columns in the order of a block's table: time (if any), input, responses."""
-        return ((self.time,) if self.time else ()) + (self.input,) + tuple(self.responses)
-
-    @property
-    def names(self) -> tuple:
-        """Parameter names: ``theta_1 .. theta_n``, the storey stiffness ratios, then with
-        ``noise_parameters`` the log noise-scale factors (as :attr:`SGEnMCMC.parameter_names`)."""
-        names = tuple(f"theta_{j + 1}" for j in range(len(self.masses)))
-        noise = self.settings.get("noise_parameters")
-        if noise == "shared":
-            return names + ("log_noise_scale",)
-        if noise == "channel":
-            return names + tuple(f"log_noise_scale_{c + 1}" for c in range(len(self.responses)))
-        return names
-
-    @property
-    def n_storeys(self) -> int:
-        return len(self.masses)
-
-    def si_factors(self) -> np.ndarray:
-        """Per column of a block (:attr:`columns`), the factor that converts it to SI (``[data] units``)."""
-        from ..structures.records import UNITS
-
-        return np.array([UNITS[self.units[c]] if c in self.units else 1.0 for c in self.columns])
-
-    def build_building(self):
-        """The :class:`~seqbayes.structures.ShearBuilding`."""
-        from ..structures import ShearBuilding
-
-        return ShearBuilding(np.array(self.masses), np.array(self.stiffnesses), self.damping_ratios,
-                             self.damping_modes)
-
-    def build_sensors(self):
-        """The :class:`~seqbayes.structures.Sensors` layout."""
-        from ..structures.shear_building import Sensors
-
-        return Sensors(accelerations=self.accelerations, drifts=self.drifts)
-
-    def build_identifier(self):
-        """A fresh :class:`~seqbayes.sgenmcmc.SGEnMCMC` (``sampler="resample-move"``, the on-line one)."""
-        from ..sgenmcmc import SGEnMCMC
-
-        return SGEnMCMC(self.build_building(), self.dt, np.array(self.lower), np.array(self.upper),
-                        np.array(self.measurement_std), process_noise_std=self.process_std,
-                        n_members=self.n_members, channels=self.build_sensors(), sampler="resample-move",
-                        **self.settings)
-
-    def build_monitor(self):
-        """A fresh :class:`~seqbayes.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` (None without it)."""
-        if self.monitor is None:
-            return None
-        from ..stiffness_drop import StiffnessDropMonitor
-
-        n = self.n_storeys
-        settings = {k: (tuple(v) if isinstance(v, list) else v) for k, v in self.monitor.items() if k != "seed"}
-        return StiffnessDropMonitor(self.build_building(), self.dt, np.array(self.lower[:n]),
-                                    np.array(self.upper[:n]), np.array(self.measurement_std),
-                                    process_noise_std=self.process_std, channels=self.build_sensors(), **settings)
-
-    def to_dict(self) -> dict:
-        """Plain JSON-able dict (stored in the run store)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        if out["monitor"] is None:  # absent, so runs without a monitor keep their fingerprint
-            del out["monitor"]
-        out = {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
-        out["kind"] = RUN_KIND
-        return out
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "SGRunConfig":
-        """Inverse of :meth:`to_dict`."""
-        data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k != "kind"}
-        return cls(**data)
-
-    def fingerprint(self) -> str:
-        """SHA-256 of everything that defines the model and the random stream (not the name or folder)."""
-        content = {k: v for k, v in self.to_dict().items() if k not in ("name", "search_path")}
-        return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-
-
-def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.PathLike | None = None) -> SGRunConfig:
-    """Validate a parsed TOML mapping with a ``[building]`` section; errors name the field.
-
-    Raises
-    ------
-    ConfigError
-    """
-    _keys(raw, {"model", "building", "sensors", "data", "priors", "noise", "sampler", "monitor"}, source,
-          "<top level>")
-    model = raw.get("model", {})
-    _keys(model, {"name", "type"}, source, "model")
-    if model.get("type", RUN_KIND) != RUN_KIND:
-        _fail(source, "model.type", f"a [building] configuration is an SG-EnMCMC run (type = \"{RUN_KIND}\"), "
-                                    f"got {model.get('type')!r}")
-    name = model.get("name", "shear-building")
-    if not isinstance(name, str) or not name:
-        _fail(source, "model.name", f"expected a non-empty string, got {name!r}")
-
-    building = raw.get("building")
-    if building is None:
-        _fail(source, "[building]", "missing section")
-    _keys(building, {"masses", "stiffnesses", "damping_ratios", "damping_modes", "module"}, source, "building")
-    module_spec = module_sha = None
-    if "module" in building:
-        if set(building) - {"module"}:
-            _fail(source, "building.module", "give either module or the numbers (masses, stiffnesses, ...), "
-                                             "not both")
-        module_spec = building["module"]
-        if not isinstance(module_spec, str) or module_spec.count(":") != 1 or not all(module_spec.split(":")):
-            _fail(source, "building.module", f"expected \"module:function\", got {module_spec!r}")
-        try:
-            located = locate_module(module_spec.split(":")[0], base_dir)
-            made = load_located(module_spec, located)()
-        except ConfigError as err:
-            raise ConfigError(f"{source}: {str(err).replace('model.likelihood:', 'building.module:', 1)}") from None
-        except Exception as err:
-            _fail(source, "building.module", f"{module_spec}() raised {type(err).__name__}: {err}")
-        from ..structures import ShearBuilding
-
-        if not isinstance(made, ShearBuilding):
-            _fail(source, "building.module", f"{module_spec}() must return a seqbayes.structures.ShearBuilding, "
-                                             f"got {type(made).__name__}")
-        module_sha = located.sha256
-        masses, stiffnesses = [float(v) for v in made.masses], [float(v) for v in made.stiffnesses]
-        damping_ratios, damping_modes = list(made.damping_ratios), list(made.damping_modes)
-    else:
-        for key in ("masses", "stiffnesses", "damping_ratios"):
-            if key not in building:
-                _fail(source, f"building.{key}", "missing")
-        masses = _numbers(building["masses"], source, "building.masses", positive=True)
-        stiffnesses = _numbers(building["stiffnesses"], source, "building.stiffnesses", n=len(masses),
-                               positive=True)
-        damping_ratios = _numbers(building["damping_ratios"], source, "building.damping_ratios", n=2)
-        modes = building.get("damping_modes", [1, 2] if len(masses) > 1 else [1, 1])
-        if (not isinstance(modes, list) or len(modes) != 2
-                or not all(isinstance(m, int) and not isinstance(m, bool) for m in modes)):
-            _fail(source, "building.damping_modes", f"expected two mode numbers, got {modes!r}")
-        damping_modes = modes
-    n = len(masses)
-
-    sensors = raw.get("sensors", {"accelerations": list(range(1, n + 1))})
-    _keys(sensors, {"accelerations", "drifts"}, source, "sensors")
-    layout = {}
-    for key in ("accelerations", "drifts"):
-        values = sensors.get(key, [])
-        if (not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in values)
-                or any(not 1 <= v <= n for v in values) or len(set(values)) != len(values)):
-            _fail(source, f"sensors.{key}", f"expected distinct floor numbers in 1..{n}, got {values!r}")
-        layout[key] = tuple(values)
-    p = len(layout["accelerations"]) + len(layout["drifts"])
-    if p == 0:
-        _fail(source, "[sensors]", "at least one sensor is needed")
-
-    data = raw.get("data")
-    if data is None:
-        _fail(source, "[data]", "missing section")
-    _keys(data, {"dt", "input", "responses", "time", "units"}, source, "data")
-    if "dt" not in data:
-        _fail(source, "data.dt", "missing (the sampling step in seconds)")
-    dt = _numbers(data["dt"], source, "data.dt", positive=True)[0]
-    column_input = data.get("input")
-    if not isinstance(column_input, str) or not column_input:
-        _fail(source, "data.input", f"expected the name of the ground-acceleration column, got {column_input!r}")
-    responses = data.get("responses")
-    if not isinstance(responses, list) or not all(isinstance(c, str) and c for c in responses):
-        _fail(source, "data.responses", f"expected a list of column names, got {responses!r}")
-    if len(responses) != p:
-        _fail(source, "data.responses", f"expected {p} columns (one per sensor of [sensors]: "
-                                        f"{len(layout['accelerations'])} accelerations, then "
-                                        f"{len(layout['drifts'])} drifts), got {len(responses)}")
-    time_column = data.get("time")
-    if time_column is not None and (not isinstance(time_column, str) or not time_column):
-        _fail(source, "data.time", f"expected a column name, got {time_column!r}")
-    columns = ([time_column] if time_column else []) + [column_input] + responses
-    if len(set(columns)) != len(columns):
-        _fail(source, "data", f"duplicate column names in {columns}")
-    units = _parse_units(data.get("units"), column_input, responses, len(layout["accelerations"]), source)
-
-    priors = raw.get("priors")
-    if priors is None:
-        _fail(source, "[priors]", "missing section (lower and upper bounds of the stiffness ratios)")
-    _keys(priors, {"lower", "upper"}, source, "priors")
-    for key in ("lower", "upper"):
-        if key not in priors:
-            _fail(source, f"priors.{key}", "missing")
-    lower = _numbers(priors["lower"], source, "priors.lower", n=n, positive=True)
-    upper = _numbers(priors["upper"], source, "priors.upper", n=n, positive=True)
-    if any(u <= lo for lo, u in zip(lower, upper)):
-        _fail(source, "priors.upper", f"must exceed priors.lower in every storey, got {lower} and {upper}")
-
-    noise = raw.get("noise")
-    if noise is None or "measurement_std" not in noise:
-        _fail(source, "noise.measurement_std", "missing (the measurement noise std of each response column)")
-    _keys(noise, {"measurement_std", "process_std"}, source, "noise")
-    measurement_std = _numbers(noise["measurement_std"], source, "noise.measurement_std", n=p, positive=True)
-    process_std = _numbers(noise.get("process_std", 0.0), source, "noise.process_std")[0]
-    if process_std < 0:
-        _fail(source, "noise.process_std", f"must be >= 0, got {process_std}")
-
-    sampler = dict(raw.get("sampler", {}))
-    _keys(sampler, set(sampler), source, "sampler")
-    n_members = sampler.pop("n_members", 500)
-    seed = sampler.pop("seed", 0)
-    for key, value in (("n_members", n_members), ("seed", seed)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            _fail(source, f"sampler.{key}", f"expected a non-negative integer, got {value!r}")
-    from ..sgenmcmc import SGEnMCMC
-
-    keywords = set(inspect.signature(SGEnMCMC).parameters) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
-    for key in sampler:
-        if key not in keywords:
-            _fail(source, f"sampler.{key}", f"unknown setting; expected one of "
-                                            f"{', '.join(sorted(keywords | set(_OWN_SAMPLER_KEYS)))}")
-    config = SGRunConfig(name=name, masses=tuple(masses), stiffnesses=tuple(stiffnesses),
-                         damping_ratios=tuple(damping_ratios), damping_modes=tuple(damping_modes),
-                         accelerations=layout["accelerations"], drifts=layout["drifts"], dt=dt,
-                         input=column_input, responses=tuple(responses), lower=tuple(lower), upper=tuple(upper),
-                         measurement_std=tuple(measurement_std), process_std=process_std, n_members=n_members,
-                         seed=seed, settings=sampler, time=time_column, units=units, building_module=module_spec,
-                         building_sha256=module_sha,
-                         search_path=str(Path(base_dir).resolve()) if base_dir is not None else None)
-    try:  # the building and the identifier validate the numbers, naming the argument
-        config.build_building().check_sampling(dt)
-    except ValueError as err:
-        _fail(source, "building" if not str(err).startswith("dt") else "data.dt", str(err))
-    try:
-        identifier = config.build_identifier()
-    except (TypeError, ValueError) as err:
-        _fail(source, "sampler", str(err))
-    choice = getattr(identifier, "surrogate_choice", None)
-    if choice is not None:
-        # surrogate = "auto" measures the transitions' cost now, once: the choice is pinned as a
-        # level (a timing-dependent choice at every update would break bit-identical resume)
-        settings = {k: v for k, v in sampler.items() if k not in ("surrogate", "surrogate_options")}
-        settings["level"] = choice.level
-        config = dataclasses.replace(config, settings=settings, surrogate_choice=choice.reason)
-    if "monitor" in raw:
-        monitor = dict(raw["monitor"])
-        _keys(monitor, set(_MONITOR_KEYWORDS) | {"seed"}, source, "monitor")
-        monitor_seed = monitor.setdefault("seed", seed + 1)
-        if isinstance(monitor_seed, bool) or not isinstance(monitor_seed, int) or monitor_seed < 0:
-            _fail(source, "monitor.seed", f"expected a non-negative integer, got {monitor_seed!r}")
-        config = dataclasses.replace(config, monitor=monitor)
-        try:
-            config.build_monitor()
-        except (TypeError, ValueError) as err:
-            _fail(source, "monitor", str(err))
-    return config
-
-
-_ACCELERATION_UNITS = ("g", "m/s2", "m/s^2", "cm/s2", "cm/s^2", "gal", "mm/s2", "mm/s^2")
-_LENGTH_UNITS = ("m", "cm", "mm")
-
-
-def _parse_units(raw, column_input, responses, n_accelerations, source) -> dict:
-    """``[data] units``: one unit for every acceleration column (a string), or ``{column: unit}``;
-    accelerations (the input and the accelerometers) take acceleration units, drifts lengths.
-    Returns ``{column: unit}`` of the columns not already in SI."""
-    kinds = {column_input: "acceleration", **{c: "acceleration" if i < n_accelerations else "drift"
-                                             for i, c in enumerate(responses)}}
-    if raw is None:
-        return {}
-    if isinstance(raw, str):
-        raw = {c: raw for c, kind in kinds.items() if kind == "acceleration"}
-    if not isinstance(raw, dict):
-        _fail(source, "data.units", f"expected a unit (\"g\") or a table {{ column = \"unit\" }}, got {raw!r}")
-    out = {}
-    for column, unit in raw.items():
-        if column not in kinds:
-            _fail(source, f"data.units.{column}", f"not an input or response column ({', '.join(kinds)})")
-        allowed = _ACCELERATION_UNITS if kinds[column] == "acceleration" else _LENGTH_UNITS
-        if unit not in allowed:
-            _fail(source, f"data.units.{column}", f"an {kinds[column]} column takes one of {', '.join(allowed)}, "
-                                                  f"got {unit!r}")
-        if unit not in ("m/s2", "m/s^2", "m"):
-            out[column] = unit
-    return out
-
-
-def load_sg_config(path: str | os.PathLike) -> SGRunConfig:
-    """Read and validate an SG-EnMCMC TOML configuration (:func:`parse_sg_config`)."""
-    path = Path(path)
-    raw = read_toml(path)
-    return parse_sg_config(raw, str(path), base_dir=path.parent)
-
-
-def run_kind(path: str | os.PathLike) -> str:
-    """``"sgenmcmc"`` for an SG-EnMCMC run store, ``"semc"`` for any other file (which
-    :meth:`seqbayes.RunStore.open` then reads or refuses with its own message)."""
-    import h5py
-
-    try:
-        with open(path, "rb") as fh:
-            with contextlib.suppress(OSError):   # as the store's readers: never between two halves of a step
-                lock_file(fh, exclusive=False)
-            journal = _read_journal(Path(path))      # a committed step not yet written into the file
-            with h5py.File(_PendingWrites(fh, journal) if journal is not None else fh, "r") as f:
-                return str(_plain(f.attrs.get("run_kind", "semc")))
-    except Exception:
-        return "semc"
-
-
 # ------------------------------------------------------------------------------ the store
-class SGRunStore:
+@register(RUN_KIND)
+class SGRunStore(BaseStore):
     """An on-line SG-EnMCMC identification kept in one NetCDF-4 file (module docstring).
 
     Create with :meth:`create`, open with :meth:`open`, assimilate blocks of the record with
@@ -570,38 +101,28 @@ class SGRunStore:
     digests, sources : list of str
     """
 
+    title = "SG-EnMCMC"
+    format_version = SG_FORMAT_VERSION
+    readable_versions = (SG_FORMAT_VERSION,)
+    growing = {"step": 8, "rng_index": 8, "time": 512, "event": 64}
+    unit = "block"
+
     def __init__(self, path, config: SGRunConfig, *, rng_states, tables=(), fixed=(), per_time=None,
                  events=None, event_rows=(), infos=(), digests=(), sources=(), created=None, record_hashes=()):
-        self.path = Path(path)
-        self.config = config
-        self.rng_states = list(rng_states)
+        super().__init__(path, config, rng_states=rng_states, digests=digests, sources=sources, created=created,
+                         record_hashes=record_hashes)
         self.tables = list(tables)
         self.fixed = list(fixed)
         self.per_time = dict(per_time or {})
         self.events = np.zeros((0, 4)) if events is None else np.asarray(events, float).reshape(-1, 4)
         self.event_rows = list(event_rows)
         self.infos = list(infos)
-        self.digests = list(digests)
-        self.sources = list(sources)
-        self.created = created or _now()
-        self._record_hashes = list(record_hashes)
-        self._token = None
-        self._disk_steps = 0
 
     # ----------------------------------------------------------------------- basics
-    @property
-    def n_steps(self) -> int:
-        """Blocks assimilated so far."""
-        return len(self.tables)
-
     @property
     def n_samples(self) -> int:
         """Samples of the record assimilated so far."""
         return int(sum(t.shape[0] for t in self.tables))
-
-    @property
-    def names(self) -> tuple:
-        return self.config.names
 
     @property
     def log_evidence(self) -> float:
@@ -609,80 +130,27 @@ class SGRunStore:
         return float(self.per_time["log_evidence_increments"].sum()) if self.n_steps else 0.0
 
     @classmethod
-    def create(cls, path: str | os.PathLike, config: SGRunConfig, *, overwrite: bool = False) -> "SGRunStore":
-        """Start a new run at ``path`` (nothing is drawn yet: the first block draws the prior
-        particles from the generator seeded by ``config.seed``) and write it.
-
-        Raises
-        ------
-        StoreError
-            ``path`` exists (and not ``overwrite``), is a folder, or cannot be written.
-        """
-        path = Path(path)
-        if path.is_dir():
-            raise StoreError(f"{path}: is a folder; give the run store's file name, e.g. {path / 'run.nc'}")
-        with store_lock(path):
-            if path.exists() and not overwrite:
-                raise StoreError(f"{path}: a run store already exists (pass overwrite=True / --force to replace it)")
-            store = cls(path, config, rng_states=[generator_state(as_generator(config.seed))])
-            store.write()
-        return store
+    def _new(cls, path: Path, config: SGRunConfig) -> "SGRunStore":
+        """A new run: nothing is drawn yet (the first block draws the prior particles from the generator
+        seeded by ``config.seed``)."""
+        return cls(path, config, rng_states=[generator_state(as_generator(config.seed))])
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> "SGRunStore":
-        """Load and verify an SG-EnMCMC run store (runs no user code).
-
-        Raises
-        ------
-        StoreError
-            Missing, damaged (hash or checksum mismatch, NaN, missing or inconsistent
-            variables), not an SG-EnMCMC store, or of another format version.
-        """
-        path = Path(path)
-        attrs, variables = _read_file(path)
-        try:
-            store = cls._from_file(path, attrs, variables)
-        except StoreError:
-            raise
-        except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
-            what = (f"missing variable or attribute {err}" if isinstance(err, KeyError)
-                    else f"{type(err).__name__}: {err}")
-            raise StoreError(f"{path}: damaged or inconsistent run store ({what})") from None
-        store._token = (attrs.get("content_sha256"), store.n_steps)
-        store._disk_steps = store.n_steps
-        return store
-
-    @classmethod
-    def _from_file(cls, path: Path, attrs: dict, variables: dict) -> "SGRunStore":
-        if attrs.get("run_kind") != RUN_KIND:
-            raise StoreError(f"{path}: not an SG-EnMCMC run store (open it with seqbayes.RunStore.open)")
-        version = int(attrs.get("seqbayes_store_format", -1))
-        if version != SG_FORMAT_VERSION:
-            raise StoreError(f"{path}: SG-EnMCMC run-store format version {version}, but this seqbayes reads "
-                             f"version {SG_FORMAT_VERSION}")
+    def _from_file(cls, path: Path, attrs: dict, variables: dict, config: SGRunConfig | None,
+                   version: int) -> "SGRunStore":
         n_steps = int(attrs["n_steps"])
-        text = {name: [str(v) for v in variables[name]] if name in variables else []
-                for name in _RECORD_TEXT + ("record_sha256",)}
-        rng_text = text["rng_state"]
-        if len(rng_text) != n_steps + 1 or any(len(text.get(name, ())) != n_steps for name in _RECORD_TEXT
-                                               if name != "rng_state"):
-            raise StoreError(f"{path}: inconsistent store ({len(rng_text)} generator states and "
-                             f"{len(text.get('step_info', ()))} step records for n_steps = {n_steps})")
-        per_step = list(zip(*[text[name] if name != "rng_state" else rng_text[1:] for name in _RECORD_TEXT]))
-        record_hashes = [_record_hash(texts) for texts in per_step]
-        bad = [i + 1 for i, (a, b) in enumerate(zip(text.get("record_sha256", []), record_hashes)) if a != b]
-        if (bad or len(text.get("record_sha256", [])) != n_steps
-                or attrs.get("content_sha256") != _content_hash(attrs, rng_text[0], record_hashes)):
-            where = f" (the records of step {bad[0]})" if bad else ""
-            raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records does "
-                             f"not match{where} (the file was edited or corrupted)")
-        config = SGRunConfig.from_dict(_json(attrs["config"], path, "config"))
-        if config.fingerprint() != attrs.get("model_fingerprint"):
+        text, record_hashes = cls._read_records(path, attrs, variables, version)
+        stored = SGRunConfig.from_dict(json_value(attrs["config"], path, "config"))
+        if stored.fingerprint() != attrs.get("model_fingerprint"):
             raise StoreError(f"{path}: model fingerprint does not match the stored configuration (the file was "
                              f"edited or written by an incompatible seqbayes)")
-        _check_finite(path, variables)
-        rng_states = _json_list(rng_text, path, "rng_state")
-        infos = _json_list(text["step_info"], path, "step_info")
+        if config is not None and config.fingerprint() != stored.fingerprint():
+            raise StoreError(f"{path}: the run was created for another model (fingerprint "
+                             f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]})")
+        config = stored
+        check_finite(path, variables)
+        rng_states = json_values(text["rng_state"], path, "rng_state")
+        infos = json_values(text["step_info"], path, "step_info")
         tables, fixed, per_time, events, event_rows = [], [], {}, np.zeros((0, 4)), []
         if n_steps:
             rows = variables["dataset_rows"]
@@ -803,7 +271,7 @@ class SGRunStore:
 
     # ----------------------------------------------------------------------- assimilation
     def _si_block(self, table, source: str) -> np.ndarray:
-        """The table checked (:func:`~seqbayes.datasets.check_table`) and in SI units (``[data] units``)."""
+        """The table checked (:func:`~seqbayes.store.datasets.check_table`) and in SI units (``[data] units``)."""
         table = check_table(table, self.config, source)
         factors = self.config.si_factors()
         return table if np.all(factors == 1.0) else table * factors
@@ -811,11 +279,7 @@ class SGRunStore:
     def _check_block(self, table, source: str) -> np.ndarray:
         """The SI table (:meth:`_si_block`) not assimilated before and, with a time column, in step with
         ``dt`` and continuing the record."""
-        digest = dataset_digest(table, self.config.columns)
-        if digest in self.digests:
-            step = self.digests.index(digest) + 1
-            raise DuplicateDatasetError(f"{self.path}: this block was already assimilated as step {step} (from "
-                                        f"{self.sources[step - 1]}, sha256 {digest[:12]})")
+        self.check_new_dataset(dataset_digest(table, self.config.columns))
         if self.config.time:
             t = table[:, 0]
             dt = self.config.dt
@@ -830,9 +294,15 @@ class SGRunStore:
                                     f"must start at {expected:g} s (blocks are assimilated in order)")
         return table
 
-    def assimilate(self, table: ArrayLike, source: str = "<array>", *, write: bool = True) -> dict:
+    def assimilate(self, table: ArrayLike, source: str = "<array>", *, replace_last: bool = False,
+                   executor: Any = None, loglike: Any = None, write: bool = True,
+                   accept_model_change: bool = False) -> dict:
         """Assimilate the next block of the record, an ``(n, c)`` array with the columns
         ``config.columns``, and save the store.
+
+        ``replace_last`` is refused (the blocks are one continuous record). ``executor``, ``loglike``
+        and ``accept_model_change`` are the SMC store's keywords, taken so that every backend answers
+        the same call: an SG-EnMCMC run has no user likelihood, so they change nothing.
 
         Returns
         -------
@@ -842,7 +312,7 @@ class SGRunStore:
 
         Raises
         ------
-        seqbayes.datasets.DataError
+        seqbayes.store.datasets.DataError
             Wrong shape or column count, no rows, NaN/inf, a time column out of step.
         DuplicateDatasetError
             The block was assimilated before.
@@ -851,12 +321,12 @@ class SGRunStore:
         """
         import time
 
+        if replace_last:
+            self.require("replace_last")
         where = "table" if source == "<array>" else f"table from {source}"
         table = self._check_block(self._si_block(table, where), where)
-        with store_lock(self.path) if write else contextlib.nullcontext():
+        with self._updating(write):
             if write:
-                _recover_journal(self.path)
-                self._reload_if_changed()
                 table = self._check_block(table, where)
             sampler = self.identifier()
             offset = 1 if self.config.time else 0
@@ -904,22 +374,6 @@ class SGRunStore:
             if write:
                 self.write()
         return info
-
-    def update(self, datafile: str | os.PathLike) -> dict:
-        """Read a block file (CSV with a header, or NetCDF; :func:`~seqbayes.datasets.read_datafile`)
-        and :meth:`assimilate` it."""
-        table = read_datafile(datafile, self.config)
-        return self.assimilate(table, Path(datafile).name)
-
-    def _reload_if_changed(self) -> None:
-        """Under the lock: take in the blocks another process stored since this object read the file."""
-        if self._token is None or _read_token(self.path) == self._token:
-            return
-        fresh = SGRunStore.open(self.path)
-        if fresh.config.fingerprint() != self.config.fingerprint():
-            raise StoreError(f"{self.path}: the run store was replaced by a run of another model since it was opened")
-        self.__dict__.update(fresh.__dict__)
-
     # ----------------------------------------------------------------------- summaries
     def block_posterior(self, step: int = -1, level: float = 0.95) -> dict:
         """The posterior of the stiffness ratios at the end of a block: ``{name: {mean, sd, lower,
@@ -954,38 +408,17 @@ class SGRunStore:
             raise ValueError(f"{self.path}: no block assimilated yet")
         theta, w = self.posterior_samples(step)
         return modal_summary(self.config.build_building(), theta[:, :self.config.n_storeys], w, identified_shapes)
-
     # ----------------------------------------------------------------------- writing
     def _step_texts(self, k: int) -> tuple:
         return (json.dumps(self.infos[k]), json.dumps(self.rng_states[k + 1]), self.digests[k], self.sources[k], "")
 
-    def _attrs(self, record_hashes) -> dict:
-        from .. import __version__
+    def _own_attrs(self) -> dict:
+        return {"run_kind": RUN_KIND}
 
-        attrs = {"seqbayes_store_format": SG_FORMAT_VERSION, "run_kind": RUN_KIND, "seqbayes_version": __version__,
-                 "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),
-                 "model_name": self.config.name, "n_steps": self.n_steps, "created": self.created, "updated": _now()}
-        attrs["content_sha256"] = _content_hash(attrs, json.dumps(self.rng_states[0]), record_hashes)
-        return attrs
-
-    def _rows(self, start: int) -> tuple[dict, list]:
-        """``(variables, texts)``: name -> (dims, values) of steps ``start ..`` along the growing dimensions."""
-        texts = [self._step_texts(k) for k in range(start, self.n_steps)]
-        rng_from = 0 if start == 0 else start + 1
-        data = {"rng_state": (("rng_index",), np.array([json.dumps(s) for s in self.rng_states[rng_from:]],
-                                                      dtype=object))}
-        if start >= self.n_steps:
-            return data, texts
-        columns = list(zip(*texts))
+    def _step_rows(self, start: int, data: dict, coords: dict) -> None:
         T0 = int(sum(t.shape[0] for t in self.tables[:start]))
         E0 = int(sum(self.event_rows[:start]))
         data.update({
-            "step": (("step",), np.arange(start + 1, self.n_steps + 1)),
-            "step_info": (("step",), np.array(columns[0], dtype=object)),
-            "dataset_sha256": (("step",), np.array(columns[2], dtype=object)),
-            "dataset_source": (("step",), np.array(columns[3], dtype=object)),
-            "likelihood_sha256": (("step",), np.array(columns[4], dtype=object)),
-            "record_sha256": (("step",), np.array([_record_hash(t) for t in texts], dtype=object)),
             "dataset_values": (("time", "column"), np.concatenate(self.tables[start:])),
             "dataset_rows": (("step",), np.array([t.shape[0] for t in self.tables[start:]])),
             "sg_events": (("event", "event_field"), self.events[E0:]),
@@ -996,82 +429,68 @@ class SGRunStore:
             data[_PREFIX + key] = (("step",) + _fixed_dims(key, stacked.ndim - 1), stacked)
         for key, value in self.per_time.items():
             data[_PREFIX + key] = (("time",) + tuple(f"{key}_{a}" for a in range(1, value.ndim)), value[T0:])
-        return data, texts
 
-    def _hashes_through(self, texts, start: int) -> list:
-        return self._record_hashes[:start] + [_record_hash(t) for t in texts]
+    def _whole_variables(self) -> tuple[dict, dict]:
+        return {}, {"parameter": list(self.names), "column": list(self.config.columns)}
 
-    def to_xarray(self):
-        """The store's content as an :class:`xarray.Dataset` (what a whole write saves)."""
-        import xarray as xr
+    # ------------------------------------------------- what the command line asks
+    def _unsupported(self, operations: list) -> str:
+        if operations[0] == "replace_last":
+            return (f"--replace-last: not available for an SG-EnMCMC run ({self.path}): its blocks are one "
+                    f"continuous record; re-create the run (seqbayes init --force) to assimilate it again")
+        if operations[0].startswith("report "):
+            return ("--compare, --threshold and --data are for SEMC/SMC runs; an SG-EnMCMC report takes --modes, "
+                    "--level and --no-embed")
+        what = {"predict": "predict (a forecast through the Markov kernel)"}.get(operations[0], operations[0])
+        return (f"{self.path}: an SG-EnMCMC run; {what} is for SEMC/SMC runs (use seqbayes status or seqbayes "
+                f"report)")
 
-        data, texts = self._rows(0)
-        coords = {"parameter": list(self.names), "column": list(self.config.columns)}
-        if "step" in data:
-            coords["step"] = data.pop("step")[1]
-        ds = xr.Dataset(data, coords=coords)
-        ds.attrs.update(self._attrs(self._hashes_through(texts, 0)))
-        return ds
+    def describe(self) -> str:
+        config = self.config
+        sensors = ", ".join([f"acceleration {f}" for f in config.accelerations]
+                            + [f"drift {f}" for f in config.drifts])
+        boxes = [f"U({lo:g}, {up:g})" for lo, up in zip(config.lower, config.upper)]
+        prior = f"{boxes[0]} each" if len(set(boxes)) == 1 else ", ".join(boxes)
+        return (f"SG-EnMCMC run {self.path} for model {config.name!r}: {config.n_storeys}-storey shear building, "
+                f"stiffness ratios {', '.join(config.names)} ~ {prior}; sensors: {sensors}; N = {config.n_members}, "
+                f"seed {config.seed}; each block needs the columns {', '.join(config.columns)} at dt = "
+                f"{config.dt:g} s")
 
-    def write(self) -> None:
-        """Write the store: append the new steps in place through the journal, or write it whole.
+    def step_summary(self, info: dict, source: str) -> str:
+        post = self.block_posterior(info["step"] - 1)
+        ratios = ", ".join(f"{name} {p['mean']:.4g} +- {p['sd']:.2g}" for name, p in post.items())
+        moves = (f"{info['moves']} resample-moves (acceptance {info['acceptance']:.3f})" if info["moves"]
+                 else "no resample-moves")
+        last = info["first_sample"] + info["rows"] - 1
+        return (f"step {info['step']} from {source}: samples {info['first_sample']}-{last} (t = "
+                f"{info['time_start']:.2f}-{last * self.config.dt:.2f} s), log-evidence increment "
+                f"{info['log_evidence_increment']:.4f}, cumulative {info['log_evidence']:.4f}, ESS "
+                f"{info['ess_end']:.1f} of N = {self.config.n_members}, {moves}; {ratios}")
 
-        Raises
-        ------
-        StoreError
-            The folder is read-only or full, or the path is a folder; the previous store is kept.
-        """
-        with store_lock(self.path):
-            self._write_locked()
+    def status(self, level: float = 0.95) -> str:
+        from .sg_report import format_sg_status
 
-    def _write_locked(self) -> None:
-        _write_whole(self, _GROWING)
+        return format_sg_status(self, level)
 
-    def _written(self, content_hash: str, record_hashes: list) -> None:
-        self._record_hashes = list(record_hashes)
-        self._token = (content_hash, self.n_steps)
-        self._disk_steps = self.n_steps
+    def status_json(self, level: float = 0.95) -> dict:
+        from .sg_report import sg_status_rows
 
-    def _append(self) -> bool:
-        """Append the steps after ``_disk_steps`` in place through the journal (:mod:`seqbayes.store`);
-        False (nothing written) when the file is not this object's earlier steps in this layout."""
-        import h5py
+        return {"run": str(self.path), "model": self.config.name, "kind": RUN_KIND,
+                "steps": sg_status_rows(self, level)}
 
-        start = self._disk_steps
-        if not (0 < start < self.n_steps and self._token is not None and _read_token(self.path) == self._token):
-            return False
-        rows, texts = self._rows(start)
-        record_hashes = self._hashes_through(texts, start)
-        attrs = self._attrs(record_hashes)
-        data = {name: values for name, (dims, values) in rows.items()}
-        dims = {name: d[0] for name, (d, values) in rows.items()}
-        try:
-            with open(self.path, "rb") as fh:
-                pending = _PendingWrites(fh)
-                with h5py.File(pending, "r+") as f:
-                    growing = {name for name, obj in f.items() if obj.shape and obj.maxshape[0] is None
-                               and name not in _BARE}
-                    if (int(_plain(f.attrs.get("seqbayes_store_format", 0))) != SG_FORMAT_VERSION
-                            or int(_plain(f.attrs.get("n_steps", -1))) != start or growing != set(data)
-                            or any(f[name].shape[1:] != np.shape(values)[1:] for name, values in data.items())):
-                        return False
-                    for dim in _BARE:
-                        extra = {len(data[name]) for name in data if dims[name] == dim}
-                        if len(extra) != 1:
-                            return False
-                        _extend(f[dim], extra.pop())
-                    for name, values in data.items():
-                        _extend(f[name], len(values), values)
-                    for key, value in attrs.items():
-                        f.attrs[key] = value
-                journal = (pending.on_disk, pending.size, pending.changes())
-        except OSError as err:
-            raise StoreError(f"{self.path}: cannot read the run store to append: {_os_message(err)}; the previous "
-                             f"store is kept") from None
-        _apply_with_journal(self.path, journal)
-        self._written(attrs["content_sha256"], record_hashes)
-        _fault("after-replace")
-        return True
+    def write_report(self, output: str | os.PathLike, *, level: float = 0.95, embed: bool = True,
+                     modes: str | os.PathLike | None = None, others=(), thresholds=(), fit_data=None,
+                     forecast_steps: int = 0, horizon: int = 0) -> None:
+        """The HTML report (:func:`seqbayes.store.sg_report.write_sg_report`) with the MAC against the mode
+        shapes in the CSV file ``modes``. ``others``, ``thresholds`` and ``fit_data`` are for SEMC/SMC
+        runs (refused); there is no forecast, so ``forecast_steps`` and ``horizon`` have no use."""
+        from .sg_report import read_mode_shapes, write_sg_report
+
+        self.require(*[f"report --{name}" for name, value in (("compare", others), ("threshold", thresholds),
+                                                              ("data", fit_data)) if value])
+        identified = read_mode_shapes(modes, self.config.n_storeys) if modes else None
+        write_sg_report(self, Path(output), level=level, embed=embed, identified_shapes=identified,
+                        identified_source=Path(modes).name if modes else None)
 
 
 def _monitor_arrays(snapshot: dict) -> dict:
@@ -1105,4 +524,7 @@ def _fixed_dims(key: str, ndim: int) -> tuple:
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
+    from typing import Any
+
     from numpy.typing import ArrayLike
+

@@ -290,4 +290,4 @@ def check_state(state, record: StepRecord) -> None:
                 and np.array_equal(state.log_weights, record.log_weights)
                 and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
     if not same:  # pragma: no cover - guards the identity state_from_arrays relies on
-        raise ValueError("state: differs from its step record; seqbayes.snapshot needs updating")
+        raise ValueError("state: differs from its step record; seqbayes.store.snapshot needs updating")
