@@ -19,11 +19,11 @@ from .selection import ModelComparison, compare
 from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
                          ZeroLikelihoodError, assimilate)
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
-from .store import RunStore, SGRunStore, load_config, posterior_to_arviz
+from .store import RunStore, SGRunStore, load_config, open_run, posterior_to_arviz
 
 __version__ = "0.1.0"
 __all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
-           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "SGRunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
+           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "SGRunStore", "open_run", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",

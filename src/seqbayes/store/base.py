@@ -240,6 +240,9 @@ class BaseStore:
     @classmethod
     def _check_header(cls, path: Path, attrs: dict, variables: dict) -> int:
         """The file's format version, once its kind and version are this backend's."""
+        version = attrs.get("seqbayes_store_format")
+        if version is None:
+            raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
         kind = str(attrs.get("run_kind", registry.DEFAULT_KIND))
         if kind != cls.kind:
             other = registry.backend_or_none(kind)
@@ -248,9 +251,6 @@ class BaseStore:
             raise StoreError(f"{path}: an {other.title} run store (run_kind {kind!r}); open it with "
                              f"seqbayes.store.open_run or seqbayes.{other.__name__}.open (the seqbayes commands "
                              f"init, update, status and report take it)")
-        version = attrs.get("seqbayes_store_format")
-        if version is None:
-            raise StoreError(f"{path}: not a seqbayes run store (no seqbayes_store_format attribute)")
         if int(version) not in cls.readable_versions:
             plural = "s" if len(cls.readable_versions) > 1 else ""
             raise StoreError(f"{path}: run-store format version {int(version)}, but this seqbayes reads version"
@@ -291,6 +291,18 @@ class BaseStore:
                 raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records "
                                  f"does not match{where} (the file was edited or corrupted)")
         return text, record_hashes
+
+    @staticmethod
+    def _check_config(path: Path, attrs: dict, stored, config) -> None:
+        """Refuse a stored configuration whose fingerprint is not the file's, or (``config`` given) that
+        defines another model than ``config``."""
+        if stored.fingerprint() != attrs.get("model_fingerprint"):
+            raise StoreError(f"{path}: model fingerprint does not match the stored configuration "
+                             f"(the file was edited or written by an incompatible seqbayes)")
+        if config is not None and config.fingerprint() != stored.fingerprint():
+            fields = ", ".join(stored.differing_fields(config)) or "?"
+            raise StoreError(f"{path}: the run was created for another model (fingerprint "
+                             f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]}); differing fields: {fields}")
 
     @classmethod
     def _from_file(cls, path: Path, attrs: dict, variables: dict, config, version: int):

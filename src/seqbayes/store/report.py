@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
     from ..prognostics import FirstPassage, Threshold
     from ..selection import ModelComparison
-    from .smc import RunStore
+    from .base import BaseStore
 
 __all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
            "first_passage_rows", "first_passage_json", "format_first_passage", "describe_prior", "describe_kernel",
@@ -45,7 +45,7 @@ def _tails(level):
     return tail, 1.0 - tail
 
 
-def status_rows(store: RunStore, level: float = 0.95) -> list[dict]:
+def status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
@@ -83,7 +83,7 @@ def _fmt(x):
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
-def format_status(store: RunStore, level: float = 0.95) -> str:
+def format_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables."""
     cfg = store.config
     lines = [f"run {store.path}  model {cfg.name!r}  likelihood {cfg.likelihood}  sampler {cfg.sampler} "
@@ -122,7 +122,7 @@ def format_status(store: RunStore, level: float = 0.95) -> str:
     return "\n".join(lines)
 
 
-def forecast_rows(store: RunStore, n_steps: int, level: float = 0.95,
+def forecast_rows(store: BaseStore, n_steps: int, level: float = 0.95,
                   forecast: np.ndarray | None = None) -> list[dict]:
     """Forecast summary ``K`` steps ahead: one dict per (ahead, parameter) with mean, sd, interval."""
     lo, hi = _tails(level)
@@ -226,7 +226,7 @@ def describe_kernel(spec: dict) -> str:
     return f"{base} + N(0, {_num(noise)})" if noise > 0 else base
 
 
-def first_passage_rows(store: RunStore, threshold: Threshold, passage: FirstPassage) -> list[dict]:
+def first_passage_rows(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> list[dict]:
     """Per future step ``h``: the step, ``P(first crossing at h)``, ``P(crossed by h)`` and their Monte
     Carlo standard errors."""
     return [{"step": store.n_steps + h + 1, "ahead": h + 1, "probability": float(passage.probability[h]),
@@ -235,7 +235,7 @@ def first_passage_rows(store: RunStore, threshold: Threshold, passage: FirstPass
             for h in range(passage.horizon)]
 
 
-def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPassage) -> dict:
+def first_passage_json(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> dict:
     """The time to ``threshold`` (a :class:`~seqbayes.prognostics.Threshold`) as a JSON-able dict."""
     median = passage.quantile(0.5)
     return {"parameter": threshold.name, "direction": threshold.direction, "threshold": threshold.value,
@@ -246,7 +246,7 @@ def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPass
             "steps": first_passage_rows(store, threshold, passage)}
 
 
-def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
+def _passage_summary(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> str:
     median = passage.quantile(0.5)
     when = (f"median first crossing at step {store.n_steps + int(median)}" if math.isfinite(median)
             else f"median first crossing after step {store.n_steps + passage.horizon}")
@@ -257,7 +257,7 @@ def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassag
                f"probabilities are the kernel's, unrestricted)" if passage.left_support > 0 else ""))
 
 
-def format_first_passage(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
+def format_first_passage(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> str:
     """The ``predict --threshold`` plain-text table (``+-`` one Monte Carlo standard error)."""
     lines = [_passage_summary(store, threshold, passage),
              f"{'step':>4} {'ahead':>5} {'P(first at step)':>18} {'+-':>7} {'P(crossed by step)':>19} {'+-':>7}"]
@@ -331,7 +331,7 @@ def _threshold_section(store, thresholds, horizon, image_dir) -> str:
     return "\n".join(out)
 
 
-def _fit_section(store: RunStore, fit_data: tuple[int, np.ndarray] | None, level: float,
+def _fit_section(store: BaseStore, fit_data: tuple[int, np.ndarray] | None, level: float,
                  image_dir: Path | None) -> str:
     """The data-versus-fit panel: a dataset and the model's prediction at that step's posterior draws."""
     from .datasets import as_likelihood_data
@@ -366,7 +366,7 @@ def _fit_section(store: RunStore, fit_data: tuple[int, np.ndarray] | None, level
     return "\n".join(out)
 
 
-def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_steps: int = 3,
+def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecast_steps: int = 3,
                   level: float = 0.95, image_dir: Path | None = None,
                   thresholds: Sequence[Threshold] = (), horizon: int = 20,
                   fit_data: tuple[int, np.ndarray] | None = None) -> str:
@@ -467,7 +467,7 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
     return "\n".join(parts)
 
 
-def write_report(store: RunStore, output: str | os.PathLike, **kwargs: Any) -> Path:
+def write_report(store: BaseStore, output: str | os.PathLike, **kwargs: Any) -> Path:
     """Write :func:`render_report` to ``output`` (an ``.html`` file); returns its path.
 
     With ``embed=False`` the figures go to ``<output stem>_figures/`` next to the page.

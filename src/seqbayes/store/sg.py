@@ -35,7 +35,6 @@ generator's state and the class probabilities are in ``step_info["monitor"]``);
 :meth:`SGRunStore.monitor` restores it bit for bit (the summaries' wall time ``seconds`` is not stored:
 0 in restored blocks).
 
-
 Trust: updates, ``status`` and reports run no user code (a ``[building] module`` ran once, when the
 configuration was read, and the building it returned is recorded).
 """
@@ -68,7 +67,7 @@ _PER_TIME_PREFIX = "history_"
 #: it), the events (``sg_events``) and the wall time (in ``step_info``).
 _NOT_ARRAYS = ("u", "y", "rng_state", "buffer_steps", "buffer_weights", "events", "elapsed")
 _PREFIX = "sg_"
-#: Growing dimensions and the chunk length along them.
+#: DropBlock fields that are NaN where a class has no dropped particle (stored as 0, restored from ``changed``).
 _MONITOR_NAN_FIELDS = ("drop_mean", "change_time_mean")
 
 
@@ -141,12 +140,7 @@ class SGRunStore(BaseStore):
         n_steps = int(attrs["n_steps"])
         text, record_hashes = cls._read_records(path, attrs, variables, version)
         stored = SGRunConfig.from_dict(json_value(attrs["config"], path, "config"))
-        if stored.fingerprint() != attrs.get("model_fingerprint"):
-            raise StoreError(f"{path}: model fingerprint does not match the stored configuration (the file was "
-                             f"edited or written by an incompatible seqbayes)")
-        if config is not None and config.fingerprint() != stored.fingerprint():
-            raise StoreError(f"{path}: the run was created for another model (fingerprint "
-                             f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]})")
+        cls._check_config(path, attrs, stored, config)
         config = stored
         check_finite(path, variables)
         rng_states = json_values(text["rng_state"], path, "rng_state")

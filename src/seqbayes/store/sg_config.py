@@ -261,6 +261,12 @@ class SGRunConfig:
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k != "kind"}
         return cls(**data)
 
+    def differing_fields(self, other: "SGRunConfig") -> list[str]:
+        """The fields in which ``other`` defines another model than this one."""
+        mine, theirs = self.to_dict(), other.to_dict()
+        return [key for key in sorted(set(mine) | set(theirs)) if key not in ("name", "search_path")
+                and json.dumps(mine.get(key), sort_keys=True) != json.dumps(theirs.get(key), sort_keys=True)]
+
     def fingerprint(self) -> str:
         """SHA-256 of everything that defines the model and the random stream (not the name or folder)."""
         content = {k: v for k, v in self.to_dict().items() if k not in ("name", "search_path")}

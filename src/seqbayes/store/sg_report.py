@@ -26,7 +26,7 @@ ESS_NOTE_SG = ("ESS: effective sample size (sum w)^2 / sum w^2 of the particles'
                "Metropolis-Hastings moves of the particles), with their mean acceptance rate.")
 
 
-def sg_status_rows(store: SGRunStore, level: float = 0.95) -> list[dict]:
+def sg_status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     """One dict per block: ``step, dataset, rows, first_sample, time_start, time_end, ess, moves, acceptance,
     log_evidence_increment, log_evidence, wall_time, parameters`` (``parameters`` maps each ratio to
     ``{mean, sd, lower, upper}``, the central ``level`` interval of the posterior at the block's end), and
@@ -52,7 +52,7 @@ def _fmt(x) -> str:
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
-def format_sg_status(store: SGRunStore, level: float = 0.95) -> str:
+def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables for an SG-EnMCMC run."""
     cfg = store.config
     lines = [f"run {store.path}  model {cfg.name!r}  SG-EnMCMC  {cfg.n_storeys}-storey shear building  "
@@ -97,7 +97,7 @@ def format_sg_status(store: SGRunStore, level: float = 0.95) -> str:
 
 
 # ----------------------------------------------------------------------------- modal results
-def nominal_mode_shapes(store: SGRunStore, theta: ArrayLike | None = None) -> np.ndarray:
+def nominal_mode_shapes(store: BaseStore, theta: ArrayLike | None = None) -> np.ndarray:
     """Mode shapes ``(n, n)`` (columns, ascending frequency) of the configured building at ``theta``
     (default: all ratios 1, the undamaged design): a reference for the MAC when no identified shapes are given."""
     building = store.config.build_building()
@@ -173,7 +173,7 @@ def format_modal(summary: ModalSummary, level_note: str = "95 %") -> str:
 
 
 # ----------------------------------------------------------------------------- figures
-def plot_sg_ratios(store: SGRunStore, truth: ArrayLike | None = None) -> Figure:
+def plot_sg_ratios(store: BaseStore, truth: ArrayLike | None = None) -> Figure:
     """Posterior mean and 95 % band of every stiffness ratio against the record's time (the
     identifier's per-sample histories), with the block boundaries dotted."""
     result = store.result()
@@ -236,7 +236,7 @@ def plot_modal(summaries: Sequence[ModalSummary], reference_shapes: np.ndarray, 
 
 
 # ----------------------------------------------------------------------------- the report
-def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path | None = None,
+def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path | None = None,
                      identified_shapes: ArrayLike | None = None, identified_source: str | None = None,
                      truth: ArrayLike | None = None) -> str:
     """The HTML text of the report of an SG-EnMCMC run.
@@ -338,7 +338,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     return "\n".join(parts)
 
 
-def write_sg_report(store: SGRunStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
+def write_sg_report(store: BaseStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
     """Write :func:`render_sg_report` to ``output`` (an ``.html`` file; ``embed=False``: figures as PNG files
     in ``<output stem>_figures/``); returns its path."""
     output = Path(output)
@@ -358,5 +358,5 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from matplotlib.figure import Figure
     from numpy.typing import ArrayLike
 
-    from .sg import SGRunStore
+    from .base import BaseStore
     from ..structures.modal import ModalSummary

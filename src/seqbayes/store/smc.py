@@ -189,13 +189,7 @@ class RunStore(BaseStore):
             stored = RunConfig.from_dict(json.loads(attrs["config"]))
         except (json.JSONDecodeError, TypeError) as err:
             raise StoreError(f"{path}: damaged run store: unreadable config attribute ({err})") from None
-        if stored.fingerprint() != attrs.get("model_fingerprint"):
-            raise StoreError(f"{path}: model fingerprint does not match the stored configuration "
-                             f"(the file was edited or written by an incompatible seqbayes)")
-        if config is not None and config.fingerprint() != stored.fingerprint():
-            fields = ", ".join(stored.differing_fields(config)) or "?"
-            raise StoreError(f"{path}: the run was created for another model (fingerprint "
-                             f"{stored.fingerprint()[:12]} vs {config.fingerprint()[:12]}); differing fields: {fields}")
+        cls._check_config(path, attrs, stored, config)
         state_names = [name for name in variables if snapshot.is_state_variable(name)]
         required = ["initial_particles", "initial_log_weights"]
         if n_steps:
