@@ -1,7 +1,7 @@
 """Reading a CSV dataset: the vectorised reader against the cell-by-cell one (issue 13, item 7).
 
-:func:`seqbayes.datasets._read_csv` counts the separators of every line with numpy and parses
-the numbers with :func:`numpy.loadtxt`; :func:`seqbayes.datasets._read_csv_cells` (its fallback
+:func:`seqbayes.store.datasets._read_csv` counts the separators of every line with numpy and parses
+the numbers with :func:`numpy.loadtxt`; :func:`seqbayes.store.datasets._read_csv_cells` (its fallback
 for files it refuses, and the reader before) converts one cell at a time. Both read the same
 file of ``--rows`` rows and 3 columns (2 of them taken), ``--repeat`` interleaved pairs:
 
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seqbayes.datasets import _csv_header, _read_csv, _read_csv_cells
+from seqbayes.store.datasets import _csv_header, _read_csv, _read_csv_cells
 
 
 def main(argv=None) -> int:

@@ -38,8 +38,8 @@ from _user_model import decay_tables, write_config, write_model  # noqa: E402
 from test_kill_resume import assert_prefix_of_reference, fork_cli, wait  # noqa: E402
 
 from seqbayes import cli  # noqa: E402
-from seqbayes.config import load_config  # noqa: E402
-from seqbayes.store import RunStore, _read_journal  # noqa: E402
+from seqbayes.store import RunStore, load_config  # noqa: E402
+from seqbayes.store.files import read_journal  # noqa: E402
 
 
 def setup(folder: Path, n_steps: int) -> RunStore:
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
                         stored += store.n_steps == before + 1
                         torn += (folder / f".{run.name}.tmp-{pid}").exists()   # this child's own temporary file
                         if journal.exists() and journal_stamp(journal) != old_journal:   # this kill's journal
-                            complete = _read_journal(run) is not None
+                            complete = read_journal(run) is not None
                             committed_journal += complete
                             torn_journal += not complete
                             assert complete == (store.n_steps == before + 1)

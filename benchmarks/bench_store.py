@@ -7,7 +7,7 @@ the store's share at step 5 and at step ``--steps`` (500 by default). A real run
 of its last step (each with its own dataset hash) to 5 and to ``--steps`` steps and written
 once each; then, ``--repeat`` times, in interleaved pairs (the short store, then the long one):
 the saved file is copied into place (not timed), opened (timed), given one more step and
-written (timed; the step is appended through the journal, see :mod:`seqbayes.store`), and the
+written (timed; the step is appended through the journal, see :mod:`seqbayes.store.files`), and the
 bytes written are read from ``/proc/self/io``: ``wchar``, what the store passed to write calls
 (the journal, then the same pages in the store), and ``write_bytes``, what the kernel sent to
 storage for it (whole page-cache folios: readahead makes them larger in a larger file, so this
@@ -40,8 +40,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from _user_model import decay_tables, write_config, write_model  # noqa: E402
 
-from seqbayes.config import load_config  # noqa: E402
-from seqbayes.store import RunStore  # noqa: E402
+from seqbayes.store import RunStore, load_config  # noqa: E402
 
 
 def extend(store: RunStore, n_steps: int) -> None:

@@ -6,7 +6,8 @@ structural side of Lin et al. (2024): shear buildings, ground motions, filters,
 sparse grids and the SG-EnMCMC identifier.
 """
 
-from . import aies, nested, prognostics, reference, structural
+from . import aies, nested, prognostics, reference
+from .structural import SGEnMCMC, SGEnMCMCResult, SparseGridTransition, filters, sparsegrid, structures
 from .density import GaussianMixture, MixtureSum, RunningStatistics, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
 from .nested import KalmanInnerFilter, ParticleInnerFilter
@@ -18,14 +19,11 @@ from .rng import as_generator
 from .selection import ModelComparison, compare
 from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
                          ZeroLikelihoodError, assimilate)
-from .structural import SGEnMCMC, SGEnMCMCResult, SparseGridTransition, filters, sparsegrid, structures
-from .config import load_config
-from .store import RunStore, posterior_to_arviz
-from .sgstore import SGRunStore
+from .store import RunStore, SGRunStore, load_config, open_run, posterior_to_arviz
 
 __version__ = "0.1.0"
 __all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
-           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "SGRunStore", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
+           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "SGRunStore", "open_run", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
            "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
            "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
            "TemperingLimitError",

@@ -2,8 +2,8 @@
 
 Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
 
-    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.config; a [building]
-                                              # section: an SG-EnMCMC run of a shear building, seqbayes.sgstore)
+    seqbayes init CONFIG.toml RUN.nc          # a new run from a TOML config (seqbayes.store.config; a [building]
+                                              # section: an SG-EnMCMC run of a shear building, seqbayes.store.sg_config)
     seqbayes update RUN.nc DATA.csv [...]     # assimilate datasets (CSV or NetCDF), one step each
     seqbayes status RUN.nc                    # per step: mean, sd, credible interval, acceptance, ESS, evidence
     seqbayes predict RUN.nc --steps K         # forecast K steps ahead through the Markov kernel
@@ -25,11 +25,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import math
 import sys
 import traceback
 import warnings
-from collections.abc import Sequence
 from pathlib import Path
 
 #: The command's description in ``seqbayes --help`` (plain text: argparse does not render reST).
@@ -115,50 +113,36 @@ class _CountingLikelihood:
 
 
 # --------------------------------------------------------------------- commands
+# Every command opens the run through the store registry (seqbayes.store.open_run) and asks its backend;
+# what a kind of run cannot do, its backend refuses (BaseStore.require) with a message naming the alternative.
 def cmd_init(args: argparse.Namespace) -> int:
-    from .config import load_config
-    from .store import RunStore
+    from .store import create_run, load_config
 
-    config = load_config(args.config)
-    if getattr(config, "kind", None) == "sgenmcmc":
-        from .sgstore import SGRunStore
-
-        store = SGRunStore.create(args.run, config, overwrite=args.force)
-        sensors = ", ".join([f"acceleration {f}" for f in config.accelerations]
-                            + [f"drift {f}" for f in config.drifts])
-        boxes = [f"U({lo:g}, {up:g})" for lo, up in zip(config.lower, config.upper)]
-        prior = f"{boxes[0]} each" if len(set(boxes)) == 1 else ", ".join(boxes)
-        print(f"created SG-EnMCMC run {store.path} for model {config.name!r}: {config.n_storeys}-storey shear "
-              f"building, stiffness ratios {', '.join(config.names)} ~ {prior}; sensors: {sensors}; N = "
-              f"{config.n_members}, seed {config.seed}; each block needs the columns {', '.join(config.columns)} "
-              f"at dt = {config.dt:g} s")
-        return 0
-    store = RunStore.create(args.run, config, overwrite=args.force)
-    print(f"created run {store.path} for model {config.name!r}: {len(config.names)} parameters "
-          f"({', '.join(config.names)}), {config.sampler} with N = {config.n_samples}, seed {config.seed}")
+    store = create_run(args.run, load_config(args.config), overwrite=args.force)
+    print(f"created {store.describe()}")
     return 0
 
 
 def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
-    from .datasets import read_datafile
-    from .store import BoundWarning, RunStore, store_lock
+    from .store import BoundWarning, open_run
+    from .store.files import store_lock
 
-    if _is_sg(args.run):
-        return _update_sg(args)
     show = _progress_enabled() and not args.quiet
     with store_lock(args.run):
-        store = RunStore.open(args.run)
-        tables = [read_datafile(path, store.config) for path in args.datafiles]  # all files checked first
-        executor, close = store.config.make_executor()
+        store = open_run(args.run)
+        if args.replace_last:
+            store.require("replace_last")
+        tables = [store.read_datafile(path) for path in args.datafiles]  # all files checked first
+        executor, close = store.make_executor()
         done = []
         try:
             for path, table in tqdm(list(zip(args.datafiles, tables)), desc="datasets", unit="dataset",
                                     disable=not show or len(tables) < 2):
                 with tqdm(desc=f"step {store.n_steps + (0 if args.replace_last else 1)}: likelihood",
-                          unit="eval", disable=not show or executor is not None, leave=False) as bar, \
-                        warnings.catch_warnings(record=True) as caught:
+                          unit="eval", disable=not show or executor is not None or not store.evaluates_likelihood,
+                          leave=False) as bar, warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always", BoundWarning)
                     try:
                         loglike = (_CountingLikelihood(store.load_likelihood(args.accept_model_change), bar)
@@ -170,15 +154,8 @@ def cmd_update(args: argparse.Namespace) -> int:
                         raise
                     except Exception as err:
                         raise CommandError(f"{path}: {_describe(err, store, done)}") from err
-                done.append(f"{Path(path).name} (step {info.step})")
-                moves = ("no moves" if math.isnan(info.acceptance_rate)  # SMC^2 moves only when the ESS falls
-                         else f"acceptance {info.acceptance_rate:.3f}")
-                tqdm.write(f"{args.run}: step {info.step} from {Path(path).name}: log-evidence increment "
-                           f"{info.log_evidence_increment:.4f}, cumulative {info.log_evidence:.4f}, {moves}, "
-                           f"ESS {info.ess:.1f} of N = {store.config.n_samples} "
-                           f"(last tempering stage, before resampling), {info.n_distinct} distinct samples after "
-                           f"the step, {info.n_loglike_evals} likelihood evaluations in {info.wall_time:.2f} s",
-                           file=sys.stdout)
+                done.append(f"{Path(path).name} (step {store.n_steps})")
+                tqdm.write(f"{args.run}: {store.step_summary(info, Path(path).name)}", file=sys.stdout)
                 for warning in caught:
                     if issubclass(warning.category, BoundWarning):
                         print(f"seqbayes update: warning: {warning.message}", file=sys.stderr)
@@ -186,70 +163,6 @@ def cmd_update(args: argparse.Namespace) -> int:
         finally:
             close()
     return 0
-
-
-def _is_sg(path) -> bool:
-    """Whether ``path`` is an SG-EnMCMC run store (:mod:`seqbayes.sgstore`)."""
-    from .sgstore import RUN_KIND, run_kind
-
-    return run_kind(path) == RUN_KIND
-
-
-def _update_sg(args: argparse.Namespace) -> int:
-    """``seqbayes update`` of an SG-EnMCMC run: each file is the next block of the record."""
-    from .datasets import read_datafile
-    from .sgstore import SGRunStore
-    from .store import store_lock
-
-    if args.replace_last:
-        raise CommandError(f"--replace-last: not available for an SG-EnMCMC run ({args.run}): its blocks are one "
-                           f"continuous record; re-create the run (seqbayes init --force) to assimilate it again")
-    with store_lock(args.run):
-        store = SGRunStore.open(args.run)
-        tables = [read_datafile(path, store.config) for path in args.datafiles]  # all files checked first
-        done = []
-        for path, table in zip(args.datafiles, tables):
-            try:
-                info = store.assimilate(table, Path(path).name)
-            except (KeyboardInterrupt, SystemExit):
-                raise
-            except Exception as err:
-                raise CommandError(f"{path}: {_describe_sg(err, done)}") from err
-            done.append(f"{Path(path).name} (step {info['step']})")
-            post = store.block_posterior(-1)
-            ratios = ", ".join(f"{name} {p['mean']:.4g} +- {p['sd']:.2g}" for name, p in post.items())
-            moves = (f"{info['moves']} resample-moves (acceptance {info['acceptance']:.3f})" if info["moves"]
-                     else "no resample-moves")
-            dt = store.config.dt
-            print(f"{args.run}: step {info['step']} from {Path(path).name}: samples {info['first_sample']}-"
-                  f"{info['first_sample'] + info['rows'] - 1} (t = {info['time_start']:.2f}-"
-                  f"{(info['first_sample'] + info['rows'] - 1) * dt:.2f} s), log-evidence increment "
-                  f"{info['log_evidence_increment']:.4f}, cumulative {info['log_evidence']:.4f}, ESS "
-                  f"{info['ess_end']:.1f} of N = {store.config.n_members}, {moves}; {ratios}")
-    return 0
-
-
-def _describe_sg(err, done=()) -> str:
-    """One line for an SG-EnMCMC block that failed, saying what the run store holds now."""
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
-
-    unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the ones "
-                 f"after it were not assimilated" if done else "the run store is unchanged")
-    text = str(err)
-    if isinstance(err, (StoreError, ConfigError, DataError, ValueError)):
-        return text if "previous store is kept" in text else f"{text}; {unchanged}"
-    if isinstance(err, OSError):
-        return f"{err.strerror or text}{f' ({err.filename})' if err.filename else ''}; {unchanged}"
-    return f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); {unchanged}"
-
-
-def _not_for_sg(args, what: str) -> None:
-    for path in [getattr(args, "run", None), *(getattr(args, "runs", None) or ())]:
-        if path and _is_sg(path):
-            raise CommandError(f"{path}: an SG-EnMCMC run; {what} is for SEMC/SMC runs (use seqbayes status or "
-                               f"seqbayes report)")
 
 
 def _raised_in(err, files) -> bool:
@@ -260,9 +173,7 @@ def _raised_in(err, files) -> bool:
 
 def _describe(err, store, done=()) -> str:
     """One line for an update that failed, saying what the run store holds now."""
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
+    from .store import ConfigError, DataError, StoreError
 
     if done:
         unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
@@ -275,10 +186,11 @@ def _describe(err, store, done=()) -> str:
     if isinstance(err, OSError):
         where = f" ({err.filename})" if err.filename else ""
         return f"{err.strerror or text}{where}; {unchanged}"
-    if isinstance(err, ValueError) and text.startswith("loglike"):
-        return f"likelihood {store.config.likelihood}: {text}; {unchanged}"
-    if _raised_in(err, [store.config.likelihood_file]):
-        return f"the likelihood {store.config.likelihood} raised {type(err).__name__}: {text}; {unchanged}"
+    user = store.user_code()        # (module:function, file) of the user's likelihood, if the run has one
+    if user is not None and isinstance(err, ValueError) and text.startswith("loglike"):
+        return f"likelihood {user[0]}: {text}; {unchanged}"
+    if user is not None and _raised_in(err, [user[1]]):
+        return f"the likelihood {user[0]} raised {type(err).__name__}: {text}; {unchanged}"
     if isinstance(err, ValueError) or type(err).__name__ in ("ZeroLikelihoodError", "TemperingLimitError"):
         return f"{text}; {unchanged}"
     return (f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); "
@@ -286,36 +198,23 @@ def _describe(err, store, done=()) -> str:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from .report import format_status, status_rows
-    from .store import RunStore
+    from .store import open_run
 
-    if _is_sg(args.run):
-        from .sgreport import format_sg_status, sg_status_rows
-        from .sgstore import SGRunStore
-
-        store = SGRunStore.open(args.run)
-        if args.json:
-            print(json.dumps({"run": str(store.path), "model": store.config.name, "kind": "sgenmcmc",
-                              "steps": sg_status_rows(store, args.level)}, indent=1))
-        else:
-            print(format_sg_status(store, args.level))
-        return 0
-    store = RunStore.open(args.run)
+    store = open_run(args.run)
     if args.json:
-        print(json.dumps({"run": str(store.path), "model": store.config.name, "steps": status_rows(store, args.level)},
-                         indent=1))
+        print(json.dumps(store.status_json(args.level), indent=1))
     else:
-        print(format_status(store, args.level))
+        print(store.status(args.level))
     return 0
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
-    from .report import first_passage_json, forecast_rows, format_first_passage, format_forecast
-    from .store import RunStore
+    from .store import open_run
+    from .store.report import first_passage_json, forecast_rows, format_first_passage, format_forecast
 
-    _not_for_sg(args, "predict (a forecast through the Markov kernel)")
-    store = RunStore.open(args.run)
+    store = open_run(args.run)
+    store.require("predict")
     if store.n_steps == 0:
         raise CommandError(f"{args.run}: no dataset assimilated yet; nothing to forecast from")
     if args.steps < 1:
@@ -361,10 +260,16 @@ def _write_forecast(path, store, draws):
                            "parameter": list(store.names)}).to_netcdf(path, engine="h5netcdf")
 
 
-def _open_for_comparison(paths):
-    from .store import RunStore
+def _open_for_comparison(paths, first=None):
+    """The runs of ``paths`` (``first``: the first one, already open), their display names and the number
+    of steps they share; each must be a run kind that compares by evidence."""
+    from .store import open_run
 
-    stores = [RunStore.open(p) for p in paths]
+    stores = []
+    for i, path in enumerate(paths):
+        store = first if i == 0 and first is not None else open_run(path)
+        store.require("compare")
+        stores.append(store)
     names = []
     for store in stores:
         name = store.config.name if store.config.name not in names else f"{store.config.name} ({store.path.name})"
@@ -383,10 +288,9 @@ def _open_for_comparison(paths):
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .report import comparison_rows
     from .selection import compare
+    from .store.report import comparison_rows
 
-    _not_for_sg(args, "compare")
     stores, names, n_common = _open_for_comparison(args.runs)
     comparison = compare({n: s.result.log_evidence[:n_common] for n, s in zip(names, stores)})
     if args.json:
@@ -405,57 +309,36 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
-    from .report import write_report
-    from .store import RunStore
+    from .store import open_run
 
-    if _is_sg(args.run):
-        return _report_sg(args)
-    store = RunStore.open(args.run)
+    store = open_run(args.run)
+    store.require(*[f"report --{name}" for name in ("compare", "threshold", "data") if getattr(args, name)])
     others = []
     if args.compare:
-        stores, _, _ = _open_for_comparison([args.run, *args.compare])
+        stores, _, _ = _open_for_comparison([args.run, *args.compare], first=store)
         others = stores[1:]
     output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
     if output.is_dir():
         raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
     try:
         thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
-        write_report(store, output, others=others, forecast_steps=args.forecast, level=args.level,
-                     embed=not args.no_embed, thresholds=thresholds, horizon=args.horizon,
-                     fit_data=_assimilated_dataset(store, args.data) if args.data else None)
+        store.write_report(output, level=args.level, embed=not args.no_embed, others=others,
+                           forecast_steps=args.forecast, thresholds=thresholds, horizon=args.horizon,
+                           fit_data=_assimilated_dataset(store, args.data) if args.data else None, modes=args.modes)
     except ValueError as err:
         raise CommandError(str(err)) from err
     print(f"report written to {output}")
     return 0
 
 
-def _report_sg(args: argparse.Namespace) -> int:
-    """``seqbayes report`` of an SG-EnMCMC run: ratios over the record, per-block posteriors, modal results."""
-    from .sgreport import read_mode_shapes, write_sg_report
-    from .sgstore import SGRunStore
-
-    store = SGRunStore.open(args.run)
-    if args.compare or args.threshold or args.data:
-        raise CommandError("--compare, --threshold and --data are for SEMC/SMC runs; an SG-EnMCMC report takes "
-                           "--modes, --level and --no-embed")
-    output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
-    if output.is_dir():
-        raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
-    identified = read_mode_shapes(args.modes, store.config.n_storeys) if args.modes else None
-    write_sg_report(store, output, level=args.level, embed=not args.no_embed, identified_shapes=identified,
-                    identified_source=Path(args.modes).name if args.modes else None)
-    print(f"report written to {output}")
-    return 0
-
-
 def _assimilated_dataset(store, path) -> tuple:
     """``(step index, table)`` of a data file the run assimilated (found by its content's hash)."""
-    from .datasets import dataset_digest, read_datafile
+    from .store.datasets import dataset_digest
 
     if store.config.predict is None:
         raise CommandError(f"--data: {store.path}'s configuration names no [model] predict function, so there is no "
                            f"fit to draw")
-    table = read_datafile(path, store.config)
+    table = store.read_datafile(path)
     digest = dataset_digest(table, store.config.columns)
     if digest not in store.digests:
         raise CommandError(f"--data: {path} was not assimilated by {store.path} (its steps: "
@@ -474,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("init", help="create a run from a TOML config")
-    p.add_argument("config", help="TOML run configuration (see seqbayes.config)")
+    p.add_argument("config", help="TOML run configuration (see seqbayes.store.config)")
     p.add_argument("run", help="run store to create (a .nc file)")
     p.add_argument("--force", action="store_true", help="overwrite an existing run store")
     p.set_defaults(func=cmd_init)
@@ -544,9 +427,7 @@ def main(argv: list[str] | None = None) -> int:
         return _run_example(args.name, rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    from .config import ConfigError
-    from .datasets import DataError
-    from .store import StoreError
+    from .store import ConfigError, DataError, StoreError
 
     try:
         return int(args.func(args) or 0)

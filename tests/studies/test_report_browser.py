@@ -39,8 +39,8 @@ def finish(proc):
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from seqbayes.config import load_config
-    from seqbayes.report import write_report
+    from seqbayes.store.config import load_config
+    from seqbayes.store.report import write_report
     from seqbayes.store import RunStore
 
     root = tmp_path_factory.mktemp("browser")

@@ -7,8 +7,8 @@ import pytest
 from scipy import stats
 
 from seqbayes import Decay, Drift, Static
-from seqbayes.config import ConfigError, load_config, parse_config
-from seqbayes.datasets import DataError, dataset_digest, read_datafile
+from seqbayes.store.config import ConfigError, load_config, parse_config
+from seqbayes.store.datasets import DataError, dataset_digest, read_datafile
 
 from _user_model import write_model
 
@@ -116,7 +116,7 @@ def test_missing_file_and_bad_toml(tmp_path):
 
 
 def test_columns_format_hands_a_dict_to_the_likelihood(tmp_path):
-    from seqbayes.datasets import as_likelihood_data
+    from seqbayes.store.datasets import as_likelihood_data
 
     cfg = load_config(write(tmp_path, CONFIG.replace('columns = ["t", "y"]', 'columns = ["t", "y"]\nformat = "columns"')))
     table = np.array([[0.0, 1.0], [1.0, 2.0]])
@@ -145,7 +145,7 @@ def test_the_fast_csv_reader_gives_the_cell_readers_numbers(tmp_path, monkeypatc
     """The numpy path of the CSV reader (separators counted, numbers by loadtxt) and the cell-by-cell
     path give the same arrays bit for bit, whichever the file's shape; files the fast path refuses
     (quotes, ragged or blank-celled lines) go to the cell reader."""
-    import seqbayes.datasets as datasets
+    import seqbayes.store.datasets as datasets
 
     cfg = load_config(write(tmp_path, CONFIG))
     files = {
@@ -207,7 +207,7 @@ def test_bad_data_files_name_file_column_and_shape(tmp_path):
 def test_same_module_name_in_two_folders_loads_each_folders_likelihood(tmp_path):
     """Two runs whose configs both say ``clashmodel:loglike``, in two folders, in one process:
     each gets its own folder's function, not the first one imported (Python's module cache)."""
-    from seqbayes.config import load_likelihood
+    from seqbayes.store.config import load_likelihood
 
     functions = []
     for value in (1.0, 2.0):

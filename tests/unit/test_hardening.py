@@ -19,9 +19,7 @@ import sys
 import numpy as np
 import pytest
 
-from seqbayes.config import load_config
-from seqbayes.datasets import DataError
-from seqbayes.store import ModelChangedError, RunStore, StoreError
+from seqbayes.store import DataError, ModelChangedError, RunStore, StoreError, load_config
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -120,7 +118,7 @@ def test_predict_and_report_import_no_likelihood(tmp_path):
     sys.modules.pop("trustmodel_c", None)
     opened = RunStore.open(tmp_path / "run.nc")
     opened.predict(3)
-    from seqbayes.report import render_report
+    from seqbayes.store.report import render_report
 
     assert "<html" in render_report(opened, forecast_steps=2)
     assert not (tmp_path / "trustmodel_c.ran").exists() and "trustmodel_c" not in sys.modules
@@ -140,7 +138,7 @@ def test_an_edited_module_is_noticed_and_its_hash_recorded_per_step_once_accepte
     assert reopened.module_hashes == [first, sha(tmp_path / "trustmodel_d.py")]
     assert reopened.config.likelihood_sha256 == sha(tmp_path / "trustmodel_d.py")
     reopened.assimilate(tables(3)[2])                     # the new content is now the recorded one
-    from seqbayes.report import format_status, status_rows
+    from seqbayes.store.report import format_status, status_rows
 
     assert [r["likelihood_sha256"] for r in status_rows(reopened)] == reopened.module_hashes
     assert f"note: the likelihood module changed at step 2 (sha256 {first[:12]} -> " in format_status(reopened)
@@ -310,12 +308,12 @@ def rewrite(store_path, edit, target):
     """Write ``target``: the store at ``store_path`` changed by ``edit(ds)``, its content hash redone."""
     import xarray as xr
 
-    from seqbayes.store import _rehash
+    from seqbayes.store.base import rehash
 
     with xr.open_dataset(store_path, engine="h5netcdf") as ds:
         ds = ds.load()
     edit(ds)
-    _rehash(ds)
+    rehash(ds)
     ds.to_netcdf(target, engine="h5netcdf")
     return target
 
@@ -446,7 +444,7 @@ def test_a_bad_second_file_says_what_was_committed(tmp_path, capsys):
 
 
 def test_settings_values_and_datasets_of_the_wrong_type_are_refused(tmp_path):
-    from seqbayes.config import ConfigError
+    from seqbayes.store.config import ConfigError
 
     write_model(tmp_path, "typemodel")
     base = write_cfg(tmp_path, "typemodel").read_text()
@@ -499,7 +497,7 @@ def test_invalid_priors_are_refused_with_the_parameter_named():
 
 
 def test_report_keeps_user_strings_out_of_the_markup(tmp_path):
-    from seqbayes.report import write_report
+    from seqbayes.store.report import write_report
 
     store = make_run(tmp_path, "escapemodel", n_steps=1)
     page = write_report(store, tmp_path / "a'b onerror=alert(1) x.html", embed=False, forecast_steps=0)
@@ -547,7 +545,7 @@ def fill(folder, leave_bytes):
 
 
 def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monkeypatch):
-    import seqbayes.store as store_module
+    import seqbayes.store.files as store_files
 
     make_run(small_disk, "diskmodel", n_steps=1)
     run = small_disk / "run.nc"
@@ -558,7 +556,7 @@ def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monk
               r"next.csv: .*run.nc: not enough free space in .*disk: about \d+ KiB needed, \d+ KiB free", run)
     # and when the space runs out during the write itself (the check bypassed): an OS error, no crash.
     # An appended step: the store's growth is allocated before the journal is written
-    monkeypatch.setattr(store_module, "_check_free_space", lambda *args: None)
+    monkeypatch.setattr(store_files, "check_free_space", lambda *args: None)
     (small_disk / "filler").unlink()
     fill(small_disk, 0)
     cli_fails(capsys, ["update", run, small_disk / "next.csv"],
@@ -595,7 +593,7 @@ def test_a_read_only_folder_gives_one_line(small_disk, capsys):
 def test_netcdf3_data_files_are_read(tmp_path):
     import xarray as xr
 
-    from seqbayes.datasets import read_datafile
+    from seqbayes.store.datasets import read_datafile
 
     store = make_run(tmp_path, "classicmodel", n_steps=0)
     table = tables(1)[0]
@@ -607,7 +605,7 @@ def test_netcdf3_data_files_are_read(tmp_path):
 
 # ------------------------------------------------------------------ item 7: a step is appended, not the whole file
 def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
-    import seqbayes.store as store_module
+    import seqbayes.store.files as store_files
 
     calls = []
     original = RunStore._append
@@ -620,8 +618,8 @@ def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, m
     store = make_run(tmp_path, "appendmodel", n_steps=3)
     assert calls == [False, False, True, True]     # creation and the first step write it whole; then appends
     journal_bytes = []
-    apply = store_module._apply_with_journal
-    monkeypatch.setattr(store_module, "_apply_with_journal",
+    apply = store_files.apply_with_journal
+    monkeypatch.setattr(store_files, "apply_with_journal",
                         lambda path, journal: journal_bytes.append(sum(len(p) for _, p in journal[2])) or apply(path, journal))
     sizes = []
     inode = (tmp_path / "run.nc").stat().st_ino
@@ -649,4 +647,4 @@ def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, m
     # replace_last rewrites the whole file (its last rows change) and the run goes on appending
     appended.assimilate(tables(6)[5] * 1.01, "fixed", replace_last=True)
     assert calls[-1] is False and RunStore.open(tmp_path / "run.nc").sources[-1] == "fixed"
-    assert store_module._GROWING["step"] > 1
+    assert RunStore.growing["step"] > 1

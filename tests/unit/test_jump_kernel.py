@@ -12,7 +12,7 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from seqbayes import SEMC, SMC, Decay, Drift, JointPrior, MarkovKernel, Static
-from seqbayes.config import ConfigError, parse_config
+from seqbayes.store.config import ConfigError, parse_config
 from seqbayes.density import GaussianMixture, MixtureSum, predictive_density
 from seqbayes.kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS, Jump, jump_posterior
 from seqbayes.sequential import resolve_predictive
@@ -246,8 +246,8 @@ def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
 
     from _user_model import decay_tables, write_config, write_model
 
-    from seqbayes.config import load_config
-    from seqbayes.report import status_rows
+    from seqbayes.store.config import load_config
+    from seqbayes.store.report import status_rows
     from seqbayes.store import RunStore
 
     write_model(tmp_path, "jumpstoremodel")

@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.config import load_config
-from seqbayes.store import FAULT_ENV, RunStore
+from seqbayes.store import RunStore, load_config
+from seqbayes.store.files import FAULT_ENV
 
 from _user_model import decay_tables, write_config, write_model
 

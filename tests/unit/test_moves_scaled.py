@@ -123,7 +123,7 @@ def test_economy_runs_and_is_reproducible(cls):
 
 
 def test_economy_from_toml(tmp_path):
-    from seqbayes.config import ConfigError, load_config
+    from seqbayes.store.config import ConfigError, load_config
 
     from test_config import CONFIG, write
 

@@ -98,7 +98,7 @@ def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     """A monitoring run whose updates are evaluated on the cluster stores the serial numbers."""
     import textwrap
 
-    from seqbayes.config import load_config
+    from seqbayes.store.config import load_config
     from seqbayes.store import RunStore
 
     (tmp_path / "parmodel.py").write_text(textwrap.dedent("""

@@ -360,7 +360,7 @@ def test_settings_are_explicit_keyword_arguments_with_sampler_config_defaults(cl
     import dataclasses
     import inspect
 
-    from seqbayes.config import SEMC_ONLY, SMC_ONLY
+    from seqbayes.store.config import SEMC_ONLY, SMC_ONLY
 
     parameters = inspect.signature(cls).parameters
     assert not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())   # no **settings

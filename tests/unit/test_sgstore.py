@@ -1,4 +1,4 @@
-"""SG-EnMCMC runs in the run store (seqbayes.sgstore) and on the command line.
+"""SG-EnMCMC runs in the run store (seqbayes.store.sg) and on the command line.
 
 * Resume is bit-identical: blocks assimilated by one object, by a fresh object opened before
   every block, and by a forked ``seqbayes update`` killed at the journal's fault points and
@@ -20,10 +20,12 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.config import ConfigError, load_config
-from seqbayes.datasets import DataError
-from seqbayes.sgstore import SGRunStore, parse_sg_config
-from seqbayes.store import FAULT_ENV, DuplicateDatasetError, RunStore, StoreError, _read_file
+from seqbayes.store.config import ConfigError, load_config
+from seqbayes.store.datasets import DataError
+from seqbayes.store import SGRunStore
+from seqbayes.store.sg_config import parse_sg_config
+from seqbayes.store import DuplicateDatasetError, RunStore, StoreError
+from seqbayes.store.files import FAULT_ENV, read_file
 from seqbayes.structural.structures.shear_building import discretise, simulate
 
 TOML = """
@@ -84,7 +86,7 @@ def workdir(tmp_path_factory):
 
 def arrays(path):
     """Every variable of a store but the per-step wall times (the text of step_info and its hash)."""
-    attrs, variables = _read_file(path)
+    attrs, variables = read_file(path)
     out = {name: value for name, value in variables.items() if name not in ("step_info", "record_sha256")}
     out["infos"] = [{k: v for k, v in json.loads(s).items() if k != "wall_time"} for s in variables["step_info"]]
     return out
@@ -108,11 +110,11 @@ def test_config_from_toml(workdir):
 
 
 def test_reopen_before_every_block_is_bit_identical(workdir, tmp_path, monkeypatch):
-    from seqbayes import sgstore
+    from seqbayes.store import files
 
     appended = []
-    real = sgstore._apply_with_journal
-    monkeypatch.setattr(sgstore, "_apply_with_journal", lambda *a: (appended.append(1), real(*a)))
+    real = files.apply_with_journal
+    monkeypatch.setattr(files, "apply_with_journal", lambda *a: (appended.append(1), real(*a)))
     config = load_config(workdir / "run.toml")
     SGRunStore.create(tmp_path / "run.nc", config)
     for k in range(N_BLOCKS):
@@ -339,7 +341,7 @@ def test_modal_results_match_a_direct_eigen_solution():
 
 
 def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
-    from seqbayes.sgreport import modal_rows, render_sg_report
+    from seqbayes.store.sg_report import modal_rows, render_sg_report
     from seqbayes.structural.structures.modal import modal_summary
 
     store = SGRunStore.open(workdir / "reference.nc")
@@ -405,7 +407,7 @@ def test_noise_parameters_and_a_pinned_surrogate(workdir, tmp_path):
     surrogate = "auto" is measured once, when the configuration is read, and pinned as a level."""
     import tomllib
 
-    from seqbayes.sgreport import render_sg_report
+    from seqbayes.store.sg_report import render_sg_report
 
     raw = tomllib.loads(TOML)
     raw["sampler"]["noise_parameters"] = "shared"

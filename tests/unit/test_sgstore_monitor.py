@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.config import ConfigError, load_config
+from seqbayes.store.config import ConfigError, load_config
 from seqbayes.rng import as_generator
-from seqbayes.sgreport import format_sg_status
-from seqbayes.sgstore import SGRunStore, parse_sg_config
+from seqbayes.store.sg_report import format_sg_status
+from seqbayes.store import SGRunStore
+from seqbayes.store.sg_config import parse_sg_config
 from seqbayes.structural.drop_paths import simulate_drop
 from seqbayes.structural.stiffness_drop import DropBlock
-from seqbayes.store import FAULT_ENV
+from seqbayes.store.files import FAULT_ENV
 
 TOML = """
 [model]

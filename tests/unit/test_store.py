@@ -9,8 +9,9 @@ import hashlib
 import numpy as np
 import pytest
 
-from seqbayes.config import load_config
-from seqbayes.store import FORMAT_VERSION, DuplicateDatasetError, RunStore, StoreError, _rehash, posterior_to_arviz
+from seqbayes.store import DuplicateDatasetError, RunStore, StoreError, load_config, posterior_to_arviz
+from seqbayes.store.base import rehash
+from seqbayes.store.smc import FORMAT_VERSION
 
 from _user_model import decay_tables, write_config, write_model
 
@@ -91,7 +92,7 @@ predictive = "transition"
 
 def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_path):
     """The conflict remedy keeps a window of past steps and, after a path-space step, the particle
-    paths; a store reopened before every step rebuilds both (seqbayes.snapshot) and gives the
+    paths; a store reopened before every step rebuilds both (seqbayes.store.snapshot) and gives the
     uninterrupted run bit for bit. A random walk (sd 0.05 per step) observed through 25 points of
     noise 0.5 jumps by 0.6 (12 kernel sds) at step 4, which runs on the path space (as in
     test_conflict_remedy)."""
@@ -264,7 +265,7 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match="edited.nc: damaged run store: the content hash .* does not match"):
         RunStore.open(tmp_path / "edited.nc")
-    _rehash(ds)       # an edit that also redoes the content hash
+    rehash(ds)       # an edit that also redoes the content hash
     ds.to_netcdf(tmp_path / "edited.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match="edited.nc: model fingerprint does not match"):
         RunStore.open(tmp_path / "edited.nc")
@@ -285,7 +286,7 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
     is still read, verified by its own hash, and the next update writes the whole file in format 4."""
     import xarray as xr
 
-    from seqbayes.store import _content_hash_v3
+    from seqbayes.store.smc import content_hash_v3
 
     cfg = config(tmp_path)
     store = RunStore.create(tmp_path / "run.nc", cfg)
@@ -295,7 +296,7 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
                                       "state_log_evidence_variance", "state_lineage"], errors="ignore")
     ds.attrs["seqbayes_store_format"] = 3
     variables = {name: ds[name].values for name in ds.variables}
-    ds.attrs["content_sha256"] = _content_hash_v3(ds.attrs, variables)
+    ds.attrs["content_sha256"] = content_hash_v3(ds.attrs, variables)
     ds.to_netcdf(tmp_path / "v3.nc", engine="h5netcdf")
     old = RunStore.open(tmp_path / "v3.nc")
     assert_same_steps(store.result.steps, old.result.steps)
@@ -316,7 +317,7 @@ def test_a_store_written_before_the_lineage_opens_and_continues_with_distinct_la
     """A format-4 store without ``state_lineage`` (written before the evidence se's labels) reads as every
     particle its own label (the lineage only enters the log-evidence standard errors); the next update
     writes the lineage of every step, and the sampling is the uninterrupted run's."""
-    from seqbayes import snapshot
+    from seqbayes.store import snapshot
 
     (tmp_path / "remedymodel.py").write_text(REMEDY_MODEL)
     (tmp_path / "run.toml").write_text(REMEDY_CONFIG)
@@ -393,7 +394,7 @@ def test_a_store_with_older_or_newer_diagnostics_still_opens(tmp_path):
     info.pop("n_nan")                        # a diagnostic the writer did not have yet
     info["from_the_future"] = 1.5            # one this reader does not know
     ds["step_info"] = (("step",), np.array([json.dumps(info)], dtype=object))
-    _rehash(ds)       # as that writer would have
+    rehash(ds)       # as that writer would have
     ds.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
     loaded = RunStore.open(tmp_path / "other.nc")
     assert loaded.result.steps[0].info.n_nan == 0

@@ -1,4 +1,4 @@
-"""Status tables, modal results and the HTML report of SG-EnMCMC runs (:class:`~seqbayes.sgstore.SGRunStore`).
+"""Status tables, modal results and the HTML report of SG-EnMCMC runs (:class:`~seqbayes.store.sg.SGRunStore`).
 
 :func:`sg_status_rows` / :func:`format_sg_status` are the ``seqbayes status`` output of an
 SG-EnMCMC run (one row per assimilated block: the posterior of the storey stiffness ratios at
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import plotting
+from .. import plotting
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
            "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
@@ -26,7 +26,7 @@ ESS_NOTE_SG = ("ESS: effective sample size (sum w)^2 / sum w^2 of the particles'
                "Metropolis-Hastings moves of the particles), with their mean acceptance rate.")
 
 
-def sg_status_rows(store: SGRunStore, level: float = 0.95) -> list[dict]:
+def sg_status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     """One dict per block: ``step, dataset, rows, first_sample, time_start, time_end, ess, moves, acceptance,
     log_evidence_increment, log_evidence, wall_time, parameters`` (``parameters`` maps each ratio to
     ``{mean, sd, lower, upper}``, the central ``level`` interval of the posterior at the block's end), and
@@ -52,7 +52,7 @@ def _fmt(x) -> str:
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
-def format_sg_status(store: SGRunStore, level: float = 0.95) -> str:
+def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables for an SG-EnMCMC run."""
     cfg = store.config
     lines = [f"run {store.path}  model {cfg.name!r}  SG-EnMCMC  {cfg.n_storeys}-storey shear building  "
@@ -97,7 +97,7 @@ def format_sg_status(store: SGRunStore, level: float = 0.95) -> str:
 
 
 # ----------------------------------------------------------------------------- modal results
-def nominal_mode_shapes(store: SGRunStore, theta: ArrayLike | None = None) -> np.ndarray:
+def nominal_mode_shapes(store: BaseStore, theta: ArrayLike | None = None) -> np.ndarray:
     """Mode shapes ``(n, n)`` (columns, ascending frequency) of the configured building at ``theta``
     (default: all ratios 1, the undamaged design): a reference for the MAC when no identified shapes are given."""
     building = store.config.build_building()
@@ -173,7 +173,7 @@ def format_modal(summary: ModalSummary, level_note: str = "95 %") -> str:
 
 
 # ----------------------------------------------------------------------------- figures
-def plot_sg_ratios(store: SGRunStore, truth: ArrayLike | None = None) -> Figure:
+def plot_sg_ratios(store: BaseStore, truth: ArrayLike | None = None) -> Figure:
     """Posterior mean and 95 % band of every stiffness ratio against the record's time (the
     identifier's per-sample histories), with the block boundaries dotted."""
     result = store.result()
@@ -236,7 +236,7 @@ def plot_modal(summaries: Sequence[ModalSummary], reference_shapes: np.ndarray, 
 
 
 # ----------------------------------------------------------------------------- the report
-def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path | None = None,
+def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path | None = None,
                      identified_shapes: ArrayLike | None = None, identified_source: str | None = None,
                      truth: ArrayLike | None = None) -> str:
     """The HTML text of the report of an SG-EnMCMC run.
@@ -257,7 +257,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     truth : (n,) array, optional
         Reference ratios drawn in the figure (a synthetic record's truth).
     """
-    from .report import _CSS, _figure_html, _table_html
+    from .report import CSS, figure_html, table_html
 
     if store.n_steps == 0:
         raise ValueError(f"{store.path}: no block to report yet (run `seqbayes update` first)")
@@ -274,7 +274,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     summaries = [store.modal(i, reference) for i in range(store.n_steps)]
     title = f"seqbayes report: {cfg.name}"
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{_CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+             f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
     sensors = ", ".join([f"acceleration at floor {f}" for f in cfg.accelerations]
                         + [f"drift of storey {f}" for f in cfg.drifts])
     parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: SG-EnMCMC (resample-move, "
@@ -282,7 +282,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
                  f"{store.n_steps} block(s), {store.n_samples} samples at dt = {cfg.dt:g} s "
                  f"({store.n_samples * cfg.dt:.2f} s of record). Sensors: {html.escape(sensors)}. Model fingerprint "
                  f"<code>{cfg.fingerprint()[:12]}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
-    parts.append("<h2>Model</h2>" + _table_html(
+    parts.append("<h2>Model</h2>" + table_html(
         ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta"],
         [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})"]
          for j in range(cfg.n_storeys)], left=()))
@@ -298,11 +298,11 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
                     if cfg.surrogate_choice else "") + ".</p>")
 
     parts.append("<h2>Stiffness ratios</h2>")
-    parts.append(_figure_html(plot_sg_ratios(store, truth), "Posterior mean and 95 % band of the storey stiffness "
+    parts.append(figure_html(plot_sg_ratios(store, truth), "Posterior mean and 95 % band of the storey stiffness "
                               "ratios after every sample of the record", "fig-ratios", image_dir))
     rows = sg_status_rows(store, level)
     pct = f"{level:.0%}"
-    parts.append(_table_html(["step", "dataset", "t end [s]", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
+    parts.append(table_html(["step", "dataset", "t end [s]", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
                              [[r["step"], r["dataset"], f"{r['time_end']:.2f}", name, _fmt(p["mean"]), _fmt(p["sd"]),
                                _fmt(p["lower"]), _fmt(p["upper"])]
                               for r in rows for name, p in r["parameters"].items()], left=(1, 3)))
@@ -318,18 +318,18 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
                  f"posterior mean MAC of each particle's shape with the mean shape.</p>")
     header = ["mode", "f mean [Hz]", "f sd", "f 95 % interval", "nominal f [Hz]", "damping ratio mean", "sd",
               "95 % interval", f"MAC with {reference_label}", "spread"]
-    parts.append(_table_html(header, [[
+    parts.append(table_html(header, [[
         r["mode"], f"{r['frequency_mean']:.4f}", f"{r['frequency_sd']:.2e}",
         f"[{r['frequency_lower']:.4f}, {r['frequency_upper']:.4f}]", f"{nominal_f[r['mode'] - 1]:.4f}",
         f"{r['damping_mean']:.4f}", f"{r['damping_sd']:.1e}", f"[{r['damping_lower']:.4f}, {r['damping_upper']:.4f}]",
         "-" if not ident or r["mac_identified"] is None else f"{r['mac_identified']:.4f}", f"{r['shape_mac']:.6f}"]
         for r in modal], left=()))
-    parts.append(_figure_html(plot_modal(summaries, reference, reference_label),
+    parts.append(figure_html(plot_modal(summaries, reference, reference_label),
                               "Natural frequencies at the end of every block (posterior mean and 95 % interval) and "
                               "the last block's mode shapes against the reference", "fig-modal", image_dir))
 
     parts.append("<h2>Sampler diagnostics and evidence</h2>")
-    parts.append(_table_html(["step", "dataset", "samples", "ESS", "moves", "acceptance", "log Z (block)", "log Z"],
+    parts.append(table_html(["step", "dataset", "samples", "ESS", "moves", "acceptance", "log Z (block)", "log Z"],
                              [[r["step"], r["dataset"], f"{r['first_sample']}-{r['first_sample'] + r['rows'] - 1}",
                                f"{r['ess']:.1f}", r["moves"], "-" if r["acceptance"] is None else f"{r['acceptance']:.3f}",
                                f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
@@ -338,7 +338,7 @@ def render_sg_report(store: SGRunStore, *, level: float = 0.95, image_dir: Path 
     return "\n".join(parts)
 
 
-def write_sg_report(store: SGRunStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
+def write_sg_report(store: BaseStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
     """Write :func:`render_sg_report` to ``output`` (an ``.html`` file; ``embed=False``: figures as PNG files
     in ``<output stem>_figures/``); returns its path."""
     output = Path(output)
@@ -358,5 +358,5 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from matplotlib.figure import Figure
     from numpy.typing import ArrayLike
 
-    from .sgstore import SGRunStore
-    from .structural.structures.modal import ModalSummary
+    from .base import BaseStore
+    from ..structural.structures.modal import ModalSummary

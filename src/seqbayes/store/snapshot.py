@@ -42,10 +42,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .density import GaussianMixture, HistoryPrior, MixtureSum
-from .nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
-from .results import StepRecord
-from .sequential import PastStep, SamplerState
+from ..density import GaussianMixture, HistoryPrior, MixtureSum
+from ..nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from ..results import StepRecord
+from ..sequential import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
            "check_state", "is_state_variable", "fill_missing", "UnsupportedState"]
@@ -290,4 +290,4 @@ def check_state(state, record: StepRecord) -> None:
                 and np.array_equal(state.log_weights, record.log_weights)
                 and np.array_equal(state.posterior, record.posterior) and state.log_evidence == record.info.log_evidence)
     if not same:  # pragma: no cover - guards the identity state_from_arrays relies on
-        raise ValueError("state: differs from its step record; seqbayes.snapshot needs updating")
+        raise ValueError("state: differs from its step record; seqbayes.store.snapshot needs updating")

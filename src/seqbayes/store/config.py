@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .modules import (ConfigError, ModuleSource, _split_likelihood, file_sha256, load_likelihood, load_located,
+from .modules import (ConfigError, ModuleSource, split_likelihood, file_sha256, load_likelihood, load_located,
                       locate_module, read_toml)
 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
@@ -168,6 +168,9 @@ class RunConfig:
     predict: str | None = None
     observed: str | None = None
 
+    #: the run kind (:mod:`seqbayes.store.registry`): an SMC/SEMC run
+    kind = "semc"
+
     # ------------------------------------------------------------------ builders
     @property
     def names(self) -> tuple:
@@ -176,13 +179,13 @@ class RunConfig:
 
     def build_prior(self) -> JointPrior:
         """The :class:`~seqbayes.priors.JointPrior`."""
-        from .priors import JointPrior
+        from ..priors import JointPrior
 
         return JointPrior({name: _freeze(spec, "<config>", f"priors.{name}") for name, spec in self.priors.items()})
 
     def build_kernel(self) -> MarkovKernel:
         """The :class:`~seqbayes.kernels.MarkovKernel`, one component per parameter."""
-        from .kernels import Decay, Drift, Jump, MarkovKernel, Static
+        from ..kernels import Decay, Drift, Jump, MarkovKernel, Static
 
         parts = []
         for name in self.names:
@@ -207,13 +210,13 @@ class RunConfig:
         ValueError
             ``predictive = "history"`` with a kernel that is not static.
         """
-        from .sequential import resolve_predictive
+        from ..sequential import resolve_predictive
 
         return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
 
     def locate_likelihood(self) -> "ModuleSource":
         """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
-        return locate_module(_split_likelihood(self.likelihood)[0], self.search_path)
+        return locate_module(split_likelihood(self.likelihood)[0], self.search_path)
 
     def load_likelihood(self) -> Callable[[np.ndarray, Any], np.ndarray]:
         """Import and return the likelihood function (a config is trusted like code)."""
@@ -230,7 +233,7 @@ class RunConfig:
         loglike : callable, optional
             Overrides the configured likelihood (e.g. a wrapper counting evaluations).
         """
-        from .sequential import SEMC, SMC
+        from ..sequential import SEMC, SMC
 
         cls = SEMC if self.sampler == "SEMC" else SMC
         loglike = self.load_likelihood() if loglike is None else loglike
@@ -255,6 +258,20 @@ class RunConfig:
         data["columns"] = tuple(data["columns"])
         return cls(**data)
 
+    def differing_fields(self, other: "RunConfig") -> list[str]:
+        """The fields (``section.key`` inside a table) in which ``other`` defines another model than this one."""
+        mine, theirs = self.to_dict(), other.to_dict()
+        out = []
+        for key in mine:
+            if key in NOT_FINGERPRINTED:
+                continue
+            if isinstance(mine[key], dict) and isinstance(theirs.get(key), dict):
+                out += [f"{key}.{sub}" for sub in sorted(set(mine[key]) | set(theirs[key]))
+                        if mine[key].get(sub) != theirs[key].get(sub)]
+            elif json.dumps(mine[key], sort_keys=True) != json.dumps(theirs.get(key), sort_keys=True):
+                out.append(key)
+        return out
+
     def fingerprint(self) -> str:
         """SHA-256 of everything that defines the model and the random stream.
 
@@ -268,7 +285,7 @@ class RunConfig:
 
     def make_executor(self) -> tuple[Any, Callable[[], None]]:
         """``(executor, close)`` for the ``[parallel]`` section (:func:`seqbayes.parallel.make_executor`)."""
-        from .parallel import make_executor
+        from ..parallel import make_executor
 
         return make_executor(self.executor, self.workers, self.address)
 
@@ -315,7 +332,7 @@ def _sampler_settings(kind):
     """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
     import dataclasses
 
-    from .sequential import SamplerConfig
+    from ..sequential import SamplerConfig
 
     names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
     excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
@@ -330,7 +347,7 @@ def _typed_setting(key, value, source):
     """
     import dataclasses
 
-    from .sequential import SamplerConfig
+    from ..sequential import SamplerConfig
 
     kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
@@ -373,7 +390,7 @@ def _parse_kernel(name, raw, source):
 
 def _parse_jump(prefix, raw, rate, noise, source):
     """A ``type = "jump"`` entry (:class:`~seqbayes.kernels.Jump`): its base, spike noise and slab."""
-    from .kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS
+    from ..kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS
 
     if raw["base"] not in ("drift", "decay"):
         _fail(source, f"{prefix}.base", f"expected \"drift\" or \"decay\" (the no-jump evolution), got {raw['base']!r}")
@@ -475,7 +492,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     _check_keys(sampler_raw, set(allowed), source, "sampler")
     settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
     # let the core validate values, reporting the field
-    from .sequential import SamplerConfig
+    from ..sequential import SamplerConfig
 
     try:
         SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
@@ -529,12 +546,12 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
     """Read and validate a TOML run configuration (the likelihood's module may sit next to it).
 
     A configuration with a ``[building]`` section is an SG-EnMCMC run: it is validated by
-    :func:`seqbayes.sgstore.parse_sg_config` and returned as a :class:`~seqbayes.sgstore.SGRunConfig`.
+    :func:`seqbayes.store.sg_config.parse_sg_config` and returned as a :class:`~seqbayes.store.sg_config.SGRunConfig`.
     """
     path = Path(path)
     raw = read_toml(path)
-    if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.sgstore)
-        from .sgstore import parse_sg_config
+    if "building" in raw:  # a shear building identified by SG-EnMCMC (seqbayes.store.sg_config)
+        from .sg_config import parse_sg_config
 
         return parse_sg_config(raw, str(path), base_dir=path.parent)
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
@@ -546,6 +563,6 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from collections.abc import Callable
     from typing import Any
 
-    from .kernels import MarkovKernel
-    from .priors import JointPrior
-    from .sequential import SEMC, SMC
+    from ..kernels import MarkovKernel
+    from ..priors import JointPrior
+    from ..sequential import SEMC, SMC

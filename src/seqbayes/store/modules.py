@@ -78,7 +78,7 @@ class ModuleSource:
         return self.files[-1] if self.files else None
 
 
-def _split_likelihood(spec):
+def split_likelihood(spec):
     if not isinstance(spec, str) or spec.count(":") != 1 or not all(spec.split(":")):
         raise ConfigError(f"model.likelihood: expected \"module:function\", got {spec!r}")
     return spec.split(":")
@@ -210,7 +210,7 @@ def _function_of(module, spec: str):
 
 def load_located(spec: str, source: ModuleSource) -> Callable[..., Any]:
     """The function named by ``spec`` from the located module ``source`` (see :func:`locate_module`)."""
-    _split_likelihood(spec)
+    split_likelihood(spec)
     try:
         module = import_module_source(source)
     except Exception as err:
@@ -230,7 +230,7 @@ def load_likelihood(spec: str, search_path: str | None = None) -> Callable[..., 
         If the string is malformed, the module cannot be imported or the
         attribute is missing or not callable.
     """
-    module_name, _ = _split_likelihood(spec)
+    module_name, _ = split_likelihood(spec)
     return load_located(spec, locate_module(module_name, search_path))
 
 

@@ -1,7 +1,7 @@
 """Reading and checking datasets: CSV and NetCDF files, arrays, their content hash.
 
 A dataset is an ``(n_rows, n_columns)`` float64 table whose columns are a run's
-``[data] columns`` (:class:`~seqbayes.config.RunConfig`), in that order. The run store
+``[data] columns`` (:class:`~seqbayes.store.config.RunConfig`), in that order. The run store
 (:mod:`seqbayes.store`) and the command line read files with :func:`read_datafile`,
 check arrays with :func:`check_table`, recognise a dataset assimilated before by
 :func:`dataset_digest` and hand the likelihood :func:`as_likelihood_data`. Errors are one

@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import plotting
+from .. import plotting
 
 if TYPE_CHECKING:
     import os
 
-    from .prognostics import FirstPassage, Threshold
-    from .selection import ModelComparison
-    from .store import RunStore
+    from ..prognostics import FirstPassage, Threshold
+    from ..selection import ModelComparison
+    from .base import BaseStore
 
 __all__ = ["status_rows", "format_status", "forecast_rows", "format_forecast", "comparison_rows",
            "first_passage_rows", "first_passage_json", "format_first_passage", "describe_prior", "describe_kernel",
@@ -45,7 +45,7 @@ def _tails(level):
     return tail, 1.0 - tail
 
 
-def status_rows(store: RunStore, level: float = 0.95) -> list[dict]:
+def status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     """One dict per step: dataset, diagnostics, and per-parameter mean, sd and credible interval.
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
@@ -83,7 +83,7 @@ def _fmt(x):
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
-def format_status(store: RunStore, level: float = 0.95) -> str:
+def format_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables."""
     cfg = store.config
     lines = [f"run {store.path}  model {cfg.name!r}  likelihood {cfg.likelihood}  sampler {cfg.sampler} "
@@ -122,7 +122,7 @@ def format_status(store: RunStore, level: float = 0.95) -> str:
     return "\n".join(lines)
 
 
-def forecast_rows(store: RunStore, n_steps: int, level: float = 0.95,
+def forecast_rows(store: BaseStore, n_steps: int, level: float = 0.95,
                   forecast: np.ndarray | None = None) -> list[dict]:
     """Forecast summary ``K`` steps ahead: one dict per (ahead, parameter) with mean, sd, interval."""
     lo, hi = _tails(level)
@@ -226,7 +226,7 @@ def describe_kernel(spec: dict) -> str:
     return f"{base} + N(0, {_num(noise)})" if noise > 0 else base
 
 
-def first_passage_rows(store: RunStore, threshold: Threshold, passage: FirstPassage) -> list[dict]:
+def first_passage_rows(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> list[dict]:
     """Per future step ``h``: the step, ``P(first crossing at h)``, ``P(crossed by h)`` and their Monte
     Carlo standard errors."""
     return [{"step": store.n_steps + h + 1, "ahead": h + 1, "probability": float(passage.probability[h]),
@@ -235,7 +235,7 @@ def first_passage_rows(store: RunStore, threshold: Threshold, passage: FirstPass
             for h in range(passage.horizon)]
 
 
-def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPassage) -> dict:
+def first_passage_json(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> dict:
     """The time to ``threshold`` (a :class:`~seqbayes.prognostics.Threshold`) as a JSON-able dict."""
     median = passage.quantile(0.5)
     return {"parameter": threshold.name, "direction": threshold.direction, "threshold": threshold.value,
@@ -246,7 +246,7 @@ def first_passage_json(store: RunStore, threshold: Threshold, passage: FirstPass
             "steps": first_passage_rows(store, threshold, passage)}
 
 
-def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
+def _passage_summary(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> str:
     median = passage.quantile(0.5)
     when = (f"median first crossing at step {store.n_steps + int(median)}" if math.isfinite(median)
             else f"median first crossing after step {store.n_steps + passage.horizon}")
@@ -257,7 +257,7 @@ def _passage_summary(store: RunStore, threshold: Threshold, passage: FirstPassag
                f"probabilities are the kernel's, unrestricted)" if passage.left_support > 0 else ""))
 
 
-def format_first_passage(store: RunStore, threshold: Threshold, passage: FirstPassage) -> str:
+def format_first_passage(store: BaseStore, threshold: Threshold, passage: FirstPassage) -> str:
     """The ``predict --threshold`` plain-text table (``+-`` one Monte Carlo standard error)."""
     lines = [_passage_summary(store, threshold, passage),
              f"{'step':>4} {'ahead':>5} {'P(first at step)':>18} {'+-':>7} {'P(crossed by step)':>19} {'+-':>7}"]
@@ -279,7 +279,7 @@ def comparison_rows(comparison: ModelComparison) -> list[dict]:
 
 
 # ------------------------------------------------------------------ HTML report
-_CSS = """
+CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 960px; color: #222; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 2em; }
 table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0; }
@@ -290,7 +290,7 @@ figcaption { font-size: 0.85em; color: #555; } code { background: #f4f4f4; paddi
 """
 
 
-def _table_html(header, rows, left=(0,)):
+def table_html(header, rows, left=(0,)):
     out = ["<table><thead><tr>"]
     out += [f"<th class='{'l' if i in left else ''}'>{html.escape(str(h))}</th>" for i, h in enumerate(header)]
     out.append("</tr></thead><tbody>")
@@ -301,7 +301,7 @@ def _table_html(header, rows, left=(0,)):
     return "".join(out)
 
 
-def _figure_html(fig, caption, fig_id, image_dir=None):
+def figure_html(fig, caption, fig_id, image_dir=None):
     if image_dir is None:
         src = plotting.to_data_uri(fig)
     else:
@@ -319,19 +319,19 @@ def _threshold_section(store, thresholds, horizon, image_dir) -> str:
            f"<p>The last posterior propagated {horizon} steps through the kernel: the probability that the "
            f"parameter first crosses the threshold at each future step, and that it has crossed by then, "
            f"+- one Monte Carlo standard error (the band in the figure is +- 2).</p>"]
-    out.append(_figure_html(plotting.plot_first_passage([(str(t), p) for t, p in passages], start_step=store.n_steps),
+    out.append(figure_html(plotting.plot_first_passage([(str(t), p) for t, p in passages], start_step=store.n_steps),
                             "Time to a threshold: P(crossed by step) with +- 2 Monte Carlo standard errors",
                             "fig-threshold", image_dir))
     for threshold, passage in passages:
         out.append(f"<p>{html.escape(_passage_summary(store, threshold, passage))}</p>")
-        out.append(_table_html(["step", "ahead", "P(first at step)", "+-", "P(crossed by step)", "+-"],
+        out.append(table_html(["step", "ahead", "P(first at step)", "+-", "P(crossed by step)", "+-"],
                                [[r["step"], r["ahead"], f"{r['probability']:.4f}", f"{r['standard_error']:.4f}",
                                  f"{r['cumulative']:.4f}", f"{r['cumulative_standard_error']:.4f}"]
                                 for r in first_passage_rows(store, threshold, passage)], left=()))
     return "\n".join(out)
 
 
-def _fit_section(store: RunStore, fit_data: tuple[int, np.ndarray] | None, level: float,
+def _fit_section(store: BaseStore, fit_data: tuple[int, np.ndarray] | None, level: float,
                  image_dir: Path | None) -> str:
     """The data-versus-fit panel: a dataset and the model's prediction at that step's posterior draws."""
     from .datasets import as_likelihood_data
@@ -362,11 +362,11 @@ def _fit_section(store: RunStore, fit_data: tuple[int, np.ndarray] | None, level
     caption = (f"Step {record.info.step} ({store.sources[index]}): the data of column {observed!r} and the model's "
                f"prediction ({cfg.predict}) at {theta.shape[0]} draws of the step's posterior: mean and {level:.0%} "
                f"band (the posterior's uncertainty, without the observation noise)")
-    out.append(_figure_html(fig, caption, "fig-fit", image_dir))
+    out.append(figure_html(fig, caption, "fig-fit", image_dir))
     return "\n".join(out)
 
 
-def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_steps: int = 3,
+def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecast_steps: int = 3,
                   level: float = 0.95, image_dir: Path | None = None,
                   thresholds: Sequence[Threshold] = (), horizon: int = 20,
                   fit_data: tuple[int, np.ndarray] | None = None) -> str:
@@ -392,19 +392,19 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
         configuration's ``[model] predict``); default: the last dataset when the store keeps the
         datasets (static or SMC^2 runs), else no panel.
     """
-    from .selection import compare
+    from ..selection import compare
 
     if store.n_steps == 0:
         raise ValueError(f"{store.path}: no step to report yet (run `seqbayes update` first)")
     cfg = store.config
     title = f"seqbayes report: {cfg.name}"
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{_CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+             f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
     parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: likelihood <code>{html.escape(cfg.likelihood)}"
                  f"</code>, sampler {cfg.sampler} with N = {cfg.n_samples}, seed {cfg.seed}; {store.n_steps} "
                  f"dataset(s) assimilated. Model fingerprint <code>{cfg.fingerprint()[:12]}</code>.</p>")
     kernel_rows = [[n, describe_prior(cfg.priors[n]), describe_kernel(cfg.kernel[n])] for n in cfg.names]
-    parts.append("<h2>Model</h2>" + _table_html(["parameter", "prior", "evolution between steps"], kernel_rows,
+    parts.append("<h2>Model</h2>" + table_html(["parameter", "prior", "evolution between steps"], kernel_rows,
                                                 left=(0, 1, 2)))
     parts.append("<p>U(lower, upper): uniform; N(mean, sd): normal; LogN(mu, sigma): log-normal, "
                  "mu and sigma of the logarithm. Evolution: x is the parameter at the step before; "
@@ -415,18 +415,18 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
     fig = plotting.plot_parameter_evolution(store.result, level=level, forecast=forecast)
     caption = (f"Posterior mean and {level:.0%} credible band per step"
                + (f", with the {forecast_steps}-step forecast (dashed)" if forecast is not None else ""))
-    parts.append(_figure_html(fig, caption, "fig-parameters", image_dir))
+    parts.append(figure_html(fig, caption, "fig-parameters", image_dir))
 
     rows = status_rows(store, level)
     pct = f"{level:.0%}"
     param_rows = [[r["step"], name, _fmt(p["mean"]), _fmt(p["sd"]), _fmt(p["lower"]), _fmt(p["upper"])]
                   for r in rows for name, p in r["parameters"].items()]
-    parts.append(_table_html(["step", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"], param_rows,
+    parts.append(table_html(["step", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"], param_rows,
                              left=(1,)))
     if forecast is not None:
         parts.append("<h2>Forecast</h2>")
         frows = forecast_rows(store, forecast_steps, level, forecast)
-        parts.append(_table_html(["step", "ahead", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
+        parts.append(table_html(["step", "ahead", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
                                  [[r["step"], r["ahead"], r["parameter"], _fmt(r["mean"]), _fmt(r["sd"]),
                                    _fmt(r["lower"]), _fmt(r["upper"])] for r in frows], left=(2,)))
     if thresholds:
@@ -443,23 +443,23 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
     target = cfg.settings.get("target_acceptance")
     if target is None and cfg.sampler == "SEMC":
         target = 0.21 / len(cfg.names) + 0.23  # Eq. (10), the sampler's default
-    parts.append(_figure_html(plotting.plot_sampler_diagnostics(runs, target_acceptance=target),
+    parts.append(figure_html(plotting.plot_sampler_diagnostics(runs, target_acceptance=target),
                               "Acceptance rate and effective sample size (ESS / N, last tempering stage, before "
                               "resampling) per step", "fig-diagnostics", image_dir))
-    parts.append(_table_html(["step", "dataset", "acceptance", "ESS", "distinct", "log Z_s", "log Z"],
+    parts.append(table_html(["step", "dataset", "acceptance", "ESS", "distinct", "log Z_s", "log Z"],
                              [[r["step"], r["dataset"], f"{r['acceptance_rate']:.3f}", f"{r['ess']:.1f}",
                                r["n_distinct"], f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"]
                               for r in rows], left=(1,)))
     parts.append(f"<p>{html.escape(ESS_NOTE)} N = {cfg.n_samples}.</p>")
     parts.append("<h2>Evidence and model probabilities</h2>")
-    parts.append(_figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
+    parts.append(figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
                               "fig-evidence", image_dir))
     n_common = min(len(r.steps) for r in runs.values())
     comparison = compare({k: v.log_evidence[:n_common] for k, v in runs.items()})
-    parts.append(_figure_html(plotting.plot_model_probabilities(comparison),
+    parts.append(figure_html(plotting.plot_model_probabilities(comparison),
                               "Posterior model probabilities (equal prior probabilities)", "fig-probabilities",
                               image_dir))
-    parts.append(_table_html(["step", "model", "log Z", "probability"],
+    parts.append(table_html(["step", "model", "log Z", "probability"],
                              [[r["step"], r["model"], f"{r['log_evidence']:.4f}", f"{r['probability']:.4f}"]
                               for r in comparison_rows(comparison)], left=(1,)))
     parts.append(f"<p>Most probable model after step {n_common}: <strong>{html.escape(comparison.best)}</strong>"
@@ -467,7 +467,7 @@ def render_report(store: RunStore, *, others: Sequence[RunStore] = (), forecast_
     return "\n".join(parts)
 
 
-def write_report(store: RunStore, output: str | os.PathLike, **kwargs: Any) -> Path:
+def write_report(store: BaseStore, output: str | os.PathLike, **kwargs: Any) -> Path:
     """Write :func:`render_report` to ``output`` (an ``.html`` file); returns its path.
 
     With ``embed=False`` the figures go to ``<output stem>_figures/`` next to the page.
