@@ -72,6 +72,7 @@ def test_threshold_is_a_validated_setting():
         SMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0, conflict_threshold=-1.0)
 
 
+@pytest.mark.slow
 def test_a_step_in_the_mixtures_tail_warns_through_the_ancestor_ess():
     # the other half of the diagnostic: with the shift's threshold out of reach, the jump still warns, because
     # only a few of the previous posterior's particles carry the step (ancestor ESS below remedy_ess * N, which

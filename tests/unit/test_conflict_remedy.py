@@ -55,6 +55,7 @@ def run(cls, ys, seed, **settings):
     return result, mean, log_evidence
 
 
+@pytest.mark.slow
 def test_the_path_target_is_the_exact_normalised_joint():
     # The path prior of step 3 over (theta_1, theta_2, theta_3), normalised by the exact step evidences,
     # integrated over theta_1 and theta_2 on a grid, must be the Kalman predictive density of theta_3.
@@ -97,6 +98,7 @@ def test_ancestor_draws_follow_the_responsibilities():
 # stored paths; with the bridge from the path prior (the default) <= 0.10 sd (seed sd <= 0.06) and <= 0.04
 # nats (sd <= 0.03); 0.25 sd and 0.25 nats are about 4 of those sds. Without the remedy: up to 0.93 sd
 # and 4.2 nats (sd 0.2-0.3 and 0.35-1.5 from step 4 on).
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", [SEMC, SMC])
 @pytest.mark.parametrize("bridge", [True, False])
 def test_the_remedy_matches_the_kalman_filter_through_a_conflict(cls, bridge):
@@ -113,6 +115,7 @@ def test_the_remedy_matches_the_kalman_filter_through_a_conflict(cls, bridge):
 
 # The paper's KDE predictive (Eq. A9-A10): seeds 0-3 with the remedy within 0.14 sd and 0.07 nats
 # (SEMC and SMC), without it up to 1.9 sd and 7.4 nats.
+@pytest.mark.slow
 def test_the_remedy_matches_the_kalman_filter_with_the_kde_predictive():
     ys = datasets()
     exact = kalman(ys)
@@ -122,6 +125,7 @@ def test_the_remedy_matches_the_kalman_filter_with_the_kde_predictive():
     assert np.all(np.abs(log_evidence - exact[:, 2]) < 0.25)
 
 
+@pytest.mark.slow
 def test_without_the_remedy_the_mixture_target_misses_the_conflict():
     ys = datasets()
     exact = kalman(ys)
@@ -133,6 +137,7 @@ def test_without_the_remedy_the_mixture_target_misses_the_conflict():
     assert max(worst) > 0.5
 
 
+@pytest.mark.slow
 def test_the_remedy_leaves_a_healthy_run_unchanged():
     ys = datasets(jump=0.0)
     on, _, _ = run(SEMC, ys, 3)
@@ -145,6 +150,7 @@ def test_the_remedy_leaves_a_healthy_run_unchanged():
         assert a.info.log_evidence == b.info.log_evidence
 
 
+@pytest.mark.slow
 def test_a_remedied_run_is_reproducible_and_keeps_a_bounded_window():
     ys = datasets()
     sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3)
@@ -171,6 +177,7 @@ def test_bad_remedy_settings_are_refused(name, value):
         SamplerConfig(move="gaussian", **{name: value})
 
 
+@pytest.mark.slow
 def test_semc_makes_four_sweeps_per_path_state_at_every_stage():
     # the stretch move mixes more slowly in the path's dimensions than SMC's scaled random walk: with
     # 2 L sweeps per stage its mean at the abrupt drop's conflict step was biased (+0.09 exact sds over
@@ -201,6 +208,7 @@ def test_the_path_prior_draws_and_density_are_the_windows_prior_times_the_transi
 
 
 
+@pytest.mark.slow
 def test_a_step_with_no_predictive_draw_inside_is_rescued_by_the_bridge():
     # a in [0, 3], a drift of -1 a step: step 1 puts a at 0.5 +- 0.1, so the predictive mixture has ~3e-6 of its
     # mass inside [0, 3] and its restricted restart finds no draw (ZeroLikelihoodError); the model's path posterior

@@ -80,6 +80,7 @@ def _ode_phase(r, beta, cycles=15, eps=1e-3):
     return np.degrees(-np.angle(c1)) % 360.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("r, beta", [(0.65, 0.55), (0.55, 0.3), (1.8, 0.4)])
 def test_phase_model_matches_direct_integration(r, beta):
     # continuous regime, away from resonance so that 15 cycles reach the steady state

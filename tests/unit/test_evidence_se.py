@@ -104,6 +104,7 @@ def _two_steps_back(seed, n=6000):
             rng.integers(0, n // 3, size=n), rng.integers(0, n // 2, size=n))
 
 
+@pytest.mark.slow
 def test_subsampled_rows_estimate_the_spread_and_the_backward_term(monkeypatch):
     # N = 6000 >= 4096: 512 selected rows (U-statistics) against every row. Measured on seeds 0-2: the grouped
     # variance 0.95-1.05 of the all-rows value; the backward term 0.79-1.13 from the selected rows' draws,

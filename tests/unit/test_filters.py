@@ -77,6 +77,7 @@ def test_fast_log_likelihood_equals_kalman_filter():
                                kalman_filter(batch, u, y, R, sw).log_likelihood, rtol=1e-9, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_enkf_reproduces_kalman_filter_with_large_ensemble():
     model, u, y, std, sw = _data(150)
     kf = kalman_filter(model, u, y, std, sw, store=True)

@@ -23,6 +23,7 @@ def exact_restricted_moments(horizon):
     return mean, np.sqrt(np.trapezoid((grid - mean) ** 2 * density, grid))
 
 
+@pytest.mark.slow
 def test_forecasts_are_the_model_s_paths_conditioned_on_the_box():
     samples = np.full((20000, 1), START)
     draws = forecast(samples, KERNEL, BOX, 3, np.random.default_rng(0))

@@ -81,6 +81,7 @@ def test_a_copied_store_runs_no_module_it_did_not_record(tmp_path):
     assert RunStore.open(elsewhere / "run.nc").n_steps == 2
 
 
+@pytest.mark.slow
 def test_the_cli_on_a_copied_store_runs_no_foreign_module(tmp_path, capsys):
     """The issue's probe: ``predict``, ``report`` and ``update`` on a store copied next to another
     ``module.py``; none runs it (two work without any likelihood, update refuses in one line)."""
@@ -112,6 +113,7 @@ def test_a_store_whose_module_is_nowhere_says_where_it_was(tmp_path):
     assert store.predict(1).shape == (1, 40, 2)
 
 
+@pytest.mark.slow
 def test_predict_and_report_import_no_likelihood(tmp_path):
     store = make_run(tmp_path, "trustmodel_c", extra=MARKER)
     (tmp_path / "trustmodel_c.ran").unlink()
@@ -318,6 +320,7 @@ def rewrite(store_path, edit, target):
     return target
 
 
+@pytest.mark.slow
 def test_damaged_stores_get_one_line_naming_the_file(tmp_path, capsys):
     import json
 
@@ -496,6 +499,7 @@ def test_invalid_priors_are_refused_with_the_parameter_named():
     assert JointPrior({"k": stats.uniform(0.0, 1.0)}).dim == 1
 
 
+@pytest.mark.slow
 def test_report_keeps_user_strings_out_of_the_markup(tmp_path):
     from seqbayes.store.report import write_report
 
@@ -544,6 +548,7 @@ def fill(folder, leave_bytes):
         fh.write(b"\0" * max(0, free - leave_bytes))
 
 
+@pytest.mark.slow
 def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monkeypatch):
     import seqbayes.store.files as store_files
 
@@ -574,6 +579,7 @@ def test_a_full_disk_gives_one_line_and_keeps_the_store(small_disk, capsys, monk
     assert RunStore.open(run).n_steps == 2
 
 
+@pytest.mark.slow
 def test_a_read_only_folder_gives_one_line(small_disk, capsys):
     import subprocess
 
@@ -604,6 +610,7 @@ def test_netcdf3_data_files_are_read(tmp_path):
 
 
 # ------------------------------------------------------------------ item 7: a step is appended, not the whole file
+@pytest.mark.slow
 def test_a_step_is_appended_in_place_and_reads_back_as_a_whole_write(tmp_path, monkeypatch):
     import seqbayes.store.files as store_files
 

@@ -95,6 +95,7 @@ def test_mixture_sum_sample_and_one_draw_per_ancestor():
         MixtureSum((), np.zeros(0))
 
 
+@pytest.mark.slow
 def test_jump_posterior_matches_brute_force():
     """Branch responsibilities and the drop fraction's posterior, against a direct evaluation with
     the kernel's logpdf and a quadrature over f (deterministic: no Monte Carlo)."""
@@ -216,6 +217,7 @@ def _drop_problem(drop_step):
     return prior, loglike, data
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", [SMC, SEMC])
 def test_sampler_reports_the_jump_at_the_drop_step_only(cls):
     prior, loglike, data = _drop_problem(4)
@@ -237,6 +239,7 @@ def test_sampler_reports_the_jump_at_the_drop_step_only(cls):
     np.testing.assert_array_equal(again.result.steps[-1].posterior, result.steps[-1].posterior)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
 def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
     """A TOML jump kernel in the run store: reopened from disk before every step, the run is the

@@ -98,6 +98,7 @@ def assert_prefix_of_reference(store, reference):
     assert store.step_sizes == reference.step_sizes[:store.n_steps]
 
 
+@pytest.mark.slow
 def test_four_updates_in_four_processes_equal_four_in_one(workdir):
     assert cli.main(["init", str(workdir / "run.toml"), str(workdir / "separate.nc")]) == 0
     for s in range(4):
@@ -112,6 +113,7 @@ def test_four_updates_in_four_processes_equal_four_in_one(workdir):
     np.testing.assert_array_equal(separate.result.log_evidence, reference.result.log_evidence)
 
 
+@pytest.mark.slow
 def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir):
     run = workdir / "faults.nc"
     journal = workdir / f".{run.name}.journal"
@@ -152,6 +154,7 @@ def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir
     assert sorted(p.name for p in workdir.iterdir() if p.name.startswith(f".{run.name}")) == []
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_times(workdir):
     run = workdir / "random.nc"
     reference = RunStore.open(workdir / "reference.nc")

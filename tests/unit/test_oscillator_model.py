@@ -192,6 +192,7 @@ def test_same_seed_same_problem():
     assert not np.array_equal(a.path.values, c.path.values)
 
 
+@pytest.mark.slow
 def test_exact_log_evidence_against_monte_carlo():
     # log p(D^1) by quadrature against plain Monte Carlo over a box around the truth that holds
     # the posterior (+-0.3 in k, +-0.1 in c; the posterior sds are ~0.02 and ~0.005), 1e5 uniform

@@ -73,6 +73,7 @@ def serial():
     return {cls.__name__: make(cls).run(datasets()) for cls in (SEMC, SMC)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls, n_chunks", [(SEMC, None), (SMC, 7)])
 def test_dask_cluster_of_two_processes_gives_the_serial_numbers(client, serial, cls, n_chunks, tmp_path):
     """Default chunking (one chunk per worker) and 7 uneven chunks (40 samples -> 6 and 5)."""
@@ -94,6 +95,7 @@ def test_concurrent_futures_executors_give_the_serial_numbers(serial):
         assert_identical(serial["SMC"], make(SMC, executor=pool).run(datasets()))
 
 
+@pytest.mark.slow
 def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     """A monitoring run whose updates are evaluated on the cluster stores the serial numbers."""
     import textwrap

@@ -27,6 +27,7 @@ def exact_first_passage(mean, sd, drift, noise, threshold, horizon, n_grid=1501,
     return gaussian_first_passage(mean, sd, drift, noise, threshold, horizon, n_grid=n_grid, width=width)
 
 
+@pytest.mark.slow
 def test_first_passage_matches_exact_kalman_posterior(posterior):
     problem, mean, cov = posterior
     rng = np.random.default_rng(5)
@@ -143,6 +144,7 @@ def test_parse_threshold():
             parse_threshold(bad, ["k", "c"])
 
 
+@pytest.mark.slow
 def test_from_the_sampler_posterior_matches_the_exact_kalman_answer():
     """The whole chain: SMC's posterior after 6 datasets, propagated by time_to_threshold, against the
     exact first-passage probabilities of the Kalman posterior, horizons 1..20. Over 8 seeds the largest

@@ -91,6 +91,7 @@ def posterior_mixture(g, y, noise):
     return np.exp(log_w), means, np.sqrt(h2 * s2 / (h2 + s2))
 
 
+@pytest.mark.slow
 def test_pseudo_marginal_moves_leave_the_exact_posterior_invariant():
     """Particles drawn exactly from ``L p`` with start values of the extended target, then 10 sweeps of
     pseudo-marginal random-walk MH (the sampler's Gaussian move, 2 terms: a noisy estimate): the mean,

@@ -173,6 +173,7 @@ def test_result_netcdf_round_trip(tmp_path):
     assert ds.attrs["seqbayes_result_version"] == 1
 
 
+@pytest.mark.slow
 def test_compare_bayes_factor_and_probabilities():
     wrong_kernel = MarkovKernel([Drift(1.0, noise_std=0.05), Static()])
     good = make(SEMC, n=400).run(DATA)

@@ -402,6 +402,7 @@ def test_blocks_in_g_are_stored_in_si(workdir, tmp_path):
         parse_sg_config(raw, "run.toml")
 
 
+@pytest.mark.slow
 def test_noise_parameters_and_a_pinned_surrogate(workdir, tmp_path):
     """[sampler] noise_parameters: the noise scales are stored, shown and resumed with the ratios;
     surrogate = "auto" is measured once, when the configuration is read, and pinned as a level."""

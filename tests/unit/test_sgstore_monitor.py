@@ -94,6 +94,7 @@ def assert_same_blocks(ours, reference):
                 assert np.array_equal(x, y, equal_nan=np.asarray(x).dtype.kind == "f"), (f.name, a.stop, x, y)
 
 
+@pytest.mark.slow
 def test_store_reopened_before_every_block_equals_one_monitor(workdir, tmp_path, capsys):
     root, config, table = workdir
     assert config.monitor["seed"] == 8  # default: the sampler's seed + 1
@@ -159,6 +160,7 @@ def fork_update(run, block, fault):
     return status
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fault", ["mid-write", "mid-apply"])
 def test_killed_update_keeps_the_monitor_bit_identical(workdir, tmp_path, fault):
     root, config, table = workdir

@@ -64,6 +64,7 @@ def uninterrupted(case):
     return mon, snaps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", [3, 4])
 def test_resume_is_bit_identical(case, uninterrupted, k):
     # after block 3 the classes are all active, particles have tried drops and pruning counts are running;
@@ -110,6 +111,7 @@ def test_snapshot_survives_savez_without_pickle(case, uninterrupted, tmp_path):
         assert np.array_equal(mine[key], value, equal_nan=value.dtype.kind == "f"), key
 
 
+@pytest.mark.slow
 def test_a_sensor_layout_is_stored_as_text(case, tmp_path):
     layout = Sensors(accelerations=(2,), drifts=(1,))
     mon = monitor(case, channels=layout)

@@ -90,6 +90,7 @@ predictive = "transition"
 """
 
 
+@pytest.mark.slow
 def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_path):
     """The conflict remedy keeps a window of past steps and, after a path-space step, the particle
     paths; a store reopened before every step rebuilds both (seqbayes.store.snapshot) and gives the
@@ -205,6 +206,7 @@ def test_exact_round_trip_of_every_stored_array(tmp_path):
     np.testing.assert_array_equal(state.cloud["x"], store.states[-1]["nested_cloud_x"])
 
 
+@pytest.mark.slow
 def test_duplicate_dataset_refused_and_replace_last(tmp_path):
     cfg = config(tmp_path)
     data = datasets(3)
@@ -244,6 +246,7 @@ def test_failing_likelihood_leaves_the_store_unchanged(tmp_path):
         store.assimilate(np.zeros((5, 3)))
 
 
+@pytest.mark.slow
 def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     import xarray as xr
 
@@ -281,6 +284,7 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
         RunStore.create(tmp_path / "run.nc", cfg)
 
 
+@pytest.mark.slow
 def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_path):
     """Format 3 (one content hash over all text records, no per-step record hashes, no remedy state)
     is still read, verified by its own hash, and the next update writes the whole file in format 4."""
@@ -313,6 +317,7 @@ def test_a_format_3_store_opens_and_its_next_update_rewrites_it_in_format_4(tmp_
     assert xr.open_dataset(tmp_path / "v3.nc", engine="h5netcdf").attrs["seqbayes_store_format"] == FORMAT_VERSION
 
 
+@pytest.mark.slow
 def test_a_store_written_before_the_lineage_opens_and_continues_with_distinct_labels(tmp_path):
     """A format-4 store without ``state_lineage`` (written before the evidence se's labels) reads as every
     particle its own label (the lineage only enters the log-evidence standard errors); the next update
@@ -382,6 +387,7 @@ def test_a_step_posterior_as_arviz_data(tmp_path):
     np.testing.assert_array_equal(again.posterior["a"].values, post["a"].values)
 
 
+@pytest.mark.slow
 def test_a_store_with_older_or_newer_diagnostics_still_opens(tmp_path):
     import dataclasses
     import json

@@ -39,6 +39,7 @@ def test_no_accurate_grid_means_exact():
     assert "not built" in capped.candidates[-1]["note"]
 
 
+@pytest.mark.slow
 def test_bouc_wen_candidates_and_accuracy_gate():
     bw = BoucWenBuilding.from_yield_drift(BUILDING, 0.004, alpha=0.3)
     u = np.random.default_rng(0).standard_normal(120) * 2.0
