@@ -6,18 +6,23 @@ structural side of Lin et al. (2024): shear buildings, ground motions, filters,
 sparse grids and the SG-EnMCMC identifier.
 """
 
-from . import aies, filters, nested, prognostics, reference, sparsegrid, structures
-from .density import GaussianMixture, MixtureSum, RunningStatistics, predictive_density, silverman_bandwidth
+from . import aies, filters, prognostics, reference, sparsegrid, structures
+from .predictive import smc2 as nested
+from .predictive.history import RunningStatistics
+from .predictive.mixture import GaussianMixture, MixtureSum, predictive_density, silverman_bandwidth
 from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
-from .nested import KalmanInnerFilter, ParticleInnerFilter
+from .predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter
 from .prognostics import FirstPassage, time_to_threshold
 from .reference import GridReference, grid_filter
 from .priors import JointPrior
 from .results import Result, StepInfo, StepRecord
 from .rng import as_generator
 from .selection import ModelComparison, compare
-from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
-                         ZeroLikelihoodError, assimilate)
+from .engine.drivers import SEMC, SMC
+from .engine.errors import InnerFilterWarning, PriorDataConflictWarning, TemperingLimitError, ZeroLikelihoodError
+from .engine.pipeline import assimilate
+from .engine.settings import SamplerConfig
+from .engine.state import SamplerState
 from .sgenmcmc import SGEnMCMC, SGEnMCMCResult, SparseGridTransition
 from .config import load_config
 from .store import RunStore, posterior_to_arviz

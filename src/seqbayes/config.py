@@ -207,7 +207,7 @@ class RunConfig:
         ValueError
             ``predictive = "history"`` with a kernel that is not static.
         """
-        from .sequential import resolve_predictive
+        from .predictive.base import resolve_predictive
 
         return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
 
@@ -230,7 +230,7 @@ class RunConfig:
         loglike : callable, optional
             Overrides the configured likelihood (e.g. a wrapper counting evaluations).
         """
-        from .sequential import SEMC, SMC
+        from .engine.drivers import SEMC, SMC
 
         cls = SEMC if self.sampler == "SEMC" else SMC
         loglike = self.load_likelihood() if loglike is None else loglike
@@ -315,7 +315,7 @@ def _sampler_settings(kind):
     """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
     import dataclasses
 
-    from .sequential import SamplerConfig
+    from .engine.settings import SamplerConfig
 
     names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
     excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
@@ -330,7 +330,7 @@ def _typed_setting(key, value, source):
     """
     import dataclasses
 
-    from .sequential import SamplerConfig
+    from .engine.settings import SamplerConfig
 
     kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
@@ -475,7 +475,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     _check_keys(sampler_raw, set(allowed), source, "sampler")
     settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
     # let the core validate values, reporting the field
-    from .sequential import SamplerConfig
+    from .engine.settings import SamplerConfig
 
     try:
         SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
@@ -548,4 +548,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
 
     from .kernels import MarkovKernel
     from .priors import JointPrior
-    from .sequential import SEMC, SMC
+    from .engine.drivers import SEMC, SMC

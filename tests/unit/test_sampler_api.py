@@ -307,15 +307,15 @@ def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
 
 
 def test_unreliable_importance_evidence_falls_back_to_the_path(monkeypatch):
-    import seqbayes.sequential as sequential
+    import seqbayes.engine.evidence as evidence
 
-    real = sequential.importance_step
+    real = evidence.importance_step
 
     def degenerate(*args, **kwargs):  # as when a collapsed posterior leaves q nothing to fit
         log_z, _, posterior, components, accepted = real(*args, **kwargs)
         return log_z - 20.0, 2.0, posterior, components, accepted
 
-    monkeypatch.setattr(sequential, "importance_step", degenerate)
+    monkeypatch.setattr(evidence, "importance_step", degenerate)
     sampler = make(SMC)
     with pytest.warns(RuntimeWarning, match="step 1: importance-sampling evidence unreliable"):
         info = sampler.update(DATA[0])

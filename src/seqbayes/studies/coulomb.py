@@ -39,7 +39,7 @@ __all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study"
 #: give SMC -14.559 +- 0.023 and SEMC -14.568 +- 0.037 (exact -14.556), every SMC run's means
 #: within 0.16 posterior sd and SEMC's within 0.28.
 #:
-#: F_mu drifts and the other three are static, so the defaults run SMC^2 (:mod:`seqbayes.nested`);
+#: F_mu drifts and the other three are static, so the defaults run SMC^2 (:mod:`seqbayes.predictive.smc2`);
 #: 30 inner particles per outer particle (not the default 100) meet the exact grid reference at every
 #: step (``benchmarks/bench_coulomb_exact.py``: within 0.2 posterior sd and 15 % in every run) at a
 #: third of the cost, because the kernels' noise (0.04 N) is about one posterior sd of F_mu.

@@ -1,6 +1,6 @@
 """SMC^2: exact on-line inference when static and drifting parameters are tracked together.
 
-The transition mixture of :mod:`seqbayes.density` carries the posterior of a static
+The transition mixture of :mod:`seqbayes.predictive.mixture` carries the posterior of a static
 parameter through a kernel density every step; over hundreds of steps that
 re-summarisation collapses the static posterior (``docs/core.md`` measures it). SMC^2
 (Chopin, Jacob and Papaspiliopoulos 2013) avoids it by never propagating a static
@@ -42,14 +42,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kernels import Decay, Drift, MarkovKernel, Static
-from .moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
-from .density import kept_copy
-from .priors import JointPrior, inside_support
-from .resampling import resample
-from .results import StepInfo, StepRecord, prior_data_conflict
-from .tempering import next_increment
-from .transforms import BoxTransform
+from ..engine.errors import ZeroLikelihoodError
+from ..engine.stages import count_distinct, prior_name, reweight_stage
+from ..engine.state import kept_copy
+from ..kernels import Decay, Drift, MarkovKernel, Static
+from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..priors import JointPrior, inside_support
+from ..resampling import resample
+from ..results import StepInfo, StepRecord, prior_data_conflict
+from ..tempering import next_increment
+from ..transforms import BoxTransform
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays",
@@ -562,8 +564,6 @@ def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config
     new_state : NestedState
     record : StepRecord
     """
-    from .sequential import ZeroLikelihoodError, _prior_name, count_distinct, reweight_stage
-
     start = time.perf_counter()
     step = state.step + 1
     n = config.n_samples
@@ -579,7 +579,7 @@ def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config
     components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
     if not np.isfinite(log_increment).any():
         raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
-                                  f"{_prior_name(step)} is too far from the data")
+                                  f"{prior_name(step)} is too far from the data")
     beta, log_z, temperatures = 0.0, 0.0, []
     stats, step_size, n_sweeps, resampled = SweepStats(), state.step_size, 0, False
     while beta < 1.0:
@@ -666,6 +666,5 @@ import typing as _typing  # noqa: E402
 if _typing.TYPE_CHECKING:  # names used only in annotations
     from typing import Any
 
-    from .priors import JointPrior
-    from .results import StepRecord
-    from .sequential import Problem, SamplerConfig
+    from ..engine.settings import SamplerConfig
+    from ..engine.state import Problem
