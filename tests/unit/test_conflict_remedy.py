@@ -68,7 +68,7 @@ def test_the_path_target_is_the_exact_normalised_joint():
     increments = np.diff(np.concatenate([[0.0], exact[:, 2]]))
     window = (PastStep(ys[0], PRIOR, np.zeros((1, 1)), np.zeros(1), increments[0]),
               PastStep(ys[1], None, np.zeros((1, 1)), np.zeros(1), increments[1]))
-    counter = ValidatedLikelihood(Problem(PRIOR, kernel, loglike, np.array([[-np.inf, np.inf]])), None, 3)
+    counter = ValidatedLikelihood.for_step(Problem(PRIOR, kernel, loglike, np.array([[-np.inf, np.inf]])), None, 3)
     logpdf = path_prior_logpdf(window, kernel, counter, 1)
     axis = np.linspace(-2.0, 2.0, 161)
     t1, t2, t3 = np.meshgrid(axis, axis, axis, indexing="ij")

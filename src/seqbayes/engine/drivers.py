@@ -19,7 +19,6 @@ from ..rng import as_generator, generator_from_state, generator_state
 from ..tempering import blas_limit
 from .errors import InnerFilterWarning, PriorDataConflictWarning
 from .forecast import forecast
-from .likelihood import ProgressLikelihood
 from .pipeline import assimilate
 from .settings import SamplerConfig
 from .stages import step_conflict
@@ -135,15 +134,15 @@ class _SequentialSampler:
 
     def _update(self, dataset, progress: bool, leave: bool) -> StepInfo:
         prior = (self._state.prior_draws, self._state.log_weights)
-        problem, bar = self.problem, None
+        bar = None
         if progress and self.problem.executor is None:
             from tqdm.auto import tqdm
 
             bar = tqdm(desc=f"step {self._state.step + 1}", unit="eval", leave=leave)
-            problem = replace(problem, loglike=ProgressLikelihood(problem.loglike, bar))
         try:
             with blas_limit(self._blas_threads):
-                state, record = assimilate(self._state, dataset, problem, self.config, self._rng)
+                state, record = assimilate(self._state, dataset, self.problem, self.config, self._rng,
+                                           on_evaluated=None if bar is None else bar.update)
             if bar is not None:
                 bar.set_postfix(ESS=f"{record.info.ess:.0f}", logZ=f"{record.info.log_evidence:.2f}")
         finally:

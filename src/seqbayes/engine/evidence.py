@@ -331,7 +331,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-def estimate_increment(cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng,
+def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
               other=None):
     """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
     (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
@@ -346,7 +346,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, coun
     73-118 and estimates within 0.27 nats of the exact increment, then one with ESS 10 and 0.71 nats high).
 
     Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
-    n, step = config.n_samples, counter.step
+    n, step = config.n_samples, likelihood.step
     if not use_importance:
         return cloud, log_increment_path, float("nan"), 0
     n_independent = 0
@@ -361,7 +361,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, coun
     # swept particles for the estimate, which costs n_independent N calls and brings those means within 0.15 sd
     if other is not None:
         index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
-                                counter.loglike, problem.support, rng, scaled.get("gaussian", False))
+                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False))
         labels = None
         if cloud.labels is not None and other.labels is not None:
             labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
@@ -376,7 +376,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, coun
         # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
         # them and estimate again (each q is independent of its own draws, so every estimate is valid)
         log_increment, evidence_ess, particles, components, accepted = importance_step(
-            particles, cloud.log_weights, components, prior_logpdf, counter.loglike, problem.support, rng,
+            particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
             config.n_independent, other=also_fit,
             **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
         n_independent += accepted

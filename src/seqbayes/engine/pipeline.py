@@ -46,15 +46,16 @@ from .state import MoveTally, PastStep, SamplerState, kept_copy, variance_before
 __all__ = ["assimilate"]
 
 
-def _prior_logpdf(prior, counter):
+def _prior_logpdf(prior, likelihood):
     """The step's prior log-density as a function of ``theta (M, d)`` alone."""
     if isinstance(prior, HistoryPrior):
-        return lambda theta: prior.logpdf(theta, counter.loglike_on, counter.summary_loglike)
+        return lambda theta: prior.logpdf(theta, likelihood.loglike_on, likelihood.summary_loglike)
     return prior.logpdf
 
 
 def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: SamplerConfig,
-               rng: np.random.Generator) -> tuple[SamplerState, StepRecord]:
+               rng: np.random.Generator, *, on_evaluated: Callable[[int], None] | None = None,
+               ) -> tuple[SamplerState, StepRecord]:
     """Assimilate one dataset (pure; ``state`` is not modified): weigh the prior particles, temper,
     resample and move, estimate the evidence, propagate through the kernel.
 
@@ -71,13 +72,13 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
     start = time.perf_counter()
     step = state.step + 1
     check_dataset(dataset, step)
-    counter = ValidatedLikelihood(problem, dataset, step)
+    likelihood = ValidatedLikelihood.for_step(problem, dataset, step, on_evaluated)
     if isinstance(state, NestedState):
         if step > 1 or not problem.inner_filter.joint_first_step:
-            return assimilate_nested(state, dataset, problem, config, counter, rng)
+            return assimilate_nested(state, dataset, problem, config, likelihood, rng)
         # the first dataset has no dynamics yet: a static problem in every parameter
         joint = SamplerState(0, state.particles, state.log_weights, problem.prior, 0.0, state.step_size)
-        _, record, cloud = _assimilate_particles(joint, dataset, problem, config, rng, counter, "joint", start)
+        _, record, cloud = _assimilate_particles(joint, dataset, problem, config, rng, likelihood, "joint", start)
         new_state = after_joint_first_step(nested_split(problem.kernel), problem.inner_filter.n_inner,
                                            cloud.particles, cloud.log_weights,
                                            cloud.components, dataset, record.info.log_evidence,
@@ -86,7 +87,7 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
         return new_state, record
     method = resolve_predictive(config.predictive, problem.kernel)
     try:
-        new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, counter, method, start)
+        new_state, record, _ = _assimilate_particles(state, dataset, problem, config, rng, likelihood, method, start)
     except ZeroLikelihoodError as error:
         # No predictive draw of the mixture lands where the likelihood is non-zero (run 9 of the oscillator study
         # under T6: the drift takes every predicted k below 0), yet the model's path posterior may have mass there,
@@ -94,7 +95,7 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
         if not (config.remedy_bridge and state.window and remedy_applies(config, method, problem.kernel)):
             raise
         try:
-            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start,
+            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, likelihood, method, start,
                                                     bridge=True)
         except ZeroLikelihoodError:
             raise error from None
@@ -106,19 +107,19 @@ def assimilate(state: SamplerState, dataset: Any, problem: Problem, config: Samp
     if state.window and remedy_applies(config, method, problem.kernel) and (
             info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold):
         try:
-            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, counter, method, start,
+            new_state, record, _ = assimilate_paths(state, dataset, problem, config, rng, likelihood, method, start,
                                                     bridge=config.remedy_bridge)
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
             pass
     return new_state, record
 
 
-def _assimilate_particles(state, dataset, problem, config, rng, counter, method, start):
+def _assimilate_particles(state, dataset, problem, config, rng, likelihood, method, start):
     """Stages 1-6 for a :class:`SamplerState`; ``method`` is the resolved predictive (``"joint"``: the
     first step of SMC^2 with a particle inner filter, propagated but with no density built).
     Returns the new state, the record and the final cloud."""
     step = state.step + 1
-    prior_logpdf = _prior_logpdf(state.prior, counter)
+    prior_logpdf = _prior_logpdf(state.prior, likelihood)
     if (method == "transition" and isinstance(state.prior, GaussianMixture) and config.pseudo_marginal_from
             and config.n_samples >= config.pseudo_marginal_from and state.log_prior is None):
         prior_logpdf = SubsampledPrior(state.prior, rng)  # pseudo-marginal moves where the pilot allows
@@ -133,18 +134,18 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         if deferred:
             particles, log_weights, log_prior, moves, rejuvenated, labels = rejuvenate_deferred(
                 state, problem, config, prior_logpdf, moves, rng)
-    cloud, log_restricted_mass, n_found = weigh(state, particles, log_weights, log_prior, problem, config, counter,
+    cloud, log_restricted_mass, n_found = weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
                                                  prior_logpdf, rng, labels if rejuvenated else None)
     weights_before = np.exp(cloud.log_weights)
     weighed = cloud  # the step's prior draws (restricted to {inside, L > 0} after a restart)
     cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-        cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng)
+        cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng)
     log_increment_path = log_z + log_restricted_mass  # Z = P(inside, L > 0) E[L | inside, L > 0]
     # with the history prior a step that kept its particles needs no fitted proposal: its weights are the
     # importance weights of the exact prior (and a proposal would re-evaluate the past, at O(s) cost)
     use_importance = config.evidence == "importance" and not (method == "history" and moves.stats.n_proposed == 0)
     cloud, log_increment, evidence_ess, n_independent = estimate_increment(
-        cloud, log_increment_path, n_found, problem, config, counter, prior_logpdf, use_importance, rng)
+        cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng)
     log_evidence = float(state.log_evidence + log_increment)
     density, predictive, next_log_prior = propagate(state, cloud, dataset, log_increment, log_evidence, method,
                                                      problem, config, rng)
@@ -183,7 +184,7 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
         log_evidence=log_evidence, ess=float(stage_ess), resampled=bool(resampled or rejuvenated),
         acceptance_rate=moves.stats.acceptance_rate, step_size=float(step_size),
         n_virtual=moves.n_virtual, n_stages=len(temperatures), temperatures=temperatures,
-        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(cloud.particles),
+        n_loglike_evals=likelihood.n_evals, n_nan=likelihood.n_nan, n_distinct=count_distinct(cloud.particles),
         n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
         n_identical_partner=moves.stats.n_identical_partner,
         log_evidence_increment_path=float(log_increment_path), evidence_ess=evidence_ess,
@@ -206,6 +207,7 @@ def _assimilate_particles(state, dataset, problem, config, rng, counter, method,
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
+    from collections.abc import Callable
     from typing import Any
 
     from .settings import SamplerConfig

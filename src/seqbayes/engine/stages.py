@@ -63,7 +63,7 @@ def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, su
     return prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weights)
 
 
-def restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
+def restricted_draws(prior, support, n, rng, step, likelihood, max_rounds=100):
     """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
     by rejection, their log-likelihoods, the log of the restricted prior mass (the acceptance
     fraction of the rejection sampler), the number of distinct draws found and ``(n,)`` labels
@@ -73,7 +73,7 @@ def restricted_draws(prior, support, n, rng, step, counter, max_rounds=100):
         draws = prior.sample(n, rng)
         loglike = np.full(n, -np.inf)
         inside = inside_space(draws, support)
-        loglike[inside] = counter.loglike(draws[inside])
+        loglike[inside] = likelihood.loglike(draws[inside])
         ok = np.isfinite(loglike)
         kept.append(draws[ok])
         kept_ll.append(loglike[ok])
@@ -110,7 +110,7 @@ def rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
             True, index)
 
 
-def weigh(state, particles, log_weights, log_prior, problem, config, counter, prior_logpdf, rng, labels=None):
+def weigh(state, particles, log_weights, log_prior, problem, config, likelihood, prior_logpdf, rng, labels=None):
     """Stage 1: the likelihood at the prior particles (Eq. A4). When few of them can carry the step
     (predictive mass outside the parameter space, or a zero-likelihood region such as stick-slip)
     the step restarts from the prior restricted to ``{inside, L > 0}``.
@@ -120,14 +120,14 @@ def weigh(state, particles, log_weights, log_prior, problem, config, counter, pr
 
     Returns the cloud, the log of the restricted prior mass (0 without restart) and the number of
     distinct restart draws (N without restart)."""
-    n, step = config.n_samples, counter.step
+    n, step = config.n_samples, likelihood.step
     exact_prior = isinstance(state.prior, HistoryPrior)
     inside = inside_space(particles, problem.support)
     if inside.all():
-        loglike = counter.loglike(particles)
+        loglike = likelihood.loglike(particles)
     else:
         loglike = np.full(n, -np.inf)
-        loglike[inside] = counter.loglike(particles[inside])
+        loglike[inside] = likelihood.loglike(particles[inside])
     valid = np.isfinite(loglike)
     log_restricted_mass, n_found, restarted = 0.0, n, False
     labels = np.arange(n) if labels is None else labels
@@ -136,7 +136,7 @@ def weigh(state, particles, log_weights, log_prior, problem, config, counter, pr
                                   f"{prior_name(step)} is too far from the data")
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < _min_valid(config, particles)):
         particles, loglike, log_restricted_mass, n_found, labels = restricted_draws(state.prior, problem.support,
-                                                                                     n, rng, step, counter)
+                                                                                     n, rng, step, likelihood)
         log_weights, restarted = np.full(n, -np.log(n)), True
     if log_prior is not None:
         components = np.column_stack([loglike, log_prior])
@@ -200,12 +200,12 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
     return beta, stage_log_z, log_weights, weights, float(1.0 / np.dot(weights, weights))
 
 
-def temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, move_every_stage, deferred, rng):
+def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move.
 
     Returns the cloud, the path's log-evidence (Eq. 1), the temperatures, the moves, whether the last
     stage resampled and the last stage's ESS (before resampling)."""
-    n, step = config.n_samples, counter.step
+    n, step = config.n_samples, likelihood.step
     particles, log_weights, components, labels = cloud.particles, cloud.log_weights, cloud.components, cloud.labels
     beta, log_z, temperatures = 0.0, 0.0, []
     while beta < 1.0:
@@ -224,7 +224,7 @@ def temper_resample_move(cloud, problem, config, counter, prior_logpdf, moves, m
             if isinstance(prior_logpdf, SubsampledPrior):  # back to exact evaluation if the estimate got poor
                 components = prior_logpdf.refreshed(particles, components)
             particles, components, stats, step_size, n_virtual = move_stage(
-                problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, counter.loglike)
+                problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, likelihood.loglike)
             moves = moves.then(stats, step_size, n_virtual, config.move)
     return Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled, stage_ess
 

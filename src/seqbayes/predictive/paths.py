@@ -62,16 +62,6 @@ class _PathPredictive:
         return np.concatenate([self.paths[index], self.kernel.propagate(last, rng)], axis=1)
 
 
-class _PathCounter:
-    """The step's likelihood counter seen from the path space: ``loglike`` reads the last state."""
-
-    def __init__(self, counter, dim):
-        self.counter, self.dim, self.step = counter, dim, counter.step
-
-    def loglike(self, walkers):
-        return self.counter.loglike(walkers[:, -self.dim:])
-
-
 def _add_transitions(out, states, kernel):
     """Add ``sum_{t>=1} log T(theta_t | theta_{t-1})`` along paths ``states (M, T, d)`` to ``out (M,)`` in place,
     for the paths still finite (the rest stay -inf); returns ``out``."""
@@ -83,18 +73,7 @@ def _add_transitions(out, states, kernel):
     return out
 
 
-def _add_loglikes(out, states, datasets, counter):
-    """Add ``sum_t log L_t(theta_t)`` (dataset ``t`` at state ``t`` of ``states (M, T, d)``) to ``out (M,)`` in place,
-    one likelihood call per dataset for the paths still finite; returns ``out``."""
-    for t, dataset in enumerate(datasets):
-        alive = np.isfinite(out)
-        if not alive.any():
-            break
-        out[alive] += counter.loglike_on(states[alive, t], dataset)
-    return out
-
-
-def path_prior_logpdf(window, kernel, counter, dim):
+def path_prior_logpdf(window, kernel, likelihood, dim):
     """``log p(theta_{w:s-1} | D^{w:s-1}) + log T(theta_s | theta_{s-1})`` for flattened paths ``(M, L d)``.
 
     The window's first state has the prior its step used (exact from step 1 on), every later one
@@ -106,7 +85,7 @@ def path_prior_logpdf(window, kernel, counter, dim):
         states = walkers.reshape(walkers.shape[0], -1, dim)
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
         _add_transitions(out, states, kernel)  # transitions into steps w+1..s
-        return _add_loglikes(out, states, [past.dataset for past in window], counter)  # the past datasets'
+        return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'
 
     return logpdf
 
@@ -132,19 +111,7 @@ class PathPrior:
         return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
 
 
-class _WindowCounter:
-    """The likelihood of every dataset of the window and the new one on flattened paths:
-    ``sum_{t=w}^{s} log L_t(theta_t)`` (one call per state; a path with one zero likelihood stops there)."""
-
-    def __init__(self, counter, datasets, dim):
-        self.counter, self.datasets, self.dim, self.step = counter, tuple(datasets), dim, counter.step
-
-    def loglike(self, walkers):
-        states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
-        return _add_loglikes(np.zeros(walkers.shape[0]), states, self.datasets, self.counter)
-
-
-def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, counter, moves, rng):
+def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, likelihood, moves, rng):
     """The window's posterior reached from its path PRIOR by tempering all its likelihoods jointly.
 
     The path-space target of :func:`assimilate_paths` (``w`` the window's first step, ``s`` this one),
@@ -183,16 +150,16 @@ def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, 
     # from beta = 0.05 to 1 in one stage, 24 exact sds and 44 nats off)
     path_config = replace(path_config, tempering_threshold=path_config.tempering_ess)
     path_prior = PathPrior(window[0].prior, kernel, len(window) + 1, d)
-    window_counter = _WindowCounter(counter, [past.dataset for past in window] + [dataset], d)
+    window_likelihood = likelihood.over_window([past.dataset for past in window] + [dataset], d)
     walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-        path_prior, path_problem.support, n, rng, counter.step, window_counter)
+        path_prior, path_problem.support, n, rng, likelihood.step, window_likelihood)
     components = np.column_stack([loglike, path_prior.logpdf(walkers)])
     cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
     cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-        cloud, path_problem, path_config, window_counter, path_prior.logpdf, moves, True, False, rng)
+        cloud, path_problem, path_config, window_likelihood, path_prior.logpdf, moves, True, False, rng)
     # back to the decomposition of the stored paths' start, (log L_s, log of the normalised path prior of
     # assimilate_paths), for the importance estimate of the increment: log L_s costs N calls, the rest is a difference
-    last = _PathCounter(counter, d).loglike(cloud.particles)
+    last = likelihood.of_last_state(d).loglike(cloud.particles)
     normaliser = sum(past.log_evidence_increment for past in window)
     cloud = Cloud(cloud.particles, cloud.log_weights,
                    np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
@@ -200,7 +167,7 @@ def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, 
     return cloud, log_z + log_restricted_mass - normaliser, temperatures, moves, resampled, stage_ess, n_found
 
 
-def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, rng):
+def _paths_from_previous(state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, rng):
     """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
     ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`weigh`, a restart from the path
     predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
@@ -215,13 +182,13 @@ def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, pri
     log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
     loglike = np.full(n, -np.inf)
     inside = inside_space(walkers, path_problem.support)
-    loglike[inside] = path_counter.loglike(walkers[inside])
+    loglike[inside] = path_likelihood.loglike(walkers[inside])
     valid = np.isfinite(loglike)
     if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
         # as weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
         extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
         walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-            extended, path_problem.support, n, rng, path_counter.step, path_counter)
+            extended, path_problem.support, n, rng, path_likelihood.step, path_likelihood)
         log_weights = np.full(n, -np.log(n))
     components = np.column_stack([loglike, np.full(n, -np.inf)])
     carried = np.isfinite(loglike)
@@ -229,16 +196,16 @@ def _paths_from_previous(state, dataset, kernel, path_problem, path_counter, pri
     return Cloud(walkers, log_weights, components, labels), log_weights, log_restricted_mass, n_found
 
 
-def _stored_paths_start(state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, path_config, moves,
+def _stored_paths_start(state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, path_config, moves,
                         rng):
     """The path-space step from the stored paths (:func:`_paths_from_previous`) tempered in ``L_s``
     (:func:`temper_resample_move`). Returns the cloud, the increment by the tempering path (with the restart's
     restricted mass), the temperatures, moves, whether the last stage resampled, its ESS, the number of distinct
     restart draws and the log-weights before the step."""
     cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
-                                                                            path_counter, prior_logpdf, config, rng)
+                                                                            path_likelihood, prior_logpdf, config, rng)
     cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-        cloud, path_problem, path_config, path_counter, prior_logpdf, moves, True, False, rng)
+        cloud, path_problem, path_config, path_likelihood, prior_logpdf, moves, True, False, rng)
     return cloud, log_z + log_restricted_mass, temperatures, moves, resampled, stage_ess, n_found, log_weights
 
 
@@ -263,7 +230,7 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, counter,
+def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, likelihood,
                      method: str, start: float, bridge: bool = False) -> tuple[SamplerState, StepRecord, Cloud]:
     """The exact remedy for prior-data conflict: assimilate ``dataset`` on the path space.
 
@@ -299,8 +266,8 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     window = state.window[-length:]
     path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                            problem.executor, problem.n_chunks)
-    path_counter = _PathCounter(counter, d)
-    prior_logpdf = path_prior_logpdf(window, kernel, counter, d)
+    path_likelihood = likelihood.of_last_state(d)
+    prior_logpdf = path_prior_logpdf(window, kernel, likelihood, d)
     n = config.n_samples
     moves = MoveTally(step_size=state.step_size)
     # L + 1 times as many dimensions: SMC's random-walk scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
@@ -323,7 +290,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
                                                           per_state * (length + 1))))
     if bridge:
         cloud, log_z, temperatures, moves, resampled, stage_ess, n_found = _bridge_from_path_prior(
-            window, dataset, kernel, path_problem, path_config, counter, moves, rng)
+            window, dataset, kernel, path_problem, path_config, likelihood, moves, rng)
         # a second cloud of the same target, which estimate_increment pools with the bridge's (each given its share of the mass,
         # then independence sweeps with a proposal fitted to both): the stored paths' start (the branch below) holds
         # the modes the previous particles held, which the bridge's tempering can lose (run 9, T3, step 5: a 5 % mode
@@ -331,21 +298,21 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         # the stored paths cannot carry the step (T6: the drift takes every extended path out of the box), a second
         # bridge, as a bridge's tempering can also end trapped in a minor mode (run 9, T6, step 6: 6.3 sds, 89 nats)
         try:
-            other, _, _, moves, *_ = _stored_paths_start(state, dataset, kernel, path_problem, path_counter,
+            other, _, _, moves, *_ = _stored_paths_start(state, dataset, kernel, path_problem, path_likelihood,
                                                          prior_logpdf, config, path_config, moves, rng)
         except (ZeroLikelihoodError, TemperingLimitError):
             other, _, _, moves, _, _, _ = _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config,
-                                                                  counter, moves, rng)
+                                                                  likelihood, moves, rng)
     else:
         cloud, log_z, temperatures, moves, resampled, stage_ess, n_found, log_weights = _stored_paths_start(
-            state, dataset, kernel, path_problem, path_counter, prior_logpdf, config, path_config, moves, rng)
+            state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, path_config, moves, rng)
         other = None
     # at least 2 (L + 1) independence sweeps per fit, as the moves: with 3, run 9 under T5 ended step 6 0.3-0.5 exact
     # sds off in c at every seed, from a start within 0.02 sds (the sweeps' transient through the path's earlier
     # states); with 10 (= 2 (L + 1) there), within 0.03 at seeds 1, 2, 4 (SMC, SEMC, SMC)
     evidence_config = replace(config, n_independent=max(config.n_independent, 2 * (length + 1)))
     cloud, log_increment, evidence_ess, n_independent = estimate_increment(
-        cloud, log_z, n_found, path_problem, evidence_config, path_counter, prior_logpdf,
+        cloud, log_z, n_found, path_problem, evidence_config, path_likelihood, prior_logpdf,
         config.evidence == "importance", rng, other)
     log_evidence = float(state.log_evidence + log_increment)
     posterior = cloud.particles[:, -d:]
@@ -371,7 +338,7 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
         step=step, log_evidence_increment=float(log_increment), log_evidence=log_evidence, ess=float(stage_ess),
         resampled=bool(resampled), acceptance_rate=moves.stats.acceptance_rate, step_size=float(step_size),
         n_virtual=moves.n_virtual, n_stages=len(temperatures), temperatures=temperatures,
-        n_loglike_evals=counter.n_evals, n_nan=counter.n_nan, n_distinct=count_distinct(posterior),
+        n_loglike_evals=likelihood.n_evals, n_nan=likelihood.n_nan, n_distinct=count_distinct(posterior),
         n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
         n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(log_z),
         evidence_ess=evidence_ess, n_independent_accepted=n_independent,

@@ -143,7 +143,7 @@ class ParticleInnerFilter:
                             "give a seqbayes.JointPrior (independent marginals)")
 
     def fit_guide(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, log_weights: np.ndarray,
-                  cloud: dict | None, dataset: Any, counter: Any,
+                  cloud: dict | None, dataset: Any, likelihood: Any,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """The step's Gaussian guide ``(mean (d_x,), cov (d_x, d_x))``, or ``None`` (not guided, a kernel
         without noise on a drifting parameter, or too few pilot draws with a non-zero likelihood).
@@ -176,7 +176,7 @@ class ParticleInnerFilter:
             inside = inside_support(theta, support)
             loglike = np.full(n_pilot, -np.inf)
             if inside.any():
-                loglike[inside] = counter.loglike_on(theta[inside], dataset)
+                loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
             if np.count_nonzero(np.isfinite(loglike)) < 2 * split[1].size + 2:
                 return None
             base = log_predictive - log_proposal
@@ -198,7 +198,7 @@ class ParticleInnerFilter:
         return mean, cov
 
     def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, counter: Any, rng: np.random.Generator,
+                first: bool, likelihood: Any, rng: np.random.Generator,
                 guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One step of every inner filter.
 
@@ -210,7 +210,7 @@ class ParticleInnerFilter:
             ``{"x": (K, M, d_x), "log_w": (K, M)}`` after the last step (``None`` at ``first``).
         first : bool
             The first dataset: its likelihood at the outer particle itself.
-        counter : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
+        likelihood : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
             Evaluates (and counts) the user's likelihood.
         guide : tuple ``(mean, cov)`` or None
             The step's guide (:meth:`fit_guide`): half the particles are drawn from it.
@@ -227,7 +227,7 @@ class ParticleInnerFilter:
             inside = inside_support(outer, support)
             log_increment = np.full(k, -np.inf)
             if inside.any():
-                log_increment[inside] = counter.loglike_on(outer[inside], dataset)
+                log_increment[inside] = likelihood.loglike_on(outer[inside], dataset)
             return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1)), "ess": np.ones(k)}
         x, log_w = cloud["x"], cloud["log_w"]
         if x.shape[1] != m:  # one value per outer particle after the first step: M children each
@@ -251,9 +251,9 @@ class ParticleInnerFilter:
         inside = inside_support(theta, support)
         loglike = np.full(k * m, -np.inf)
         if inside.all():
-            loglike = counter.loglike_on(theta, dataset)
+            loglike = likelihood.loglike_on(theta, dataset)
         elif inside.any():
-            loglike[inside] = counter.loglike_on(theta[inside], dataset)
+            loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
         loglike = loglike.reshape(k, m) + correction
         with np.errstate(invalid="ignore"):
             joint = log_w + loglike
@@ -332,7 +332,7 @@ class KalmanInnerFilter:
         return None
 
     def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], static: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, counter: Any, rng: np.random.Generator,
+                first: bool, likelihood: Any, rng: np.random.Generator,
                 guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
         (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
@@ -365,7 +365,7 @@ class KalmanInnerFilter:
                    - np.linalg.slogdet(posterior_cov)[1])
         quadratic = np.sum(precision_noise * innovation**2, axis=1) - np.einsum("ki,ki->k", projected, correction)
         log_increment = -0.5 * (quadratic + log_det + innovation.shape[1] * np.log(2.0 * np.pi))
-        counter.n_evals += k
+        likelihood.n_evals += k
         mean, cov = mean + correction, posterior_cov
         return log_increment, {"mean": mean, "cov": cov}
 
@@ -461,7 +461,7 @@ def _outer_logpdf(prior, columns, outer) -> np.ndarray:
     return total
 
 
-def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, counter, rng):
+def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, likelihood, rng):
     """Particle-marginal MH sweeps of the static parameters at tempering exponent ``beta``.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
@@ -511,7 +511,7 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
             new_cloud = _take(cloud, active)
             if inside.any():
                 rows = np.flatnonzero(inside)
-                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, counter, rng)
+                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, likelihood, rng)
                 new_components[rows] = np.column_stack([last, _outer_logpdf(problem.prior, columns, phi[rows]), past])
                 for key in new_cloud:
                     new_cloud[key][rows] = rerun[key]
@@ -543,7 +543,7 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
     return static, cloud, components, stats, step_size, n_sweeps
 
 
-def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
+def _run_inner(problem, inner, split, static, datasets, guides, likelihood, rng):
     """Re-run inner filters from the first dataset (with each step's guide): ``log p^(D^{1:s-1})``,
     ``log p^(D^s | D^{1:s-1})`` and the final cloud, for the outer particles ``static``."""
     past = np.zeros(static.shape[0])
@@ -551,11 +551,11 @@ def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
     for k, dataset in enumerate(datasets):
         if last is not None:
             past = past + last
-        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, counter, rng, guides[k])
+        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, likelihood, rng, guides[k])
     return past, last, cloud
 
 
-def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config: SamplerConfig, counter: Any,
+def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config: SamplerConfig, likelihood: Any,
                       rng: np.random.Generator) -> tuple[NestedState, StepRecord]:
     """Assimilate one dataset with SMC^2 (pure; ``state`` is not modified).
 
@@ -569,11 +569,11 @@ def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config
     n = config.n_samples
     split, inner = nested_split(problem.kernel), problem.inner_filter
     datasets = state.datasets + (kept_copy(dataset),)
-    guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, counter, rng)
+    guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, likelihood, rng)
              if step > 1 else None)
     guides = state.guides + (guide,)
     log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
-                                         counter, rng, guide)
+                                         likelihood, rng, guide)
     inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
     static, log_weights = state.outer, state.log_weights
     components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
@@ -594,7 +594,7 @@ def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config
             log_weights = np.full(n, -np.log(n))
             static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
                 problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size,
-                counter, rng)
+                likelihood, rng)
             stats, n_sweeps = stats + sweep, n_sweeps + sweeps
             if config.move == "stretch":
                 step_size = step_size_new
@@ -609,8 +609,8 @@ def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config
         step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,
         resampled=bool(resampled), acceptance_rate=stats.acceptance_rate,
         step_size=float(step_size) if config.move == "stretch" else float("nan"), n_virtual=n_sweeps,
-        n_stages=len(temperatures), temperatures=tuple(temperatures), n_loglike_evals=counter.n_evals,
-        n_nan=counter.n_nan, n_distinct=count_distinct(static), n_proposed=stats.n_proposed,
+        n_stages=len(temperatures), temperatures=tuple(temperatures), n_loglike_evals=likelihood.n_evals,
+        n_nan=likelihood.n_nan, n_distinct=count_distinct(static), n_proposed=stats.n_proposed,
         n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
         log_evidence_increment_path=float(log_z), evidence_ess=float("nan"), n_independent_accepted=0,
         n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start,
