@@ -99,7 +99,7 @@ class StepInfo:
     path_steps : int
         0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
         assimilated it on the path space of the last ``L`` states (the exact target;
-        :func:`~seqbayes.predictive.paths.assimilate_paths`).
+        :func:`~seqbayes.predictive.paths.PathSpace`).
     jump_probability : float
         With a kernel with :class:`~seqbayes.kernels.Jump` components: the posterior probability
         that some parameter jumped between the previous step and this one (NaN at step 1 and

@@ -1,4 +1,4 @@
-"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.paths.assimilate_paths``.
+"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.paths.PathSpace``.
 
 A random walk ``theta_s = theta_{s-1} + N(0, Q^2)`` observed through ``M`` Gaussian measurements per
 dataset has the scalar Kalman filter as its exact answer. The data jump by 0.6 (12 Q) at step 4, so

@@ -160,11 +160,7 @@ class _SequentialSampler:
                           f"predictive='transition'",
                           InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         # either half of the diagnostic: the posterior mean's shift, or a posterior carried by a few of the predictive
-        # mixture's components (the ancestor ESS below remedy_ess * N, which also starts the remedy; NaN where the
-        # remedy does not apply). On the oscillator study before the remedy the ancestor ESS is below it on run 9
-        # under all six kernels (0.001-0.004 N) and at least 0.06 N on runs 0-8 except run 3 under T6 (0.003 N, a
-        # true conflict: exact shift 9.5), where the shift alone misses run 9 under T5 (3.5 against an exact 17.0)
-        # (benchmarks/bench_conflict.py --off). Not every path-space step: after one the remedy stays on up to 5x.
+        # mixture's components (the ancestor ESS, which catches conflicts the shift misses; docs/prior_data_conflict.md)
         tail = record.info.ancestor_ess < self.config.remedy_ess * self.config.n_samples
         if record.info.prior_data_conflict > self.config.conflict_threshold or tail:
             conflict = step_conflict(*prior, record.posterior, record.log_weights, self.problem.support)

@@ -27,7 +27,7 @@ cross slowly. Why by hand: no library offers defensive importance sampling
 against an arbitrary vectorised prior density.
 
 Two clouds of the same posterior (the conflict remedy's bridge and stored-path
-start, :func:`seqbayes.predictive.paths.assimilate_paths`) are pooled: :func:`clustered_parts`
+start, :func:`seqbayes.predictive.paths.PathSpace`) are pooled: :func:`clustered_parts`
 fits one defensive proposal per k-means cluster of each (SciPy's ``kmeans2``),
 :func:`pooled_start` gives each cluster its importance-sampling share of the mass,
 and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of them.
@@ -80,15 +80,14 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
 
     Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
     trapped in a minor one (on the path space: the bridge from the path prior and the start from the stored
-    paths, :func:`seqbayes.predictive.paths.assimilate_paths`). The share of each part of the
+    paths, :func:`seqbayes.predictive.paths.PathSpace`). The share of each part of the
     :class:`PooledProposal` ``q = sum_c alpha_c q_c`` fitted to the clusters of the clouds
     (:func:`clustered_parts`) is estimated by importance sampling: N draws of ``q``, weights ``w = pi / q``,
     and part ``c``'s share is ``sum w r_c / sum w`` with ``r_c`` the draw's responsibility, ``alpha_c q_c / q``
     with the first cloud's parts' terms multiplied by ``FIRST_CLOUD_PREFERENCE``: where the clouds overlap the
     first one's particles carry the mass, and another's only where the first has none. The first cloud is the
-    one trusted within a mode (the bridge; the stored paths' start tempers one dataset and its particles sat
-    0.3-0.5 exact sds from the bridge's within the shared mode on run 9, T5, step 6, which an even split of the
-    mass between the clouds carried into the start). The particles, each weighted by its part's share times
+    one trusted within a mode (the bridge; the stored paths' start tempers one dataset only, and an even split of
+    the mass carried its offset within the shared mode into the start). The particles, each weighted by its part's share times
     its own weight within the part, are resampled (systematic) to N. The independence sweeps of
     :func:`importance_step` then correct what the shares leave off (the start is only an approximation; the
     sweeps leave the posterior invariant).
@@ -341,9 +340,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
     proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
 
     When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
-    (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``):
-    the last fit alone, as before, was as poor as any (run 9, T3, SMC seed 7, step 6: six fits with ESS
-    73-118 and estimates within 0.27 nats of the exact increment, then one with ESS 10 and 0.71 nats high).
+    (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
 
     Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
     n, step = config.n_samples, likelihood.step
@@ -356,9 +353,8 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
         if config.economy:
             scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=config.n_independent + 2 * config.max_refits,
                           min_fraction=config.min_evidence_ess)
-    # economy: the first n_independent sweeps only move the particles (their fit is to the cut-short moves' cloud;
-    # where it was poor, 1 in 5 Coulomb seeds, the posterior means were 0.3-0.45 sd off); q is refitted to the
-    # swept particles for the estimate, which costs n_independent N calls and brings those means within 0.15 sd
+    # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
+    # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
     if other is not None:
         index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
                                 likelihood.loglike, problem.support, rng, scaled.get("gaussian", False))

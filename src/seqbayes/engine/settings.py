@@ -113,11 +113,11 @@ class SamplerConfig:
         is carried by a few of the predictive mixture's components (``StepInfo.ancestor_ess``
         below ``remedy_ess * N``, which also starts the remedy; docs/prior_data_conflict.md).
     conflict_remedy : bool
-        The exact remedy for prior-data conflict (issue 11; on by default). A step whose posterior
+        The exact remedy for prior-data conflict (on by default). A step whose posterior
         is carried by the far tail of the predictive mixture (``StepInfo.ancestor_ess`` below
         ``remedy_ess * N``, or ``StepInfo.prior_data_conflict`` above ``conflict_threshold``) is
         assimilated again on the path space of the last ``remedy_lag`` steps, whose target is the
-        model's exact one (see :func:`assimilate_paths`); ``StepInfo.path_steps`` records it.
+        model's exact one (see :class:`~seqbayes.predictive.paths.PathSpace`); ``StepInfo.path_steps`` records it.
         Applies to the ``"transition"`` and ``"kde"`` predictives of kernels in which every
         parameter moves; ``"history"`` is exact already, and ``"smc2"`` is not covered.
     remedy_ess : float
@@ -132,9 +132,9 @@ class SamplerConfig:
         that each mode of the path posterior (one per choice of the dataset a path gives up, under a
         kernel the data contradict) is weighed afresh and the window's evidence estimated directly.
         ``False``: from the stored paths of the previous posterior, tempering only the new dataset (about
-        half the cost; it cannot reach a mode whose earlier states the earlier steps ruled out: run 9 of
-        the oscillator study under T3-T5 ended 1-24 exact sds and ~40 nats off). Both
-        :func:`assimilate_paths`; docs/prior_data_conflict.md.
+        half the cost; it cannot reach a mode whose earlier states the earlier steps ruled out, which
+        docs/prior_data_conflict.md shows costing exact sds and tens of nats). Both
+        :class:`~seqbayes.predictive.paths.PathSpace`; docs/prior_data_conflict.md.
     n_inner : int
         SMC^2 (static and drifting parameters): particles of the default inner filter
         (:class:`~seqbayes.predictive.smc2.ParticleInnerFilter`) per outer particle (100).
@@ -160,7 +160,7 @@ class SamplerConfig:
         instead of ``O(N^2)``) where a pilot shows the estimate accurate, else exactly
         (:class:`~seqbayes.predictive.pseudo_marginal.SubsampledPrior`).
     scaled_moves : bool or None
-        Moves that keep working as the dimension grows (:mod:`seqbayes.moves.scaled`, issue 14). Each
+        Moves that keep working as the dimension grows (:mod:`seqbayes.moves.scaled`). Each
         round at a stage is an independence-MH sweep (every particle proposes a fresh draw of a density
         fitted to the particles before the stage's moves: the Gaussian of their mean and covariance above
         d = 10, the evidence's kernel density + Student t up to d = 10), then a local sweep (SMC: the

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..moves.schedule import move_stage
-from ..predictive.history import HistoryPrior
 from ..predictive.pseudo_marginal import SubsampledPrior
 from ..priors import inside_space
 from ..resampling import resample
@@ -53,9 +52,7 @@ def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, su
     outside, so that mass is lost, as in the samplers' steps and the exact grid references): its
     moments are those of the prior draws inside ``support`` (all of them when none is inside). A
     predictive that spills over a bound (a drift taking a damping below 0) thus does not count as a
-    conflict with the data; on the damped-oscillator study the unrestricted moments fired on run 0
-    (T6, 4.05 prior sds at step 6, with no predictive draw inside the box) where the exact shift is
-    at most 3.0 (benchmarks/bench_conflict.py --exact).
+    conflict with the data (the unrestricted moments raise false alarms: docs/prior_data_conflict.md).
     """
     inside = inside_space(prior, support)
     if inside.any() and not inside.all():
@@ -110,7 +107,8 @@ def rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
             True, index)
 
 
-def weigh(state, particles, log_weights, log_prior, problem, config, likelihood, prior_logpdf, rng, labels=None):
+def weigh(state, particles, log_weights, log_prior, problem, config, likelihood, prior_logpdf, rng, labels=None,
+          exact_prior=False):
     """Stage 1: the likelihood at the prior particles (Eq. A4). When few of them can carry the step
     (predictive mass outside the parameter space, or a zero-likelihood region such as stick-slip)
     the step restarts from the prior restricted to ``{inside, L > 0}``.
@@ -118,10 +116,11 @@ def weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
     ``labels (N,)``: the particles' labels (the index of the last posterior's particle each is the
     draw of; ``arange(N)`` if omitted), the cloud's unless the step restarts (then the restart draws').
 
+    ``exact_prior``: the step's prior is exact (the history prior), so the step never restarts.
+
     Returns the cloud, the log of the restricted prior mass (0 without restart) and the number of
     distinct restart draws (N without restart)."""
     n, step = config.n_samples, likelihood.step
-    exact_prior = isinstance(state.prior, HistoryPrior)
     inside = inside_space(particles, problem.support)
     if inside.all():
         loglike = likelihood.loglike(particles)

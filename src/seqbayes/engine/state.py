@@ -1,5 +1,6 @@
 """The records of the engine: the sampler's state between datasets, the model, a step's weighted cloud
-and what its moves did, and the past steps kept for the path-space remedy."""
+and what its moves did, the records each stage of the pipeline hands to the next (:class:`Weighed`,
+:class:`Tempered`, :class:`Estimate`, :class:`Outcome`), and the past steps kept for the path-space remedy."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from ..kernels import MarkovKernel
 from ..moves import SweepStats
 from ..transforms import BoxTransform
 
-__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "MoveTally", "kept_copy", "variance_before"]
+__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "MoveTally", "Weighed", "Tempered", "Estimate", "Outcome",
+           "kept_copy", "variance_before"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,6 +127,97 @@ class MoveTally:
 
 
 @dataclass(frozen=True, eq=False)
+class Weighed:
+    """Stage 1 of a step: the prior particles weighed by the likelihood.
+
+    Attributes
+    ----------
+    cloud : Cloud
+        The step's prior draws (the restricted prior's after a restart) with their components.
+    prior_logpdf : callable ``theta (M, d) -> (M,)``
+        The step's prior density as the moves and the evidence evaluate it.
+    moves : MoveTally
+        Moves made before weighing (IBIS's deferred resample-move), else none.
+    log_restricted_mass : float
+        Log of the restricted prior's mass after a restart (0 without).
+    n_found : int
+        Distinct restart draws (N without restart).
+    rejuvenated : bool
+        Whether a deferred resample-move ran.
+    """
+
+    cloud: Cloud
+    prior_logpdf: object
+    moves: MoveTally
+    log_restricted_mass: float = 0.0
+    n_found: int = 0
+    rejuvenated: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Tempered:
+    """Stages 2-4: the cloud after tempering, resampling and moving.
+
+    ``log_z`` is the tempering path's log-evidence increment (Eq. 1, with the restricted mass),
+    ``stage_ess`` the last stage's ESS before resampling.
+    """
+
+    cloud: Cloud
+    log_z: float
+    temperatures: tuple
+    moves: MoveTally
+    resampled: bool
+    stage_ess: float
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """Stage 5: the evidence increment and the cloud after the importance sweeps.
+
+    ``importance`` says whether ``log_increment`` is the importance estimate (else the path's);
+    ``moves`` include those of any second cloud the estimate pooled.
+    """
+
+    cloud: Cloud
+    log_increment: float
+    evidence_ess: float
+    n_independent: int
+    importance: bool
+    moves: MoveTally
+
+
+@dataclass(frozen=True, eq=False)
+class Outcome:
+    """Stage 6: the next state and what the step's record holds besides the stage records.
+
+    Attributes
+    ----------
+    state : SamplerState or NestedState
+    posterior : (N, d) array
+    log_weights : (N,) array
+    predictive : (N, d) array
+        The record's predictive draws.
+    distinct : (N, k) array
+        The particles whose distinct rows ``StepInfo.n_distinct`` counts.
+    log_evidence : float
+    step_size : float
+        The record's step size (SEMC's adapted one; NaN where none is adapted).
+    fields : dict
+        The optional :class:`~seqbayes.results.StepInfo` fields the predictive fills (conflict, ancestor
+        ESS, standard errors, path steps, inner ESS, jumps).
+    """
+
+    state: object
+    posterior: np.ndarray
+    log_weights: np.ndarray
+    predictive: np.ndarray
+    distinct: np.ndarray
+    log_evidence: float
+    step_size: float
+    fields: dict
+
+
+@dataclass(frozen=True, eq=False)
 class PastStep:
     """One assimilated step, kept for the path-space target of the conflict remedy.
 
@@ -143,7 +236,7 @@ class PastStep:
         Whether the step was assimilated on the path space.
     log_evidence_variance : float
         The cumulative log-evidence's variance before the step (``SamplerState.log_evidence_variance``);
-        a bridged step (:func:`assimilate_paths`) estimates the window's evidence afresh from it.
+        a bridged step (:class:`~seqbayes.predictive.paths.PathSpace`) estimates the window's evidence afresh from it.
     """
 
     dataset: object

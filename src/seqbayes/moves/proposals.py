@@ -107,10 +107,10 @@ class PooledProposal:
 
     Two samplers of one posterior may each hold a different mode, or weigh two modes differently (on the path
     space: the bridge from the path prior and the start from the stored paths,
-    :func:`seqbayes.predictive.paths.assimilate_paths`). Fitted to both, the importance density covers both; its
+    :func:`seqbayes.predictive.paths.PathSpace`). Fitted to both, the importance density covers both; its
     independence sweeps then move particles between the modes, which no local move does, and its estimate counts
     both modes' mass. One fit to a two-mode cloud would not do: its kernel bandwidth and its t's covariance come
-    from the spread between the modes (run 9, T3, SEMC seed 5, step 5: importance ESS 3-9 of 1000).
+    from the spread between the modes, and its importance ESS collapses to a few particles.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Moves that keep working as the dimension grows (issue 14): a global independence move from a
+"""Moves that keep working as the dimension grows: a global independence move from a
 Gaussian fitted to the particles, and local moves scaled as ``1 / sqrt(d)`` in the particles'
 covariance.
 

@@ -1,13 +1,14 @@
-"""Which predictive prior a run uses."""
+"""Which predictive prior a run uses, and the one a step goes through (:func:`predictive_for`)."""
 
 from __future__ import annotations
 
+from ..engine.state import SamplerState
 from ..kernels import MarkovKernel
-from .history import HistoryPrior
-from .mixture import predictive_density
-from .smc2 import nested_split
+from .history import ExactHistory
+from .smc2 import JointFirstStep, NestedPredictive, NestedState, nested_split
+from .transition import TransitionMixture
 
-__all__ = ["resolve_predictive", "propagate"]
+__all__ = ["resolve_predictive", "predictive_for"]
 
 
 def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
@@ -27,16 +28,18 @@ def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
     return method
 
 
-def propagate(state, cloud, dataset, log_increment, log_evidence, method, problem, config, rng):
-    """Stage 6: the next step's prior (Eq. A2-A3). Returns the density, its particles and their prior
-    values (known for the history prior: the particles are the posterior itself)."""
-    if method == "joint":
-        return None, problem.kernel.propagate(cloud.particles, rng), None
-    if method == "history":  # the next prior is this posterior, exactly: keep the particles and their weights
-        density = state.prior.extended(dataset, log_evidence) if isinstance(state.prior, HistoryPrior) else \
-            HistoryPrior.start(problem.prior, problem.history, dataset, log_evidence)
-        next_log_prior = cloud.components[:, 0] + cloud.components[:, 1] - float(log_increment)  # no +inf: no NaN
-        return density, cloud.particles, next_log_prior
-    density, predictive = predictive_density(cloud.particles, cloud.log_weights, problem.kernel, rng, method,
-                                             config.shrink_static)
-    return density, predictive, None
+def predictive_for(state, problem, config):
+    """``(predictive, state)``: the predictive of the step after ``state`` (a
+    :class:`~seqbayes.engine.protocol.Predictive`) and the state it starts from.
+
+    SMC^2's first dataset with ``joint_first_step`` starts from a :class:`~seqbayes.engine.state.SamplerState`
+    over every parameter (:class:`~seqbayes.predictive.smc2.JointFirstStep`)."""
+    if isinstance(state, NestedState):
+        if state.step > 0 or not problem.inner_filter.joint_first_step:
+            return NestedPredictive(problem, config), state
+        joint = SamplerState(0, state.particles, state.log_weights, problem.prior, 0.0, state.step_size)
+        return JointFirstStep(problem, config, "joint"), joint
+    method = resolve_predictive(config.predictive, problem.kernel)
+    if method == "history":
+        return ExactHistory(problem, config, method), state
+    return TransitionMixture(problem, config, method), state

@@ -7,9 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.state import kept_copy
+from ..engine.protocol import ParticlePredictive
+from ..engine.stages import rejuvenate_deferred
+from ..engine.state import MoveTally, kept_copy
 
-__all__ = ["HistoryPrior", "RunningStatistics"]
+__all__ = ["HistoryPrior", "RunningStatistics", "ExactHistory"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +123,51 @@ class HistoryPrior:
             else:
                 break
         return out
+
+class ExactHistory(ParticlePredictive):
+    """The exact prior of static parameters as a step's predictive: the last posterior itself, its particles
+    kept with their weights and their prior values (:class:`HistoryPrior`).
+
+    IBIS's schedule: the particles are resampled and moved only when the ESS falls below ``ess_threshold``
+    (a move re-evaluates every past dataset, so spacing the moves out as the posterior concentrates bounds
+    the amortised cost per update); with ``move_every_stage=False`` that resample-move waits for the next
+    dataset (:func:`~seqbayes.engine.stages.rejuvenate_deferred`). A step that kept its particles takes its
+    evidence from the weights, which are the exact prior's importance weights.
+    """
+
+    def __init__(self, problem, config, method: str = "history"):
+        super().__init__(problem, config, method)
+        self.deferred = config.move_every_stage is False
+
+    def exact_prior(self, state) -> bool:
+        return isinstance(state.prior, HistoryPrior)  # the initial prior at the first step
+
+    def prior_logpdf(self, state, likelihood, rng):
+        if self.exact_prior(state):
+            return lambda theta: state.prior.logpdf(theta, likelihood.loglike_on, likelihood.summary_loglike)
+        return state.prior.logpdf
+
+    def start(self, state, prior_logpdf, rng):
+        moves = MoveTally(step_size=state.step_size)
+        if not self.exact_prior(state):
+            return state.particles, state.log_weights, None, moves, False, None
+        if not self.deferred:
+            return state.particles, state.log_weights, state.log_prior, moves, False, None
+        particles, log_weights, log_prior, moves, rejuvenated, labels = rejuvenate_deferred(
+            state, self.problem, self.config, prior_logpdf, moves, rng)
+        return particles, log_weights, log_prior, moves, rejuvenated, labels if rejuvenated else None
+
+    def uses_importance(self, moves) -> bool:
+        # a step that kept its particles needs no fitted proposal (which would re-evaluate the past, at O(s) cost)
+        return self.config.evidence == "importance" and moves.stats.n_proposed != 0
+
+    def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
+        """This posterior, exactly: the particles and their weights are kept, with their prior values."""
+        density = state.prior.extended(dataset, log_evidence) if self.exact_prior(state) else \
+            HistoryPrior.start(self.problem.prior, self.problem.history, dataset, log_evidence)
+        next_log_prior = cloud.components[:, 0] + cloud.components[:, 1] - float(log_increment)  # no +inf: no NaN
+        return density, cloud.particles, next_log_prior
+
 
 import typing as _typing  # noqa: E402
 

@@ -138,7 +138,7 @@ class GaussianMixture:
         object.__setattr__(self, "_offset", (log_w - 0.5 * np.einsum("ij,ij->i", scaled, scaled)).astype(np.float32))
         object.__setattr__(self, "_const", -np.sum(np.log(bandwidth)) - 0.5 * centres.shape[1] * np.log(2.0 * np.pi))
         # centres within ~2.5 bandwidths of their mean on every axis: the truncation radius (~10 bandwidths,
-        # gaussian_sum) holds them all, so no tree can save work (measured: it only costs, bench_scale --mixture)
+        # gaussian_sum) holds them all, so no tree can save work (a tree only adds cost there)
         object.__setattr__(self, "_compact", bool(np.all(scaled.std(axis=0) < 2.5)))
 
     @property

@@ -1,26 +1,24 @@
 """The path-space remedy for prior-data conflict: a step assimilated on the joint posterior of the last
-``L`` states, whose target is the model's exact one (:func:`assimilate_paths`; docs/prior_data_conflict.md)."""
+``L`` states, whose target is the model's exact one (:class:`PathSpace`; docs/prior_data_conflict.md)."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
 from ..engine.evidence import estimate_increment, step_standard_errors
-from ..engine.stages import count_distinct, restricted_draws, step_conflict, temper_resample_move
-from ..engine.state import Cloud, MoveTally, PastStep, Problem, SamplerState, kept_copy, variance_before
+from ..engine.stages import restricted_draws, step_conflict, temper_resample_move
+from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
+                            kept_copy, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
-from ..results import StepInfo, StepRecord
 from ..weights import logsumexp
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
-from .base import propagate
 from .mixture import GaussianMixture, jump_step_fields
 
-__all__ = ["assimilate_paths", "remedy_applies", "PathPrior", "path_prior_logpdf"]
+__all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
 
 
 def remedy_applies(config, method, kernel) -> bool:
@@ -111,104 +109,6 @@ class PathPrior:
         return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
 
 
-def _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config, likelihood, moves, rng):
-    """The window's posterior reached from its path PRIOR by tempering all its likelihoods jointly.
-
-    The path-space target of :func:`assimilate_paths` (``w`` the window's first step, ``s`` this one),
-
-        pi(theta_{w:s}) = p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}) prod_{t=w}^{s} L_t(theta_t) / Z_{w:s},
-        Z_{w:s} = p(D^{w:s} | D^{1:w-1}) = prod_{t=w}^{s} Z_t,
-
-    is bridged from the path prior ``pi_0 = p_w prod T`` (sampled forward: ``theta_w ~ p_w``, then the
-    kernel; restricted to the parameter space by rejection, whose acceptance fraction ``m`` enters the
-    evidence as in :func:`restricted_draws`) through
-
-        pi_beta prop. to pi_0(theta_{w:s}) [prod_{t=w}^{s} L_t(theta_t)]^beta,   0 = beta_0 < ... < beta_K = 1,
-
-    with the sampler's own reweight-resample-move stages (Eq. A5, the moves on the whole path). Every
-    choice of which dataset a path gives up is weighed afresh, not inherited from the previous steps'
-    particles, so a mode of ``pi`` whose earlier states the earlier data had ruled out given the stored
-    paths is reached. The stages' product of mean weights (Eq. 1) estimates ``log Z_{w:s} = log m +
-    sum_k log mean_i w_i^(k)``; the step's increment is that minus the window's stored increments
-    ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of :func:`path_prior_logpdf`), so the cumulative evidence
-    becomes the window's own estimate.
-
-    Returns
-    -------
-    cloud : Cloud
-        Equal-weight (or weighted) paths ``(N, (L + 1) d)`` of ``pi``, with the components of the stored
-        paths' start, ``(log L_s, log pi_0 + sum_{t<s} log L_t - sum_{t=w}^{s-1} log Z_t)``.
-    log_increment : float
-        The step's increment by the tempering path, ``log Z_{w:s}`` (with the restricted mass) minus the
-        window's stored increments.
-    temperatures, moves, resampled, stage_ess, n_found
-        As :func:`temper_resample_move`; ``n_found`` distinct draws of the restricted path prior.
-    """
-    d, n = kernel.dim, path_config.n_samples
-    # every stage keeps tempering_ess of the ESS: no shortcut to beta = 1 at a mere tempering_threshold (10 %) of N,
-    # which a cloud gathered in a narrow minor mode of an early stage passes (run 9, T6, the study's SMC seed, step 4:
-    # from beta = 0.05 to 1 in one stage, 24 exact sds and 44 nats off)
-    path_config = replace(path_config, tempering_threshold=path_config.tempering_ess)
-    path_prior = PathPrior(window[0].prior, kernel, len(window) + 1, d)
-    window_likelihood = likelihood.over_window([past.dataset for past in window] + [dataset], d)
-    walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-        path_prior, path_problem.support, n, rng, likelihood.step, window_likelihood)
-    components = np.column_stack([loglike, path_prior.logpdf(walkers)])
-    cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
-    cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-        cloud, path_problem, path_config, window_likelihood, path_prior.logpdf, moves, True, False, rng)
-    # back to the decomposition of the stored paths' start, (log L_s, log of the normalised path prior of
-    # assimilate_paths), for the importance estimate of the increment: log L_s costs N calls, the rest is a difference
-    last = likelihood.of_last_state(d).loglike(cloud.particles)
-    normaliser = sum(past.log_evidence_increment for past in window)
-    cloud = Cloud(cloud.particles, cloud.log_weights,
-                   np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
-                   cloud.labels)
-    return cloud, log_z + log_restricted_mass - normaliser, temperatures, moves, resampled, stage_ess, n_found
-
-
-def _paths_from_previous(state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, rng):
-    """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
-    ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`weigh`, a restart from the path
-    predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
-
-    Returns the cloud (components ``(log L_s, log path prior)``), its log-weights before the step, the log
-    of the restricted mass (0 without restart) and the number of distinct restart draws (N without)."""
-    d, n = kernel.dim, config.n_samples
-    length = path_problem.support.shape[0] // d - 1
-    paths = _start_paths(state, kernel, length, rng)
-    walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
-        paths.shape[0], -1)
-    log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
-    loglike = np.full(n, -np.inf)
-    inside = inside_space(walkers, path_problem.support)
-    loglike[inside] = path_likelihood.loglike(walkers[inside])
-    valid = np.isfinite(loglike)
-    if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
-        # as weigh: restart from the path predictive restricted to {inside, L > 0}, its mass in the evidence
-        extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-        walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-            extended, path_problem.support, n, rng, path_likelihood.step, path_likelihood)
-        log_weights = np.full(n, -np.log(n))
-    components = np.column_stack([loglike, np.full(n, -np.inf)])
-    carried = np.isfinite(loglike)
-    components[carried, 1] = prior_logpdf(walkers[carried])
-    return Cloud(walkers, log_weights, components, labels), log_weights, log_restricted_mass, n_found
-
-
-def _stored_paths_start(state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, path_config, moves,
-                        rng):
-    """The path-space step from the stored paths (:func:`_paths_from_previous`) tempered in ``L_s``
-    (:func:`temper_resample_move`). Returns the cloud, the increment by the tempering path (with the restart's
-    restricted mass), the temperatures, moves, whether the last stage resampled, its ESS, the number of distinct
-    restart draws and the log-weights before the step."""
-    cloud, log_weights, log_restricted_mass, n_found = _paths_from_previous(state, dataset, kernel, path_problem,
-                                                                            path_likelihood, prior_logpdf, config, rng)
-    cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-        cloud, path_problem, path_config, path_likelihood, prior_logpdf, moves, True, False, rng)
-    return cloud, log_z + log_restricted_mass, temperatures, moves, resampled, stage_ess, n_found, log_weights
-
-
 def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     """``(increment_se, cumulative_se, cumulative_variance)`` of a bridged step (:func:`_bridge_from_path_prior`).
 
@@ -218,9 +118,8 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     (the stored increments of the window cancel). ``p_w`` is the initial prior when the window reaches step 1,
     else the mixture over step ``w - 1``'s particles, whose error is the spread of the paths' first states over
     its components (:meth:`GaussianMixture.ancestor_spread`, each particle its own label). The increment,
-    ``log Z_hat_{w:s}`` minus the window's stored increments, adds their accumulated variance.
-    Before this the ordinary step's formula was used, with the ancestor ESS of the conflict (1-4 of N): 0.6-0.76
-    nats reported on run 9 (T3) where the increments' errors were 0.01-0.11."""
+    ``log Z_hat_{w:s}`` minus the window's stored increments, adds their accumulated variance (the ordinary
+    step's formula, with the conflict's ancestor ESS of a few particles, overstates it many times)."""
     variance = 1.0 / evidence_ess - 1.0 / n if np.isfinite(evidence_ess) and evidence_ess > 0 else float("nan")
     first = window[0]
     if isinstance(first.prior, GaussianMixture):
@@ -230,14 +129,13 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: SamplerConfig, rng, likelihood,
-                     method: str, start: float, bridge: bool = False) -> tuple[SamplerState, StepRecord, Cloud]:
-    """The exact remedy for prior-data conflict: assimilate ``dataset`` on the path space.
+class PathSpace:
+    """The exact remedy for prior-data conflict: the step assimilated on the path space (a predictive of
+    :class:`~seqbayes.engine.protocol.Predictive`, for one step).
 
     The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
     posterior's particles are: a posterior that lies several predictive sds out is made of that
-    posterior's far tail, which N particles do not hold (on run 9 of the oscillator study the
-    mixture's own posterior of ``k`` at step 3 is 2.7 exact sds low at N = 1000 and 1.4 at 16000).
+    posterior's far tail, which N particles do not hold (docs/prior_data_conflict.md measures it).
     Here the target is the joint posterior of the last ``L`` states (Eq. A2-A3 unrolled),
 
         p(theta_{w:s} | D^{1:s}) prop. to p_w(theta_w) prod_{t=w}^{s} L_t(theta_t) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}),
@@ -245,123 +143,196 @@ def assimilate_paths(state: SamplerState, dataset, problem: Problem, config: Sam
     whose marginal in ``theta_s`` is the model's exact posterior (``p_w`` is the initial prior when
     the window reaches step 1). With ``bridge`` (``SamplerConfig.remedy_bridge``, the default) the
     particles are drawn from the path prior ``p_w prod T`` and every likelihood of the window is
-    tempered jointly (:func:`_bridge_from_path_prior`), so that every mode of the path posterior is
-    weighed afresh; the stored paths' start below (or, where it cannot carry the step, a second bridge)
-    runs as well, and the two clouds are pooled, each cluster given its importance-sampling share of the
-    mass, before the importance sweeps (:func:`estimate_increment`), because a tempering can weigh a mode wrongly
-    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the
-    previous posterior's paths (kept from the last path-space step, or drawn backwards with the exact
-    transition), are extended by
+    tempered jointly (:meth:`_bridge_weigh`), so that every mode of the path posterior is weighed afresh;
+    the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, and the two
+    clouds are pooled, each cluster given its importance-sampling share of the mass, before the importance
+    sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
+    (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
+    (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
     by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
     the data call for. The evidence increment is Eq. (1) or the importance estimate of
     :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
-    the window.
+    the window. The record has ``StepInfo.path_steps = L``.
 
-    Returns the new state (with the paths), the record (``StepInfo.path_steps = L``) and the cloud.
+    Parameters
+    ----------
+    state : SamplerState
+        The state before the step (with its window of past steps).
+    dataset : object
+    mixture : ParticlePredictive
+        The step's ordinary predictive (:class:`~seqbayes.predictive.transition.TransitionMixture`): it builds
+        the next prior from the path posterior's last states.
+    likelihood : ValidatedLikelihood
+    bridge : bool
     """
-    step = state.step + 1
-    kernel, d = problem.kernel, problem.kernel.dim
-    length = min(len(state.window), config.remedy_lag - 1)
-    window = state.window[-length:]
-    path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
-                           problem.executor, problem.n_chunks)
-    path_likelihood = likelihood.of_last_state(d)
-    prior_logpdf = path_prior_logpdf(window, kernel, likelihood, d)
-    n = config.n_samples
-    moves = MoveTally(step_size=state.step_size)
-    # L + 1 times as many dimensions: SMC's random-walk scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
-    # 1997), so gamma for d dimensions becomes gamma / sqrt(L + 1), and a path decorrelates in O(dim) moves: at
-    # least 2 (L + 1) per stage. benchmarks/bench_abrupt.py, 10 seeds, worst mean error over the steps of run 9
-    # (T2) / the abrupt drop, SEMC and SMC: 0.44, 0.35 / 0.25, 0.36 exact sds with L + 1 moves, 0.22, 0.17 /
-    # 0.31, 0.26 with 2 (L + 1), at twice the cost of a path-space step. SEMC's stretch move mixes more slowly
-    # in the 2 (L + 1) path dimensions (its autocorrelation grows with the dimension): with 2 (L + 1) sweeps its
-    # mean of k at the abrupt drop's step 5 was biased by +0.09 +- 0.02 exact sds over 20 seeds (worst 0.31), with
-    # 4 (L + 1) by +0.05 +- 0.02 (bench_abrupt.py --per-seed; SMC's moves keep 2 (L + 1))
-    # The bridge from the path prior (remedy_bridge) makes 4 (L + 1) moves per stage with either sampler: its first
-    # stages hold the whole prior's spread along the window's likelihood ridges, where SMC's random walk at
-    # gamma / sqrt(L + 1) with 2 (L + 1) moves let the paths collapse (run 9, T4, sampler seed 0, step 5: importance
-    # ESS 7 of 1000, 1.75 exact sds and 35 nats off; with 4 (L + 1): 0.03 sds, 0.01 nats)
-    per_state = 4 if config.move == "stretch" or bridge else 2
-    # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
-    config = replace(config, scaled_moves=config.uses_scaled_moves(d))
-    path_config = replace(config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
-                          n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
-                                                          per_state * (length + 1))))
-    if bridge:
-        cloud, log_z, temperatures, moves, resampled, stage_ess, n_found = _bridge_from_path_prior(
-            window, dataset, kernel, path_problem, path_config, likelihood, moves, rng)
-        # a second cloud of the same target, which estimate_increment pools with the bridge's (each given its share of the mass,
-        # then independence sweeps with a proposal fitted to both): the stored paths' start (the branch below) holds
-        # the modes the previous particles held, which the bridge's tempering can lose (run 9, T3, step 5: a 5 % mode
-        # with k_5 ~ 0.87, where the bridge put 0.04 % of its weight and sat 0.26 exact sds off at every seed); where
-        # the stored paths cannot carry the step (T6: the drift takes every extended path out of the box), a second
-        # bridge, as a bridge's tempering can also end trapped in a minor mode (run 9, T6, step 6: 6.3 sds, 89 nats)
-        try:
-            other, _, _, moves, *_ = _stored_paths_start(state, dataset, kernel, path_problem, path_likelihood,
-                                                         prior_logpdf, config, path_config, moves, rng)
-        except (ZeroLikelihoodError, TemperingLimitError):
-            other, _, _, moves, _, _, _ = _bridge_from_path_prior(window, dataset, kernel, path_problem, path_config,
-                                                                  likelihood, moves, rng)
-    else:
-        cloud, log_z, temperatures, moves, resampled, stage_ess, n_found, log_weights = _stored_paths_start(
-            state, dataset, kernel, path_problem, path_likelihood, prior_logpdf, config, path_config, moves, rng)
-        other = None
-    # at least 2 (L + 1) independence sweeps per fit, as the moves: with 3, run 9 under T5 ended step 6 0.3-0.5 exact
-    # sds off in c at every seed, from a start within 0.02 sds (the sweeps' transient through the path's earlier
-    # states); with 10 (= 2 (L + 1) there), within 0.03 at seeds 1, 2, 4 (SMC, SEMC, SMC)
-    evidence_config = replace(config, n_independent=max(config.n_independent, 2 * (length + 1)))
-    cloud, log_increment, evidence_ess, n_independent = estimate_increment(
-        cloud, log_z, n_found, path_problem, evidence_config, path_likelihood, prior_logpdf,
-        config.evidence == "importance", rng, other)
-    log_evidence = float(state.log_evidence + log_increment)
-    posterior = cloud.particles[:, -d:]
-    marginal = Cloud(posterior, cloud.log_weights, cloud.components)
-    density, predictive, _ = propagate(state, marginal, dataset, log_increment, log_evidence, method, problem,
-                                        config, rng)
-    conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights, problem.support)
-    _, mass = ancestor_mass(kernel, posterior, state.posterior, state.posterior_log_weights,
-                             later_log_weights=cloud.log_weights)
-    spread = mass_spread(state, mass)
-    ancestors = spread.ess
-    importance = config.evidence == "importance" and log_increment != log_z
-    if bridge:
-        increment_se, evidence_se, evidence_variance = _bridged_standard_errors(
-            state, window, cloud, n, evidence_ess if importance else float("nan"), d)
-    else:
-        ancestor_variance, covariance = ancestor_terms(state, spread)
-        increment_se, evidence_se, evidence_variance = step_standard_errors(
-            state.log_evidence_variance, n, importance, evidence_ess, np.exp(log_weights), cloud.log_weights,
-            len(temperatures), resampled, ancestor_variance, method, covariance)
-    step_size = moves.step_size if config.move == "stretch" else float("nan")
-    info = StepInfo(
-        step=step, log_evidence_increment=float(log_increment), log_evidence=log_evidence, ess=float(stage_ess),
-        resampled=bool(resampled), acceptance_rate=moves.stats.acceptance_rate, step_size=float(step_size),
-        n_virtual=moves.n_virtual, n_stages=len(temperatures), temperatures=temperatures,
-        n_loglike_evals=likelihood.n_evals, n_nan=likelihood.n_nan, n_distinct=count_distinct(posterior),
-        n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
-        n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(log_z),
-        evidence_ess=evidence_ess, n_independent_accepted=n_independent,
-        n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start,
-        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-        ancestor_ess=ancestors, path_steps=length + 1,
-        log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
-        **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
-    record = StepRecord(info, posterior, cloud.log_weights, predictive)
-    past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True,
-                    variance_before(state))
-    keep = config.remedy_lag - 1
-    new_state = SamplerState(step=step, particles=predictive, log_weights=cloud.log_weights, prior=density,
-                             log_evidence=log_evidence,
-                             step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
-                             posterior=posterior, posterior_log_weights=cloud.log_weights,
-                             window=(state.window + (past,))[-keep:],
-                             paths=cloud.particles.reshape(n, length + 1, d)[:, -keep:],
-                             log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
-                             previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
-    return new_state, record, marginal
 
-import typing as _typing  # noqa: E402
+    def __init__(self, state, dataset, mixture, likelihood, bridge: bool):
+        problem, config = mixture.problem, mixture.config
+        self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
+        kernel, d = problem.kernel, problem.kernel.dim
+        self.length = length = min(len(state.window), config.remedy_lag - 1)
+        self.window = state.window[-length:]
+        self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
+                                    problem.executor, problem.n_chunks)
+        self.path_likelihood = likelihood.of_last_state(d)
+        self.prior_logpdf = path_prior_logpdf(self.window, kernel, likelihood, d)
+        # L + 1 times as many dimensions: the random walk's scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
+        # 1997) and a path decorrelates in O(dim) moves; the stretch move and the bridge's first stages need twice
+        # as many as SMC's random walk on stored paths (docs/prior_data_conflict.md, "Moves on the path space")
+        per_state = 4 if config.move == "stretch" or bridge else 2
+        # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
+        self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
+        self.path_config = replace(self.config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
+                                   n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
+                                                                   per_state * (length + 1))))
 
-if _typing.TYPE_CHECKING:  # names used only in annotations
-    from ..engine.settings import SamplerConfig
+    def remedy(self, state, dataset, likelihood, info):
+        return None
+
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+        moves = MoveTally(step_size=state.step_size)
+        return self._bridge_weigh(likelihood, moves, rng) if self.bridge else self._stored_weigh(moves, rng)
+
+    def temper(self, weighed, likelihood, rng) -> Tempered:
+        return self._bridge_temper(weighed, likelihood, rng) if self.bridge else self._stored_temper(weighed, rng)
+
+    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
+        other, moves = None, tempered.moves
+        if self.bridge:
+            # a second cloud of the same target, pooled with the bridge's: the stored paths hold the modes the
+            # previous particles held, which the bridge's tempering can lose; where they cannot carry the step,
+            # a second bridge, as a bridge's tempering can also end trapped in a minor mode
+            try:
+                second = self._stored_temper(self._stored_weigh(moves, rng), rng)
+            except (ZeroLikelihoodError, TemperingLimitError):
+                second = self._bridge_temper(self._bridge_weigh(likelihood, moves, rng), likelihood, rng)
+            other, moves = second.cloud, second.moves
+        # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
+        # path's earlier states
+        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)))
+        importance = self.config.evidence == "importance"
+        cloud, log_increment, evidence_ess, n_independent = estimate_increment(
+            tempered.cloud, tempered.log_z, weighed.n_found, self.path_problem, config, self.path_likelihood,
+            self.prior_logpdf, importance, rng, other)
+        return Estimate(cloud, log_increment, evidence_ess, n_independent,
+                        importance and log_increment != tempered.log_z, moves)
+
+    def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
+        config, kernel, d, n = self.config, self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
+        cloud, log_increment = estimate.cloud, estimate.log_increment
+        log_evidence = float(state.log_evidence + log_increment)
+        posterior = cloud.particles[:, -d:]
+        marginal = Cloud(posterior, cloud.log_weights, cloud.components)
+        density, predictive, _ = self.mixture.next_prior(state, marginal, dataset, log_increment, log_evidence, rng)
+        conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights,
+                                 self.problem.support)
+        _, mass = ancestor_mass(kernel, posterior, state.posterior, state.posterior_log_weights,
+                                later_log_weights=cloud.log_weights)
+        spread = mass_spread(state, mass)
+        if self.bridge:
+            increment_se, evidence_se, evidence_variance = _bridged_standard_errors(
+                state, self.window, cloud, n, estimate.evidence_ess if estimate.importance else float("nan"), d)
+        else:
+            ancestor_variance, covariance = ancestor_terms(state, spread)
+            increment_se, evidence_se, evidence_variance = step_standard_errors(
+                state.log_evidence_variance, n, estimate.importance, estimate.evidence_ess,
+                np.exp(weighed.cloud.log_weights), cloud.log_weights, len(tempered.temperatures), tempered.resampled,
+                ancestor_variance, self.mixture.method, covariance)
+        moves = estimate.moves
+        past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True,
+                        variance_before(state))
+        keep = config.remedy_lag - 1
+        new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
+                                 prior=density, log_evidence=log_evidence,
+                                 step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                                 posterior=posterior, posterior_log_weights=cloud.log_weights,
+                                 window=(state.window + (past,))[-keep:],
+                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -keep:],
+                                 log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
+                                 previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
+        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
+                      ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
+                      log_evidence_se=evidence_se, **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
+        step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
+        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
+
+    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed:
+        """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the
+        kernel), restricted to the parameter space by rejection, whose acceptance fraction enters the evidence as
+        in :func:`~seqbayes.engine.stages.restricted_draws`, weighed by every likelihood of the window.
+
+        The path-space target (``w`` the window's first step, ``s`` this one),
+
+            pi(theta_{w:s}) = p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}) prod_{t=w}^{s} L_t(theta_t) / Z_{w:s},
+            Z_{w:s} = p(D^{w:s} | D^{1:w-1}) = prod_{t=w}^{s} Z_t,
+
+        is bridged from ``pi_0`` through ``pi_beta prop. to pi_0 [prod_{t=w}^{s} L_t(theta_t)]^beta`` by
+        :meth:`_bridge_temper`. Every choice of which dataset a path gives up is weighed afresh, not inherited
+        from the previous steps' particles, so a mode of ``pi`` whose earlier states the earlier data had ruled
+        out given the stored paths is reached.
+        """
+        kernel, d, n = self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
+        path_prior = PathPrior(self.window[0].prior, kernel, len(self.window) + 1, d)
+        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
+            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood)
+        components = np.column_stack([loglike, path_prior.logpdf(walkers)])
+        cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
+        return Weighed(cloud, path_prior.logpdf, moves, log_restricted_mass, n_found)
+
+    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered:
+        """The bridge's stages (Eq. A5, the moves on the whole path). The stages' product of mean weights
+        (Eq. 1) estimates ``log Z_{w:s} = log m + sum_k log mean_i w_i^(k)``; the step's increment is that
+        minus the window's stored increments ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of
+        :func:`path_prior_logpdf`), so the cumulative evidence becomes the window's own estimate. The
+        components return to those of the stored paths' start, ``(log L_s, log pi_0 + sum_{t<s} log L_t -
+        sum_{t=w}^{s-1} log Z_t)``, for the importance estimate."""
+        d = self.problem.kernel.dim
+        # every stage keeps tempering_ess of the ESS: the tempering_threshold shortcut to beta = 1 lets a cloud
+        # gathered in a narrow minor mode of an early stage finish there
+        config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
+        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
+            weighed.cloud, self.path_problem, config, window_likelihood, weighed.prior_logpdf, weighed.moves, True,
+            False, rng)
+        last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
+        normaliser = sum(past.log_evidence_increment for past in self.window)
+        cloud = Cloud(cloud.particles, cloud.log_weights,
+                      np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
+                      cloud.labels)
+        return Tempered(cloud, log_z + weighed.log_restricted_mass - normaliser, temperatures, moves, resampled,
+                        stage_ess)
+
+    def _stored_weigh(self, moves, rng) -> Weighed:
+        """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
+        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.engine.stages.weigh`, a
+        restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
+        Components ``(log L_s, log path prior)``."""
+        state, kernel, config = self.state, self.problem.kernel, self.config
+        d, n, support = kernel.dim, config.n_samples, self.path_problem.support
+        paths = _start_paths(state, kernel, self.length, rng)
+        walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
+            paths.shape[0], -1)
+        log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
+        loglike = np.full(n, -np.inf)
+        inside = inside_space(walkers, support)
+        loglike[inside] = self.path_likelihood.loglike(walkers[inside])
+        valid = np.isfinite(loglike)
+        if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+            extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
+            walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
+                extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            log_weights = np.full(n, -np.log(n))
+        components = np.column_stack([loglike, np.full(n, -np.inf)])
+        carried = np.isfinite(loglike)
+        components[carried, 1] = self.prior_logpdf(walkers[carried])
+        return Weighed(Cloud(walkers, log_weights, components, labels), self.prior_logpdf, moves,
+                       log_restricted_mass, n_found)
+
+    def _stored_temper(self, weighed, rng) -> Tempered:
+        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
+        cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
+            weighed.cloud, self.path_problem, self.path_config, self.path_likelihood, weighed.prior_logpdf,
+            weighed.moves, True, False, rng)
+        return Tempered(cloud, log_z + weighed.log_restricted_mass, temperatures, moves, resampled, stage_ess)
