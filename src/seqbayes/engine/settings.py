@@ -220,64 +220,83 @@ class SamplerConfig:
     economy: bool = False
 
     def __post_init__(self):
+        self._check_run()
+        self._check_tempering()
+        self._check_moves()
+        self._check_evidence()
+        self._check_remedy()
+
+    def _check_run(self):
+        """The sampler, the number of particles, resampling, the predictive and the restart."""
         if self.move not in ("stretch", "gaussian"):
             raise ValueError(f"move: expected 'stretch' or 'gaussian', got {self.move!r}")
         if int(self.n_samples) != self.n_samples or self.n_samples < 2:
             raise ValueError(f"n_samples: must be an integer >= 2, got {self.n_samples}")
-        if self.evidence not in ("importance", "path"):
-            raise ValueError(f"evidence: expected 'importance' or 'path', got {self.evidence!r}")
         if not 0.0 <= self.min_valid_fraction <= 1.0:
             raise ValueError(f"min_valid_fraction: must lie in [0, 1], got {self.min_valid_fraction}")
+        if self.resampling not in SCHEMES:
+            raise ValueError(f"resampling: unknown scheme {self.resampling!r}; choose from {sorted(SCHEMES)}")
+        if self.predictive not in PREDICTIVE_METHODS:
+            raise ValueError(f"predictive: expected one of {PREDICTIVE_METHODS}, got {self.predictive!r}")
+        if _not_integer(self.n_inner, 1):
+            raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
+        if _not_integer(self.pseudo_marginal_from, 0):
+            raise ValueError(f"pseudo_marginal_from: must be an integer >= 0, got {self.pseudo_marginal_from}")
+        if self.economy not in (True, False):
+            raise ValueError(f"economy: expected True or False, got {self.economy!r}")
+
+    def _check_tempering(self):
         if not 0.0 < self.tempering_threshold <= self.tempering_ess:
             raise ValueError(f"tempering_threshold: must lie in (0, tempering_ess], got {self.tempering_threshold}")
         for name in ("tempering_ess", "ess_threshold"):
             value = getattr(self, name)
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"{name}: must lie in (0, 1], got {value}")
-        if self.resampling not in SCHEMES:
-            raise ValueError(f"resampling: unknown scheme {self.resampling!r}; choose from {sorted(SCHEMES)}")
-        if self.predictive not in PREDICTIVE_METHODS:
-            raise ValueError(f"predictive: expected one of {PREDICTIVE_METHODS}, got {self.predictive!r}")
+        if int(self.max_stages) != self.max_stages or self.max_stages < 1:
+            raise ValueError(f"max_stages: must be an integer >= 1, got {self.max_stages}")
+
+    def _check_moves(self):
         if not 0.0 < self.target_acceptance <= 1.0:
             raise ValueError(f"target_acceptance: must lie in (0, 1], got {self.target_acceptance}")
         if not self.step_size > 1.0:
             raise ValueError(f"step_size: must be > 1, got {self.step_size}")
-        if int(self.max_stages) != self.max_stages or self.max_stages < 1:
-            raise ValueError(f"max_stages: must be an integer >= 1, got {self.max_stages}")
         if self.max_virtual < 1 or self.n_moves < 1 or self.max_moves < 1:
             raise ValueError("max_virtual, max_moves and n_moves: must be >= 1")
-        if self.move == "gaussian" and self.n_moves > self.max_moves:
-            raise ValueError(f"n_moves: {self.n_moves} exceeds max_moves {self.max_moves}")
+        cap, cap_name = (self.max_moves, "max_moves") if self.move == "gaussian" else (self.max_virtual, "max_virtual")
+        if self.n_moves > cap:
+            raise ValueError(f"n_moves: {self.n_moves} exceeds {cap_name} {cap}")
+        if not 0.0 <= self.moved_fraction <= 1.0:
+            raise ValueError(f"moved_fraction: must lie in [0, 1], got {self.moved_fraction}")
+        if not self.proposal_scale > 0:
+            raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
+        if self.scaled_moves not in (None, True, False):
+            raise ValueError(f"scaled_moves: expected True, False or None, got {self.scaled_moves!r}")
+
+    def _check_evidence(self):
+        if self.evidence not in ("importance", "path"):
+            raise ValueError(f"evidence: expected 'importance' or 'path', got {self.evidence!r}")
         if not 0.0 <= self.min_evidence_ess <= 1.0 or self.max_refits < 0:
             raise ValueError("min_evidence_ess must lie in [0, 1] and max_refits be >= 0")
         if self.n_independent < 1:
             raise ValueError(f"n_independent: must be >= 1, got {self.n_independent}")
-        if not 0.0 <= self.moved_fraction <= 1.0:
-            raise ValueError(f"moved_fraction: must lie in [0, 1], got {self.moved_fraction}")
-        if self.move == "stretch" and self.n_moves > self.max_virtual:
-            raise ValueError(f"n_moves: {self.n_moves} exceeds max_virtual {self.max_virtual}")
-        if not self.proposal_scale > 0:
-            raise ValueError(f"proposal_scale: must be positive, got {self.proposal_scale}")
+
+    def _check_remedy(self):
         if not self.conflict_threshold > 0:
             raise ValueError(f"conflict_threshold: must be positive, got {self.conflict_threshold}")
         if not 0.0 <= self.remedy_ess <= 1.0:
             raise ValueError(f"remedy_ess: must lie in [0, 1], got {self.remedy_ess}")
-        if isinstance(self.remedy_lag, bool) or int(self.remedy_lag) != self.remedy_lag or self.remedy_lag < 2:
+        if _not_integer(self.remedy_lag, 2):
             raise ValueError(f"remedy_lag: must be an integer >= 2, got {self.remedy_lag}")
         if self.remedy_bridge not in (True, False):
             raise ValueError(f"remedy_bridge: expected True or False, got {self.remedy_bridge!r}")
-        if isinstance(self.n_inner, bool) or int(self.n_inner) != self.n_inner or self.n_inner < 1:
-            raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
-        if (isinstance(self.pseudo_marginal_from, bool) or int(self.pseudo_marginal_from) != self.pseudo_marginal_from
-                or self.pseudo_marginal_from < 0):
-            raise ValueError(f"pseudo_marginal_from: must be an integer >= 0, got {self.pseudo_marginal_from}")
-        if self.scaled_moves not in (None, True, False):
-            raise ValueError(f"scaled_moves: expected True, False or None, got {self.scaled_moves!r}")
-        if self.economy not in (True, False):
-            raise ValueError(f"economy: expected True or False, got {self.economy!r}")
 
     def uses_scaled_moves(self, dim: int) -> bool:
         """Whether the moves of :mod:`seqbayes.moves.scaled` run for ``dim`` parameters (see ``scaled_moves``)."""
         if self.scaled_moves is not None:
             return bool(self.scaled_moves)
         return self.economy or dim > HIGH_DIMENSION
+
+
+def _not_integer(value, minimum: int) -> bool:
+    """Whether ``value`` is not an integer (``bool`` excluded) of at least ``minimum``."""
+    return isinstance(value, bool) or int(value) != value or value < minimum

@@ -18,7 +18,33 @@ from .scaled import DifferentialMove, FittedGaussian, differential_sweep, indepe
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-__all__ = ["move_stage", "scaled_rounds"]
+__all__ = ["move_stage", "scaled_rounds", "stage_done"]
+
+
+def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
+               alpha_old: float = float("nan")) -> bool:
+    """Whether the sweeps of one stage stop: the schedule of SMC, SEMC and SMC^2's PMMH alike.
+
+    At most ``max_moves`` (SMC) or ``max_virtual`` (SEMC) sweeps; before that, at least ``n_moves`` and until
+    ``moved_fraction`` of the particles have moved since ``start`` (every particle should have had a fair chance
+    to move, cf. PyMC's SMC), and for SEMC's stretch move until its acceptance rate ``alpha`` has settled
+    (Algorithm 2's virtual iterations: ``|alpha - alpha_old| < virtual_tolerance * alpha_tr``).
+
+    Parameters
+    ----------
+    n_sweeps : int
+        Sweeps done so far in the stage.
+    position, start : (N, d) arrays
+        The particles now and at the stage's start (in the moves' coordinates).
+    """
+    stretch = config.move == "stretch"
+    if n_sweeps >= (config.max_virtual if stretch else config.max_moves):
+        return True
+    if stretch and not abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance:
+        return False
+    if n_sweeps < config.n_moves:
+        return False
+    return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike):
@@ -50,12 +76,6 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
             return out
 
     start = position
-
-    def enough(n_done):  # every particle should have had a fair chance to move (cf. PyMC's SMC)
-        if n_done < config.n_moves:
-            return False
-        return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
-
     if config.uses_scaled_moves(walkers.shape[1]):
         position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
                                                                coefficients, support, rng)
@@ -63,12 +83,14 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     elif config.move == "gaussian":
         stats = SweepStats()
         n_done = 0
-        while not enough(n_done) and n_done < config.max_moves:
+        while True:
             move = GaussianMove(weighted_covariance(position), config.proposal_scale)
             position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, move,
                                                          rng, support)
             stats = stats + sweep
             n_done += 1
+            if stage_done(config, n_done, position, start):
+                break
         step_size, n_virtual = float("nan"), 0
     else:  # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
         step_size = state_step_size
@@ -82,8 +104,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
             stats = stats + sweep
             alpha = sweep.acceptance_rate
             step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-            converged = abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance
-            if (converged and enough(n_virtual)) or n_virtual >= config.max_virtual:
+            if stage_done(config, n_virtual, position, start, alpha, alpha_old):
                 break
             alpha_old = alpha
     if transform is not None:

@@ -47,6 +47,7 @@ from ..engine.stages import prior_name, reweight_stage
 from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
 from ..kernels import Decay, Drift, MarkovKernel, Static
 from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..moves.schedule import stage_done
 from ..priors import JointPrior, inside_support
 from ..resampling import resample
 from ..results import prior_data_conflict
@@ -467,8 +468,8 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
     the target is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets``
     (fresh randomness), which is what makes the noisy likelihood estimate an exact PMMH target.
-    Sweeps continue until ``n_moves`` are done and ``moved_fraction`` of the particles has moved,
-    up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC, whose step size adapts by Eq. 9).
+    Sweeps stop by the stages' schedule (:func:`~seqbayes.moves.schedule.stage_done`), SEMC's step size
+    adapting by Eq. (9) as in its virtual iterations.
     """
     static, components = static.copy(), components.copy()
     cloud = {key: value.copy() for key, value in cloud.items()}
@@ -487,7 +488,6 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
     current = target(components, jacobian)
     start = position.copy()
     stats, n_sweeps, alpha_old = SweepStats(), 0, config.target_acceptance
-    limit = config.max_virtual if config.move == "stretch" else config.max_moves
     n = static.shape[0]
     while True:
         if config.move == "stretch":
@@ -533,11 +533,7 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
         alpha = sweep_accepted / n
         if config.move == "stretch":
             step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-        moved_enough = (config.moved_fraction == 0
-                        or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction)
-        converged = (config.move != "stretch"
-                     or abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance)
-        if (n_sweeps >= config.n_moves and moved_enough and converged) or n_sweeps >= limit:
+        if stage_done(config, n_sweeps, position, start, alpha, alpha_old):
             break
         alpha_old = alpha
     return static, cloud, components, stats, step_size, n_sweeps
