@@ -15,7 +15,7 @@ import numpy as np
 
 from ..predictive.lineage import ancestor_terms, lineage_after
 from .evidence import estimate_increment, step_standard_errors
-from .stages import moves_every_stage, step_conflict, temper_resample_move, weigh
+from .stages import ExactPrior, moves_every_stage, step_conflict, temper_resample_move, weigh
 from .state import Estimate, MoveTally, Outcome, SamplerState, Tempered, Weighed
 
 __all__ = ["Predictive", "ParticlePredictive"]
@@ -66,8 +66,9 @@ class ParticlePredictive:
 
     # ---- hooks
     def prior_logpdf(self, state, likelihood, rng):
-        """The step's prior density as a function of ``theta (M, d)`` alone."""
-        return state.prior.logpdf
+        """The step's prior density as a function of ``theta (M, d)`` alone (an
+        :class:`~seqbayes.engine.stages.ExactPrior` or the like)."""
+        return ExactPrior(state.prior.logpdf)
 
     def exact_prior(self, state) -> bool:
         """Whether the step's prior is exact, so that its particles never restart from the restricted prior."""

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..moves.schedule import move_stage
-from ..predictive.pseudo_marginal import SubsampledPrior
 from ..priors import inside_space
 from ..resampling import resample
 from ..results import prior_data_conflict
@@ -15,8 +14,30 @@ from ..weights import ess, logsumexp
 from .errors import TemperingLimitError, ZeroLikelihoodError
 from .state import Cloud
 
-__all__ = ["weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
+__all__ = ["ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
            "moves_every_stage", "count_distinct", "step_conflict", "prior_name"]
+
+
+class ExactPrior:
+    """A step's prior density as the stages evaluate it, exactly: ``prior(theta (M, d)) -> (M,)``, its values at
+    the step's particles (:meth:`start`) and, between stages, nothing to refresh. The pseudo-marginal
+    :class:`~seqbayes.predictive.pseudo_marginal.SubsampledPrior` has the same three methods."""
+
+    def __init__(self, logpdf):
+        self.logpdf = logpdf
+
+    def __call__(self, theta) -> np.ndarray:
+        return self.logpdf(theta)
+
+    def start(self, particles, log_weights, loglike, own_draws: bool = True) -> np.ndarray:
+        """``(N,)`` prior values of the particles, where their likelihood is non-zero (``-inf`` elsewhere)."""
+        out = np.full(particles.shape[0], -np.inf)
+        carried = np.isfinite(loglike)
+        out[carried] = self.logpdf(particles[carried])
+        return out
+
+    def refreshed(self, particles, components) -> np.ndarray:
+        return components
 
 
 #: Odd 64-bit multipliers of the row hash in :func:`count_distinct`.
@@ -141,11 +162,7 @@ def weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
         components = np.column_stack([loglike, log_prior])
     else:  # every particle is inside now; the prior is only needed where the likelihood is non-zero
         components = np.column_stack([loglike, np.full(n, -np.inf)])
-        carried = np.isfinite(loglike)
-        if isinstance(prior_logpdf, SubsampledPrior):  # chooses exact or pseudo-marginal evaluation for the step
-            components[:, 1] = prior_logpdf.start(particles, log_weights, loglike, own_draws=not restarted)
-        else:
-            components[carried, 1] = prior_logpdf(particles[carried])
+        components[:, 1] = prior_logpdf.start(particles, log_weights, loglike, own_draws=not restarted)
     return Cloud(particles, log_weights, components, labels), log_restricted_mass, n_found
 
 
@@ -220,8 +237,7 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
             log_weights = np.full(n, -np.log(n))
         # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
-            if isinstance(prior_logpdf, SubsampledPrior):  # back to exact evaluation if the estimate got poor
-                components = prior_logpdf.refreshed(particles, components)
+            components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
             particles, components, stats, step_size, n_virtual = move_stage(
                 problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, likelihood.loglike)
             moves = moves.then(stats, step_size, n_virtual, config.move)

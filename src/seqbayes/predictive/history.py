@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine.protocol import ParticlePredictive
-from ..engine.stages import rejuvenate_deferred
+from ..engine.stages import ExactPrior, rejuvenate_deferred
 from ..engine.state import MoveTally, kept_copy
 
 __all__ = ["HistoryPrior", "RunningStatistics", "ExactHistory"]
@@ -144,8 +144,8 @@ class ExactHistory(ParticlePredictive):
 
     def prior_logpdf(self, state, likelihood, rng):
         if self.exact_prior(state):
-            return lambda theta: state.prior.logpdf(theta, likelihood.loglike_on, likelihood.summary_loglike)
-        return state.prior.logpdf
+            return ExactPrior(lambda theta: state.prior.logpdf(theta, likelihood.loglike_on, likelihood.summary_loglike))
+        return ExactPrior(state.prior.logpdf)
 
     def start(self, state, prior_logpdf, rng):
         moves = MoveTally(step_size=state.step_size)

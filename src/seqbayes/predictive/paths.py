@@ -9,7 +9,7 @@ import numpy as np
 
 from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
 from ..engine.evidence import estimate_increment, step_standard_errors
-from ..engine.stages import restricted_draws, step_conflict, temper_resample_move
+from ..engine.stages import ExactPrior, restricted_draws, step_conflict, temper_resample_move
 from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
                             kept_copy, variance_before)
 from ..kernels import MarkovKernel
@@ -176,7 +176,7 @@ class PathSpace:
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
-        self.prior_logpdf = path_prior_logpdf(self.window, kernel, likelihood, d)
+        self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
         # L + 1 times as many dimensions: the random walk's scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
         # 1997) and a path decorrelates in O(dim) moves; the stretch move and the bridge's first stages need twice
         # as many as SMC's random walk on stored paths (docs/prior_data_conflict.md, "Moves on the path space")
@@ -279,7 +279,7 @@ class PathSpace:
             path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood)
         components = np.column_stack([loglike, path_prior.logpdf(walkers)])
         cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
-        return Weighed(cloud, path_prior.logpdf, moves, log_restricted_mass, n_found)
+        return Weighed(cloud, ExactPrior(path_prior.logpdf), moves, log_restricted_mass, n_found)
 
     def _bridge_temper(self, weighed, likelihood, rng) -> Tempered:
         """The bridge's stages (Eq. A5, the moves on the whole path). The stages' product of mean weights

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine.protocol import ParticlePredictive
+from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
 from .lineage import ancestor_mass, mass_spread, posterior_labels
 from .mixture import GaussianMixture, jump_step_fields, predictive_density
@@ -26,7 +27,7 @@ class TransitionMixture(ParticlePredictive):
         if (self.method == "transition" and isinstance(state.prior, GaussianMixture) and config.pseudo_marginal_from
                 and config.n_samples >= config.pseudo_marginal_from and state.log_prior is None):
             return SubsampledPrior(state.prior, rng)  # pseudo-marginal moves where the pilot allows
-        return state.prior.logpdf
+        return ExactPrior(state.prior.logpdf)
 
     def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
         density, draws = predictive_density(cloud.particles, cloud.log_weights, self.problem.kernel, rng, self.method,
