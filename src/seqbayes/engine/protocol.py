@@ -9,6 +9,7 @@ its stage (:mod:`seqbayes.engine.state`). An instance serves one step.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
@@ -114,11 +115,10 @@ class ParticlePredictive:
         return Weighed(cloud, prior_logpdf, moves, log_restricted_mass, n_found, rejuvenated)
 
     def temper(self, weighed, likelihood, rng) -> Tempered:
-        cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-            weighed.cloud, self.problem, self.config, likelihood, weighed.prior_logpdf, weighed.moves,
-            self.moves_every_stage(), self.deferred, rng)
+        tempered = temper_resample_move(weighed.cloud, self.problem, self.config, likelihood, weighed.prior_logpdf,
+                                        weighed.moves, self.moves_every_stage(), self.deferred, rng)
         # Z = P(inside, L > 0) E[L | inside, L > 0]
-        return Tempered(cloud, log_z + weighed.log_restricted_mass, temperatures, moves, resampled, stage_ess)
+        return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
         use_importance = self.uses_importance(tempered.moves)

@@ -12,7 +12,7 @@ from ..results import prior_data_conflict
 from ..tempering import next_increment
 from ..weights import ess, logsumexp
 from .errors import TemperingLimitError, ZeroLikelihoodError
-from .state import Cloud
+from .state import Cloud, Tempered
 
 __all__ = ["ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
            "moves_every_stage", "count_distinct", "step_conflict", "prior_name"]
@@ -121,11 +121,11 @@ def rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
         return particles, log_weights, state.log_prior, moves, False, np.arange(n)
     index = resample(config.resampling, np.exp(log_weights), rng, n)
     values = prior_logpdf(particles) if state.log_prior is None else state.log_prior
-    particles, components, stats, step_size, n_virtual = move_stage(
-        problem, config, moves.step_size, particles[index], np.column_stack([np.zeros(n), values[index]]), 0.0,
-        prior_logpdf, rng, lambda theta: np.zeros(theta.shape[0]))
-    return (particles, np.full(n, -np.log(n)), components[:, 1], moves.then(stats, step_size, n_virtual, config.move),
-            True, index)
+    moved = move_stage(problem, config, moves.step_size, particles[index],
+                       np.column_stack([np.zeros(n), values[index]]), 0.0, prior_logpdf, rng,
+                       lambda theta: np.zeros(theta.shape[0]))
+    return (moved.walkers, np.full(n, -np.log(n)), moved.components[:, 1], moves.then(moved, config.move), True,
+            index)
 
 
 def weigh(state, particles, log_weights, log_prior, problem, config, likelihood, prior_logpdf, rng, labels=None,
@@ -219,8 +219,8 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move.
 
-    Returns the cloud, the path's log-evidence (Eq. 1), the temperatures, the moves, whether the last
-    stage resampled and the last stage's ESS (before resampling)."""
+    Returns a :class:`~seqbayes.engine.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
+    any restricted mass (the caller's)."""
     n, step = config.n_samples, likelihood.step
     particles, log_weights, components, labels = cloud.particles, cloud.log_weights, cloud.components, cloud.labels
     beta, log_z, temperatures = 0.0, 0.0, []
@@ -238,10 +238,11 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
         # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
-            particles, components, stats, step_size, n_virtual = move_stage(
-                problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng, likelihood.loglike)
-            moves = moves.then(stats, step_size, n_virtual, config.move)
-    return Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled, stage_ess
+            moved = move_stage(problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng,
+                               likelihood.loglike)
+            particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
+    return Tempered(Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled,
+                    stage_ess)
 
 
 def moves_every_stage(config, method) -> bool:

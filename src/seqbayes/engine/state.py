@@ -121,9 +121,11 @@ class MoveTally:
     step_size: float = float("nan")
     n_virtual: int = 0
 
-    def then(self, stats, step_size, n_virtual, move) -> "MoveTally":
-        return MoveTally(self.stats + stats, step_size if move == "stretch" else self.step_size,
-                      self.n_virtual + n_virtual)
+    def then(self, moved, move: str) -> "MoveTally":
+        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; SEMC (``move``
+        ``"stretch"``) carries its adapted step size on."""
+        return MoveTally(self.stats + moved.stats, moved.step_size if move == "stretch" else self.step_size,
+                         self.n_virtual + moved.n_virtual)
 
 
 @dataclass(frozen=True, eq=False)

@@ -7,6 +7,8 @@ the scaled rounds of :func:`scaled_rounds` (independence sweeps from a fitted de
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
@@ -18,7 +20,19 @@ from .scaled import DifferentialMove, FittedGaussian, differential_sweep, indepe
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done"]
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "StageMoves"]
+
+
+@dataclass(frozen=True, eq=False)
+class StageMoves:
+    """What the moves of one stage did: the particles ``walkers (N, d)`` and their ``components (N, 2)``
+    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC) and the sweeps (rounds) made."""
+
+    walkers: np.ndarray
+    components: np.ndarray
+    stats: SweepStats
+    step_size: float
+    n_virtual: int
 
 
 def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
@@ -53,7 +67,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     With ``config.transform`` the move works in unconstrained coordinates
     (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
-    Returns walkers, components, stats, step size and virtual-iteration count.
+    Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -114,7 +128,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         components = components[:, :2]
     else:
         walkers = position
-    return walkers, components, stats, step_size, n_virtual
+    return StageMoves(walkers, components, stats, step_size, n_virtual)
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng):

@@ -293,16 +293,15 @@ class PathSpace:
         # gathered in a narrow minor mode of an early stage finish there
         config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
-        cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-            weighed.cloud, self.path_problem, config, window_likelihood, weighed.prior_logpdf, weighed.moves, True,
-            False, rng)
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+        cloud = tempered.cloud
         last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
         normaliser = sum(past.log_evidence_increment for past in self.window)
         cloud = Cloud(cloud.particles, cloud.log_weights,
                       np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
                       cloud.labels)
-        return Tempered(cloud, log_z + weighed.log_restricted_mass - normaliser, temperatures, moves, resampled,
-                        stage_ess)
+        return replace(tempered, cloud=cloud, log_z=tempered.log_z + weighed.log_restricted_mass - normaliser)
 
     def _stored_weigh(self, moves, rng) -> Weighed:
         """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
@@ -332,7 +331,6 @@ class PathSpace:
 
     def _stored_temper(self, weighed, rng) -> Tempered:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
-        cloud, log_z, temperatures, moves, resampled, stage_ess = temper_resample_move(
-            weighed.cloud, self.path_problem, self.path_config, self.path_likelihood, weighed.prior_logpdf,
-            weighed.moves, True, False, rng)
-        return Tempered(cloud, log_z + weighed.log_restricted_mass, temperatures, moves, resampled, stage_ess)
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+        return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
