@@ -38,7 +38,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from seqbayes import sequential  # noqa: E402
+import seqbayes  # noqa: E402
+from seqbayes import SMC, ZeroLikelihoodError  # noqa: E402
 from seqbayes.kernels import Decay, MarkovKernel  # noqa: E402
 from seqbayes.models import oscillator as osc  # noqa: E402
 from seqbayes.studies import abrupt_drop  # noqa: E402
@@ -73,7 +74,7 @@ def reference(name: str):
 def task(args):
     name, sampler, seed, n_samples, settings = args
     datasets, kernel = problem(name)
-    cls = getattr(sequential, sampler)
+    cls = getattr(seqbayes, sampler)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -83,7 +84,7 @@ def task(args):
         for dataset in datasets:  # a step that raises (ZeroLikelihoodError) ends the run: its steps are NaN
             try:
                 smp.update(dataset)
-            except sequential.ZeroLikelihoodError:
+            except ZeroLikelihoodError:
                 failed = smp.state.step + 1
                 break
         result = smp.result
@@ -111,7 +112,7 @@ def mixture_target_error(n_samples: int, seed: int = 1) -> float:
     ref = reference("run9-T2")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        smp = sequential.SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed,
+        smp = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed,
                              conflict_remedy=False)
         smp.run(datasets[:2])
     k, c = np.linspace(0.8, 2.0, 601), np.linspace(0.01, 0.6, 401)

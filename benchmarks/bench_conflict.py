@@ -29,7 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from seqbayes.sequential import SamplerConfig  # noqa: E402
+from seqbayes.engine.settings import SamplerConfig  # noqa: E402
 from seqbayes.studies import oscillator as study  # noqa: E402
 
 REMEDY_ESS = SamplerConfig(move="gaussian").remedy_ess

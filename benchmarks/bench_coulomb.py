@@ -78,7 +78,7 @@ class _Null:
 # Disjoint leaves of the call tree (none calls another), by cumulative time.
 _LEAVES = {
     "likelihood": ("models/coulomb.py", "loglike"),
-    "mixture density (core)": ("density.py", "logpdf"),
+    "mixture density (core)": ("predictive/mixture.py", "logpdf"),
     "prior logpdf (core + scipy.stats)": ("priors.py", "logpdf"),
 }
 _SWEEPS = (("moves/stretch.py", "stretch_sweep"), ("moves/gaussian.py", "gaussian_sweep"))
@@ -97,7 +97,7 @@ def profile(data):
         def cum(file_part, func):
             return sum(v[3] for (f, _, fn), v in stats.items() if file_part in f and fn == func)
 
-        total = cum("sequential.py", "run")
+        total = cum("engine/drivers.py", "run")
         leaves = {label: cum(*key) for label, key in _LEAVES.items()}
         sweeps = sum(cum(*key) for key in _SWEEPS)
         print(f"  {name} one run under cProfile {total:.2f} s: "

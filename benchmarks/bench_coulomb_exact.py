@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 
 import seqbayes  # noqa: E402
 from seqbayes.models import coulomb as model  # noqa: E402
-from seqbayes.nested import ParticleInnerFilter  # noqa: E402
+from seqbayes.predictive.smc2 import ParticleInnerFilter  # noqa: E402
 
 
 def run(args):

@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
-from seqbayes.nested import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
+from seqbayes.predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
 
 CHECKPOINTS = (10, 100, 1000)
 

@@ -23,7 +23,8 @@ import time
 
 import numpy as np
 
-from seqbayes import SEMC, SMC, density
+from seqbayes import SEMC, SMC
+from seqbayes.predictive import pseudo_marginal as density
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 
 
@@ -76,7 +77,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sampler", choices=("smc", "semc"), default="smc")
     parser.add_argument("--no-exact", action="store_true", help="skip the exact-evaluation runs")
     args = parser.parse_args(argv)
-    from seqbayes.sequential import SamplerConfig
+    from seqbayes.engine.settings import SamplerConfig
 
     start = SamplerConfig(move="gaussian").pseudo_marginal_from if args.start is None else args.start
     model = problem(args.dim)

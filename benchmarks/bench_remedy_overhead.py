@@ -20,7 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from seqbayes.models import oscillator as osc  # noqa: E402
-from seqbayes.sequential import SMC  # noqa: E402
+from seqbayes import SMC  # noqa: E402
 
 
 def main():

@@ -4,7 +4,7 @@ d = 4 parameters, a cheap Gaussian likelihood (5 observations of every parameter
 dataset, noise sd 0.5, prior N(0, 1)), static parameters (default predictive: the
 exact history prior) and drifting ones (random walk, noise sd 0.1: the exact
 transition mixture of Eq. A3; from N = 2048 on (``--pseudo-marginal-from``), its moves are pseudo-marginal:
-:class:`seqbayes.density.SubsampledPrior`) and slowly drifting ones (noise sd 0.005: the mixture's
+:class:`seqbayes.predictive.pseudo_marginal.SubsampledPrior`) and slowly drifting ones (noise sd 0.005: the mixture's
 bandwidth is then ~1/20 of the posterior's spread, where its k-d tree truncation works). For each N, one sampler assimilates a first dataset
 (untimed: its prior is the initial one) and then ``--steps`` more, each timed. The
 sizes are run round-robin, ``--rounds`` times, in one process; the figure is the
@@ -38,7 +38,7 @@ import numpy as np
 from scipy import stats
 
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
-from seqbayes import evidence
+from seqbayes.moves import proposals as evidence
 
 DIM = 4
 NOISE = 0.5
@@ -83,7 +83,7 @@ def run(kind, n, steps, sampler, components, **settings):
 
 
 def bench_mixture(n=16000, rounds=3):
-    from seqbayes.density import GaussianMixture
+    from seqbayes.predictive.mixture import GaussianMixture
 
     rng = np.random.default_rng(0)
     centres, log_w = rng.normal(size=(n, DIM)), rng.normal(size=n)

@@ -1,30 +1,30 @@
 """seqbayes: on-line Bayesian model updating of engineering structures.
 
-The public API: priors, Markov kernels, the on-line samplers SMC and SEMC, the
-standalone ensemble sampler, model-class comparison and run results; and the
-structural side of Lin et al. (2024): shear buildings, ground motions, filters,
-sparse grids and the SG-EnMCMC identifier.
+What a user types: priors and Markov kernels, the on-line samplers SMC and SEMC (with SMC^2's inner
+filters and the exact static prior's running statistics), results and model-class comparison,
+first-passage forecasts, run stores, and the SG-EnMCMC identifier of Lin et al. (2024). The rest
+is in the subpackages: ``engine`` (the update pipeline), ``predictive`` (predictive priors),
+``moves``, ``store`` (run stores, configuration, reports), ``structural`` (buildings, filters,
+sparse grids, SG-EnMCMC, the stiffness-drop monitor); ``studies`` and ``models`` hold the papers'
+studies and example models.
 """
 
-from . import aies, nested, prognostics, reference
-from .structural import SGEnMCMC, SGEnMCMCResult, SparseGridTransition, filters, sparsegrid, structures
-from .density import GaussianMixture, MixtureSum, RunningStatistics, predictive_density, silverman_bandwidth
+from .engine.drivers import SEMC, SMC
+from .engine.errors import InnerFilterWarning, PriorDataConflictWarning, TemperingLimitError, ZeroLikelihoodError
 from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
-from .nested import KalmanInnerFilter, ParticleInnerFilter
-from .prognostics import FirstPassage, time_to_threshold
-from .reference import GridReference, grid_filter
+from .predictive.history import RunningStatistics
+from .predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter
 from .priors import JointPrior
-from .results import Result, StepInfo, StepRecord
-from .rng import as_generator
-from .selection import ModelComparison, compare
-from .sequential import (SEMC, SMC, InnerFilterWarning, PriorDataConflictWarning, SamplerConfig, SamplerState, TemperingLimitError,
-                         ZeroLikelihoodError, assimilate)
-from .store import RunStore, SGRunStore, load_config, open_run, posterior_to_arviz
+from .prognostics import time_to_threshold
+from .results import Result, StepInfo
+from .selection import compare
+from .store import RunStore, load_config, open_run
+from .structural import SGEnMCMC
 
 __version__ = "0.1.0"
-__all__ = ["nested", "prognostics", "reference", "KalmanInnerFilter", "ParticleInnerFilter", "FirstPassage",
-           "time_to_threshold", "GridReference", "grid_filter", "PriorDataConflictWarning", "InnerFilterWarning", "load_config", "RunStore", "SGRunStore", "open_run", "posterior_to_arviz", "aies", "filters", "sparsegrid", "structures", "SGEnMCMC", "SGEnMCMCResult", "SparseGridTransition", "GaussianMixture", "MixtureSum", "RunningStatistics", "predictive_density", "silverman_bandwidth", "Custom", "Decay", "Drift", "Jump", "jump_posterior",
-           "MarkovKernel", "Static", "JointPrior", "Result", "StepInfo", "StepRecord", "as_generator",
-           "ModelComparison", "compare", "SEMC", "SMC", "SamplerConfig", "SamplerState", "ZeroLikelihoodError",
-           "TemperingLimitError",
-           "assimilate"]
+__all__ = [
+    "SMC", "SEMC", "JointPrior", "MarkovKernel", "Static", "Drift", "Decay", "Jump", "Custom", "jump_posterior",
+    "RunningStatistics", "KalmanInnerFilter", "ParticleInnerFilter", "Result", "StepInfo", "compare",
+    "time_to_threshold", "PriorDataConflictWarning", "InnerFilterWarning", "ZeroLikelihoodError",
+    "TemperingLimitError", "RunStore", "open_run", "load_config", "SGEnMCMC",
+]

@@ -12,7 +12,7 @@ by a random fraction of a reference value, with probability ``p``". Every branch
 Gaussian, so the transition of each ancestor is a finite mixture of Gaussians whose
 shifts and widths are the same for all ancestors, and the predictive prior of
 Eq. (A3) is a weighted sum of Gaussian mixtures, one per branch combination
-(:class:`~seqbayes.density.MixtureSum`), evaluated exactly. :func:`jump_posterior`
+(:class:`~seqbayes.predictive.mixture.MixtureSum`), evaluated exactly. :func:`jump_posterior`
 gives the posterior probability of a jump at a step and the posterior of its size.
 """
 
@@ -28,7 +28,7 @@ from .priors import as_samples
 from .weights import logsumexp, normalise
 
 __all__ = ["Static", "Drift", "Decay", "Custom", "Jump", "MarkovKernel", "Branches", "JumpPosterior",
-           "jump_posterior", "jump_step_fields", "HEAVY_TAIL_SCALES", "HEAVY_TAIL_WEIGHTS"]
+           "jump_posterior", "HEAVY_TAIL_SCALES", "HEAVY_TAIL_WEIGHTS"]
 
 #: The heavy-tailed slab of :meth:`Jump.heavy_tailed`: the drop fraction is
 #: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)``, a discrete scale mixture of
@@ -430,7 +430,7 @@ _BLOCK = 4_000_000
 
 def _ancestor_moments(mixture, theta, column) -> tuple[np.ndarray, np.ndarray]:
     """Mean and second moment of the ancestors' ``centres[:, column]`` under the responsibilities
-    ``r_ki ∝ W_i N(theta_k; centres_i, diag(h^2))`` of a :class:`~seqbayes.density.GaussianMixture`,
+    ``r_ki ∝ W_i N(theta_k; centres_i, diag(h^2))`` of a :class:`~seqbayes.predictive.mixture.GaussianMixture`,
     each ``(m,)``; computed in ``(block, N)`` blocks with one matrix product each."""
     scaled = mixture.centres / mixture.bandwidth
     offset = mixture.log_weights - 0.5 * np.einsum("ij,ij->i", scaled, scaled)
@@ -453,7 +453,7 @@ def jump_posterior(kernel: MarkovKernel, prior: Any, posterior: np.ndarray,
     """The posterior probability of a jump at one step and of its size.
 
     With the step's predictive prior ``pi(theta) = sum_c V_c p_c(theta)`` (a
-    :class:`~seqbayes.density.MixtureSum`, one mixture per branch of the transition), the
+    :class:`~seqbayes.predictive.mixture.MixtureSum`, one mixture per branch of the transition), the
     probability that branch ``c`` was taken given ``theta`` is ``V_c p_c(theta) / pi(theta)``
     (for one jump component: ``sum_i W_i p N_slab(theta | theta_i) / sum_i W_i T(theta | theta_i)``);
     averaged over the step's posterior it is the posterior probability of the branch, because
@@ -470,7 +470,7 @@ def jump_posterior(kernel: MarkovKernel, prior: Any, posterior: np.ndarray,
     kernel : MarkovKernel
         With :class:`Jump` components.
     prior : MixtureSum
-        The step's predictive prior built from ``kernel`` (:func:`~seqbayes.density.predictive_density`).
+        The step's predictive prior built from ``kernel`` (:func:`~seqbayes.predictive.mixture.predictive_density`).
     posterior : (N, d) array
         The step's posterior particles.
     log_weights : (N,) array
@@ -518,16 +518,6 @@ def jump_posterior(kernel: MarkovKernel, prior: Any, posterior: np.ndarray,
             size_sd[j] = np.sqrt(max(second / mass[jumped].sum() - size_mean[j] ** 2, 0.0))
     return JumpPosterior(probability, min(float(mass[table.jumped.any(axis=1)].sum()), 1.0), size_mean, size_sd)
 
-
-def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dict:
-    """The :class:`~seqbayes.results.StepInfo` fields of :func:`jump_posterior` (``jump_probability``,
-    ``jump_parameter``, ``jump_size``, ``jump_size_sd``) when ``prior`` is the step's
-    :class:`~seqbayes.density.MixtureSum` of a jump kernel; ``{}`` otherwise (step 1, no jumps)."""
-    from .density import MixtureSum
-
-    if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
-        return {}
-    return jump_posterior(kernel, prior, posterior, log_weights).step_fields()
 
 import typing as _typing  # noqa: E402
 

@@ -175,7 +175,7 @@ def plot_evidence(results: Mapping[str, Result]) -> Figure:
 
 
 def plot_model_probabilities(comparison: ModelComparison) -> Figure:
-    """Posterior model probabilities per step (stacked areas) from a :class:`~seqbayes.ModelComparison`."""
+    """Posterior model probabilities per step (stacked areas) from a :class:`~seqbayes.selection.ModelComparison`."""
     fig, axes = new_figure(1, 1, row_height=3.0)
     ax = axes[0, 0]
     steps = np.arange(1, comparison.probabilities.shape[0] + 1)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .rng import as_generator
 
-__all__ = ["JointPrior", "as_samples", "support_of", "check_distribution"]
+__all__ = ["JointPrior", "as_samples", "support_of", "check_distribution", "inside_support", "inside_space"]
 
 
 def as_samples(theta, dim: int | None = None, name: str = "theta") -> np.ndarray:
@@ -29,6 +29,13 @@ def as_samples(theta, dim: int | None = None, name: str = "theta") -> np.ndarray
 def inside_support(points, support) -> np.ndarray:
     """``(N,)`` bool: the rows of ``points (N, d)`` inside the ``(d, 2)`` box ``support`` (NaN is outside)."""
     return ((points >= support[:, 0]) & (points <= support[:, 1])).all(axis=1)
+
+
+def inside_space(points, support) -> np.ndarray:
+    """:func:`inside_support`, with every row inside when the box is unbounded (no comparison made)."""
+    if np.isneginf(support[:, 0]).all() and np.isposinf(support[:, 1]).all():
+        return np.ones(points.shape[0], dtype=bool)
+    return inside_support(points, support)
 
 
 class JointPrior:

@@ -80,7 +80,7 @@ class StepInfo:
     prior_data_conflict : float
         How far the step's posterior lies in the tail of its prior (the predictive distribution
         restricted to the parameter space for ``s > 1``): the largest over parameters of
-        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.sequential.step_conflict``).
+        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.engine.stages.step_conflict``).
         Under the model this exceeds 4 with probability below ~1e-4 per parameter; larger values
         flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
     conflict_parameter : int
@@ -92,14 +92,14 @@ class StepInfo:
     ancestor_ess : float
         How many of the predictive mixture's components (Eq. A3: the previous posterior's
         particles through the exact transition with ``"transition"``) carry this step's posterior,
-        ``1 / sum_j a_j^2`` (:meth:`~seqbayes.density.GaussianMixture.ancestor_ess`, or
-        :func:`~seqbayes.sequential.ancestor_draws` once paths are carried; NaN at step 1 and where
+        ``1 / sum_j a_j^2`` (:meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_ess`, or
+        :func:`~seqbayes.predictive.lineage.ancestor_draws` once paths are carried; NaN at step 1 and where
         the conflict remedy does not apply). Small values mean the posterior lies in the far tail
         of the mixture, which N particles do not represent.
     path_steps : int
         0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
         assimilated it on the path space of the last ``L`` states (the exact target;
-        :func:`~seqbayes.sequential.assimilate_paths`).
+        :func:`~seqbayes.predictive.paths.PathSpace`).
     jump_probability : float
         With a kernel with :class:`~seqbayes.kernels.Jump` components: the posterior probability
         that some parameter jumped between the previous step and this one (NaN at step 1 and
@@ -111,7 +111,7 @@ class StepInfo:
         ``jump_size * reference``).
     log_evidence_increment_se, log_evidence_se : float
         Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
-        (:func:`~seqbayes.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
+        (:func:`~seqbayes.engine.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
     """
 
     step: int

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import seqbayes
+import seqbayes.aies
 
 emcee = pytest.importorskip("emcee")
 

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 
 from seqbayes.models import oscillator as osc
-from seqbayes.sequential import SMC, PriorDataConflictWarning
+from seqbayes import SMC, PriorDataConflictWarning
 
 
 def test_run_9_follows_the_exact_grid_filter_through_the_conflict():

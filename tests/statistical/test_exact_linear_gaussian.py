@@ -68,7 +68,7 @@ def test_static_parameters_use_the_exact_history_prior(cls):
     measures at most 0.073 sd (means), 5.5 % (stds) and 0.015 nats (evidence), so the issue's
     tolerances hold with room, and the evidence is held to 0.05 nats here (3x the largest of 20)."""
     from seqbayes import MarkovKernel, Static
-    from seqbayes.density import HistoryPrior
+    from seqbayes.predictive.history import HistoryPrior
 
     problem = LinearGaussianProblem(drift_std=0.0)
     data, _ = problem.simulate(5, rng=2024)

@@ -12,7 +12,7 @@ import pytest
 
 from seqbayes import SEMC, SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace, errors_against
-from seqbayes.nested import KalmanInnerFilter, NestedState, ParticleInnerFilter
+from seqbayes.predictive.smc2 import KalmanInnerFilter, NestedState, ParticleInnerFilter
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +116,7 @@ def test_running_statistics_give_the_same_posterior_in_one_call(cls):
 
 def test_state_arrays_round_trip_resumes_bit_for_bit(problem_and_data):
     """What the run store keeps of an SMC^2 state (arrays and the datasets) resumes the run exactly."""
-    from seqbayes.nested import nested_state_arrays, nested_state_from_arrays
+    from seqbayes.predictive.smc2 import nested_state_arrays, nested_state_from_arrays
 
     problem, data, _ = problem_and_data
 

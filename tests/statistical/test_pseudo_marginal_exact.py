@@ -15,7 +15,8 @@ its expectation), and the steps' moves must have been pseudo-marginal in at leas
 import numpy as np
 import pytest
 
-from seqbayes import SEMC, SMC, density
+from seqbayes import SEMC, SMC
+from seqbayes.predictive.pseudo_marginal import SubsampledPrior
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 
 
@@ -29,14 +30,14 @@ def model():
 @pytest.mark.parametrize("cls", [SMC, SEMC])
 def test_pseudo_marginal_runs_match_the_kalman_filter(cls, monkeypatch):
     used = []
-    original = density.SubsampledPrior.start
+    original = SubsampledPrior.start
 
     def start(self, *args, **kwargs):
         out = original(self, *args, **kwargs)
         used.append(self.n_terms is not None)
         return out
 
-    monkeypatch.setattr(density.SubsampledPrior, "start", start)
+    monkeypatch.setattr(SubsampledPrior, "start", start)
     lg = model()
     mean_err, sd_err, inc_err, z = [], [], [], []
     for seed in range(3):

@@ -46,7 +46,7 @@ def test_every_step_against_the_exact_grid_reference_and_acceptance(reduced):
     assert "against the exact grid filter" in study.format_report(ds, summary)
     # coverage of the truth is a statement about the kernel; the exact posterior's own is beside it
     assert summary.coverage >= 0.90 and summary.exact_coverage >= 0.90
-    # forecasts stay in the prior box (the model's restriction, seqbayes.sequential.forecast)
+    # forecasts stay in the prior box (the model's restriction, seqbayes.engine.forecast.forecast)
     lo, hi = study.osc.prior().support.T
     q = ds["forecast_quantile"].values
     assert np.all((q >= lo) & (q <= hi))
@@ -85,7 +85,7 @@ def test_kernel_pushing_mass_out_of_the_space_loses_evidence():
     from scipy import stats
 
     from seqbayes.kernels import Drift, MarkovKernel
-    from seqbayes.sequential import SEMC, SMC
+    from seqbayes import SEMC, SMC
 
     kernel = MarkovKernel([Drift(0.0, noise_std=1.0), Drift(-3.0, noise_std=0.5)])
     support = study.osc.prior().support

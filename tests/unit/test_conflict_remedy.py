@@ -1,4 +1,4 @@
-"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.sequential.assimilate_paths``.
+"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.paths.PathSpace``.
 
 A random walk ``theta_s = theta_{s-1} + N(0, Q^2)`` observed through ``M`` Gaussian measurements per
 dataset has the scalar Kalman filter as its exact answer. The data jump by 0.6 (12 Q) at step 4, so
@@ -13,8 +13,12 @@ import pytest
 from scipy import stats
 
 import seqbayes
-from seqbayes import sequential
-from seqbayes.sequential import SEMC, SMC, PastStep, SamplerConfig, ancestor_draws
+from seqbayes import SEMC, SMC
+from seqbayes.engine.settings import SamplerConfig
+from seqbayes.engine.likelihood import ValidatedLikelihood
+from seqbayes.engine.state import PastStep, Problem
+from seqbayes.predictive.lineage import ancestor_draws
+from seqbayes.predictive.paths import PathPrior, path_prior_logpdf
 
 Q, R, M, PRIOR_SD, JUMP = 0.05, 0.5, 25, 1.0, 0.6
 
@@ -66,8 +70,8 @@ def test_the_path_target_is_the_exact_normalised_joint():
     increments = np.diff(np.concatenate([[0.0], exact[:, 2]]))
     window = (PastStep(ys[0], PRIOR, np.zeros((1, 1)), np.zeros(1), increments[0]),
               PastStep(ys[1], None, np.zeros((1, 1)), np.zeros(1), increments[1]))
-    counter = sequential._Counter(sequential.Problem(PRIOR, kernel, loglike, np.array([[-np.inf, np.inf]])), None, 3)
-    logpdf = sequential._path_prior(window, kernel, counter, 1)
+    counter = ValidatedLikelihood.for_step(Problem(PRIOR, kernel, loglike, np.array([[-np.inf, np.inf]])), None, 3)
+    logpdf = path_prior_logpdf(window, kernel, counter, 1)
     axis = np.linspace(-2.0, 2.0, 161)
     t1, t2, t3 = np.meshgrid(axis, axis, axis, indexing="ij")
     density = np.exp(logpdf(np.column_stack([t1.ravel(), t2.ravel(), t3.ravel()]))).reshape(t1.shape)
@@ -194,7 +198,7 @@ def test_the_path_prior_draws_and_density_are_the_windows_prior_times_the_transi
     # draws is N(0, PRIOR_SD^2 + 2 q^2) (4 standard errors of the mean and of the variance, 20000 draws)
     q = 0.3
     kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=q)])
-    path_prior = sequential._PathPriorDraws(PRIOR, kernel, 3, 1)
+    path_prior = PathPrior(PRIOR, kernel, 3, 1)
     draws = path_prior.sample(20000, np.random.default_rng(0))
     assert draws.shape == (20000, 3)
     expected = (stats.norm.logpdf(draws[:, 0], 0.0, PRIOR_SD) + stats.norm.logpdf(draws[:, 1], draws[:, 0], q)

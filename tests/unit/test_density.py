@@ -5,9 +5,9 @@ import pytest
 from scipy import stats
 from scipy.integrate import trapezoid
 
-from seqbayes import density as density_module
+from seqbayes.predictive import mixture as density_module
 from seqbayes import Drift, MarkovKernel, Static
-from seqbayes.density import GaussianMixture, predictive_density, silverman_bandwidth
+from seqbayes.predictive.mixture import GaussianMixture, predictive_density, silverman_bandwidth
 
 
 def brute_force(mixture, x):

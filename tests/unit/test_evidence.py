@@ -1,36 +1,38 @@
-"""The importance-sampling evidence (seqbayes.evidence): its proposal at large N."""
+"""The importance-sampling evidence (seqbayes.engine.evidence): its proposal at large N."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from seqbayes import evidence
-from seqbayes.evidence import _proposal, _thinned, importance_step, step_standard_errors
+
+from seqbayes.engine.evidence import importance_step, pooled_start, step_standard_errors
+from seqbayes.moves import proposals
+from seqbayes.moves.proposals import defensive_parts, thinned_components
 
 
 def test_thinned_keeps_small_sets_and_selects_systematically():
     rng = np.random.default_rng(0)
     points, log_w = rng.normal(size=(50, 2)), rng.normal(size=50)
-    same_points, same_w = _thinned(points, log_w, 50)
+    same_points, same_w = thinned_components(points, log_w, 50)
     assert same_points is points and same_w is log_w  # at most n_components: untouched (bit-identical runs)
     many, many_w = rng.normal(size=(20000, 2)), rng.normal(size=20000)
-    centres, counts = _thinned(many, many_w, 1000)
+    centres, counts = thinned_components(many, many_w, 1000)
     assert centres.shape[0] <= 1000 and np.exp(counts).sum() == pytest.approx(1000)
     # the selection is a weighted sample: its mean differs from the weighted mean by ~ 1 / sqrt(K_eff);
     # log-normal weights (sd 1) keep K_eff = e^-1 1000 = 370 effective draws, sd 0.05; asserted at 4 sd
     w = np.exp(many_w - many_w.max())
     np.testing.assert_allclose(np.exp(counts) @ centres / 1000, w @ many / w.sum(), atol=0.2)
-    again = _thinned(many, many_w, 1000)  # deterministic: no random draw
+    again = thinned_components(many, many_w, 1000)  # deterministic: no random draw
     np.testing.assert_array_equal(again[0], centres)
 
 
 def test_proposal_has_at_most_the_cap_of_components(monkeypatch):
     rng = np.random.default_rng(1)
     u = rng.normal(size=(3000, 3))
-    kde, _ = _proposal(u, np.zeros(3000))
-    assert kde.centres.shape[0] == evidence.MAX_PROPOSAL_COMPONENTS == 1000
-    monkeypatch.setattr(evidence, "MAX_PROPOSAL_COMPONENTS", 10**9)
-    assert _proposal(u, np.zeros(3000))[0].centres.shape[0] == 3000
+    kde, _ = defensive_parts(u, np.zeros(3000))
+    assert kde.centres.shape[0] == proposals.MAX_PROPOSAL_COMPONENTS == 1000
+    monkeypatch.setattr(proposals, "MAX_PROPOSAL_COMPONENTS", 10**9)
+    assert defensive_parts(u, np.zeros(3000))[0].centres.shape[0] == 3000
 
 
 def test_thinned_proposal_gives_the_exact_evidence():
@@ -146,7 +148,7 @@ def _two_modes(seed):
 
 def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
     # The particles hold only mode A of _two_modes; another cloud holds only B (the path-space remedy's stored-path
-    # start, sequential.assimilate_paths). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
+    # start, seqbayes.predictive.paths.PathSpace). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
     # with the other cloud the fraction in B is 0.045 +- 0.007 (0.029-0.065) and the error of log Z
     # -0.005 +- 0.030 (ESS >= 486); without it the fraction is 0.0007 and the error's sd 0.16 (ESS down to 3).
     # Asserted: fraction in [0.02, 0.08] (4 sd), |error| < 0.15 (5 sd), and the fraction without it < 0.01
@@ -165,9 +167,9 @@ def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
 
 def test_pooled_proposal_is_the_average_of_its_parts():
     rng = np.random.default_rng(3)
-    first, second = (evidence.DefensiveProposal(rng.normal(loc, 1.0, size=(200, 2)), np.zeros(200))
+    first, second = (proposals.DefensiveProposal(rng.normal(loc, 1.0, size=(200, 2)), np.zeros(200))
                      for loc in (-3.0, 3.0))
-    pooled = evidence.PooledProposal([first, second], np.log([3.0, 1.0]))  # normalised to 0.75, 0.25
+    pooled = proposals.PooledProposal([first, second], np.log([3.0, 1.0]))  # normalised to 0.75, 0.25
     points = rng.normal(size=(50, 2)) * 4
     np.testing.assert_allclose(np.exp(pooled.logpdf(points)),
                                0.75 * np.exp(first.logpdf(points)) + 0.25 * np.exp(second.logpdf(points)), rtol=1e-10)
@@ -184,11 +186,11 @@ def test_pooled_start_gives_each_cloud_its_share_of_the_mass():
     prior, loglike, _, mode_a, mode_b, support = _two_modes(11)
     trapped = np.random.default_rng(12).normal([0.0, 2.5], 0.05, size=(1000, 2))
     rng = np.random.default_rng(13)
-    index, shares = evidence.pooled_start([(mode_a, np.zeros(1000)), (mode_b, np.zeros(1000))], prior.logpdf,
+    index, shares = pooled_start([(mode_a, np.zeros(1000)), (mode_b, np.zeros(1000))], prior.logpdf,
                                           loglike, support, rng)
     assert index.shape == (1000,) and shares.sum() == pytest.approx(1.0)
     assert 0.035 <= np.mean(index >= 1000) <= 0.065
-    index, _ = evidence.pooled_start([(trapped, np.zeros(1000)), (mode_a, np.zeros(1000))], prior.logpdf, loglike,
+    index, _ = pooled_start([(trapped, np.zeros(1000)), (mode_a, np.zeros(1000))], prior.logpdf, loglike,
                                      support, rng)
     assert np.mean(index < 1000) < 0.01
 
@@ -197,7 +199,7 @@ def test_clustered_parts_fit_one_part_per_mode():
     # a cloud with two modes 20 sds apart (weights 0.7, 0.3) is split at the gap, and each part keeps its mass
     rng = np.random.default_rng(5)
     u = np.concatenate([rng.normal(0.0, 1.0, size=(700, 3)), rng.normal(20.0, 1.0, size=(300, 3))])
-    parts, log_weights, members = evidence.clustered_parts([(u, np.zeros(1000))], rng)
+    parts, log_weights, members = proposals.clustered_parts([(u, np.zeros(1000))], rng)
     assert len(parts) == 2
     masses = sorted(np.exp(log_weights))
     np.testing.assert_allclose(masses, [0.3, 0.7])

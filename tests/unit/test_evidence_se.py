@@ -7,8 +7,9 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from seqbayes import SMC
-from seqbayes import density as density_module
-from seqbayes.density import GaussianMixture, grouped_ancestor_variance
+from seqbayes.predictive import mixture as density_module
+from seqbayes.predictive.ancestry import grouped_ancestor_variance
+from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 
 

@@ -1,11 +1,11 @@
-"""Forecasts restricted to the parameter space (issue 11, item 4): ``seqbayes.sequential.forecast``."""
+"""Forecasts restricted to the parameter space (issue 11, item 4): ``seqbayes.engine.forecast.forecast``."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
 import seqbayes
-from seqbayes.sequential import forecast
+from seqbayes.engine.forecast import forecast
 
 Q, START = 0.1, 0.9
 KERNEL = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=Q)])

@@ -7,9 +7,11 @@ import pytest
 from scipy import stats
 
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static, ZeroLikelihoodError
-from seqbayes.density import GaussianMixture, HistoryPrior
+from seqbayes.predictive.history import HistoryPrior
+from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianProblem
-from seqbayes.sequential import count_distinct, resolve_predictive
+from seqbayes.engine.stages import count_distinct
+from seqbayes.predictive.base import resolve_predictive
 
 PROBLEM = LinearGaussianProblem(drift_std=0.0)
 STATIC = MarkovKernel([Static(), Static()])

@@ -13,9 +13,9 @@ from scipy.special import logsumexp
 
 from seqbayes import SEMC, SMC, Decay, Drift, JointPrior, MarkovKernel, Static
 from seqbayes.store.config import ConfigError, parse_config
-from seqbayes.density import GaussianMixture, MixtureSum, predictive_density
+from seqbayes.predictive.mixture import GaussianMixture, MixtureSum, predictive_density
 from seqbayes.kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS, Jump, jump_posterior
-from seqbayes.sequential import resolve_predictive
+from seqbayes.predictive.base import resolve_predictive
 
 JUMP = Jump(Decay(0.02, noise_std=0.02), p=0.05, drop_mean=0.3, drop_sd=0.1, reference=3.0)
 

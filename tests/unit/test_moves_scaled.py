@@ -9,7 +9,7 @@ from scipy import stats
 import seqbayes
 from seqbayes.moves.scaled import (DifferentialMove, FittedGaussian, differential_sweep, independence_sweep,
                                    whitened_jumps)
-from seqbayes.sequential import HIGH_DIMENSION, SamplerConfig
+from seqbayes.engine.settings import HIGH_DIMENSION, SamplerConfig
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 MEAN = np.array([1.0, -2.0, 0.5])

@@ -9,10 +9,11 @@ import pytest
 from scipy import stats
 
 from seqbayes import SMC, Drift, JointPrior, MarkovKernel
-from seqbayes import density as density_module
-from seqbayes.density import GaussianMixture, SubsampledPrior
+from seqbayes.predictive import mixture as density_module
+from seqbayes.predictive.mixture import GaussianMixture
+from seqbayes.predictive.pseudo_marginal import SubsampledPrior
 from seqbayes.moves import GaussianMove, gaussian_sweep
-from seqbayes.sequential import SamplerConfig
+from seqbayes.engine.settings import SamplerConfig
 
 
 def mixture(n=3000, d=2, width=0.5, seed=0, zero_weights=True):

@@ -8,6 +8,7 @@ import pytest
 from scipy import stats
 
 import seqbayes
+import seqbayes.engine.settings
 from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static, Drift, ZeroLikelihoodError, compare
 from seqbayes.models.linear_gaussian import LinearGaussianProblem
 
@@ -308,15 +309,15 @@ def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
 
 
 def test_unreliable_importance_evidence_falls_back_to_the_path(monkeypatch):
-    import seqbayes.sequential as sequential
+    import seqbayes.engine.evidence as evidence
 
-    real = sequential.importance_step
+    real = evidence.importance_step
 
     def degenerate(*args, **kwargs):  # as when a collapsed posterior leaves q nothing to fit
         log_z, _, posterior, components, accepted = real(*args, **kwargs)
         return log_z - 20.0, 2.0, posterior, components, accepted
 
-    monkeypatch.setattr(sequential, "importance_step", degenerate)
+    monkeypatch.setattr(evidence, "importance_step", degenerate)
     sampler = make(SMC)
     with pytest.warns(RuntimeWarning, match="step 1: importance-sampling evidence unreliable"):
         info = sampler.update(DATA[0])
@@ -366,7 +367,7 @@ def test_settings_are_explicit_keyword_arguments_with_sampler_config_defaults(cl
     parameters = inspect.signature(cls).parameters
     assert not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())   # no **settings
     other = SMC_ONLY if cls is SEMC else SEMC_ONLY
-    for field in dataclasses.fields(seqbayes.SamplerConfig):
+    for field in dataclasses.fields(seqbayes.engine.settings.SamplerConfig):
         if field.name == "n_samples":
             assert parameters["n_samples"].default == field.default
             continue

@@ -134,7 +134,7 @@ def test_history_prior_run_resumes_bit_for_bit_and_replaces_last(tmp_path, sampl
     values at the particles, so a run reopened after every step is the uninterrupted run."""
     import xarray as xr
 
-    from seqbayes.density import HistoryPrior
+    from seqbayes.predictive.history import HistoryPrior
 
     cfg = config(tmp_path, sampler, static=True)
     data = datasets(4)

@@ -213,7 +213,7 @@ class LinearGaussianStateSpace:
                 - y.size * (np.log(self.noise_std) + 0.5 * np.log(2.0 * np.pi)))
 
     def observe(self, static, y):
-        """The declaration for :class:`~seqbayes.nested.KalmanInnerFilter`: ``(H, b, r, y)`` given the
+        """The declaration for :class:`~seqbayes.predictive.smc2.KalmanInnerFilter`: ``(H, b, r, y)`` given the
         static parameters ``static (K, d_s)``."""
         is_static = np.array([k == "static" for k in self.kinds])
         offset = static @ self.design[:, is_static].T
@@ -256,7 +256,7 @@ class LinearGaussianStateSpace:
         """The likelihood's additive statistics (``sum y``, ``X^T y``, the dataset count), so that the
         history prior of an all-static run evaluates every past dataset in one call
         (:class:`~seqbayes.RunningStatistics`)."""
-        from ..density import RunningStatistics
+        from ..predictive.history import RunningStatistics
 
         design, noise = self.design, self.noise_std
         gram = design.T @ design

@@ -1,4 +1,4 @@
-"""Moves that keep working as the dimension grows (issue 14): a global independence move from a
+"""Moves that keep working as the dimension grows: a global independence move from a
 Gaussian fitted to the particles, and local moves scaled as ``1 / sqrt(d)`` in the particles'
 covariance.
 
@@ -17,7 +17,7 @@ high dimension because its proposals leave the typical set along one line (Huijs
   other half and ``g = 2.38 / sqrt(2 d)`` times a factor adapted by Eq. (9): affine invariant,
   as the stretch move, but its acceptance does not decay with d;
 * :func:`whitened_jumps` measures how far the walkers went, in units of the particles'
-  covariance, for the stopping rule of :func:`seqbayes.sequential._mutate`.
+  covariance, for the stopping rule of :func:`seqbayes.moves.schedule.move_stage`.
 """
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ from .modules import (ConfigError, ModuleSource, split_likelihood, file_sha256, 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
            "load_located", "ModuleSource", "file_sha256"]
 
-#: Settings of :class:`seqbayes.SamplerConfig` that only one of the samplers takes.
+#: Settings of :class:`seqbayes.engine.settings.SamplerConfig` that only one of the samplers takes.
 SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
 SMC_ONLY = ("proposal_scale", "max_moves")
 KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",),
@@ -132,7 +132,7 @@ class RunConfig:
     n_samples : int
     seed : int
     settings : dict
-        Further sampler settings (fields of :class:`seqbayes.SamplerConfig`).
+        Further sampler settings (fields of :class:`seqbayes.engine.settings.SamplerConfig`).
     executor : {"serial", "processes", "dask"}
     workers : int
     address : str or None
@@ -210,7 +210,7 @@ class RunConfig:
         ValueError
             ``predictive = "history"`` with a kernel that is not static.
         """
-        from ..sequential import resolve_predictive
+        from ..predictive.base import resolve_predictive
 
         return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
 
@@ -233,7 +233,7 @@ class RunConfig:
         loglike : callable, optional
             Overrides the configured likelihood (e.g. a wrapper counting evaluations).
         """
-        from ..sequential import SEMC, SMC
+        from ..engine.drivers import SEMC, SMC
 
         cls = SEMC if self.sampler == "SEMC" else SMC
         loglike = self.load_likelihood() if loglike is None else loglike
@@ -332,7 +332,7 @@ def _sampler_settings(kind):
     """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
     import dataclasses
 
-    from ..sequential import SamplerConfig
+    from ..engine.settings import SamplerConfig
 
     names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
     excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
@@ -340,14 +340,14 @@ def _sampler_settings(kind):
 
 
 def _typed_setting(key, value, source):
-    """A ``[sampler]`` setting checked against the type of its :class:`~seqbayes.SamplerConfig` field.
+    """A ``[sampler]`` setting checked against the type of its :class:`~seqbayes.engine.settings.SamplerConfig` field.
 
     ``tempering = "false"`` (a string, which Python would take as true) or ``max_stages = 10.5``
     are refused rather than silently reinterpreted.
     """
     import dataclasses
 
-    from ..sequential import SamplerConfig
+    from ..engine.settings import SamplerConfig
 
     kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
@@ -492,7 +492,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     _check_keys(sampler_raw, set(allowed), source, "sampler")
     settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
     # let the core validate values, reporting the field
-    from ..sequential import SamplerConfig
+    from ..engine.settings import SamplerConfig
 
     try:
         SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
@@ -565,4 +565,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
 
     from ..kernels import MarkovKernel
     from ..priors import JointPrior
-    from ..sequential import SEMC, SMC
+    from ..engine.drivers import SEMC, SMC

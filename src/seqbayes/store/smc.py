@@ -13,7 +13,7 @@ sampler settings), a format version, a model fingerprint and a content hash of e
 assimilated dataset. A new process that opens the store and assimilates the next
 dataset gives bit-for-bit the numbers of an uninterrupted run with the same seed,
 because the sampler is rebuilt from the stored configuration and then
-:meth:`~seqbayes.sequential.SEMC.restore`-d to the stored state and generator. The
+:meth:`~seqbayes.engine.drivers.SEMC.restore`-d to the stored state and generator. The
 store does not know what the sampler's state is made of: :func:`seqbayes.store.snapshot.state_arrays`
 turns it into named arrays, which the store writes per step, and
 :func:`seqbayes.store.snapshot.state_from_arrays` turns them back.
@@ -671,4 +671,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     import arviz as az
     from numpy.typing import ArrayLike
 
-    from ..sequential import SEMC, SMC
+    from ..engine.drivers import SEMC, SMC

@@ -2,8 +2,8 @@
 
 The run store (:mod:`seqbayes.store`) keeps, per step, the arrays :func:`state_arrays`
 returns and hands them back to :func:`state_from_arrays`; it does not know what a
-:class:`~seqbayes.density.GaussianMixture`, a :class:`~seqbayes.density.MixtureSum`, a
-:class:`~seqbayes.density.HistoryPrior` or SMC^2's :class:`~seqbayes.nested.NestedState` is.
+:class:`~seqbayes.predictive.mixture.GaussianMixture`, a :class:`~seqbayes.predictive.mixture.MixtureSum`, a
+:class:`~seqbayes.predictive.history.HistoryPrior` or SMC^2's :class:`~seqbayes.predictive.smc2.NestedState` is.
 Only the step's prior density (or SMC^2's nested state) needs arrays of its own: the
 particles, weights, posterior and log-evidence of the state after a step are the
 step's :class:`~seqbayes.results.StepRecord` (:func:`check_state` verifies this identity
@@ -23,16 +23,16 @@ The kinds and their arrays (after the ``step`` dimension):
 - ``history`` (the exact history prior of static parameters): ``state_log_prior (N,)``, its
   values at the particles; resuming needs the assimilated datasets.
 - ``nested`` (SMC^2): ``nested_*``, the outer particles, inner filters and likelihood
-  estimates of :func:`~seqbayes.nested.nested_state_arrays`; resuming needs the datasets.
+  estimates of :func:`~seqbayes.predictive.smc2.nested_state_arrays`; resuming needs the datasets.
 
 Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
 the cumulative log-evidence, ``state_window ()``, the length of the conflict remedy's window of
-past steps (:class:`~seqbayes.sequential.PastStep`: rebuilt from the steps' records, datasets and
+past steps (:class:`~seqbayes.engine.state.PastStep`: rebuilt from the steps' records, datasets and
 priors, so a window needs the datasets), and ``state_paths (L, N, d)``, the particle paths the
 remedy carries forward (``L = 0`` until it first runs; ``L`` changes over the steps, so the run
 store concatenates these arrays, see :data:`RAGGED`). Stores written before them read as 0 and
 no window. ``state_lineage (N, 2)``: the labels of the last two posteriors' particles
-(:attr:`~seqbayes.sequential.SamplerState.lineage`, integers stored as floats); a store written
+(:attr:`~seqbayes.engine.state.SamplerState.lineage`, integers stored as floats); a store written
 before it reads as no lineage (every particle its own label), which changes only the standard
 errors of the log-evidence. The state's ``previous_prior`` is the prior density of the step before,
 rebuilt from that step's arrays.
@@ -42,10 +42,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..density import GaussianMixture, HistoryPrior, MixtureSum
-from ..nested import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from ..predictive.history import HistoryPrior
+from ..predictive.mixture import GaussianMixture, MixtureSum
+from ..predictive.smc2 import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
 from ..results import StepRecord
-from ..sequential import PastStep, SamplerState
+from ..engine.state import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
            "check_state", "is_state_variable", "fill_missing", "UnsupportedState"]

@@ -146,7 +146,8 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
     ``settings`` names an entry of :data:`SETTINGS` (``"paper"``: Algorithm 2 as
     printed, the study's default; ``"defaults"``: the library's defaults).
     """
-    from ..sequential import SEMC, ZeroLikelihoodError
+    from ..engine.drivers import SEMC
+    from ..engine.errors import ZeroLikelihoodError
 
     if settings not in SETTINGS:
         raise ValueError(f"settings: expected one of {sorted(SETTINGS)}, got {settings!r}")

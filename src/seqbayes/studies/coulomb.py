@@ -30,7 +30,7 @@ from ..models import coulomb as model
 
 __all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
 
-#: Settings passed to the samplers (fields of ``seqbayes.SamplerConfig``); empty: the core's
+#: Settings passed to the samplers (fields of ``seqbayes.engine.settings.SamplerConfig``); empty: the core's
 #: defaults (tempering when one stage would leave ESS < 10 %, importance-sampling evidence
 #: refitted until its ESS reaches 30 %, log/logit moves until 90 % have moved, independence
 #: sweeps). An earlier core without the refits needed ``tempering_threshold=0.5`` here: in one
@@ -39,7 +39,7 @@ __all__ = ["SAMPLER_SETTINGS", "PAPER", "PAPER_STD", "CoulombStudy", "run_study"
 #: give SMC -14.559 +- 0.023 and SEMC -14.568 +- 0.037 (exact -14.556), every SMC run's means
 #: within 0.16 posterior sd and SEMC's within 0.28.
 #:
-#: F_mu drifts and the other three are static, so the defaults run SMC^2 (:mod:`seqbayes.nested`);
+#: F_mu drifts and the other three are static, so the defaults run SMC^2 (:mod:`seqbayes.predictive.smc2`);
 #: 30 inner particles per outer particle (not the default 100) meet the exact grid reference at every
 #: step (``benchmarks/bench_coulomb_exact.py``: within 0.2 posterior sd and 15 % in every run) at a
 #: third of the cost, because the kernels' noise (0.04 N) is about one posterior sd of F_mu.

@@ -62,7 +62,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     independent sampler seed. Returns a dict of plain arrays (posterior summaries
     per step, forecast summaries, per-step diagnostics, wall time).
     """
-    from .. import sequential
+    from ..engine import errors
 
     problem = osc.make_problem(np.random.default_rng(_problem_seed(seed, run)))
     ki, si = KERNELS.index(kernel), SAMPLERS.index(sampler)
@@ -86,7 +86,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
             out["log_mass_inside"][s] = _log_mass_inside(smp.result.steps[-1], support)
         try:
             info = smp.update(dataset)
-        except sequential.ZeroLikelihoodError:
+        except errors.ZeroLikelihoodError:
             # Not one of 100 N draws of the predictive lies in the parameter space with a non-zero
             # likelihood (a drift kernel taking c below 0): zero evidence from this step on. The
             # authors' code instead clamps predictive samples at 0.001; we record the failure.
@@ -99,7 +99,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
             out[name][s] = getattr(info, name)
     forecast = None
     if not out["failed_step"]:
-        try:  # restricted to the prior box, as the model defines it (seqbayes.sequential.forecast)
+        try:  # restricted to the prior box, as the model defines it (seqbayes.engine.forecast.forecast)
             forecast = np.asarray(smp.predict(n_horizon))                   # (3, N, 2)
         except ValueError:  # no forecast path stays in the box (a drift taking c below 0): left NaN
             pass

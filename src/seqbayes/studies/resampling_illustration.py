@@ -101,7 +101,7 @@ class Illustration:
 def run(n_samples: int = 10_000, rng=0) -> Illustration:
     """Draw the prior samples, weight them, resample, and run one step of SMC and SEMC."""
     from ..kernels import MarkovKernel, Static
-    from ..sequential import SEMC, SMC
+    from ..engine.drivers import SEMC, SMC
 
     seeds = np.random.SeedSequence(as_generator(rng).integers(2**63)).spawn(3)
     gen = np.random.default_rng(seeds[0])

@@ -27,7 +27,7 @@ cross slowly. Why by hand: no library offers defensive importance sampling
 against an arbitrary vectorised prior density.
 
 Two clouds of the same posterior (the conflict remedy's bridge and stored-path
-start, :func:`seqbayes.sequential.assimilate_paths`) are pooled: :func:`clustered_parts`
+start, :func:`seqbayes.predictive.paths.PathSpace`) are pooled: :func:`clustered_parts`
 fits one defensive proposal per k-means cluster of each (SciPy's ``kmeans2``),
 :func:`pooled_start` gives each cluster its importance-sampling share of the mass,
 and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of them.
@@ -35,179 +35,21 @@ and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of th
 
 from __future__ import annotations
 
-import inspect
+import warnings
 
 import numpy as np
-from scipy import stats
-from scipy.cluster.vq import kmeans2
 
-from .density import GaussianMixture, silverman_bandwidth
-from .priors import inside_support
-from .transforms import BoxTransform
-from .moves import metropolis_accept
-from .moves.scaled import FittedGaussian
-from .resampling import resample
-from .weights import logsumexp, normalise
+from ..moves import metropolis_accept
+from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts
+from ..priors import inside_support
+from ..resampling import resample
+from ..transforms import BoxTransform
+from ..weights import logsumexp, normalise
+from .settings import ECONOMY_EVIDENCE_SE, HIGH_DIMENSION
+from .state import Cloud
 
-__all__ = ["importance_step", "pooled_start", "clustered_parts", "step_standard_errors", "DefensiveProposal",
-           "PooledProposal"]
+__all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment"]
 
-_T_DOF = 4.0
-
-#: kmeans2's keyword for the random generator: ``rng`` from SciPy 1.15, ``seed`` before (both take a Generator).
-_KMEANS_RNG = "rng" if "rng" in inspect.signature(kmeans2).parameters else "seed"
-
-#: Most kernel-density components of the proposal (see docs/core.md, "Cost per update").
-MAX_PROPOSAL_COMPONENTS = 1000
-
-
-def _thinned(points, log_weights, n_components):
-    """At most ``n_components`` weighted centres representing the weighted ``points (N, d)``.
-
-    Systematic selection with the fixed offset 1/2 (deterministic: no random draw, so the run's
-    random stream does not depend on it), duplicates merged into their counts. With at most
-    ``n_components`` points they are returned as they are.
-    """
-    if points.shape[0] <= n_components:
-        return points, log_weights
-    w = np.exp(normalise(log_weights))
-    cumulative = np.cumsum(w)
-    cumulative[-1] = 1.0
-    index = np.searchsorted(cumulative, (np.arange(n_components) + 0.5) / n_components)
-    index, counts = np.unique(index, return_counts=True)
-    return points[index], np.log(counts.astype(float))
-
-
-def _proposal(u, log_weights, n_components=None, gaussian=False):
-    """The defensive proposal's two halves, fitted to ``u (N, d)``: a kernel density of at most
-    ``n_components`` distinct particles (``O(N n_components)`` to evaluate at N draws, where the
-    kernel density of all N particles cost ``O(N^2)``) and a multivariate Student t.
-
-    ``gaussian=True`` replaces the kernel density by the Gaussian with the particles' mean and
-    covariance (the scaled moves' choice, for high dimension: there a kernel density's bandwidth
-    inflates every direction, at d = 50 by ~1.5x in variance, and its importance weights degenerate,
-    while the fitted Gaussian bounds them by twice target / Gaussian)."""
-    w = np.exp(normalise(log_weights))
-    if gaussian:
-        mean = w @ u
-        cov = ((u - mean) * w[:, None]).T @ (u - mean)
-        cov = cov + np.diag(1e-9 * np.maximum(np.diag(cov), 1e-24 * (1.0 + mean**2)))
-        t = stats.multivariate_t(loc=mean, shape=2.0 * cov * (_T_DOF - 2.0) / _T_DOF, df=_T_DOF, allow_singular=True)
-        return FittedGaussian(mean, cov), t
-    distinct, inverse = np.unique(u, axis=0, return_inverse=True)
-    inverse = np.asarray(inverse).reshape(-1)
-    summed = np.bincount(inverse, weights=w, minlength=distinct.shape[0])
-    keep = summed > 0
-    distinct, log_w = _thinned(distinct[keep], np.log(summed[keep]), n_components or MAX_PROPOSAL_COMPONENTS)
-    mean = w @ u
-    cov = ((u - mean) * w[:, None]).T @ (u - mean)
-    scale = np.maximum(np.diag(cov), 1e-24 * (1.0 + mean**2))
-    cov = cov + np.diag(1e-9 * scale)  # keep it positive definite when a dimension is collapsed
-    kde = GaussianMixture(distinct, silverman_bandwidth(distinct, log_w), log_w)
-    t = stats.multivariate_t(loc=mean, shape=2.0 * cov * (_T_DOF - 2.0) / _T_DOF, df=_T_DOF, allow_singular=True)
-    return kde, t
-
-
-class DefensiveProposal:
-    """The importance density: half the kernel density (or fitted Gaussian), half the Student t of
-    :func:`_proposal`, fitted to the weighted points ``u (N, d)`` (unconstrained coordinates).
-
-    Also the independence proposal of the economy setting's moves at d <= 10
-    (:func:`seqbayes.sequential._scaled_moves`): it follows a funnel's shape where one Gaussian cannot.
-    """
-
-    def __init__(self, u, log_weights, gaussian: bool = False):
-        self.dim = u.shape[1]
-        self.kde, self.t = _proposal(u, log_weights, gaussian=gaussian)
-
-    def logpdf(self, points) -> np.ndarray:
-        """``(n,)`` log-density at ``points (n, d)``."""
-        return np.logaddexp(np.log(0.5) + self.kde.logpdf(points), np.log(0.5) + self.t.logpdf(points))
-
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``(n, d)`` draws: a binomial split between the halves, in random order."""
-        n_kde = int(rng.binomial(n, 0.5))
-        draws = np.concatenate([self.kde.sample(n_kde, rng),
-                                np.atleast_2d(self.t.rvs(size=n - n_kde, random_state=rng)).reshape(-1, self.dim)])
-        return draws[rng.permutation(n)]  # the two halves in random order: the pairing in the sweeps is random
-
-
-class PooledProposal:
-    """A mixture of :class:`DefensiveProposal` s, each fitted to one cluster of one of several clouds of the same
-    posterior (:func:`clustered_parts`).
-
-    Two samplers of one posterior may each hold a different mode, or weigh two modes differently (on the path
-    space: the bridge from the path prior and the start from the stored paths,
-    :func:`seqbayes.sequential.assimilate_paths`). Fitted to both, the importance density covers both; its
-    independence sweeps then move particles between the modes, which no local move does, and its estimate counts
-    both modes' mass. One fit to a two-mode cloud would not do: its kernel bandwidth and its t's covariance come
-    from the spread between the modes (run 9, T3, SEMC seed 5, step 5: importance ESS 3-9 of 1000).
-
-    Parameters
-    ----------
-    parts : sequence of DefensiveProposal
-    log_weights : (K,) array
-        The parts' log-weights in the mixture (normalised here).
-    """
-
-    def __init__(self, parts, log_weights):
-        self.parts = tuple(parts)
-        self.log_weights = normalise(np.asarray(log_weights, dtype=float))
-        self.dim = self.parts[0].dim
-
-    def part_logpdfs(self, points) -> np.ndarray:
-        """``(K, n)``: each part's log-density plus its log-weight at ``points (n, d)``."""
-        return np.stack([part.logpdf(points) for part in self.parts]) + self.log_weights[:, None]
-
-    def logpdf(self, points) -> np.ndarray:
-        """``(n,)`` log-density at ``points (n, d)``."""
-        return logsumexp(self.part_logpdfs(points), axis=0)
-
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``(n, d)`` draws: a multinomial split between the parts, in random order."""
-        counts = rng.multinomial(n, np.exp(self.log_weights))
-        draws = np.concatenate([part.sample(int(m), rng) for part, m in zip(self.parts, counts) if m])
-        return draws[rng.permutation(n)]
-
-
-def clustered_parts(clouds, rng, gaussian: bool = False, n_clusters: int = 2):
-    """The parts of a :class:`PooledProposal` for weighted clouds in unconstrained coordinates.
-
-    Each cloud ``(u (M_i, d), log_weights (M_i,))`` is split into ``n_clusters`` clusters by k-means
-    (:func:`scipy.cluster.vq.kmeans2`, k-means++ start from ``rng``, in coordinates scaled by the cloud's sds);
-    a cluster with fewer than ``2 (d + 1)`` particles joins the largest. A one-mode cloud is cut in two, which
-    costs nothing but a slightly narrower fit to each half; a two-mode cloud gets one fit per mode. Each cloud
-    has the same total weight in the mixture, shared among its clusters by their weight.
-
-    Returns
-    -------
-    parts : list of DefensiveProposal
-    log_weights : (K,) array
-        The parts' log-weights in the mixture.
-    members : list of (cloud index, (M,) bool array)
-        Which particles of which cloud each part was fitted to.
-    """
-    parts, log_weights, members = [], [], []
-    for c, (u, lw) in enumerate(clouds):
-        m, d = u.shape
-        scale = np.std(u, axis=0)
-        scale[~(scale > 0)] = 1.0
-        labels = np.zeros(m, dtype=int)
-        if m >= 2 * n_clusters * (d + 1):
-            _, labels = kmeans2(u / scale, n_clusters, minit="++", **{_KMEANS_RNG: rng})
-            sizes = np.bincount(labels, minlength=n_clusters)
-            small = sizes < 2 * (d + 1)
-            labels[small[labels]] = int(np.argmax(sizes))
-        w = np.exp(normalise(lw))
-        for label in np.unique(labels):
-            member = labels == label
-            mass = w[member].sum()
-            if not mass > 0:
-                continue
-            parts.append(DefensiveProposal(u[member], lw[member], gaussian=gaussian))
-            log_weights.append(np.log(mass) - np.log(len(clouds)))
-            members.append((c, member))
-    return parts, np.array(log_weights), members
 
 
 def _target_at(draws, transform, support, loglike, prior_logpdf):
@@ -238,15 +80,14 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
 
     Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
     trapped in a minor one (on the path space: the bridge from the path prior and the start from the stored
-    paths, :func:`seqbayes.sequential.assimilate_paths`). The share of each part of the
+    paths, :func:`seqbayes.predictive.paths.PathSpace`). The share of each part of the
     :class:`PooledProposal` ``q = sum_c alpha_c q_c`` fitted to the clusters of the clouds
     (:func:`clustered_parts`) is estimated by importance sampling: N draws of ``q``, weights ``w = pi / q``,
     and part ``c``'s share is ``sum w r_c / sum w`` with ``r_c`` the draw's responsibility, ``alpha_c q_c / q``
     with the first cloud's parts' terms multiplied by ``FIRST_CLOUD_PREFERENCE``: where the clouds overlap the
     first one's particles carry the mass, and another's only where the first has none. The first cloud is the
-    one trusted within a mode (the bridge; the stored paths' start tempers one dataset and its particles sat
-    0.3-0.5 exact sds from the bridge's within the shared mode on run 9, T5, step 6, which an even split of the
-    mass between the clouds carried into the start). The particles, each weighted by its part's share times
+    one trusted within a mode (the bridge; the stored paths' start tempers one dataset only, and an even split of
+    the mass carried its offset within the shared mode into the start). The particles, each weighted by its part's share times
     its own weight within the part, are resampled (systematic) to N. The independence sweeps of
     :func:`importance_step` then correct what the shares leave off (the start is only an approximation; the
     sweeps leave the posterior invariant).
@@ -394,7 +235,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
     * a prior that is a mixture over the last posterior's N particles (Eq. A3, ``"transition"``
       or ``"kde"``) adds to the importance increment the error of that particle approximation,
       ``ancestor_variance``, the sum of two terms computed by the caller
-      (:func:`seqbayes.sequential._ancestor_terms`):
+      (:func:`seqbayes.predictive.lineage.ancestor_terms`):
 
       - the last posterior's particles: ``Z_s = sum_j W_j g_j`` (``g_j`` the evidence through
         ancestor ``j``) has relative variance ``sum_j W_j^2 (g_j / Z_s - 1)^2 = sum_j (a_j - W_j)^2``,
@@ -402,15 +243,15 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
         Ancestors that descend from one initial draw of their step (copies made by resampling) are
         not independent: their terms are summed per draw first, ``sum_e (A_e - V_e)^2`` (the
         genealogy estimator of Chan & Lai 2013 and Lee & Whiteley 2018, as Du & Guyader 2021 use it
-        for adaptive SMC with MCMC moves; :meth:`~seqbayes.density.GaussianMixture.ancestor_spread`,
-        labels in :attr:`~seqbayes.sequential.SamplerState.lineage`). With distinct labels and equal
+        for adaptive SMC with MCMC moves; :meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_spread`,
+        labels in :attr:`~seqbayes.engine.state.SamplerState.lineage`). With distinct labels and equal
         weights it is ``1 / ESS_a - 1 / N``.
       - the posterior's before, through the mixture the last step used: ``Z_s`` is the ratio of the
         two- and one-step evidence through those particles, which makes consecutive increments'
         errors negatively correlated; its term is ``sum_j (b_j - a'_j)^2``, with ``b_j`` and ``a'_j`` the
         masses that the posteriors of steps ``s`` and ``s - 1`` give to particle ``j`` of step ``s - 2``,
         computed backwards through the exact responsibilities
-        (:meth:`~seqbayes.density.GaussianMixture.backward_spread`). The lag is fixed at two steps, as in
+        (:meth:`~seqbayes.predictive.mixture.GaussianMixture.backward_spread`). The lag is fixed at two steps, as in
         the fixed-lag variance estimator of Olsson & Douc (2019), so it does not degenerate over many steps.
 
       (The carried-weights increment already contains it: each prior particle is a draw through its own
@@ -418,7 +259,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
 
     The cumulative variance adds the increment's and twice ``ancestor_covariance``, the covariance of
     this increment's error with the last one's through the particles of step ``s - 2``
-    (:meth:`~seqbayes.density.GaussianMixture.backward_spread`); without it the sum of the increments'
+    (:meth:`~seqbayes.predictive.mixture.GaussianMixture.backward_spread`); without it the sum of the increments'
     variances over-stated the cumulative one by up to 1.36x on the drifting Kalman problem (benchmarks
     "evidence se"). With the history prior (``"history"``, the exact prior ``p_0 prod_{k<s} L_k / Z_hat_{1:s-1}``)
     an importance step estimates the whole ``Z_{1:s}`` afresh (``Z_hat_{1:s-1}`` cancels), so the cumulative
@@ -487,3 +328,73 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
     else:
         return float("nan"), float("nan"), float("nan")
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
+
+
+def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
+              other=None):
+    """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
+    (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
+
+    ``other``: another :class:`Cloud` of the same target. The particles then start from the union of the two,
+    each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`), and every
+    proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
+
+    When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
+    (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
+
+    Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
+    n, step = config.n_samples, likelihood.step
+    if not use_importance:
+        return cloud, log_increment_path, float("nan"), 0
+    n_independent = 0
+    scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
+    if config.uses_scaled_moves(cloud.particles.shape[1]):
+        scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
+        if config.economy:
+            scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=config.n_independent + 2 * config.max_refits,
+                          min_fraction=config.min_evidence_ess)
+    # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
+    # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
+    if other is not None:
+        index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
+                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False))
+        labels = None
+        if cloud.labels is not None and other.labels is not None:
+            labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
+        cloud = Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
+                       np.concatenate([cloud.components, other.components])[index], labels)
+    also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
+    particles, components = cloud.particles, cloud.components
+    warm_up = 1 if config.economy else 0
+    reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
+    estimates = []
+    for attempt in range(warm_up + 1 + config.max_refits):
+        # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
+        # them and estimate again (each q is independent of its own draws, so every estimate is valid)
+        log_increment, evidence_ess, particles, components, accepted = importance_step(
+            particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
+            config.n_independent, other=also_fit,
+            **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
+        n_independent += accepted
+        if attempt >= warm_up:
+            if evidence_ess >= config.min_evidence_ess * n:
+                break
+            estimates.append((log_increment, evidence_ess))
+    else:
+        pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
+        # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
+        # not one of ESS 12
+        if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
+            log_z, fit_ess = np.array(pooled).T
+            total = float(fit_ess.sum())
+            log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
+            # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
+            evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
+    # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
+    # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
+    if not evidence_ess >= reliable or n_found < 0.1 * n:
+        warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
+                      f"{n_found} distinct restart draws); using the tempering path's estimate and the "
+                      f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
+        log_increment = log_increment_path
+    return Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent

@@ -1,6 +1,6 @@
 """SMC^2: exact on-line inference when static and drifting parameters are tracked together.
 
-The transition mixture of :mod:`seqbayes.density` carries the posterior of a static
+The transition mixture of :mod:`seqbayes.predictive.mixture` carries the posterior of a static
 parameter through a kernel density every step; over hundreds of steps that
 re-summarisation collapses the static posterior (``docs/core.md`` measures it). SMC^2
 (Chopin, Jacob and Papaspiliopoulos 2013) avoids it by never propagating a static
@@ -37,22 +37,25 @@ particle advances in one vectorised ``(N, M, d)`` call of the user's ``loglike(t
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .kernels import Decay, Drift, MarkovKernel, Static
-from .moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
-from .density import kept_copy
-from .priors import JointPrior, inside_support
-from .resampling import resample
-from .results import StepInfo, StepRecord, prior_data_conflict
-from .tempering import next_increment
-from .transforms import BoxTransform
+from ..engine.errors import ZeroLikelihoodError
+from ..engine.protocol import ParticlePredictive
+from ..engine.stages import prior_name, reweight_stage
+from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
+from ..kernels import Decay, Drift, MarkovKernel, Static
+from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..moves.schedule import stage_done
+from ..priors import JointPrior, inside_support
+from ..resampling import resample
+from ..results import prior_data_conflict
+from ..tempering import next_increment
+from ..transforms import BoxTransform
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
-           "after_joint_first_step", "assimilate_nested", "nested_state_arrays", "nested_state_from_arrays",
+           "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
            "nested_guide"]
 
 
@@ -141,7 +144,7 @@ class ParticleInnerFilter:
                             "give a seqbayes.JointPrior (independent marginals)")
 
     def fit_guide(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, log_weights: np.ndarray,
-                  cloud: dict | None, dataset: Any, counter: Any,
+                  cloud: dict | None, dataset: Any, likelihood: Any,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """The step's Gaussian guide ``(mean (d_x,), cov (d_x, d_x))``, or ``None`` (not guided, a kernel
         without noise on a drifting parameter, or too few pilot draws with a non-zero likelihood).
@@ -174,7 +177,7 @@ class ParticleInnerFilter:
             inside = inside_support(theta, support)
             loglike = np.full(n_pilot, -np.inf)
             if inside.any():
-                loglike[inside] = counter.loglike_on(theta[inside], dataset)
+                loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
             if np.count_nonzero(np.isfinite(loglike)) < 2 * split[1].size + 2:
                 return None
             base = log_predictive - log_proposal
@@ -196,7 +199,7 @@ class ParticleInnerFilter:
         return mean, cov
 
     def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, counter: Any, rng: np.random.Generator,
+                first: bool, likelihood: Any, rng: np.random.Generator,
                 guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One step of every inner filter.
 
@@ -208,7 +211,7 @@ class ParticleInnerFilter:
             ``{"x": (K, M, d_x), "log_w": (K, M)}`` after the last step (``None`` at ``first``).
         first : bool
             The first dataset: its likelihood at the outer particle itself.
-        counter : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
+        likelihood : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
             Evaluates (and counts) the user's likelihood.
         guide : tuple ``(mean, cov)`` or None
             The step's guide (:meth:`fit_guide`): half the particles are drawn from it.
@@ -225,7 +228,7 @@ class ParticleInnerFilter:
             inside = inside_support(outer, support)
             log_increment = np.full(k, -np.inf)
             if inside.any():
-                log_increment[inside] = counter.loglike_on(outer[inside], dataset)
+                log_increment[inside] = likelihood.loglike_on(outer[inside], dataset)
             return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1)), "ess": np.ones(k)}
         x, log_w = cloud["x"], cloud["log_w"]
         if x.shape[1] != m:  # one value per outer particle after the first step: M children each
@@ -249,9 +252,9 @@ class ParticleInnerFilter:
         inside = inside_support(theta, support)
         loglike = np.full(k * m, -np.inf)
         if inside.all():
-            loglike = counter.loglike_on(theta, dataset)
+            loglike = likelihood.loglike_on(theta, dataset)
         elif inside.any():
-            loglike[inside] = counter.loglike_on(theta[inside], dataset)
+            loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
         loglike = loglike.reshape(k, m) + correction
         with np.errstate(invalid="ignore"):
             joint = log_w + loglike
@@ -330,7 +333,7 @@ class KalmanInnerFilter:
         return None
 
     def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], static: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, counter: Any, rng: np.random.Generator,
+                first: bool, likelihood: Any, rng: np.random.Generator,
                 guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
         """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
         (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
@@ -363,7 +366,7 @@ class KalmanInnerFilter:
                    - np.linalg.slogdet(posterior_cov)[1])
         quadratic = np.sum(precision_noise * innovation**2, axis=1) - np.einsum("ki,ki->k", projected, correction)
         log_increment = -0.5 * (quadratic + log_det + innovation.shape[1] * np.log(2.0 * np.pi))
-        counter.n_evals += k
+        likelihood.n_evals += k
         mean, cov = mean + correction, posterior_cov
         return log_increment, {"mean": mean, "cov": cov}
 
@@ -459,14 +462,14 @@ def _outer_logpdf(prior, columns, outer) -> np.ndarray:
     return total
 
 
-def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, counter, rng):
+def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, likelihood, rng):
     """Particle-marginal MH sweeps of the static parameters at tempering exponent ``beta``.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
     the target is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets``
     (fresh randomness), which is what makes the noisy likelihood estimate an exact PMMH target.
-    Sweeps continue until ``n_moves`` are done and ``moved_fraction`` of the particles has moved,
-    up to ``max_moves`` (SMC) or ``max_virtual`` (SEMC, whose step size adapts by Eq. 9).
+    Sweeps stop by the stages' schedule (:func:`~seqbayes.moves.schedule.stage_done`), SEMC's step size
+    adapting by Eq. (9) as in its virtual iterations.
     """
     static, components = static.copy(), components.copy()
     cloud = {key: value.copy() for key, value in cloud.items()}
@@ -485,7 +488,6 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
     current = target(components, jacobian)
     start = position.copy()
     stats, n_sweeps, alpha_old = SweepStats(), 0, config.target_acceptance
-    limit = config.max_virtual if config.move == "stretch" else config.max_moves
     n = static.shape[0]
     while True:
         if config.move == "stretch":
@@ -509,7 +511,7 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
             new_cloud = _take(cloud, active)
             if inside.any():
                 rows = np.flatnonzero(inside)
-                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, counter, rng)
+                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, likelihood, rng)
                 new_components[rows] = np.column_stack([last, _outer_logpdf(problem.prior, columns, phi[rows]), past])
                 for key in new_cloud:
                     new_cloud[key][rows] = rerun[key]
@@ -531,17 +533,13 @@ def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, compon
         alpha = sweep_accepted / n
         if config.move == "stretch":
             step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-        moved_enough = (config.moved_fraction == 0
-                        or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction)
-        converged = (config.move != "stretch"
-                     or abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance)
-        if (n_sweeps >= config.n_moves and moved_enough and converged) or n_sweeps >= limit:
+        if stage_done(config, n_sweeps, position, start, alpha, alpha_old):
             break
         alpha_old = alpha
     return static, cloud, components, stats, step_size, n_sweeps
 
 
-def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
+def _run_inner(problem, inner, split, static, datasets, guides, likelihood, rng):
     """Re-run inner filters from the first dataset (with each step's guide): ``log p^(D^{1:s-1})``,
     ``log p^(D^s | D^{1:s-1})`` and the final cloud, for the outer particles ``static``."""
     past = np.zeros(static.shape[0])
@@ -549,78 +547,125 @@ def _run_inner(problem, inner, split, static, datasets, guides, counter, rng):
     for k, dataset in enumerate(datasets):
         if last is not None:
             past = past + last
-        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, counter, rng, guides[k])
+        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, likelihood, rng, guides[k])
     return past, last, cloud
 
 
-def assimilate_nested(state: NestedState, dataset: Any, problem: Problem, config: SamplerConfig, counter: Any,
-                      rng: np.random.Generator) -> tuple[NestedState, StepRecord]:
-    """Assimilate one dataset with SMC^2 (pure; ``state`` is not modified).
+@dataclass(frozen=True, eq=False)
+class OuterCloud(Cloud):
+    """The outer particles between stages (``particles`` the static parameters, ``components`` the ``(N, 3)`` of
+    :func:`_pmmh`) with their inner filters (``inner``)."""
 
-    Returns
-    -------
-    new_state : NestedState
-    record : StepRecord
-    """
-    from .sequential import ZeroLikelihoodError, _prior_name, count_distinct, reweight_stage
+    inner: dict | None = None
 
-    start = time.perf_counter()
-    step = state.step + 1
-    n = config.n_samples
-    split, inner = nested_split(problem.kernel), problem.inner_filter
-    datasets = state.datasets + (kept_copy(dataset),)
-    guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, counter, rng)
-             if step > 1 else None)
-    guides = state.guides + (guide,)
-    log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
-                                         counter, rng, guide)
-    inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
-    static, log_weights = state.outer, state.log_weights
-    components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
-    if not np.isfinite(log_increment).any():
-        raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
-                                  f"{_prior_name(step)} is too far from the data")
-    beta, log_z, temperatures = 0.0, 0.0, []
-    stats, step_size, n_sweeps, resampled = SweepStats(), state.step_size, 0, False
-    while beta < 1.0:
-        beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(log_weights, components[:, 0], beta,
-                                                                            len(temperatures), config, step)
-        log_z += stage_log_z
-        temperatures.append(beta)
-        resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
-        if resampled:  # resample-move (PMMH) only when the ESS has fallen
-            index = resample(config.resampling, weights, rng, n)
-            static, components, cloud = static[index], components[index], _take(cloud, index)
-            log_weights = np.full(n, -np.log(n))
-            static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
-                problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size,
-                counter, rng)
-            stats, n_sweeps = stats + sweep, n_sweeps + sweeps
-            if config.move == "stretch":
-                step_size = step_size_new
-    if static.shape[1] == problem.kernel.dim:  # the outer particles hold every column: replace the drifting ones
-        posterior = static.copy()
-        posterior[:, split[1]] = inner.draws(cloud, rng)
-    else:
-        posterior = _joint(static, inner.draws(cloud, rng), split, problem.kernel.dim)
-    log_evidence = float(state.log_evidence + log_z)
-    conflict = prior_data_conflict(state.prior_draws, state.log_weights, posterior, log_weights)
-    info = StepInfo(
-        step=step, log_evidence_increment=float(log_z), log_evidence=log_evidence, ess=stage_ess,
-        resampled=bool(resampled), acceptance_rate=stats.acceptance_rate,
-        step_size=float(step_size) if config.move == "stretch" else float("nan"), n_virtual=n_sweeps,
-        n_stages=len(temperatures), temperatures=tuple(temperatures), n_loglike_evals=counter.n_evals,
-        n_nan=counter.n_nan, n_distinct=count_distinct(static), n_proposed=stats.n_proposed,
-        n_accepted=stats.n_accepted, n_identical_partner=stats.n_identical_partner,
-        log_evidence_increment_path=float(log_z), evidence_ess=float("nan"), n_independent_accepted=0,
-        n_move_evaluations=stats.n_evaluations, wall_time=time.perf_counter() - start,
-        prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()), inner_ess=inner_ess)
-    predictive = problem.kernel.propagate(posterior, rng)
-    record = StepRecord(info, posterior, log_weights, predictive)
-    new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
-                            components[:, 2] + components[:, 0], datasets, log_evidence, float(step_size), posterior,
-                            predictive, guides)
-    return new_state, record
+
+@dataclass(frozen=True, eq=False)
+class OuterWeighed(Weighed):
+    """:class:`~seqbayes.engine.state.Weighed` with what SMC^2's later stages need: the datasets and guides so far
+    and the inner filters' mean ESS."""
+
+    datasets: tuple = ()
+    guides: tuple = ()
+    inner_ess: float = float("nan")
+
+
+class NestedPredictive:
+    """SMC^2 as a step's predictive (:class:`~seqbayes.engine.protocol.Predictive`): the inner filters' likelihood
+    estimates weigh the outer particles; they are resampled and moved by PMMH when the ESS has fallen; the
+    evidence increment is the tempering path's (Eq. 1)."""
+
+    def __init__(self, problem, config):
+        self.problem, self.config = problem, config
+        self.split, self.inner = nested_split(problem.kernel), problem.inner_filter
+
+    def remedy(self, state, dataset, likelihood, info):
+        return None
+
+    def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed:
+        problem, split, inner, step = self.problem, self.split, self.inner, state.step + 1
+        guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, likelihood, rng)
+                 if step > 1 else None)
+        log_increment, cloud = inner.advance(problem, split, state.outer, state.cloud or None, dataset, step == 1,
+                                             likelihood, rng, guide)
+        inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
+        components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
+        if not np.isfinite(log_increment).any():
+            raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
+                                      f"{prior_name(step)} is too far from the data")
+        return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud), None,
+                            MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
+                            datasets=state.datasets + (kept_copy(dataset),), guides=state.guides + (guide,),
+                            inner_ess=inner_ess)
+
+    def temper(self, weighed, likelihood, rng) -> Tempered:
+        """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls,
+        resample and move by PMMH (:func:`_pmmh`)."""
+        config, n = self.config, self.config.n_samples
+        static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
+        components, cloud = weighed.cloud.components, weighed.cloud.inner
+        beta, log_z, temperatures = 0.0, 0.0, []
+        stats, step_size, n_sweeps, resampled = SweepStats(), weighed.moves.step_size, 0, False
+        while beta < 1.0:
+            beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
+                log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
+            log_z += stage_log_z
+            temperatures.append(beta)
+            resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
+            if resampled:  # resample-move (PMMH) only when the ESS has fallen
+                index = resample(config.resampling, weights, rng, n)
+                static, components, cloud = static[index], components[index], _take(cloud, index)
+                log_weights = np.full(n, -np.log(n))
+                static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
+                    self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static, cloud,
+                    components, beta, step_size, likelihood, rng)
+                stats, n_sweeps = stats + sweep, n_sweeps + sweeps
+                if config.move == "stretch":
+                    step_size = step_size_new
+        return Tempered(OuterCloud(static, log_weights, components, inner=cloud), log_z, tuple(temperatures),
+                        MoveTally(stats, step_size, n_sweeps), resampled, stage_ess)
+
+    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
+        """The tempering path's estimate (Eq. 1): the likelihood estimates are unbiased, so is it."""
+        return Estimate(tempered.cloud, tempered.log_z, float("nan"), 0, False, tempered.moves)
+
+    def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
+        """One joint draw per outer particle (its drifting values from its inner filter), propagated."""
+        kernel, split, config = self.problem.kernel, self.split, self.config
+        outer = estimate.cloud
+        static, cloud, components, log_weights = outer.particles, outer.inner, outer.components, outer.log_weights
+        if static.shape[1] == kernel.dim:  # the outer particles hold every column: replace the drifting ones
+            posterior = static.copy()
+            posterior[:, split[1]] = self.inner.draws(cloud, rng)
+        else:
+            posterior = _joint(static, self.inner.draws(cloud, rng), split, kernel.dim)
+        log_evidence = float(state.log_evidence + estimate.log_increment)
+        conflict = prior_data_conflict(state.prior_draws, state.log_weights, posterior, log_weights)
+        predictive = kernel.propagate(posterior, rng)
+        step_size = estimate.moves.step_size
+        new_state = NestedState(state.step + 1, static, cloud, log_weights, components[:, 1],
+                                components[:, 2] + components[:, 0], weighed.datasets, log_evidence, float(step_size),
+                                posterior, predictive, weighed.guides)
+        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
+                      inner_ess=weighed.inner_ess)
+        return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
+                       float(step_size) if config.move == "stretch" else float("nan"), fields)
+
+
+class JointFirstStep(ParticlePredictive):
+    """SMC^2's first dataset with a particle inner filter (``joint_first_step``): with no dynamics yet, a static
+    step in every parameter, whose particles then seed the outer particles and their inner filters."""
+
+    def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
+        return None, self.problem.kernel.propagate(cloud.particles, rng), None
+
+    def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
+        outcome = super().propagate(state, weighed, tempered, estimate, dataset, likelihood, rng)
+        cloud = estimate.cloud
+        nested = after_joint_first_step(nested_split(self.problem.kernel), self.problem.inner_filter.n_inner,
+                                        cloud.particles, cloud.log_weights, cloud.components, dataset,
+                                        outcome.log_evidence, outcome.state.step_size, cloud.particles,
+                                        outcome.predictive)
+        return replace(outcome, state=nested)
 
 
 def nested_state_arrays(state: NestedState) -> dict:
@@ -666,6 +711,4 @@ import typing as _typing  # noqa: E402
 if _typing.TYPE_CHECKING:  # names used only in annotations
     from typing import Any
 
-    from .priors import JointPrior
-    from .results import StepRecord
-    from .sequential import Problem, SamplerConfig
+    from ..engine.state import Problem

@@ -34,22 +34,20 @@ through ``(m, N)`` blocks via one matrix product (never ``N x N x d``).
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 
-from .gaussian_sum import TruncatedSum
-from .priors import as_samples
-from .weights import logsumexp, normalise
+from ..gaussian_sum import TruncatedSum
+from ..kernels import jump_posterior
+from ..priors import as_samples
+from ..weights import logsumexp, normalise
+from .ancestry import AncestorSpread, grouped_sums, label_groups
 
-__all__ = ["GaussianMixture", "MixtureSum", "HistoryPrior", "RunningStatistics", "SubsampledPrior", "silverman_bandwidth",
-           "predictive_density", "grouped_ancestor_variance", "AncestorSpread", "PREDICTIVE_METHODS"]
+__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "jump_step_fields",
+           "systematic_selection"]
 
-#: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, ``"smc2"`` (nested
-#: filters, :mod:`seqbayes.nested`) for one with static and drifting components, else ``"transition"``.
-PREDICTIVE_METHODS = ("auto", "transition", "kde", "history", "smc2")
 
 #: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
 _BLOCK_FLOATS = 8_000_000
@@ -61,88 +59,6 @@ _TREE_MIN_CENTRES = 4096
 #: From this many centres on, :meth:`GaussianMixture.ancestor_ess` is estimated from this many rows
 #: (``O(rows x N)`` instead of ``O(N^2)``); below, every row is used (bit for bit as before).
 _ANCESTOR_ROWS = 512
-
-
-def _groups(labels, n):
-    """The ``(n, G)`` 0/1 membership matrix (sparse) of the ``G`` distinct ``labels (n,)`` and each column's group
-    index; ``None`` for ``labels=None`` or ``n`` distinct labels (every column its own group)."""
-    if labels is None:
-        return None
-    labels = np.asarray(labels)
-    if labels.shape != (n,) or labels.dtype.kind not in "iu" or (n and labels.min() < 0):
-        raise ValueError(f"labels: expected ({n},) non-negative integers, got shape {labels.shape}, dtype {labels.dtype}")
-    _, inverse = np.unique(labels, return_inverse=True)
-    inverse = np.asarray(inverse).reshape(-1)
-    n_groups = int(inverse.max()) + 1 if n else 0
-    if n_groups == n:
-        return None
-    return sparse.csr_matrix((np.ones(n), (np.arange(n), inverse)), shape=(n, n_groups)), inverse, n_groups
-
-
-def _grouped(values, groups):
-    """Sums of ``values`` (``(n,)`` or ``(k, n)``) over the groups of :func:`_groups` along the last axis."""
-    if groups is None:
-        return values
-    membership, inverse, n_groups = groups
-    if values.ndim == 1:
-        return np.bincount(inverse, weights=values, minlength=n_groups)
-    # dense (k, n) @ sparse (n, G): ~10x faster than (membership.T @ values.T).T, which copies the transpose
-    return np.asarray(values @ membership.astype(values.dtype, copy=False))
-
-
-def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
-    """``sum_e (A_e - V_e)^2``: the relative variance of the evidence carried by dependent ancestors.
-
-    ``A_e = sum_{j: labels_j = e} mass_j`` is the later posterior's mass on the ancestors labelled ``e``
-    and ``V_e`` their weight (both sum to one). The label of an ancestor is the index of the initial draw
-    it descends from (:attr:`~seqbayes.sequential.SamplerState.lineage`), so ancestors that resampling
-    copied from one draw form one group (Chan & Lai 2013; Lee & Whiteley 2018). With distinct labels it
-    is ``sum_j (mass_j - W_j)^2``, ``1 / ESS_a - 1 / N`` for equal weights.
-
-    Parameters
-    ----------
-    mass, weights : (N,) arrays
-    labels : (N,) int array, optional
-        Distinct if omitted.
-
-    Returns
-    -------
-    float
-
-    Examples
-    --------
-    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25)), 12)
-    0.13
-    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25), np.array([0, 0, 1, 1])), 12)
-    0.18
-    """
-    mass, weights = np.asarray(mass, dtype=float), np.asarray(weights, dtype=float)
-    groups = _groups(labels, mass.shape[0])
-    difference = _grouped(mass, groups) - _grouped(weights, groups)
-    return float(np.dot(difference, difference))
-
-
-@dataclass(frozen=True, eq=False)
-class AncestorSpread:
-    """How a later posterior spreads over a mixture's components (:meth:`GaussianMixture.ancestor_spread`).
-
-    Attributes
-    ----------
-    ess : float
-        ``1 / sum_i a_i^2``, ``a_i`` the later posterior's mass on component ``i``.
-    variance : float
-        ``sum_e (A_e - V_e)^2`` over the components' labels (:func:`grouped_ancestor_variance`).
-    mass : (N,) array or None
-        ``a`` itself, when every row was summed.
-    draws : (K,) int array or None
-        Else one component per selected row, drawn (stratified, no random draw) from its
-        responsibilities: ``a`` is their empirical distribution in expectation.
-    """
-
-    ess: float
-    variance: float
-    mass: np.ndarray | None = None
-    draws: np.ndarray | None = None
 
 
 #: Most points at which :meth:`GaussianMixture.backward_spread` sums every row of the responsibilities; beyond, it
@@ -222,7 +138,7 @@ class GaussianMixture:
         object.__setattr__(self, "_offset", (log_w - 0.5 * np.einsum("ij,ij->i", scaled, scaled)).astype(np.float32))
         object.__setattr__(self, "_const", -np.sum(np.log(bandwidth)) - 0.5 * centres.shape[1] * np.log(2.0 * np.pi))
         # centres within ~2.5 bandwidths of their mean on every axis: the truncation radius (~10 bandwidths,
-        # gaussian_sum) holds them all, so no tree can save work (measured: it only costs, bench_scale --mixture)
+        # gaussian_sum) holds them all, so no tree can save work (a tree only adds cost there)
         object.__setattr__(self, "_compact", bool(np.all(scaled.std(axis=0) < 2.5)))
 
     @property
@@ -305,7 +221,7 @@ class GaussianMixture:
         ``A_e = sum_{i: labels_i = e} a_i`` and ``V_e = sum_{i: labels_i = e} W_i`` (the components'
         weights): :func:`grouped_ancestor_variance`, the relative variance of the evidence that the
         components carry when components with one label are dependent (copies of one draw,
-        :attr:`~seqbayes.sequential.SamplerState.lineage`; :func:`~seqbayes.evidence.step_standard_errors`).
+        :attr:`~seqbayes.engine.state.SamplerState.lineage`; :func:`~seqbayes.engine.evidence.step_standard_errors`).
 
         With fewer than ``_TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
         in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with
@@ -333,9 +249,9 @@ class GaussianMixture:
         """
         theta = as_samples(theta, self.dim)
         m, n = theta.shape[0], self.centres.shape[0]
-        groups = _groups(labels, n)
+        groups = label_groups(labels, n)
         v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
-        weight = _grouped(np.exp(self.log_weights), groups)                     # V_e
+        weight = grouped_sums(np.exp(self.log_weights), groups)                     # V_e
         x = (theta - self._shift) / self.bandwidth
         if min(m, n) >= _TREE_MIN_CENTRES:
             cumulative = np.cumsum(v)
@@ -352,7 +268,7 @@ class GaussianMixture:
                 total += scaled.sum(axis=0)
                 squares += float(np.einsum("ij,ij->", scaled, scaled))
                 if groups is not None:
-                    scaled = _grouped(scaled, groups)        # R_pe: a row's responsibilities per label
+                    scaled = grouped_sums(scaled, groups)        # R_pe: a row's responsibilities per label
                     grouped_total += scaled.sum(axis=0)
                     grouped_squares += float(np.einsum("ij,ij->", scaled, scaled))
             if groups is None:
@@ -366,7 +282,7 @@ class GaussianMixture:
         for rows, _, scaled, _ in self._scaled_terms(x, np.float64):
             scaled /= scaled.sum(axis=1, keepdims=True)   # responsibilities r_ki
             mass += v[rows] @ scaled
-        difference = _grouped(mass, groups) - weight
+        difference = grouped_sums(mass, groups) - weight
         return AncestorSpread(float(1.0 / np.dot(mass, mass)), float(np.dot(difference, difference)), mass=mass)
 
     def _responsibilities(self, points, dtype=np.float64):
@@ -416,27 +332,27 @@ class GaussianMixture:
         """
         points = as_samples(points, self.dim)
         n_points = points.shape[0]
-        groups = _groups(labels, self.centres.shape[0])
+        groups = label_groups(labels, self.centres.shape[0])
         weights = np.exp(normalise(log_weights))
-        weight = _grouped(np.exp(self.log_weights), groups)                     # V_e
+        weight = grouped_sums(np.exp(self.log_weights), groups)                     # V_e
         if later.mass is not None and n_points <= _BACKWARD_ROWS:
             change = later.mass - weights                                       # c = a - W'
             u, previous = np.zeros(self.centres.shape[0]), np.zeros(self.centres.shape[0])
             for rows, r in self._responsibilities(points):
                 u += change[rows] @ r
                 previous += weights[rows] @ r                                   # a' = W' R
-            u, difference = _grouped(u, groups), _grouped(previous, groups) - weight
+            u, difference = grouped_sums(u, groups), grouped_sums(previous, groups) - weight
             return float(np.dot(u, u)), float(np.dot(difference, u))
         if later.draws is not None:
             draws = later.draws
         else:
             with np.errstate(divide="ignore"):
-                draws = _systematic_rows(np.log(later.mass), _ANCESTOR_ROWS)
+                draws = systematic_selection(np.log(later.mass), _ANCESTOR_ROWS)
         k = draws.shape[0]
-        rows = np.concatenate([draws, _systematic_rows(log_weights, k)])
+        rows = np.concatenate([draws, systematic_selection(log_weights, k)])
         selected = np.empty((2 * k, weight.shape[0]))
         for block, r in self._responsibilities(points[rows], np.float32):
-            selected[block] = _grouped(r, groups)
+            selected[block] = grouped_sums(r, groups)
         after, before = selected[:k], selected[k:]                              # rows of b = a R and of a' = W' R
         sum_after, sum_before = after.sum(axis=0), before.sum(axis=0)
         pairs = float(k * (k - 1))
@@ -634,27 +550,11 @@ class GaussianMixture:
         return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
 
 
-#: Relative variance of the subsample estimate that :class:`SubsampledPrior` aims at, at the pilot's 90th
-#: percentile (the sd of its log ~0.6 there, less in the bulk; Doucet et al. 2015 find ~1-1.7 optimal when the
-#: cost grows with M: here part of it does not, the proposal over the clusters).
-SUBSAMPLE_VARIANCE = 0.5
-#: ... and beyond which (at the particles of a later tempering stage) the step falls back to exact evaluation.
-SUBSAMPLE_MAX_VARIANCE = 2.0
-#: Fewest terms of a subsample estimate.
-_MIN_TERMS = 8
-#: Most terms, as a fraction of the centres: beyond, the exact evaluation is the cheaper (a term of the
-#: subsample costs ~20 pairs of the dense sum at N = 16,000, measured: a gather and a double-precision
-#: exponential against part of a single-precision matrix product).
-_MAX_TERM_FRACTION = 1.0 / 32.0
 #: Share of the ancestor proposal that follows the clusters' approximate contributions at theta (the rest
 #: draws clusters by their weights: a defensive mixture, so no one-term weight exceeds 10 x its W-draw's).
 _CLUSTER_SHARE = 0.9
 #: Clusters of the ancestor proposal: ``2^round(log2(_LEAVES_PER_ROOT sqrt(N)))``.
 _LEAVES_PER_ROOT = 0.5
-#: Points at which the estimate's variance is computed exactly before it is used.
-_PILOT = 128
-
-
 def _kd_leaves(points, n_leaves):
     """The leaves of a k-d tree over ``points (N, d)``: each level splits every leaf at the median of its
     widest side (all leaves of a level at once, by one sort). Returns ``order (N,)``, the points sorted
@@ -672,120 +572,11 @@ def _kd_leaves(points, n_leaves):
     return order, bounds
 
 
-def _systematic_rows(log_weights, k):
+def systematic_selection(log_weights, k):
     """``k`` row indices selected with probabilities ``exp(log_weights)`` (systematic, offset 1/2: no random draw)."""
     cumulative = np.cumsum(np.exp(normalise(log_weights)))
     cumulative[-1] = 1.0
     return np.searchsorted(cumulative, (np.arange(k) + 0.5) / k)
-
-
-class SubsampledPrior:
-    """A step's transition-mixture prior (Eq. A3) for the moves: exact, or pseudo-marginal with a subsample.
-
-    Called on ``theta (m, d)`` it returns ``log p(theta)`` (exact, :meth:`GaussianMixture.logpdf`,
-    ``O(m N)``) or, once :meth:`start` has chosen ``M = n_terms``, the log of the unbiased estimate
-    ``p_hat = (1/M) sum_m W_a T(theta | c_a) / q_a`` with ``a_1..a_M`` drawn afresh from an ancestor
-    proposal ``q(theta)`` (:meth:`GaussianMixture.subsample_logpdf`, ``O(m (K + M))``, ``K ~ sqrt(N) / 2``). The moves cache the prior value of every
-    particle (column 1 of their components) and evaluate it afresh at every proposal only, so a
-    random estimate makes them pseudo-marginal Metropolis-Hastings moves on an extended target whose
-    ``theta``-marginal is exactly ``L^beta p`` (Andrieu & Roberts 2009). That needs the cached values
-    to be draws of the extended target, which :meth:`start` provides: the step's particles are the
-    predictive draws ``theta_i ~ T(. | c_i)`` with weights ``W_i`` (:meth:`GaussianMixture.draw_one_per_component`),
-    so ``(theta_i, i)`` is a draw of ``W_j T(theta | c_j)`` and ``i`` one of the exact responsibilities
-    given ``theta_i``: ``a_1 = i`` and ``a_2..a_M ~ q(theta_i)`` is a draw of the extended target
-    ``p_hat(theta; a) prod_m q_{a_m}(theta)`` (the estimate is symmetric in the ``a_m``). The step's
-    particles must therefore be the mixture's per-component draws in their order (as
-    :func:`predictive_density` returns them and the run store keeps them); the moves must never
-    re-evaluate a current particle's prior value (only proposals). Tempering reweights
-    by ``L^delta`` alone and resampling carries the cached values, so both keep the extended target;
-    the importance-sampling evidence (:func:`~seqbayes.evidence.importance_step`) is linear in the
-    prior, stays unbiased with the estimate, and its ESS (hence the stated standard error) includes
-    the estimate's noise.
-
-    The choice between exact evaluation and ``M`` is automatic (:meth:`start`): the estimate's relative
-    variance at ``theta`` is known exactly, ``(E_q[w^2] / p^2 - 1) / M``
-    (:meth:`GaussianMixture.log_second_moment`, ``O(N)`` per point), so it is computed at a pilot of
-    ``_PILOT`` particles selected by the prior weights and as many by the weights times the likelihood
-    (where the posterior lies), and ``M`` is set for ``SUBSAMPLE_VARIANCE`` at the pilot's 90th
-    percentile; where that needs more than ``N / 32`` terms (prior-data conflict: the posterior in
-    the mixture's tail, where few components carry it) the step evaluates exactly. Before each
-    move, :meth:`refreshed` checks the current particles again and falls back to exact evaluation
-    for the rest of the step (recomputing the cached values: the particles' ``theta`` are draws of
-    the exact target, whatever ``M`` was) if the variance exceeds ``SUBSAMPLE_MAX_VARIANCE``.
-
-    Parameters
-    ----------
-    mixture : GaussianMixture
-        The step's prior, whose centre ``i`` is the ancestor of the step's particle ``i``.
-    rng : numpy.random.Generator
-        The step's generator (the draws of ``a`` interleave with the step's other draws).
-    """
-
-    def __init__(self, mixture: GaussianMixture, rng: np.random.Generator):
-        self.mixture, self.rng = mixture, rng
-        self.n_terms = None      # None: exact evaluation
-        self.fell_back = False   # a later stage's check switched the step to exact evaluation
-
-    def __call__(self, theta: np.ndarray) -> np.ndarray:
-        """``log p`` or its estimate at ``theta (m, d)``, returns ``(m,)``."""
-        if self.n_terms is None:
-            return self.mixture.logpdf(theta)
-        return self.mixture.subsample_logpdf(theta, self.n_terms, self.rng)
-
-    def _relative_variance(self, points) -> float:
-        """The 90th percentile over ``points (k, d)`` of the one-term estimate's relative variance."""
-        return float(np.quantile(np.expm1(self.mixture.log_second_moment(points)), 0.9))
-
-    def start(self, particles: np.ndarray, log_weights: np.ndarray, loglike: np.ndarray,
-              own_draws: bool = True) -> np.ndarray:
-        """Choose exact evaluation or ``M`` and return the prior values of the step's particles.
-
-        Parameters
-        ----------
-        particles : (N, d) array
-            The step's particles; with ``own_draws`` particle ``i`` is a draw of component ``i``.
-        log_weights, loglike : (N,) arrays
-            Their log-weights and log-likelihoods (``-inf`` allowed: such rows get ``-inf``).
-        own_draws : bool
-            False when the particles are not the mixture's per-component draws (a restart from
-            the restricted prior): the step then evaluates exactly.
-
-        Returns
-        -------
-        (N,) array
-        """
-        n = particles.shape[0]
-        carried = np.isfinite(loglike)
-        values = np.full(n, -np.inf)
-        self.n_terms = None
-        if own_draws and n == self.mixture.centres.shape[0] and carried.any():
-            posterior = np.where(carried, log_weights + np.where(carried, loglike, 0.0), -np.inf)
-            pilot = np.concatenate([_systematic_rows(log_weights, _PILOT), _systematic_rows(posterior, _PILOT)])
-            n_terms = max(_MIN_TERMS, int(np.ceil(self._relative_variance(particles[pilot]) / SUBSAMPLE_VARIANCE)))
-            if n_terms <= _MAX_TERM_FRACTION * n:
-                self.n_terms = n_terms
-        if self.n_terms is None:
-            values[carried] = self.mixture.logpdf(particles[carried])
-        else:
-            values[carried] = self.mixture.subsample_logpdf(particles[carried], self.n_terms, self.rng,
-                                                            first=np.flatnonzero(carried))
-        return values
-
-    def refreshed(self, particles: np.ndarray, components: np.ndarray) -> np.ndarray:
-        """Before a move: the components ``(N, k)``, with column 1 recomputed exactly (and exact evaluation
-        from then on) if the estimate's relative variance at the equally weighted ``particles (N, d)``
-        exceeds ``SUBSAMPLE_MAX_VARIANCE``; else unchanged."""
-        if self.n_terms is None:
-            return components
-        n = particles.shape[0]
-        pilot = np.linspace(0, n - 1, min(n, _PILOT)).astype(int)   # evenly spaced: no random draw
-        if self._relative_variance(particles[pilot]) / self.n_terms <= SUBSAMPLE_MAX_VARIANCE:
-            return components
-        self.n_terms, self.fell_back = None, True
-        components = components.copy()
-        alive = np.isfinite(components[:, 0])
-        components[alive, 1] = self.mixture.logpdf(particles[alive])
-        return components
 
 
 @dataclass(frozen=True, eq=False)
@@ -855,122 +646,6 @@ class MixtureSum:
         return centres[branch, rows] + rng.standard_normal(centres.shape[1:]) * widths[branch]
 
 
-def kept_copy(dataset):
-    """A copy of a dataset that the sampler keeps (callers reuse their buffers): ``ndarray.copy``, else a deep copy."""
-    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
-
-
-@dataclass(frozen=True, eq=False)
-class RunningStatistics:
-    """A likelihood whose product over datasets depends on them only through additive statistics.
-
-    With it the history prior evaluates ``prod_{k<s} L_k(theta)`` in one call whatever ``s``, so
-    an update costs the same at step 1000 as at step 10 (the re-evaluation of the past that IBIS
-    pays grows linearly with ``s`` otherwise).
-
-    Parameters
-    ----------
-    summarise : callable ``dataset -> dict[str, array]``
-        The statistics of one dataset; the statistics of several are their sums (e.g. for a
-        linear-Gaussian model ``X^T X``, ``X^T y``, ``y^T y`` and the row count).
-    loglike : callable ``(theta (N, d), statistics) -> (N,)``
-        ``sum_k log L_k(theta)`` from the summed statistics of datasets ``k``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> stats = RunningStatistics(lambda y: {"n": np.array(y.size), "sum": y.sum(), "sq": y @ y},
-    ...                           lambda theta, t: -0.5 * (t["sq"] - 2 * theta[:, 0] * t["sum"] + t["n"] * theta[:, 0] ** 2))
-    >>> total = stats.add(stats.add(None, np.array([1.0, 2.0])), np.array([3.0]))
-    >>> float(total["sum"]), int(total["n"])
-    (6.0, 3)
-    """
-
-    summarise: object
-    loglike: object
-
-    def __post_init__(self):
-        if not (callable(self.summarise) and callable(self.loglike)):
-            raise TypeError("RunningStatistics: summarise and loglike must be callables")
-
-    def add(self, summary: dict, dataset: Any) -> dict:
-        """``summary`` (``None`` for none yet) plus the statistics of ``dataset``."""
-        new = self.summarise(dataset)
-        if not isinstance(new, dict) or not new:
-            raise TypeError("history.summarise: must return a non-empty dict of arrays")
-        new = {key: np.asarray(value, dtype=float) for key, value in new.items()}
-        if summary is None:
-            return new
-        if set(summary) != set(new):
-            raise ValueError(f"history.summarise: returned keys {sorted(new)}, earlier datasets gave {sorted(summary)}")
-        return {key: summary[key] + new[key] for key in summary}
-
-
-@dataclass(frozen=True, eq=False)
-class HistoryPrior:
-    """The exact prior of step ``s`` for static parameters: ``p_0(theta) prod_{k<s} L_k(theta) / Z_{1:s-1}``.
-
-    Parameters
-    ----------
-    initial : object with ``logpdf``
-        The initial prior ``p_0``.
-    datasets : tuple
-        The datasets ``D^1 .. D^{s-1}`` already assimilated.
-    log_normaliser : float
-        ``log Z_{1:s-1}``, the running log-evidence estimate, so that the density is
-        normalised up to that estimate's error (an importance estimate of the next
-        increment then estimates the whole ``log Z_{1:s}`` afresh).
-    running : RunningStatistics, optional
-        Evaluates the past in one call from ``summary`` instead of one call per dataset.
-    summary : dict, optional
-        The summed statistics of ``datasets`` (with ``running``).
-    """
-
-    initial: object
-    datasets: tuple
-    log_normaliser: float
-    running: RunningStatistics | None = None
-    summary: dict | None = None
-
-    @classmethod
-    def start(cls, initial, running, dataset, log_normaliser) -> "HistoryPrior":
-        """The prior after the first dataset."""
-        return cls(initial, (), 0.0, running, None).extended(dataset, log_normaliser)
-
-    def extended(self, dataset, log_normaliser) -> "HistoryPrior":
-        """The prior after one more dataset (a copy is kept: callers reuse buffers)."""
-        kept = kept_copy(dataset)
-        summary = self.running.add(self.summary, kept) if self.running is not None else None
-        return HistoryPrior(self.initial, self.datasets + (kept,), float(log_normaliser), self.running, summary)
-
-    def logpdf(self, theta, loglike, summary_loglike=None) -> np.ndarray:
-        """Log density at ``theta (m, d)``; returns ``(m,)``.
-
-        Parameters
-        ----------
-        theta : (m, d) array
-        loglike : callable ``(theta (k, d), dataset) -> (k,)``
-            Used per past dataset; rows that reach ``-inf`` are not evaluated on later datasets.
-        summary_loglike : callable ``(theta (k, d), summary) -> (k,)``, optional
-            Used instead, in one call, when the prior has running statistics.
-        """
-        out = np.asarray(self.initial.logpdf(theta), dtype=float) - self.log_normaliser
-        if self.running is not None and self.summary is not None:
-            alive = np.isfinite(out)
-            if alive.any():
-                out[alive] += (summary_loglike or self.running.loglike)(theta[alive], self.summary)
-            return out
-        for dataset in self.datasets:
-            alive = np.isfinite(out)
-            if alive.all():
-                out = out + loglike(theta, dataset)
-            elif alive.any():
-                out[alive] += loglike(theta[alive], dataset)
-            else:
-                break
-        return out
-
-
 def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: MarkovKernel,
                        rng: np.random.Generator, method: str = "transition",
                        shrink_static: bool = True) -> tuple[GaussianMixture, np.ndarray]:
@@ -1001,7 +676,7 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
         samples = kernel.propagate(posterior, rng)
         return GaussianMixture(samples, silverman_bandwidth(samples, log_weights), log_weights), samples
     if method != "transition":
-        raise ValueError(f"predictive: unknown method {method!r}; choose from {PREDICTIVE_METHODS}")
+        raise ValueError(f"predictive: unknown method {method!r}; choose from ('transition', 'kde')")
     centres = kernel.nominal(posterior)
     static = kernel.static_mask
     bandwidth = kernel.noise_std.copy()
@@ -1024,10 +699,19 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
         density = GaussianMixture(centres, bandwidth, log_weights)
     return density, density.draw_one_per_component(rng)
 
+def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dict:
+    """The :class:`~seqbayes.results.StepInfo` fields of :func:`~seqbayes.kernels.jump_posterior` (``jump_probability``,
+    ``jump_parameter``, ``jump_size``, ``jump_size_sd``) when ``prior`` is the step's
+    :class:`MixtureSum` of a jump kernel; ``{}`` otherwise (step 1, no jumps)."""
+    if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
+        return {}
+    return jump_posterior(kernel, prior, posterior, log_weights).step_fields()
+
+
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
     from typing import Any
     from numpy.typing import ArrayLike
 
-    from .kernels import MarkovKernel
+    from ..kernels import MarkovKernel

@@ -1,0 +1,138 @@
+"""The user's likelihood as the engine calls it: validated, counted, on read-only views.
+
+:class:`ValidatedLikelihood` is the one wrapper: every evaluation of the engine (the step's dataset, the
+history prior's past datasets, their running statistics, the path-space remedy's window) goes through it,
+so that shapes are checked, NaN counts as zero likelihood (``-inf``, counted in ``StepInfo.n_nan``),
+``+inf`` is an error, every evaluated row is counted (``StepInfo.n_loglike_evals``) and the user's code
+sees read-only views (:func:`seqbayes.parallel.read_only`). The path-space views
+(:meth:`ValidatedLikelihood.of_last_state`, :meth:`ValidatedLikelihood.over_window`) are thin compositions
+of it on flattened paths ``(M, T d)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..parallel import evaluate_loglike, read_only
+
+__all__ = ["ValidatedLikelihood", "check_dataset"]
+
+
+def check_dataset(dataset, step: int) -> None:
+    """Raise ``ValueError`` for a missing or empty dataset of ``step``."""
+    if dataset is None:
+        raise ValueError(f"dataset: step {step} got None")
+    size = getattr(dataset, "size", None)
+    if size is not None and np.ndim(size) == 0 and size == 0:
+        raise ValueError(f"dataset: step {step} got an empty array")
+    if hasattr(dataset, "__len__") and not isinstance(dataset, (str, bytes)) and len(dataset) == 0:
+        raise ValueError(f"dataset: step {step} got an empty dataset")
+
+
+class ValidatedLikelihood:
+    """The user's ``loglike(theta (N, d), dataset) -> (N,)`` with validation and counting.
+
+    Parameters
+    ----------
+    loglike : callable ``(theta (N, d), dataset) -> (N,)``
+    dataset : object, optional
+        The step's dataset, for :meth:`loglike`.
+    step : int
+        The step, for error messages.
+    executor, n_chunks : optional
+        Parallel evaluation (:func:`seqbayes.parallel.evaluate_loglike`).
+    history : RunningStatistics, optional
+        Evaluates past datasets from their summed statistics (:meth:`summary_loglike`).
+    on_evaluated : callable ``(n_rows) -> None``, optional
+        Told the number of rows of every evaluation (a progress bar's ``update``).
+
+    Calling the object as ``(theta, dataset)`` evaluates any dataset, so it can stand in for the user's
+    function wherever one is expected.
+    """
+
+    def __init__(self, loglike, dataset=None, step: int = 0, *, executor=None, n_chunks: int | None = None,
+                 history=None, on_evaluated=None):
+        self.function, self.dataset, self.step = loglike, dataset, step
+        self.executor, self.n_chunks, self.history, self.on_evaluated = executor, n_chunks, history, on_evaluated
+        self.n_evals = 0
+        self.n_nan = 0
+
+    @classmethod
+    def for_step(cls, problem, dataset, step: int, on_evaluated=None) -> "ValidatedLikelihood":
+        """The likelihood of ``problem`` (a :class:`~seqbayes.engine.state.Problem`) for ``dataset`` at ``step``."""
+        return cls(problem.loglike, dataset, step, executor=problem.executor, n_chunks=problem.n_chunks,
+                   history=problem.history, on_evaluated=on_evaluated)
+
+    def __call__(self, theta, dataset) -> np.ndarray:
+        return self.loglike_on(theta, dataset)
+
+    def loglike(self, theta) -> np.ndarray:
+        """``log L(theta)`` of the step's dataset, ``(N, d) -> (N,)``."""
+        return self.loglike_on(theta, self.dataset)
+
+    def loglike_on(self, theta, dataset) -> np.ndarray:
+        """The log-likelihood of any dataset (past ones for :class:`~seqbayes.predictive.history.HistoryPrior`)."""
+        values = evaluate_loglike(self.function, theta, dataset, self.executor, self.n_chunks)
+        return self._checked(values, theta, "loglike")
+
+    def summary_loglike(self, theta, summary) -> np.ndarray:
+        """``log prod_k L_k(theta)`` over past datasets from their summed statistics (one call; see
+        :class:`~seqbayes.predictive.history.RunningStatistics`), counted as one evaluation per row."""
+        values = self.history.loglike(read_only(theta), read_only(summary))
+        return self._checked(np.asarray(values, dtype=float), theta, "history.loglike")
+
+    def add_along_paths(self, out, states, datasets) -> np.ndarray:
+        """Add ``sum_t log L_t(theta_t)`` (dataset ``t`` at state ``t`` of ``states (M, T, d)``) to ``out (M,)`` in
+        place, one call per dataset for the paths still finite (a path with one zero likelihood stops there);
+        returns ``out``."""
+        for t, dataset in enumerate(datasets):
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            out[alive] += self.loglike_on(states[alive, t], dataset)
+        return out
+
+    def of_last_state(self, dim: int) -> "LastStateLikelihood":
+        """This likelihood on flattened paths ``(M, T d)``, read at their last state."""
+        return LastStateLikelihood(self, dim)
+
+    def over_window(self, datasets, dim: int) -> "WindowLikelihood":
+        """``sum_t log L_t(theta_t)`` over ``datasets`` on flattened paths ``(M, T d)``, one state per dataset."""
+        return WindowLikelihood(self, tuple(datasets), dim)
+
+    def _checked(self, values, theta, name):
+        """``values (N,)`` of the user's function ``name`` at ``theta``, counted; +inf is an error, NaN -inf."""
+        if values.shape != (theta.shape[0],):
+            raise ValueError(f"{name}: returned shape {values.shape} for theta of shape {theta.shape}; "
+                             f"expected ({theta.shape[0]},)")
+        self.n_evals += theta.shape[0]
+        if self.on_evaluated is not None:
+            self.on_evaluated(theta.shape[0])
+        if (values < np.inf).all():  # the usual case: no NaN, no +inf
+            return values
+        if np.isposinf(values).any():
+            raise ValueError(f"{name}: returned +inf at step {self.step}")
+        nan = np.isnan(values)
+        self.n_nan += int(nan.sum())
+        return np.where(nan, -np.inf, values)
+
+
+class LastStateLikelihood:
+    """A :class:`ValidatedLikelihood` seen from the path space: ``loglike`` reads the last of the states."""
+
+    def __init__(self, base: ValidatedLikelihood, dim: int):
+        self.base, self.dim, self.step = base, dim, base.step
+
+    def loglike(self, walkers) -> np.ndarray:
+        return self.base.loglike(walkers[:, -self.dim:])
+
+
+class WindowLikelihood:
+    """A :class:`ValidatedLikelihood` summed over a window of datasets, state ``t`` of a path against dataset ``t``."""
+
+    def __init__(self, base: ValidatedLikelihood, datasets: tuple, dim: int):
+        self.base, self.datasets, self.dim, self.step = base, datasets, dim, base.step
+
+    def loglike(self, walkers) -> np.ndarray:
+        states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
+        return self.base.add_along_paths(np.zeros(walkers.shape[0]), states, self.datasets)

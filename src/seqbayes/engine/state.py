@@ -1,0 +1,262 @@
+"""The records of the engine: the sampler's state between datasets, the model, a step's weighted cloud
+and what its moves did, the records each stage of the pipeline hands to the next (:class:`Weighed`,
+:class:`Tempered`, :class:`Estimate`, :class:`Outcome`), and the past steps kept for the path-space remedy."""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kernels import MarkovKernel
+from ..moves import SweepStats
+from ..transforms import BoxTransform
+
+__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "MoveTally", "Weighed", "Tempered", "Estimate", "Outcome",
+           "kept_copy", "variance_before"]
+
+
+@dataclass(frozen=True, eq=False)
+class SamplerState:
+    """Everything needed to assimilate the next dataset.
+
+    Attributes
+    ----------
+    step : int
+        Datasets assimilated so far.
+    particles : (N, d) array
+        Draws of the current prior (the predictive distribution for ``s > 1``).
+    log_weights : (N,) array
+        Their normalised log-weights.
+    prior : object with ``logpdf``
+        The current prior density: the initial prior, then a :class:`~seqbayes.predictive.mixture.GaussianMixture`
+        or, for static parameters, a :class:`~seqbayes.predictive.history.HistoryPrior`.
+    log_evidence : float
+        Cumulative log-evidence.
+    step_size : float
+        Current stretch step size (SEMC).
+    posterior, posterior_log_weights : arrays or None
+        The last step's posterior (for forecasts).
+    log_prior : (N,) array or None
+        ``prior.logpdf(particles)`` when known (a :class:`~seqbayes.predictive.history.HistoryPrior` at
+        the last posterior: its target values, so the past datasets are not re-evaluated).
+    window : tuple of PastStep
+        The last ``remedy_lag`` steps (datasets, priors, posteriors) for the conflict remedy.
+    paths : (N, L, d) array or None
+        After a path-space step: the paths over the last ``L`` steps of the posterior particles
+        (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
+    log_evidence_variance : float
+        Estimated variance of ``log_evidence`` (:func:`~seqbayes.engine.evidence.step_standard_errors`).
+    lineage : (N, 2) int array or None
+        Labels of the last two posteriors' particles, for the evidence's standard error
+        (:func:`~seqbayes.engine.evidence.step_standard_errors`): column 0 of ``posterior``'s, the index of the
+        step's initial draw each particle descends from (the predictive draw, restart draw or path-space
+        walker; resampling copies it, moves keep it), column 1 the previous posterior's (the components of
+        ``previous_prior``). ``None`` (before the first step, a state from an older run store) counts every
+        particle as its own.
+    previous_prior : GaussianMixture or None
+        The mixture prior the last step used (components: the previous posterior's particles), for the
+        part of the next increment's standard error that comes from it
+        (:meth:`~seqbayes.predictive.mixture.GaussianMixture.backward_spread`); ``None`` for any other prior.
+    """
+
+    step: int
+    particles: np.ndarray
+    log_weights: np.ndarray
+    prior: object
+    log_evidence: float
+    step_size: float
+    posterior: np.ndarray | None = None
+    posterior_log_weights: np.ndarray | None = None
+    log_prior: np.ndarray | None = None
+    window: tuple = ()
+    paths: np.ndarray | None = None
+    log_evidence_variance: float = 0.0
+    lineage: np.ndarray | None = None
+    previous_prior: object = None
+
+    @property
+    def prior_draws(self) -> np.ndarray:
+        """Draws of the next step's prior: the particles themselves."""
+        return self.particles
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """The model: initial prior, Markov kernel, likelihood and parameter space."""
+
+    prior: object
+    kernel: MarkovKernel
+    loglike: object
+    support: np.ndarray
+    executor: object = None
+    n_chunks: int | None = None
+    history: object = None
+    inner_filter: object = None
+
+    def __post_init__(self):
+        bounded = bool(np.isfinite(self.support).any())  # else the move transform is the identity
+        object.__setattr__(self, "bounded", bounded)
+        object.__setattr__(self, "transform", BoxTransform(self.support) if bounded else None)
+
+
+@dataclass(frozen=True, eq=False)
+class Cloud:
+    """The weighted particles of one step between stages, with their ``(log L, log p_s)`` components and
+    their labels: the index of the step's initial draw each descends from (resampling copies it, moves keep it;
+    :attr:`SamplerState.lineage`)."""
+
+    particles: np.ndarray
+    log_weights: np.ndarray
+    components: np.ndarray
+    labels: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MoveTally:
+    """What the moves of one step did: counts, SEMC's step size, virtual iterations."""
+
+    stats: SweepStats = SweepStats()
+    step_size: float = float("nan")
+    n_virtual: int = 0
+
+    def then(self, moved, move: str) -> "MoveTally":
+        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; SEMC (``move``
+        ``"stretch"``) carries its adapted step size on."""
+        return MoveTally(self.stats + moved.stats, moved.step_size if move == "stretch" else self.step_size,
+                         self.n_virtual + moved.n_virtual)
+
+
+@dataclass(frozen=True, eq=False)
+class Weighed:
+    """Stage 1 of a step: the prior particles weighed by the likelihood.
+
+    Attributes
+    ----------
+    cloud : Cloud
+        The step's prior draws (the restricted prior's after a restart) with their components.
+    prior_logpdf : callable ``theta (M, d) -> (M,)``
+        The step's prior density as the moves and the evidence evaluate it.
+    moves : MoveTally
+        Moves made before weighing (IBIS's deferred resample-move), else none.
+    log_restricted_mass : float
+        Log of the restricted prior's mass after a restart (0 without).
+    n_found : int
+        Distinct restart draws (N without restart).
+    rejuvenated : bool
+        Whether a deferred resample-move ran.
+    """
+
+    cloud: Cloud
+    prior_logpdf: object
+    moves: MoveTally
+    log_restricted_mass: float = 0.0
+    n_found: int = 0
+    rejuvenated: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Tempered:
+    """Stages 2-4: the cloud after tempering, resampling and moving.
+
+    ``log_z`` is the tempering path's log-evidence increment (Eq. 1, with the restricted mass),
+    ``stage_ess`` the last stage's ESS before resampling.
+    """
+
+    cloud: Cloud
+    log_z: float
+    temperatures: tuple
+    moves: MoveTally
+    resampled: bool
+    stage_ess: float
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """Stage 5: the evidence increment and the cloud after the importance sweeps.
+
+    ``importance`` says whether ``log_increment`` is the importance estimate (else the path's);
+    ``moves`` include those of any second cloud the estimate pooled.
+    """
+
+    cloud: Cloud
+    log_increment: float
+    evidence_ess: float
+    n_independent: int
+    importance: bool
+    moves: MoveTally
+
+
+@dataclass(frozen=True, eq=False)
+class Outcome:
+    """Stage 6: the next state and what the step's record holds besides the stage records.
+
+    Attributes
+    ----------
+    state : SamplerState or NestedState
+    posterior : (N, d) array
+    log_weights : (N,) array
+    predictive : (N, d) array
+        The record's predictive draws.
+    distinct : (N, k) array
+        The particles whose distinct rows ``StepInfo.n_distinct`` counts.
+    log_evidence : float
+    step_size : float
+        The record's step size (SEMC's adapted one; NaN where none is adapted).
+    fields : dict
+        The optional :class:`~seqbayes.results.StepInfo` fields the predictive fills (conflict, ancestor
+        ESS, standard errors, path steps, inner ESS, jumps).
+    """
+
+    state: object
+    posterior: np.ndarray
+    log_weights: np.ndarray
+    predictive: np.ndarray
+    distinct: np.ndarray
+    log_evidence: float
+    step_size: float
+    fields: dict
+
+
+@dataclass(frozen=True, eq=False)
+class PastStep:
+    """One assimilated step, kept for the path-space target of the conflict remedy.
+
+    Attributes
+    ----------
+    dataset : object
+        The step's dataset (a kept copy).
+    prior : object with ``logpdf``
+        The prior the step used (the initial prior at step 1, else the predictive mixture).
+    posterior : (N, d) array
+    log_weights : (N,) array
+        The step's posterior particles and their normalised log-weights.
+    log_evidence_increment : float
+        ``log p(D^s | D^{1:s-1})`` as estimated at the step.
+    path_space : bool
+        Whether the step was assimilated on the path space.
+    log_evidence_variance : float
+        The cumulative log-evidence's variance before the step (``SamplerState.log_evidence_variance``);
+        a bridged step (:class:`~seqbayes.predictive.paths.PathSpace`) estimates the window's evidence afresh from it.
+    """
+
+    dataset: object
+    prior: object
+    posterior: np.ndarray
+    log_weights: np.ndarray
+    log_evidence_increment: float
+    path_space: bool = False
+    log_evidence_variance: float = 0.0
+
+
+def variance_before(state) -> float:
+    """:attr:`PastStep.log_evidence_variance` of the step after ``state``: its cumulative variance, as the square of
+    the se the last record reports, which is what a restored run rebuilds it from (:mod:`seqbayes.store.snapshot`), so that
+    resumed runs stay bit-identical."""
+    return float(np.sqrt(state.log_evidence_variance)) ** 2
+
+
+def kept_copy(dataset):
+    """A copy of a dataset that the sampler keeps (callers reuse their buffers): ``ndarray.copy``, else a deep copy."""
+    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)

@@ -1,0 +1,187 @@
+"""The moves of one tempering stage and when they stop (the schedule shared by SMC, SEMC and SMC^2's PMMH).
+
+:func:`move_stage` targets ``L^beta p_s`` with SMC's Gaussian random walk (Eq. A6-A8) or SEMC's stretch move
+with its adaptive step size and virtual iterations (Algorithm 2), or, for many parameters or with ``economy``,
+the scaled rounds of :func:`scaled_rounds` (independence sweeps from a fitted density, then a local sweep).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
+from ..priors import inside_space
+from .base import SweepStats
+from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
+from .proposals import DefensiveProposal
+from .scaled import DifferentialMove, FittedGaussian, differential_sweep, independence_sweep, whitened_jumps
+from .stretch import StretchMove, stretch_sweep
+from .tuning import next_step_size
+
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "StageMoves"]
+
+
+@dataclass(frozen=True, eq=False)
+class StageMoves:
+    """What the moves of one stage did: the particles ``walkers (N, d)`` and their ``components (N, 2)``
+    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC) and the sweeps (rounds) made."""
+
+    walkers: np.ndarray
+    components: np.ndarray
+    stats: SweepStats
+    step_size: float
+    n_virtual: int
+
+
+def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
+               alpha_old: float = float("nan")) -> bool:
+    """Whether the sweeps of one stage stop: the schedule of SMC, SEMC and SMC^2's PMMH alike.
+
+    At most ``max_moves`` (SMC) or ``max_virtual`` (SEMC) sweeps; before that, at least ``n_moves`` and until
+    ``moved_fraction`` of the particles have moved since ``start`` (every particle should have had a fair chance
+    to move, cf. PyMC's SMC), and for SEMC's stretch move until its acceptance rate ``alpha`` has settled
+    (Algorithm 2's virtual iterations: ``|alpha - alpha_old| < virtual_tolerance * alpha_tr``).
+
+    Parameters
+    ----------
+    n_sweeps : int
+        Sweeps done so far in the stage.
+    position, start : (N, d) arrays
+        The particles now and at the stage's start (in the moves' coordinates).
+    """
+    stretch = config.move == "stretch"
+    if n_sweeps >= (config.max_virtual if stretch else config.max_moves):
+        return True
+    if stretch and not abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance:
+        return False
+    if n_sweeps < config.n_moves:
+        return False
+    return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
+
+
+def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike):
+    """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
+
+    With ``config.transform`` the move works in unconstrained coordinates
+    (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
+    target component); walkers that do not move keep their exact coordinates.
+    Returns a :class:`StageMoves`.
+    """
+    transform = problem.transform if config.transform else None
+    if transform is None:
+        position, support = walkers, problem.support if problem.bounded else None
+        coefficients = np.array([beta, 1.0])
+
+        def component_fn(points):
+            return np.column_stack([loglike(points), prior_logpdf(points)])
+    else:
+        position, support = transform.forward(walkers), None
+        components = np.column_stack([components, transform.log_jacobian(position)])
+        coefficients = np.array([beta, 1.0, 1.0])
+
+        def component_fn(points):
+            theta = transform.inverse(points)
+            inside = inside_space(theta, problem.support)  # round-off can land on a bound
+            out = np.full((points.shape[0], 3), -np.inf)
+            out[inside] = np.column_stack([loglike(theta[inside]), prior_logpdf(theta[inside]),
+                                           transform.log_jacobian(points[inside])])
+            return out
+
+    start = position
+    if config.uses_scaled_moves(walkers.shape[1]):
+        position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
+                                                               coefficients, support, rng)
+        step_size = state_step_size if config.move == "stretch" else float("nan")
+    elif config.move == "gaussian":
+        stats = SweepStats()
+        n_done = 0
+        while True:
+            move = GaussianMove(weighted_covariance(position), config.proposal_scale)
+            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, move,
+                                                         rng, support)
+            stats = stats + sweep
+            n_done += 1
+            if stage_done(config, n_done, position, start):
+                break
+        step_size, n_virtual = float("nan"), 0
+    else:  # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
+        step_size = state_step_size
+        alpha_old = config.target_acceptance
+        stats = SweepStats()
+        n_virtual = 0
+        while True:
+            position, components, sweep = stretch_sweep(position, components, component_fn, coefficients,
+                                                        StretchMove(step_size), rng, support)
+            n_virtual += 1
+            stats = stats + sweep
+            alpha = sweep.acceptance_rate
+            step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
+            if stage_done(config, n_virtual, position, start, alpha, alpha_old):
+                break
+            alpha_old = alpha
+    if transform is not None:
+        moved = np.any(position != start, axis=1)
+        walkers = walkers.copy()
+        walkers[moved] = transform.inverse(position[moved])
+        components = components[:, :2]
+    else:
+        walkers = position
+    return StageMoves(walkers, components, stats, step_size, n_virtual)
+
+
+def scaled_rounds(config, position, components, component_fn, coefficients, support, rng):
+    """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
+
+    Parameters
+    ----------
+    position : (N, d) array
+        The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
+        ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
+
+    Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
+    stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it), then a local sweep: SMC's random walk with
+    ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
+    factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
+    the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
+    (``ECONOMY_JUMP_TARGET`` with ``economy``) and ``moved_fraction`` of them have moved
+    (``ECONOMY_MOVED_FRACTION`` at most, with ``economy``), after at least ``n_moves`` rounds (1 with
+    ``economy``) and at most ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
+
+    Returns
+    -------
+    position, components : arrays after the moves
+    stats : SweepStats
+        Of every sweep (independence and local).
+    n_rounds : int
+    """
+    n, d = position.shape
+    fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
+    # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel
+    globally = fitted if d > HIGH_DIMENSION else DefensiveProposal(position, np.zeros(n))
+    target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
+    min_rounds = 1 if config.economy else config.n_moves
+    max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
+    moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
+    scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
+    while n_rounds < max_rounds:
+        before = position
+        position, components, sweep = independence_sweep(position, components, component_fn, coefficients,
+                                                         globally, rng, support)
+        stats = stats + sweep
+        if config.move == "gaussian":
+            local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
+            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
+                                                         rng, support)
+        else:
+            position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
+                                                             DifferentialMove(scale), rng, support)
+        scale = float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))  # Eq. (9)
+        stats = stats + sweep
+        travelled += whitened_jumps(before, position, fitted)
+        n_rounds += 1
+        if n_rounds >= min_rounds and travelled.mean() >= target and np.mean(travelled > 0) >= moved_fraction:
+            break
+    return position, components, stats, n_rounds

@@ -1,0 +1,107 @@
+"""Ancestry of a step's posterior among the last posterior's particles: the exact transition's
+responsibilities, the particles' labels (:attr:`~seqbayes.engine.state.SamplerState.lineage`) and the
+parts of the evidence's standard error that come from them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .ancestry import AncestorSpread, grouped_ancestor_variance
+from .mixture import GaussianMixture
+
+__all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "lineage_after", "posterior_labels"]
+
+
+def lineage_after(state, labels) -> np.ndarray:
+    """``(N, 2)`` :attr:`SamplerState.lineage` after a step whose posterior particles descend from the
+    initial draws ``labels (N,)``: those, and the labels of the last posterior (distinct without lineage)."""
+    labels = np.asarray(labels, dtype=np.intp)
+    previous = posterior_labels(state)
+    return np.column_stack([labels, np.arange(labels.shape[0]) if previous is None else previous])
+
+
+def posterior_labels(state, column=0):
+    """Column ``column`` of ``state``'s lineage (0: the last posterior's labels, 1: the one's before), or
+    ``None`` (every particle its own) without lineage of the posterior's size."""
+    if state.lineage is None or state.posterior is None or state.lineage.shape[0] != state.posterior.shape[0]:
+        return None
+    return state.lineage[:, column]
+
+
+def mass_spread(state, mass) -> AncestorSpread:
+    """The :class:`~seqbayes.predictive.ancestry.AncestorSpread` of the last posterior's particles from the mass ``a (N,)``
+    that this step's posterior gives them (the exact transition's responsibilities, :func:`ancestor_mass`)."""
+    return AncestorSpread(float(1.0 / np.dot(mass, mass)),
+                          grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights), posterior_labels(state)),
+                          mass=mass)
+
+
+def ancestor_terms(state, spread):
+    """``(variance, covariance)`` of the step's increment error from the ancestors of :func:`step_standard_errors`:
+    the last posterior's (``spread``, an :class:`~seqbayes.predictive.ancestry.AncestorSpread` or None) and, through the
+    mixture the last step used, the posterior's before (:meth:`GaussianMixture.backward_spread`)."""
+    if spread is None:
+        return float("nan"), 0.0
+    variance, covariance = spread.variance, 0.0
+    if isinstance(state.previous_prior, GaussianMixture) and state.posterior is not None:
+        backward, covariance = state.previous_prior.backward_spread(state.posterior, state.posterior_log_weights,
+                                                                    spread, posterior_labels(state, 1))
+        variance += backward
+    return variance, covariance
+
+
+#: Most (query, ancestor) pairs of the transition density evaluated at once.
+_PAIR_BLOCK = 250_000
+
+
+def ancestor_draws(kernel, later, earlier, earlier_log_weights, rng=None, later_log_weights=None):
+    """Ancestors of ``later`` among the weighted particles ``earlier`` under the exact transition.
+
+    With ``p(theta) = sum_j W_j T(theta | earlier_j)`` (Eq. A3 with the kernel's own density), the
+    ancestor of a point ``theta_i`` is ``j`` with probability ``r_ij = W_j T(theta_i | earlier_j) / p(theta_i)``.
+    Evaluated in blocks of rows (memory ``O(block x M)``), sampled by the Gumbel-max trick.
+
+    Parameters
+    ----------
+    kernel : MarkovKernel
+        Its ``logpdf(new, old)`` is the transition density.
+    later : (N, d) array
+    earlier : (M, d) array
+    earlier_log_weights : (M,) array
+        Normalised log-weights ``log W_j``.
+    rng : numpy.random.Generator, optional
+        When given, one ancestor index per row of ``later`` is drawn.
+    later_log_weights : (N,) array, optional
+        When given, the ancestor ESS ``1 / sum_j a_j^2`` with ``a_j = sum_i v_i r_ij`` is returned:
+        how many of the earlier particles carry the later (posterior) distribution.
+
+    Returns
+    -------
+    index : (N,) int array or None
+    ancestor_ess : float
+        NaN without ``later_log_weights``.
+    """
+    index, mass = ancestor_mass(kernel, later, earlier, earlier_log_weights, rng, later_log_weights)
+    return index, (float(1.0 / np.dot(mass, mass)) if mass is not None else float("nan"))
+
+
+def ancestor_mass(kernel, later, earlier, earlier_log_weights, rng=None, later_log_weights=None):
+    """:func:`ancestor_draws` with the mass ``a (M,)`` (None without ``later_log_weights``) in place of its ESS."""
+    n, m = later.shape[0], earlier.shape[0]
+    block = max(1, _PAIR_BLOCK // m)
+    index = np.empty(n, dtype=np.intp) if rng is not None else None
+    mass = np.zeros(m) if later_log_weights is not None else None
+    for start in range(0, n, block):
+        rows = later[start:start + block]
+        b = rows.shape[0]
+        log_r = kernel.logpdf(np.repeat(rows, m, axis=0), np.tile(earlier, (b, 1))).reshape(b, m)
+        log_r += earlier_log_weights[None, :]
+        peak = np.max(log_r, axis=1, keepdims=True)
+        peak[~np.isfinite(peak)] = 0.0
+        if rng is not None:
+            index[start:start + b] = np.argmax(log_r + rng.gumbel(size=(b, m)), axis=1)
+        if mass is not None:
+            r = np.exp(log_r - peak)
+            r /= np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
+            mass += np.exp(later_log_weights[start:start + b]) @ r
+    return index, mass

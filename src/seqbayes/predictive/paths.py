@@ -1,0 +1,336 @@
+"""The path-space remedy for prior-data conflict: a step assimilated on the joint posterior of the last
+``L`` states, whose target is the model's exact one (:class:`PathSpace`; docs/prior_data_conflict.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
+from ..engine.evidence import estimate_increment, step_standard_errors
+from ..engine.stages import ExactPrior, restricted_draws, step_conflict, temper_resample_move
+from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
+                            kept_copy, variance_before)
+from ..kernels import MarkovKernel
+from ..priors import as_samples, inside_space
+from ..weights import logsumexp
+from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
+from .mixture import GaussianMixture, jump_step_fields
+
+__all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
+
+
+def remedy_applies(config, method, kernel) -> bool:
+    """The path-space remedy needs a transition density in every parameter (no static ones)."""
+    return config.conflict_remedy and method in ("transition", "kde") and not kernel.static_mask.any()
+
+
+def _start_paths(state, kernel, length, rng):
+    """``(N, length, d)`` paths over the window's steps ending at the posterior particles: the last
+    path-space step's paths where kept, extended backwards by drawing ancestors (backward simulation
+    with the exact transition) among the window's stored posteriors."""
+    window = state.window[-length:]
+    n, d = state.posterior.shape
+    paths = np.empty((n, length, d))
+    known = 0 if state.paths is None else min(length, state.paths.shape[1])
+    if known:
+        paths[:, length - known:] = state.paths[:, -known:]
+    else:
+        paths[:, -1] = state.posterior
+        known = 1
+    for t in range(length - known - 1, -1, -1):
+        index, _ = ancestor_draws(kernel, paths[:, t + 1], window[t].posterior, window[t].log_weights, rng)
+        paths[:, t] = window[t].posterior[index]
+    return paths
+
+
+@dataclass(frozen=True, eq=False)
+class _PathPredictive:
+    """Draws of ``(theta_{w:s-1}, theta_s)``: a weighted path, extended by the kernel (for restarts)."""
+
+    paths: np.ndarray
+    log_weights: np.ndarray
+    kernel: MarkovKernel
+    dim: int
+
+    def sample(self, n, rng):
+        index = rng.choice(self.paths.shape[0], size=int(n), p=np.exp(self.log_weights - logsumexp(self.log_weights)))
+        last = self.paths[index, -self.dim:]
+        return np.concatenate([self.paths[index], self.kernel.propagate(last, rng)], axis=1)
+
+
+def _add_transitions(out, states, kernel):
+    """Add ``sum_{t>=1} log T(theta_t | theta_{t-1})`` along paths ``states (M, T, d)`` to ``out (M,)`` in place,
+    for the paths still finite (the rest stay -inf); returns ``out``."""
+    for t in range(1, states.shape[1]):
+        alive = np.isfinite(out)
+        if not alive.any():
+            break
+        out[alive] += kernel.logpdf(states[alive, t], states[alive, t - 1])
+    return out
+
+
+def path_prior_logpdf(window, kernel, likelihood, dim):
+    """``log p(theta_{w:s-1} | D^{w:s-1}) + log T(theta_s | theta_{s-1})`` for flattened paths ``(M, L d)``.
+
+    The window's first state has the prior its step used (exact from step 1 on), every later one
+    the exact transition, every past state its dataset's likelihood; the log of the window's evidence
+    ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior)."""
+    normaliser = sum(past.log_evidence_increment for past in window)
+
+    def logpdf(walkers):
+        states = walkers.reshape(walkers.shape[0], -1, dim)
+        out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
+        _add_transitions(out, states, kernel)  # transitions into steps w+1..s
+        return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'
+
+    return logpdf
+
+
+@dataclass(frozen=True, eq=False)
+class PathPrior:
+    """The window's path prior ``p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1})`` on flattened paths
+    ``(M, (L + 1) d)``: draws (``theta_w`` from ``first``, the rest forward through the kernel) and log-density."""
+
+    first: object
+    kernel: MarkovKernel
+    n_states: int
+    dim: int
+
+    def sample(self, n, rng):
+        states = [as_samples(self.first.sample(int(n), rng), self.dim, "prior.sample(n, rng)")]
+        for _ in range(1, self.n_states):
+            states.append(self.kernel.propagate(states[-1], rng))
+        return np.concatenate(states, axis=1)
+
+    def logpdf(self, walkers):
+        states = walkers.reshape(walkers.shape[0], self.n_states, self.dim)  # explicit: no draw may be inside
+        return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
+
+
+def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
+    """``(increment_se, cumulative_se, cumulative_variance)`` of a bridged step (:func:`_bridge_from_path_prior`).
+
+    Its cumulative log-evidence is ``log Z_hat_{1:w-1} + log Z_hat_{w:s}``: the window's evidence is estimated
+    afresh (the importance estimate on the path space, variance ``1 / ESS - 1 / N``) from the window's first
+    prior ``p_w``, so the cumulative variance continues from the one before step ``w``, not from step ``s - 1``'s
+    (the stored increments of the window cancel). ``p_w`` is the initial prior when the window reaches step 1,
+    else the mixture over step ``w - 1``'s particles, whose error is the spread of the paths' first states over
+    its components (:meth:`GaussianMixture.ancestor_spread`, each particle its own label). The increment,
+    ``log Z_hat_{w:s}`` minus the window's stored increments, adds their accumulated variance (the ordinary
+    step's formula, with the conflict's ancestor ESS of a few particles, overstates it many times)."""
+    variance = 1.0 / evidence_ess - 1.0 / n if np.isfinite(evidence_ess) and evidence_ess > 0 else float("nan")
+    first = window[0]
+    if isinstance(first.prior, GaussianMixture):
+        variance += first.prior.ancestor_spread(cloud.particles[:, :d], cloud.log_weights, None).variance
+    cumulative = first.log_evidence_variance + variance
+    increment = variance + max(state.log_evidence_variance - first.log_evidence_variance, 0.0)
+    return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
+
+
+class PathSpace:
+    """The exact remedy for prior-data conflict: the step assimilated on the path space (a predictive of
+    :class:`~seqbayes.engine.protocol.Predictive`, for one step).
+
+    The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
+    posterior's particles are: a posterior that lies several predictive sds out is made of that
+    posterior's far tail, which N particles do not hold (docs/prior_data_conflict.md measures it).
+    Here the target is the joint posterior of the last ``L`` states (Eq. A2-A3 unrolled),
+
+        p(theta_{w:s} | D^{1:s}) prop. to p_w(theta_w) prod_{t=w}^{s} L_t(theta_t) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}),
+
+    whose marginal in ``theta_s`` is the model's exact posterior (``p_w`` is the initial prior when
+    the window reaches step 1). With ``bridge`` (``SamplerConfig.remedy_bridge``, the default) the
+    particles are drawn from the path prior ``p_w prod T`` and every likelihood of the window is
+    tempered jointly (:meth:`_bridge_weigh`), so that every mode of the path posterior is weighed afresh;
+    the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, and the two
+    clouds are pooled, each cluster given its importance-sampling share of the mass, before the importance
+    sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
+    (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
+    (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
+    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
+    by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
+    the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
+    the window. The record has ``StepInfo.path_steps = L``.
+
+    Parameters
+    ----------
+    state : SamplerState
+        The state before the step (with its window of past steps).
+    dataset : object
+    mixture : ParticlePredictive
+        The step's ordinary predictive (:class:`~seqbayes.predictive.transition.TransitionMixture`): it builds
+        the next prior from the path posterior's last states.
+    likelihood : ValidatedLikelihood
+    bridge : bool
+    """
+
+    def __init__(self, state, dataset, mixture, likelihood, bridge: bool):
+        problem, config = mixture.problem, mixture.config
+        self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
+        kernel, d = problem.kernel, problem.kernel.dim
+        self.length = length = min(len(state.window), config.remedy_lag - 1)
+        self.window = state.window[-length:]
+        self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
+                                    problem.executor, problem.n_chunks)
+        self.path_likelihood = likelihood.of_last_state(d)
+        self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
+        # L + 1 times as many dimensions: the random walk's scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
+        # 1997) and a path decorrelates in O(dim) moves; the stretch move and the bridge's first stages need twice
+        # as many as SMC's random walk on stored paths (docs/prior_data_conflict.md, "Moves on the path space")
+        per_state = 4 if config.move == "stretch" or bridge else 2
+        # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
+        self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
+        self.path_config = replace(self.config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
+                                   n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
+                                                                   per_state * (length + 1))))
+
+    def remedy(self, state, dataset, likelihood, info):
+        return None
+
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+        moves = MoveTally(step_size=state.step_size)
+        return self._bridge_weigh(likelihood, moves, rng) if self.bridge else self._stored_weigh(moves, rng)
+
+    def temper(self, weighed, likelihood, rng) -> Tempered:
+        return self._bridge_temper(weighed, likelihood, rng) if self.bridge else self._stored_temper(weighed, rng)
+
+    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
+        other, moves = None, tempered.moves
+        if self.bridge:
+            # a second cloud of the same target, pooled with the bridge's: the stored paths hold the modes the
+            # previous particles held, which the bridge's tempering can lose; where they cannot carry the step,
+            # a second bridge, as a bridge's tempering can also end trapped in a minor mode
+            try:
+                second = self._stored_temper(self._stored_weigh(moves, rng), rng)
+            except (ZeroLikelihoodError, TemperingLimitError):
+                second = self._bridge_temper(self._bridge_weigh(likelihood, moves, rng), likelihood, rng)
+            other, moves = second.cloud, second.moves
+        # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
+        # path's earlier states
+        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)))
+        importance = self.config.evidence == "importance"
+        cloud, log_increment, evidence_ess, n_independent = estimate_increment(
+            tempered.cloud, tempered.log_z, weighed.n_found, self.path_problem, config, self.path_likelihood,
+            self.prior_logpdf, importance, rng, other)
+        return Estimate(cloud, log_increment, evidence_ess, n_independent,
+                        importance and log_increment != tempered.log_z, moves)
+
+    def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
+        config, kernel, d, n = self.config, self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
+        cloud, log_increment = estimate.cloud, estimate.log_increment
+        log_evidence = float(state.log_evidence + log_increment)
+        posterior = cloud.particles[:, -d:]
+        marginal = Cloud(posterior, cloud.log_weights, cloud.components)
+        density, predictive, _ = self.mixture.next_prior(state, marginal, dataset, log_increment, log_evidence, rng)
+        conflict = step_conflict(state.particles, state.log_weights, posterior, cloud.log_weights,
+                                 self.problem.support)
+        _, mass = ancestor_mass(kernel, posterior, state.posterior, state.posterior_log_weights,
+                                later_log_weights=cloud.log_weights)
+        spread = mass_spread(state, mass)
+        if self.bridge:
+            increment_se, evidence_se, evidence_variance = _bridged_standard_errors(
+                state, self.window, cloud, n, estimate.evidence_ess if estimate.importance else float("nan"), d)
+        else:
+            ancestor_variance, covariance = ancestor_terms(state, spread)
+            increment_se, evidence_se, evidence_variance = step_standard_errors(
+                state.log_evidence_variance, n, estimate.importance, estimate.evidence_ess,
+                np.exp(weighed.cloud.log_weights), cloud.log_weights, len(tempered.temperatures), tempered.resampled,
+                ancestor_variance, self.mixture.method, covariance)
+        moves = estimate.moves
+        past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True,
+                        variance_before(state))
+        keep = config.remedy_lag - 1
+        new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
+                                 prior=density, log_evidence=log_evidence,
+                                 step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                                 posterior=posterior, posterior_log_weights=cloud.log_weights,
+                                 window=(state.window + (past,))[-keep:],
+                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -keep:],
+                                 log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
+                                 previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
+        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
+                      ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
+                      log_evidence_se=evidence_se, **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
+        step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
+        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
+
+    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed:
+        """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the
+        kernel), restricted to the parameter space by rejection, whose acceptance fraction enters the evidence as
+        in :func:`~seqbayes.engine.stages.restricted_draws`, weighed by every likelihood of the window.
+
+        The path-space target (``w`` the window's first step, ``s`` this one),
+
+            pi(theta_{w:s}) = p_w(theta_w) prod_{t=w+1}^{s} T(theta_t | theta_{t-1}) prod_{t=w}^{s} L_t(theta_t) / Z_{w:s},
+            Z_{w:s} = p(D^{w:s} | D^{1:w-1}) = prod_{t=w}^{s} Z_t,
+
+        is bridged from ``pi_0`` through ``pi_beta prop. to pi_0 [prod_{t=w}^{s} L_t(theta_t)]^beta`` by
+        :meth:`_bridge_temper`. Every choice of which dataset a path gives up is weighed afresh, not inherited
+        from the previous steps' particles, so a mode of ``pi`` whose earlier states the earlier data had ruled
+        out given the stored paths is reached.
+        """
+        kernel, d, n = self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
+        path_prior = PathPrior(self.window[0].prior, kernel, len(self.window) + 1, d)
+        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
+            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood)
+        components = np.column_stack([loglike, path_prior.logpdf(walkers)])
+        cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
+        return Weighed(cloud, ExactPrior(path_prior.logpdf), moves, log_restricted_mass, n_found)
+
+    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered:
+        """The bridge's stages (Eq. A5, the moves on the whole path). The stages' product of mean weights
+        (Eq. 1) estimates ``log Z_{w:s} = log m + sum_k log mean_i w_i^(k)``; the step's increment is that
+        minus the window's stored increments ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of
+        :func:`path_prior_logpdf`), so the cumulative evidence becomes the window's own estimate. The
+        components return to those of the stored paths' start, ``(log L_s, log pi_0 + sum_{t<s} log L_t -
+        sum_{t=w}^{s-1} log Z_t)``, for the importance estimate."""
+        d = self.problem.kernel.dim
+        # every stage keeps tempering_ess of the ESS: the tempering_threshold shortcut to beta = 1 lets a cloud
+        # gathered in a narrow minor mode of an early stage finish there
+        config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
+        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+        cloud = tempered.cloud
+        last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
+        normaliser = sum(past.log_evidence_increment for past in self.window)
+        cloud = Cloud(cloud.particles, cloud.log_weights,
+                      np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
+                      cloud.labels)
+        return replace(tempered, cloud=cloud, log_z=tempered.log_z + weighed.log_restricted_mass - normaliser)
+
+    def _stored_weigh(self, moves, rng) -> Weighed:
+        """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
+        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.engine.stages.weigh`, a
+        restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
+        Components ``(log L_s, log path prior)``."""
+        state, kernel, config = self.state, self.problem.kernel, self.config
+        d, n, support = kernel.dim, config.n_samples, self.path_problem.support
+        paths = _start_paths(state, kernel, self.length, rng)
+        walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
+            paths.shape[0], -1)
+        log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
+        loglike = np.full(n, -np.inf)
+        inside = inside_space(walkers, support)
+        loglike[inside] = self.path_likelihood.loglike(walkers[inside])
+        valid = np.isfinite(loglike)
+        if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+            extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
+            walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
+                extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            log_weights = np.full(n, -np.log(n))
+        components = np.column_stack([loglike, np.full(n, -np.inf)])
+        carried = np.isfinite(loglike)
+        components[carried, 1] = self.prior_logpdf(walkers[carried])
+        return Weighed(Cloud(walkers, log_weights, components, labels), self.prior_logpdf, moves,
+                       log_restricted_mass, n_found)
+
+    def _stored_temper(self, weighed, rng) -> Tempered:
+        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+        return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)

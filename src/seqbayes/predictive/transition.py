@@ -1,0 +1,84 @@
+"""The transition mixture of Eq. (A3) (or the paper's kernel density, Eq. A9) as a step's predictive prior:
+:class:`TransitionMixture`, which also keeps what the path-space remedy needs and hands a conflicted step
+to it (:class:`~seqbayes.predictive.paths.PathSpace`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine.protocol import ParticlePredictive
+from ..engine.stages import ExactPrior
+from ..engine.state import PastStep, kept_copy, variance_before
+from .lineage import ancestor_mass, mass_spread, posterior_labels
+from .mixture import GaussianMixture, jump_step_fields, predictive_density
+from .paths import PathSpace, remedy_applies
+from .pseudo_marginal import SubsampledPrior
+
+__all__ = ["TransitionMixture"]
+
+
+class TransitionMixture(ParticlePredictive):
+    """``p_{s+1}(theta) = sum_i W_i T(theta | theta_i)`` over the step's posterior (``method="transition"``,
+    with Liu-West shrinkage on static dimensions), or a kernel density of the propagated posterior
+    (``method="kde"``); see :func:`~seqbayes.predictive.mixture.predictive_density`."""
+
+    def prior_logpdf(self, state, likelihood, rng):
+        config = self.config
+        if (self.method == "transition" and isinstance(state.prior, GaussianMixture) and config.pseudo_marginal_from
+                and config.n_samples >= config.pseudo_marginal_from and state.log_prior is None):
+            return SubsampledPrior(state.prior, rng)  # pseudo-marginal moves where the pilot allows
+        return ExactPrior(state.prior.logpdf)
+
+    def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
+        density, draws = predictive_density(cloud.particles, cloud.log_weights, self.problem.kernel, rng, self.method,
+                                            self.config.shrink_static)
+        return density, draws, None
+
+    def ancestor_spread(self, state, cloud, rng):
+        # Eq. (A3)'s N ancestors carry Z_s; none at the first step (its prior is the initial one)
+        if isinstance(state.prior, GaussianMixture):
+            return state.prior.ancestor_spread(cloud.particles, cloud.log_weights, posterior_labels(state))
+        return None
+
+    def previous_prior(self, state):
+        return state.prior if isinstance(state.prior, GaussianMixture) else None
+
+    def jump_fields(self, state, cloud) -> dict:
+        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights)
+
+    def remedy_fields(self, state, cloud, log_increment, dataset, rng):
+        """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
+        if not remedy_applies(self.config, self.method, self.problem.kernel):
+            return float("nan"), None, (), None
+        keep, spread, ancestors, paths = self.config.remedy_lag - 1, None, float("nan"), None
+        if state.window and state.paths is None and isinstance(state.prior, GaussianMixture):
+            # the mixture's own components' responsibilities: one matrix product, not the pairwise transition density
+            spread = state.prior.ancestor_spread(cloud.particles, cloud.log_weights, posterior_labels(state))
+            ancestors = spread.ess
+        elif state.window:
+            index, mass = ancestor_mass(self.problem.kernel, cloud.particles, state.posterior,
+                                        state.posterior_log_weights, None if state.paths is None else rng,
+                                        cloud.log_weights)
+            spread = mass_spread(state, mass)
+            ancestors = spread.ess
+            if state.paths is not None:
+                paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
+        window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
+                                           float(log_increment), False, variance_before(state)),))[-keep:]
+        return ancestors, spread, window, paths
+
+    def remedy(self, state, dataset, likelihood, info):
+        """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
+        predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
+        ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
+        conflict) or its mean shifted by more than ``conflict_threshold`` prior sds. With ``info`` None (no
+        predictive draw had a non-zero likelihood) only the bridge from the path prior can find the paths."""
+        config = self.config
+        if not (state.window and remedy_applies(config, self.method, self.problem.kernel)):
+            return None
+        if info is None:
+            return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
+        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0)
+        if info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold:
+            return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
+        return None
