@@ -18,10 +18,10 @@ $(STAMP): pyproject.toml $(LOCK)
 run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled real data (quick variant)
 	$(VENV)/bin/seqbayes example coulomb --quick --out coulomb_results
 
-test: $(STAMP)        ## the whole test suite (every tier), in parallel over the cores
+test: $(STAMP) layers ## the whole test suite (every tier), in parallel over the cores
 	$(PY) -m pytest -q -n $(WORKERS)
 
-check: $(STAMP)       ## the fast tier for the working loop: unit tests, under a minute
+check: $(STAMP) layers ## the fast tier for the working loop: unit tests, under a minute
 	$(PY) -m pytest -q -n $(WORKERS) -m "not slow" tests/unit
 
 layers: $(STAMP)     ## the import-layers contract (.importlinter): no cycles, no upward imports

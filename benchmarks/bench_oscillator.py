@@ -67,7 +67,7 @@ def compare_settings(runs: int = 10, n_samples: int = 1000, kernel: str = "T1") 
     for label, options in (("library defaults", study.DEFAULT_OPTIONS), ("paper-like", PAPER_LIKE)):
         acc = {s: {"cpu": [], "time": [], "evals": [], "z": [], "cover": []} for s in study.SAMPLERS}
         for run in range(runs):
-            truth = osc.make_problem(np.random.default_rng(study._problem_seed(0, run))).truth
+            truth = osc.make_problem(np.random.default_rng(study.problem_seed(0, run))).truth
             for sampler in study.SAMPLERS:
                 cpu = time.process_time()
                 res = study.run_task(0, run, kernel, sampler, n_samples, options[sampler])

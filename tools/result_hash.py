@@ -103,7 +103,7 @@ def oscillator(h):
     study = importlib.import_module("seqbayes.studies.oscillator")
     # run 9 takes the path-space remedy (bridge and stored start) under T3 and T6; run 0 is ordinary
     for run, kernel in ((0, "T1"), (0, "T6"), (9, "T3"), (9, "T6")):
-        problem = osc.make_problem(np.random.default_rng(study._problem_seed(0, run)))
+        problem = osc.make_problem(np.random.default_rng(getattr(study, "problem_seed", getattr(study, "_problem_seed", None))(0, run)))
         for cls in _samplers():
             smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=300,
                       rng=np.random.default_rng(7), **study.DEFAULT_OPTIONS[cls.__name__])

@@ -21,7 +21,7 @@ from .selection import compare
 from .store import RunStore, load_config, open_run
 from .structural import SGEnMCMC
 
-__version__ = "0.1.0"
+from ._version import __version__
 __all__ = [
     "SMC", "SEMC", "JointPrior", "MarkovKernel", "Static", "Drift", "Decay", "Jump", "Custom", "jump_posterior",
     "RunningStatistics", "KalmanInnerFilter", "ParticleInnerFilter", "Result", "StepInfo", "compare",

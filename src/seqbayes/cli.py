@@ -348,7 +348,7 @@ def _assimilated_dataset(store, path) -> tuple:
 
 # ----------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
+    from ._version import __version__
 
     parser = argparse.ArgumentParser(prog="seqbayes", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

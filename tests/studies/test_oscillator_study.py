@@ -68,7 +68,7 @@ def test_evidence_is_the_cores_and_step_one_matches_quadrature(reduced):
     # for SEMC, 0.000 +- 0.006 for SMC; at N = 300 the 8 estimates here are within 0.04)
     for r in range(ds.sizes["run"]):
         exact = study.osc.exact_log_evidence(study.osc.make_problem(
-            np.random.default_rng(study._problem_seed(0, r))).datasets[0])
+            np.random.default_rng(study.problem_seed(0, r))).datasets[0])
         np.testing.assert_allclose(inc[r, :, :, 0], exact, atol=0.3)
     # selection on log p(D^1:6) and on log p(D^2:6 | D^1) agree when step 1 is this precise
     summary = study.summarise(ds)
@@ -159,7 +159,7 @@ def test_evidence_check_structure_and_step_one_error():
     # +0.006 +- 0.006 (SMC); tolerance 0.3 nats.
     check = study.evidence_check(run=1, kernel="T2", replicates=2, n_samples=200, workers=1, progress=False)
     exact = study.osc.exact_log_evidence(study.osc.make_problem(
-        np.random.default_rng(study._problem_seed(0, 1))).datasets[0])
+        np.random.default_rng(study.problem_seed(0, 1))).datasets[0])
     assert check["exact_step1"] == exact
     for s in study.SAMPLERS:
         assert check[s]["importance"].shape == check[s]["path"].shape == (2, 6)

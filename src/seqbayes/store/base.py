@@ -379,7 +379,7 @@ class BaseStore:
 
     def _attrs(self, record_hashes) -> dict:
         """The file's attributes, with the content hash over ``record_hashes``."""
-        from .. import __version__
+        from .._version import __version__
 
         attrs = {"seqbayes_store_format": self.format_version, "seqbayes_version": __version__,
                  "model_fingerprint": self.config.fingerprint(), "config": json.dumps(self.config.to_dict()),

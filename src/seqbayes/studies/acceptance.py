@@ -132,9 +132,9 @@ def _problem(name):
         return coulomb.prior(), coulomb.kernel("T1"), coulomb.loglike, coulomb.load_experiment()
     if name == "oscillator":
         from ..models import oscillator as osc
-        from .oscillator import _problem_seed
+        from .oscillator import problem_seed
 
-        problem = osc.make_problem(np.random.default_rng(_problem_seed(0, 0)))
+        problem = osc.make_problem(np.random.default_rng(problem_seed(0, 0)))
         return osc.prior(), problem.kernels["T1"].kernel, osc.log_likelihood, problem.datasets
     raise ValueError(f"problem: expected 'coulomb' or 'oscillator', got {name!r}")
 

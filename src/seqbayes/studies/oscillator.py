@@ -32,7 +32,7 @@ import numpy as np
 from ._runner import map_tasks
 from ..models import oscillator as osc
 
-__all__ = ["SAMPLERS", "KERNELS", "QUANTILES", "DEFAULT_OPTIONS", "run_task", "run_study",
+__all__ = ["SAMPLERS", "KERNELS", "QUANTILES", "DEFAULT_OPTIONS", "problem_seed", "run_task", "run_study",
            "StudySummary", "selection_log_evidence", "exact_errors", "summarise", "make_figures", "format_report",
            "evidence_check", "format_evidence_check", "main"]
 
@@ -50,7 +50,7 @@ def _task_seed(seed: int, run: int, kernel: int, sampler: int, replicate: int = 
     return np.random.SeedSequence(seed, spawn_key=key)
 
 
-def _problem_seed(seed: int, run: int) -> np.random.SeedSequence:
+def problem_seed(seed: int, run: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed, spawn_key=(run, 0))
 
 
@@ -64,7 +64,7 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     """
     from ..engine import errors
 
-    problem = osc.make_problem(np.random.default_rng(_problem_seed(seed, run)))
+    problem = osc.make_problem(np.random.default_rng(problem_seed(seed, run)))
     ki, si = KERNELS.index(kernel), SAMPLERS.index(sampler)
     cls = getattr(sequential, sampler)
     opts = dict(DEFAULT_OPTIONS[sampler] if options is None else options)
@@ -137,7 +137,7 @@ def _task_star(args):
 def _problem_arrays(seed, runs):
     paths, truth, ftruth, rates, noise, lik_std = [], [], [], [], [], []
     for r in range(runs):
-        problem = osc.make_problem(np.random.default_rng(_problem_seed(seed, r)))
+        problem = osc.make_problem(np.random.default_rng(problem_seed(seed, r)))
         paths.append((problem.path.jump_times, problem.path.values))
         truth.append(problem.truth)
         ftruth.append(problem.forecast_truth())
@@ -702,7 +702,7 @@ def evidence_check(run: int = 0, kernel: str = "T1", replicates: int = 10, n_sam
         raise ValueError(f"kernel: unknown kernel {kernel!r}; choose from {KERNELS}")
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     progress = sys.stderr.isatty() if progress is None else progress
-    problem = osc.make_problem(np.random.default_rng(_problem_seed(seed, run)))
+    problem = osc.make_problem(np.random.default_rng(problem_seed(seed, run)))
     tasks = [(seed, run, kernel, s, n_samples, DEFAULT_OPTIONS[s], rep) for s in SAMPLERS
              for rep in range(1, int(replicates) + 1)]
     results = map_tasks(_replicate_star, tasks, workers, "evidence check", "run", progress)
