@@ -16,7 +16,7 @@ import numpy as np
 
 from ..predictive.lineage import ancestor_terms, lineage_after
 from .evidence import estimate_increment, step_standard_errors
-from .stages import ExactPrior, moves_every_stage, step_conflict, temper_resample_move, weigh
+from .stages import ExactPrior, step_conflict, temper_resample_move, weigh
 from .state import Estimate, MoveTally, Outcome, SamplerState, Tempered, Weighed
 
 __all__ = ["Predictive", "ParticlePredictive"]
@@ -76,7 +76,8 @@ class ParticlePredictive:
         return False
 
     def moves_every_stage(self) -> bool:
-        return moves_every_stage(self.config, self.method)
+        """``SamplerConfig.move_every_stage``; when ``None``, True (the paper's Algorithm 4)."""
+        return True if self.config.move_every_stage is None else self.config.move_every_stage
 
     def uses_importance(self, moves: MoveTally) -> bool:
         return self.config.evidence == "importance"

@@ -15,7 +15,7 @@ from .errors import TemperingLimitError, ZeroLikelihoodError
 from .state import Cloud, Tempered
 
 __all__ = ["ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
-           "moves_every_stage", "count_distinct", "step_conflict", "prior_name"]
+           "count_distinct", "step_conflict", "prior_name"]
 
 
 class ExactPrior:
@@ -243,12 +243,3 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
             particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
     return Tempered(Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled,
                     stage_ess)
-
-
-def moves_every_stage(config, method) -> bool:
-    """``move_every_stage``, where ``None`` (auto) is False for the exact history prior (IBIS's schedule:
-    a move re-evaluates every past dataset, so moving only after a resampling, when the ESS has fallen,
-    spaces the moves out as the posterior concentrates and bounds the amortised cost per update)."""
-    if config.move_every_stage is not None:
-        return config.move_every_stage
-    return method != "history"

@@ -142,6 +142,10 @@ class ExactHistory(ParticlePredictive):
     def exact_prior(self, state) -> bool:
         return isinstance(state.prior, HistoryPrior)  # the initial prior at the first step
 
+    def moves_every_stage(self) -> bool:
+        """``SamplerConfig.move_every_stage``; when ``None``, False: moves only after a resampling."""
+        return False if self.config.move_every_stage is None else self.config.move_every_stage
+
     def prior_logpdf(self, state, likelihood, rng):
         if self.exact_prior(state):
             return ExactPrior(lambda theta: state.prior.logpdf(theta, likelihood.loglike_on, likelihood.summary_loglike))
