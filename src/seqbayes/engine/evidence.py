@@ -45,7 +45,7 @@ from ..priors import inside_support
 from ..resampling import resample
 from ..transforms import BoxTransform
 from ..weights import logsumexp, normalise
-from .settings import ECONOMY_EVIDENCE_SE, HIGH_DIMENSION
+from .settings import ECONOMY_EVIDENCE_SE, HIGH_DIMENSION, STARVED_RESTART
 from .state import Cloud
 
 __all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment"]
@@ -392,7 +392,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
             evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
     # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
     # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
-    if not evidence_ess >= reliable or n_found < 0.1 * n:
+    if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
         warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
                       f"{n_found} distinct restart draws); using the tempering path's estimate and the "
                       f"posterior may be degenerate", RuntimeWarning, stacklevel=4)

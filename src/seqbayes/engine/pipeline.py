@@ -39,10 +39,11 @@ __all__ = ["assimilate", "run_step"]
 
 
 def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikelihood, rng: np.random.Generator,
-             start: float) -> tuple[object, StepRecord]:
+             start: float) -> tuple[object, StepRecord, Weighed]:
     """One step through ``predictive``: weigh -> temper/resample/move -> evidence -> propagate -> record.
 
-    Returns the new state and the step's record; ``start`` is the step's ``time.perf_counter()``."""
+    Returns the new state, the step's record and what weighing found (for the remedy's decision);
+    ``start`` is the step's ``time.perf_counter()``."""
     weighed = predictive.weigh(state, dataset, likelihood, rng)
     tempered = predictive.temper(weighed, likelihood, rng)
     estimate = predictive.estimate(tempered, weighed, likelihood, rng)
@@ -58,7 +59,7 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(tempered.log_z),
         evidence_ess=estimate.evidence_ess, n_independent_accepted=estimate.n_independent,
         n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start, **outcome.fields)
-    return outcome.state, StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive)
+    return outcome.state, StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive), weighed
 
 
 def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng: np.random.Generator, *,
@@ -84,19 +85,19 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
     likelihood = ValidatedLikelihood.for_step(problem, dataset, state.step + 1, on_evaluated)
     predictive, start_state = predictive_for(state, problem, config)
     try:
-        new_state, record = run_step(predictive, start_state, dataset, likelihood, rng, start)
+        new_state, record, weighed = run_step(predictive, start_state, dataset, likelihood, rng, start)
     except ZeroLikelihoodError as error:
-        remedy = predictive.remedy(state, dataset, likelihood, None)
+        remedy = predictive.remedy(state, dataset, likelihood, None, None)
         if remedy is None:
             raise
         try:
-            return run_step(remedy, state, dataset, likelihood, rng, start)
+            return run_step(remedy, state, dataset, likelihood, rng, start)[:2]
         except ZeroLikelihoodError:
             raise error from None
-    remedy = predictive.remedy(state, dataset, likelihood, record.info)
+    remedy = predictive.remedy(state, dataset, likelihood, record.info, weighed)
     if remedy is not None:
         try:
-            new_state, record = run_step(remedy, state, dataset, likelihood, rng, start)
+            new_state, record, _ = run_step(remedy, state, dataset, likelihood, rng, start)
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
             pass
     return new_state, record
@@ -112,4 +113,4 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
 
     from .protocol import Predictive
     from .settings import SamplerConfig
-    from .state import Problem
+    from .state import Problem, Weighed

@@ -38,9 +38,9 @@ class Predictive(Protocol):
                   rng) -> Outcome:
         """Stage 6: the next state (Eq. A2-A3) and the record's diagnostics."""
 
-    def remedy(self, state, dataset, likelihood, info) -> Predictive | None:
-        """The predictive to assimilate the step with again, given its ``info`` (``None``: no particle had a
-        non-zero likelihood), or ``None`` to keep the step."""
+    def remedy(self, state, dataset, likelihood, info, weighed) -> Predictive | None:
+        """The predictive to assimilate the step with again, given its ``info`` and what :meth:`weigh` found
+        (both ``None``: no particle had a non-zero likelihood), or ``None`` to keep the step."""
 
 
 class ParticlePredictive:
@@ -99,7 +99,7 @@ class ParticlePredictive:
         """The mixture prior this step used, for the next increment's standard error (None by default)."""
         return None
 
-    def remedy(self, state, dataset, likelihood, info):
+    def remedy(self, state, dataset, likelihood, info, weighed):
         return None
 
     # ---- the stages

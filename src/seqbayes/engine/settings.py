@@ -31,6 +31,9 @@ ECONOMY_MOVED_FRACTION = 0.7
 
 #: Acceptance rate the scaled moves' local step aims at (Eq. 9 adapts its scale within a stage; Roberts et al. 1997).
 LOCAL_ACCEPTANCE = 0.234
+#: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
+#: step's evidence and posterior rest on a handful of draws of the prior's far tail.
+STARVED_RESTART = 0.1
 
 
 @dataclass(frozen=True)

@@ -187,7 +187,7 @@ class PathSpace:
                                    n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
                                                                    per_state * (length + 1))))
 
-    def remedy(self, state, dataset, likelihood, info):
+    def remedy(self, state, dataset, likelihood, info, weighed):
         return None
 
     def weigh(self, state, dataset, likelihood, rng) -> Weighed:

@@ -578,7 +578,7 @@ class NestedPredictive:
         self.problem, self.config = problem, config
         self.split, self.inner = nested_split(problem.kernel), problem.inner_filter
 
-    def remedy(self, state, dataset, likelihood, info):
+    def remedy(self, state, dataset, likelihood, info, weighed):
         return None
 
     def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine.protocol import ParticlePredictive
+from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
 from .lineage import ancestor_mass, mass_spread, posterior_labels
@@ -67,18 +68,23 @@ class TransitionMixture(ParticlePredictive):
                                            float(log_increment), False, variance_before(state)),))[-keep:]
         return ancestors, spread, window, paths
 
-    def remedy(self, state, dataset, likelihood, info):
+    def remedy(self, state, dataset, likelihood, info, weighed):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
         predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
-        conflict) or its mean shifted by more than ``conflict_threshold`` prior sds. With ``info`` None (no
-        predictive draw had a non-zero likelihood) only the bridge from the path prior can find the paths."""
+        conflict), its mean shifted by more than ``conflict_threshold`` prior sds, or its restart found fewer
+        than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
+        grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
+        None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
+        paths."""
         config = self.config
         if not (state.window and remedy_applies(config, self.method, self.problem.kernel)):
             return None
         if info is None:
             return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
         threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0)
-        if info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold:
+        starved = weighed.n_found < STARVED_RESTART * config.n_samples
+        if (info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold
+                or starved):
             return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
         return None

@@ -62,11 +62,11 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     independent sampler seed. Returns a dict of plain arrays (posterior summaries
     per step, forecast summaries, per-step diagnostics, wall time).
     """
-    from ..engine import errors
+    from ..engine import drivers, errors
 
     problem = osc.make_problem(np.random.default_rng(problem_seed(seed, run)))
     ki, si = KERNELS.index(kernel), SAMPLERS.index(sampler)
-    cls = getattr(sequential, sampler)
+    cls = getattr(drivers, sampler)
     opts = dict(DEFAULT_OPTIONS[sampler] if options is None else options)
     rng = np.random.default_rng(_task_seed(seed, run, ki, si, replicate))
     n_steps, n_horizon, n_q = len(problem.datasets), len(osc.FORECAST_TIMES), len(QUANTILES)
