@@ -134,12 +134,6 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
-    Parameters
-    ----------
-    position : (N, d) array
-        The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
-        ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
-
     Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
     stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
     :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it), then a local sweep: SMC's random walk with
@@ -149,6 +143,12 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     (``ECONOMY_JUMP_TARGET`` with ``economy``) and ``moved_fraction`` of them have moved
     (``ECONOMY_MOVED_FRACTION`` at most, with ``economy``), after at least ``n_moves`` rounds (1 with
     ``economy``) and at most ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
+
+    Parameters
+    ----------
+    position : (N, d) array
+        The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
+        ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
 
     Returns
     -------
