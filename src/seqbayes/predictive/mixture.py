@@ -483,7 +483,7 @@ class GaussianMixture:
         theta = as_samples(theta, self.dim)
         cache = self._ancestor_proposal()
         m, n_terms = theta.shape[0], int(n_terms)
-        n, n_clusters = self.centres.shape[0], cache["bounds"].size - 1
+        n_clusters = cache["bounds"].size - 1
         x = (theta - self._shift) / self.bandwidth
         q = self._proposal(x)                                             # (m, K), rows sum to 1
         # clusters: inverse CDF of q per row, all rows in one search (row r's CDF shifted to [r, r + 1])
@@ -711,7 +711,6 @@ def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dic
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
-    from typing import Any
     from numpy.typing import ArrayLike
 
     from ..kernels import MarkovKernel

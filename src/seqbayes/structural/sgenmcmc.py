@@ -568,7 +568,7 @@ class SGEnMCMC:
         if state is None:
             raise ValueError("result: nothing identified yet; call reset() and update()")
         state.stats.flush(state.theta)
-        N, d = self.n_members, self.lower.size
+        N = self.n_members
         copy = np.random.Generator(type(state.rng.bit_generator)())
         copy.bit_generator.state = state.rng.bit_generator.state
         idx = resample(self.resampling, np.exp(normalise(state.logw)), copy, N)
