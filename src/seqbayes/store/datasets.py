@@ -16,11 +16,12 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["DataError", "read_datafile", "check_table", "as_likelihood_data", "dataset_digest"]
+__all__ = ["DataError", "read_datafile", "check_table", "as_likelihood_data", "dataset_digest", "printable"]
 
 #: File suffixes read as NetCDF (anything else is read as CSV).
 NETCDF_SUFFIXES = (".nc", ".nc4", ".netcdf", ".h5", ".hdf5")
@@ -28,6 +29,38 @@ NETCDF_SUFFIXES = (".nc", ".nc4", ".netcdf", ".h5", ".hdf5")
 
 class DataError(ValueError):
     """A data file or array that cannot be a dataset of the run (the message names the file, column and row)."""
+
+
+#: A CSV cell that is a number: ASCII digits only, no digit-group underscores (Python's ``float`` takes
+#: ``"1_0"`` as 10 and full-width digits as digits; a data logger writes neither). NaN/inf pass, to be
+#: named by :func:`check_table`.
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+
+
+def printable(text, limit: int | None = None) -> str:
+    """``text`` made safe to print: control and format characters (newlines, escape sequences, bidi
+    overrides) escaped as ``repr`` does, then cut to ``limit`` characters with ``...``.
+
+    File names and cells come from files a user was handed; printed raw, ``\x1b[2J`` clears the
+    terminal and a newline forges an output line.
+
+    >>> printable("a\nb\x1b[2J")
+    'a\\nb\\x1b[2J'
+    >>> printable("x" * 10, limit=4)
+    'xxxx...'
+    """
+    text = str(text)
+    if not text.isprintable():
+        text = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
+    return text if limit is None or len(text) <= limit else text[:limit] + "..."
+
+
+def _excerpt(fields) -> str:
+    """A short, escaped excerpt of a file's header for an error message: at most 8 fields, a field longer
+    than a column name (24 characters) only by its length, so that a file that is not a CSV (a key, a
+    password file) is not echoed."""
+    shown = [f"'{printable(f)}'" if len(f) <= 24 else f"<{len(f)} characters>" for f in fields[:8]]
+    return ", ".join(shown) + (f", ... ({len(fields)} fields)" if len(fields) > 8 else "")
 
 
 def read_datafile(path, config) -> np.ndarray:
@@ -102,7 +135,7 @@ def check_table(table, config, source: str = "table") -> np.ndarray:
 def _csv_header(path, columns) -> tuple[list, list]:
     """``(header, index)``: the stripped header fields and the positions of ``columns`` in it."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is no field
             header = next(csv.reader(fh), None)
     except UnicodeDecodeError:
         raise DataError(f"{path}: not a text CSV file") from None
@@ -112,7 +145,11 @@ def _csv_header(path, columns) -> tuple[list, list]:
     missing = [c for c in columns if c not in header]
     if missing:
         raise DataError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; "
-                        f"the header has {', '.join(map(repr, header))}")
+                        f"the header starts {_excerpt(header)}")
+    twice = [c for c in columns if header.count(c) > 1]
+    if twice:
+        raise DataError(f"{path}: column(s) {', '.join(map(repr, twice))} appear more than once in the header; "
+                        f"which one is the data is ambiguous")
     return header, [header.index(c) for c in columns]
 
 
@@ -152,22 +189,27 @@ def _read_csv(path, columns) -> np.ndarray:
 def _read_csv_cells(path, columns, header, index) -> np.ndarray:
     """:func:`_read_csv` one cell at a time, for files the fast path refuses; names the bad line and column."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             reader = csv.reader(fh)
             next(reader, None)
-            rows = [r for r in reader if r and any(cell.strip() for cell in r)]
+            rows = [(reader.line_num, r) for r in reader if r]   # a blank line is skipped
     except UnicodeDecodeError:
         raise DataError(f"{path}: not a text CSV file") from None
     out = np.empty((len(rows), len(columns)))
-    for i, row in enumerate(rows):
+    for i, (line, row) in enumerate(rows):
         if len(row) != len(header):
-            raise DataError(f"{path}: line {i + 2} has {len(row)} fields, the header has {len(header)}")
+            raise DataError(f"{path}: line {line} has {len(row)} fields, the header has {len(header)}")
+        if not any(cell.strip() for cell in row):  # "," is a row with no values, not a blank line
+            raise DataError(f"{path}: line {line} has only empty cells; remove it or fill it in")
         for j, k in enumerate(index):
             cell = row[k].strip()
-            try:
-                out[i, j] = float(cell) if cell else np.nan
-            except ValueError:
-                raise DataError(f"{path}: column {columns[j]!r}, line {i + 2}: not a number: {cell!r}") from None
+            if not cell:
+                out[i, j] = np.nan      # named by check_table, with its row
+            elif _NUMBER.fullmatch(cell):
+                out[i, j] = float(cell)
+            else:
+                raise DataError(f"{path}: column {columns[j]!r}, line {line}: not a number: "
+                                f"'{printable(cell, 20)}'") from None
     return out
 
 
