@@ -45,7 +45,13 @@ def generator_state(rng: np.random.Generator) -> dict:
 
 def generator_from_state(state: dict) -> np.random.Generator:
     """Rebuild a generator from :func:`generator_state` output, bit for bit."""
-    name = state["bit_generator"]
-    bit_generator = getattr(np.random, name)()
-    bit_generator.state = state
+    name = state.get("bit_generator") if isinstance(state, dict) else None
+    kind = getattr(np.random, name, None) if isinstance(name, str) else None
+    if not (isinstance(kind, type) and issubclass(kind, np.random.BitGenerator)):  # a stored state is data
+        raise ValueError(f"rng state: {str(name)[:40]!r} is not a numpy bit generator")
+    bit_generator = kind()
+    try:
+        bit_generator.state = state
+    except (TypeError, ValueError, KeyError, OverflowError) as err:
+        raise ValueError(f"rng state: not a {name} state ({type(err).__name__}: {str(err)[:80]})") from None
     return np.random.Generator(bit_generator)

@@ -47,9 +47,12 @@ raises :class:`ConfigError` with a message such as
 
 from __future__ import annotations
 
+import difflib
 import hashlib
+import importlib.util
 import json
 import math
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -92,7 +95,9 @@ def _table(raw, key, source, required=True):
 def _check_keys(table, allowed, source, prefix):
     for key in table:
         if key not in allowed:
-            _fail(source, f"{prefix}.{key}", f"unknown setting; expected one of {', '.join(sorted(allowed))}")
+            close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            _fail(source, f"{prefix}.{key}", f"unknown setting{hint}; expected one of {', '.join(sorted(allowed))}")
 
 
 def _number(value, source, name, *, integer=False, positive=False):
@@ -252,8 +257,18 @@ class RunConfig:
                 "predict": self.predict, "observed": self.observed}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "RunConfig":
-        """Inverse of :meth:`to_dict`."""
+    def from_dict(cls, data: dict, source: str = "stored configuration") -> "RunConfig":
+        """Inverse of :meth:`to_dict`, validated as a TOML file is (a store is a file someone was handed:
+        ``tempering = "false"`` or a negative noise sd in it is refused, not run).
+
+        Raises
+        ------
+        ConfigError
+            Naming ``source`` and the field.
+        """
+        if not isinstance(data, dict) or set(data) - set(cls.__dataclass_fields__) or "priors" not in data:
+            raise ConfigError(f"{source}: not a run configuration")
+        parse_config(_as_toml(data, source), source, check_likelihood=False)
         data = dict(data)
         data["columns"] = tuple(data["columns"])
         return cls(**data)
@@ -323,9 +338,58 @@ def _parse_prior(name, raw, source):
         _fail(source, f"{prefix}.args", f"expected a list of numbers, got {args!r}")
     args = [_number(a, source, f"{prefix}.args[{i}]") for i, a in enumerate(args)]
     kwds = {k: _number(v, source, f"{prefix}.{k}") for k, v in raw.items() if k not in ("dist", "args")}
+    if raw["dist"] == "uniform" and {"lower", "upper"} & set(kwds):
+        kwds = _uniform_bounds(kwds, args, source, prefix)
+    _check_prior_keywords(raw["dist"], kwds, len(args), source, prefix)
     spec = {"dist": raw["dist"], "args": args, "kwds": kwds}
     _freeze(spec, source, prefix)
     return spec
+
+
+def _uniform_bounds(kwds, args, source, prefix):
+    """``lower``/``upper`` of a uniform prior as scipy's ``loc``/``scale`` (stored so: the fingerprint of
+    ``U(0, 2)`` does not depend on how it was written)."""
+    if set(kwds) != {"lower", "upper"} or args:
+        _fail(source, prefix, "a uniform prior takes lower and upper together, or loc and scale; not a mix")
+    if not kwds["lower"] < kwds["upper"]:
+        _fail(source, f"{prefix}.upper", f"must be above lower = {kwds['lower']:g}, got {kwds['upper']:g}")
+    return {"loc": kwds["lower"], "scale": kwds["upper"] - kwds["lower"]}
+
+
+def _check_prior_keywords(dist_name, kwds, n_args, source, prefix):
+    """Refuse keywords the scipy.stats distribution does not take, naming the ones it does (scipy's own
+    message is ``_parse_args() got an unexpected keyword argument``)."""
+    from scipy import stats
+
+    dist = getattr(stats, dist_name, None)
+    if not isinstance(dist, stats.rv_continuous):
+        return                                  # named by _freeze
+    shapes = [p.strip() for p in (dist.shapes or "").split(",") if p.strip()]
+    takes = [*shapes, "loc", "scale"] + (["lower", "upper"] if dist_name == "uniform" else [])
+    for key in kwds:
+        if key not in takes:
+            close = difflib.get_close_matches(key, takes, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            _fail(source, f"{prefix}.{key}", f"scipy.stats.{dist_name} has no parameter {key!r}{hint}; it takes "
+                                             f"{', '.join(takes)} (shape parameters also as args = [...])")
+    given = [*shapes, "loc", "scale"][:n_args]
+    twice = [key for key in kwds if key in given]
+    if twice:
+        _fail(source, f"{prefix}.{twice[0]}", f"given both in args and as a keyword")
+
+
+def _memory_bound(n_samples, dim, source):
+    """Refuse a sample size whose arrays cannot fit in this machine's memory (numpy's MemoryError
+    would come mid-step, as a traceback). About 32 arrays of ``(N, d + 2)`` float64 are alive during a
+    step (particles, proposals, their log-densities, the tempering and mixture buffers)."""
+    need = 32 * n_samples * (dim + 2) * 8
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not POSIX: no bound known
+        return
+    if need > have:
+        _fail(source, "sampler.n_samples", f"{n_samples} samples of {dim} parameters need about "
+                                           f"{need / 2**30:.3g} GiB of memory; this machine has {have / 2**30:.3g} GiB")
 
 
 def _sampler_settings(kind):
@@ -425,6 +489,33 @@ def _parse_jump(prefix, raw, rate, noise, source):
             "drop_sd": drop_sd, "reference": reference, "scales": scales, "scale_weights": weights}
 
 
+def _as_toml(data, source) -> dict:
+    """A stored configuration (:meth:`RunConfig.to_dict`) back in the TOML layout that :func:`parse_config` checks."""
+    try:
+        model = {"name": data.get("name"), "likelihood": data.get("likelihood"),
+                 **{k: data[k] for k in ("predict", "observed") if data.get(k) is not None}}
+        table = {"columns": data.get("columns"), "format": data.get("data_format", "array"),
+                 **({"rows": data["rows"]} if data.get("rows") is not None else {})}
+        priors = {name: {"dist": spec["dist"], "args": spec["args"], **spec["kwds"]}
+                  for name, spec in data["priors"].items()}
+        kernel = {}
+        for name, spec in (data.get("kernel") or {}).items():
+            entry = dict(spec)
+            if entry.get("type") == "static":  # stored with rate 0 and noise_std 0, written without them
+                entry = {"type": "static", **{k: v for k, v in entry.items() if k != "type" and v != 0}}
+            elif entry.get("type") == "jump" and entry.get("tail") is None:
+                entry.pop("tail", None)
+            kernel[name] = entry
+        sampler = {"type": data.get("sampler"), "n_samples": data.get("n_samples"), "seed": data.get("seed"),
+                   **data.get("settings", {})}
+        parallel = {"executor": data.get("executor", "serial"), "workers": data.get("workers", 2),
+                    **({"address": data["address"]} if data.get("address") is not None else {})}
+    except (AttributeError, KeyError, TypeError) as err:
+        raise ConfigError(f"{source}: malformed ({type(err).__name__}: {err})") from None
+    return {"model": model, "data": table, "priors": priors, "kernel": kernel, "sampler": sampler,
+            "parallel": parallel}
+
+
 # ---------------------------------------------------------------------- parsing
 def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | None = None,
                  check_likelihood: bool = True) -> RunConfig:
@@ -489,7 +580,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     seed = _number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)
     if seed < 0:
         _fail(source, "sampler.seed", f"must be >= 0, got {seed}")
-    _check_keys(sampler_raw, set(allowed), source, "sampler")
+    _check_keys(sampler_raw, {*allowed, "type", "n_samples", "seed"}, source, "sampler")
     settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
     # let the core validate values, reporting the field
     from ..engine.settings import SamplerConfig
@@ -501,12 +592,16 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
         _fail(source, "sampler", str(err))
     if kind == "SEMC" and n_samples < 2 * len(priors):
         _fail(source, "sampler.n_samples", f"SEMC needs at least 2 d = {2 * len(priors)} samples, got {n_samples}")
+    _memory_bound(n_samples, len(priors), source)
 
     parallel = _table(raw, "parallel", source, required=False)
     _check_keys(parallel, {"executor", "workers", "address"}, source, "parallel")
     executor = parallel.get("executor", "serial")
     if executor not in EXECUTORS:
         _fail(source, "parallel.executor", f"expected one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if executor == "dask" and check_likelihood and importlib.util.find_spec("distributed") is None:
+        _fail(source, "parallel.executor", "\"dask\" needs the optional dependency dask.distributed, which is "
+                                           "not installed: pip install \"seqbayes[dask]\" (or use \"processes\")")
     workers = _number(parallel.get("workers", 2), source, "parallel.workers", integer=True, positive=True)
     address = parallel.get("address")
     if address is not None and not isinstance(address, str):
@@ -559,7 +654,6 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
 import typing as _typing  # noqa: E402
 
 if _typing.TYPE_CHECKING:  # names used only in annotations
-    import os
     from collections.abc import Callable
     from typing import Any
 

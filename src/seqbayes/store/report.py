@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import plotting
+from .datasets import printable
 
 if TYPE_CHECKING:
     import os
@@ -83,11 +84,26 @@ def _fmt(x):
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
+def _e(value) -> str:
+    """``value`` as HTML text."""
+    return html.escape(str(value))
+
+
+#: What ``-`` in an acceptance column means (``status`` and the report say the same).
+NO_MOVES_NOTE = "accept '-': the step moved no samples (SMC^2 moves them only when their ESS falls)."
+
+
+def _acceptance(rate: float) -> str:
+    """A step's acceptance rate as ``status`` and the report print it: ``-`` for a step without moves (NaN)."""
+    return "-" if np.isnan(rate) else f"{rate:.3f}"
+
+
 def format_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables."""
     cfg = store.config
-    lines = [f"run {store.path}  model {cfg.name!r}  likelihood {cfg.likelihood}  sampler {cfg.sampler} "
-             f"N={cfg.n_samples} seed={cfg.seed}  steps: {store.n_steps}"]
+    # names from files (the store's path, the config, data file names) are escaped for the terminal
+    lines = [f"run {printable(store.path)}  model '{printable(cfg.name)}'  likelihood {printable(cfg.likelihood)}  "
+             f"sampler {printable(cfg.sampler)} N={cfg.n_samples} seed={cfg.seed}  steps: {store.n_steps}"]
     if store.n_steps == 0:
         lines.append("no dataset assimilated yet (use `seqbayes update RUN DATAFILE`)")
         return "\n".join(lines)
@@ -98,13 +114,13 @@ def format_status(store: BaseStore, level: float = 0.95) -> str:
                  f" {'log Z':>11} {'conflict':>8}")
     for r in rows:
         flag = f" (!{r['conflict_parameter']})" if r["prior_data_conflict"] > 4 else ""
-        accept = "-" if np.isnan(r["acceptance_rate"]) else f"{r['acceptance_rate']:.3f}"  # no moves (SMC^2)
-        lines.append(f"{r['step']:>4}  {r['dataset'][:24]:<24} {accept:>7} {r['ess']:8.1f} "
+        accept = _acceptance(r["acceptance_rate"])
+        lines.append(f"{r['step']:>4}  {printable(r['dataset'])[:24]:<24} {accept:>7} {r['ess']:8.1f} "
                      f"{r['ess'] / n:6.3f} {r['n_distinct']:8d} {r['log_evidence_increment']:11.4f} "
                      f"{r['log_evidence']:11.4f} {r['prior_data_conflict']:8.2f}{flag}")
     note = f"({ESS_NOTE} conflict: posterior-mean shift in prior sds, flagged above 4."
     if any(np.isnan(r["acceptance_rate"]) for r in rows):
-        note += " accept '-': the step moved no samples (SMC^2 moves them only when their ESS falls)."
+        note += " " + NO_MOVES_NOTE
     lines += textwrap.wrap(note + ")", 100)
     previous = rows[0]["likelihood_sha256"]
     for r in rows[1:]:   # an edited likelihood module accepted with --accept-model-change
@@ -117,7 +133,7 @@ def format_status(store: BaseStore, level: float = 0.95) -> str:
     lines.append(f"{'step':>4}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}")
     for r in rows:
         for name, p in r["parameters"].items():
-            lines.append(f"{r['step']:>4}  {name[:14]:<14} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
+            lines.append(f"{r['step']:>4}  {printable(name)[:14]:<14} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
                          f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
     return "\n".join(lines)
 
@@ -400,9 +416,10 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
     title = f"seqbayes report: {cfg.name}"
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
-    parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: likelihood <code>{html.escape(cfg.likelihood)}"
-                 f"</code>, sampler {cfg.sampler} with N = {cfg.n_samples}, seed {cfg.seed}; {store.n_steps} "
-                 f"dataset(s) assimilated. Model fingerprint <code>{cfg.fingerprint()[:12]}</code>.</p>")
+    # every field of a stored configuration is text from a file someone was handed: escaped, all of it
+    parts.append(f"<p>Run <code>{_e(store.path)}</code>: likelihood <code>{_e(cfg.likelihood)}</code>, sampler "
+                 f"{_e(cfg.sampler)} with N = {_e(cfg.n_samples)}, seed {_e(cfg.seed)}; {store.n_steps} "
+                 f"dataset(s) assimilated. Model fingerprint <code>{_e(cfg.fingerprint()[:12])}</code>.</p>")
     kernel_rows = [[n, describe_prior(cfg.priors[n]), describe_kernel(cfg.kernel[n])] for n in cfg.names]
     parts.append("<h2>Model</h2>" + table_html(["parameter", "prior", "evolution between steps"], kernel_rows,
                                                 left=(0, 1, 2)))
@@ -447,10 +464,11 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
                               "Acceptance rate and effective sample size (ESS / N, last tempering stage, before "
                               "resampling) per step", "fig-diagnostics", image_dir))
     parts.append(table_html(["step", "dataset", "acceptance", "ESS", "distinct", "log Z_s", "log Z"],
-                             [[r["step"], r["dataset"], f"{r['acceptance_rate']:.3f}", f"{r['ess']:.1f}",
+                             [[r["step"], r["dataset"], _acceptance(r["acceptance_rate"]), f"{r['ess']:.1f}",
                                r["n_distinct"], f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"]
                               for r in rows], left=(1,)))
-    parts.append(f"<p>{html.escape(ESS_NOTE)} N = {cfg.n_samples}.</p>")
+    parts.append(f"<p>{html.escape(ESS_NOTE)} N = {_e(cfg.n_samples)}."
+                 + (f" {NO_MOVES_NOTE}" if any(np.isnan(r["acceptance_rate"]) for r in rows) else "") + "</p>")
     parts.append("<h2>Evidence and model probabilities</h2>")
     parts.append(figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
                               "fig-evidence", image_dir))

@@ -109,6 +109,59 @@ def _numbers(value, source, name, n=None, positive=False, allow_empty=False):
     return out
 
 
+def _check_stored(data, source) -> None:
+    """The fields of a stored :meth:`SGRunConfig.to_dict`: types, finiteness and signs, named like the TOML's."""
+    if not isinstance(data, dict):
+        _fail(source, "config", f"expected a table, got {type(data).__name__}")
+    fields = {f.name for f in dataclasses.fields(SGRunConfig)}
+    _keys(data, fields | {"kind"}, source, "config")
+    missing = sorted({"name", "masses", "stiffnesses", "damping_ratios", "damping_modes", "accelerations", "drifts",
+                      "dt", "input", "responses", "lower", "upper", "measurement_std"} - set(data))
+    if missing:
+        _fail(source, "config", f"missing field(s) {', '.join(missing)}")
+    if not isinstance(data["name"], str) or not data["name"]:
+        _fail(source, "model.name", f"expected a non-empty string, got {data['name']!r}")
+    n = len(_numbers(data["masses"], source, "building.masses", positive=True))
+    _numbers(data["stiffnesses"], source, "building.stiffnesses", n=n, positive=True)
+    if min(_numbers(data["damping_ratios"], source, "building.damping_ratios", n=2)) < 0:
+        _fail(source, "building.damping_ratios", f"must be >= 0, got {data['damping_ratios']!r}")
+    for key, table in (("damping_modes", "building"), ("accelerations", "sensors"), ("drifts", "sensors")):
+        values = data[key]
+        if not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= n
+                                                   for v in values):
+            _fail(source, f"{table}.{key}", f"expected a list of floor/storey numbers 1-{n}, got {values!r}")
+    _numbers(data["dt"], source, "data.dt", positive=True)
+    lower = _numbers(data["lower"], source, "priors.lower")
+    upper = _numbers(data["upper"], source, "priors.upper", n=len(lower))
+    if not all(lo < hi for lo, hi in zip(lower, upper)):
+        _fail(source, "priors.upper", f"must lie above lower, got lower {lower} and upper {upper}")
+    _numbers(data["measurement_std"], source, "noise.measurement_std", positive=True)
+    if _numbers(data.get("process_std", 0.0), source, "noise.process_std")[0] < 0:
+        _fail(source, "noise.process_std", f"must be >= 0, got {data['process_std']!r}")
+    for key in ("n_members", "seed"):
+        value = data.get(key, 0 if key == "seed" else 500)
+        if isinstance(value, bool) or not isinstance(value, int) or value < (2 if key == "n_members" else 0):
+            _fail(source, f"sampler.{key}", f"expected a{' positive' if key == 'n_members' else ' non-negative'} "
+                                            f"integer, got {value!r}")
+    settings = data.get("settings", {})
+    _keys(settings, set(settings), source, "sampler")
+    from ..structural.sgenmcmc import SGEnMCMC
+
+    defaults = {k: v.default for k, v in inspect.signature(SGEnMCMC).parameters.items()}
+    for key, value in settings.items():
+        if key not in defaults or key in _FIXED_KEYWORDS:
+            _fail(source, f"sampler.{key}", "not a setting of SGEnMCMC")
+        default = defaults[key]
+        if isinstance(default, bool) and not isinstance(value, bool):
+            _fail(source, f"sampler.{key}", f"expected true or false, got {value!r}")
+        if isinstance(default, (int, float)) and not isinstance(default, bool):
+            _numbers(value, source, f"sampler.{key}")
+            if value < 0:
+                _fail(source, f"sampler.{key}", f"must be >= 0, got {value!r}")
+        if isinstance(default, str) and default != "auto" and not isinstance(value, str):
+            _fail(source, f"sampler.{key}", f"expected a string, got {value!r}")
+
+
 def _keys(table, allowed, source, prefix):
     if not isinstance(table, dict):
         _fail(source, prefix, f"expected a table, got {table!r}")
@@ -256,8 +309,16 @@ class SGRunConfig:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict) -> "SGRunConfig":
-        """Inverse of :meth:`to_dict`."""
+    def from_dict(cls, data: dict, source: str = "stored configuration") -> "SGRunConfig":
+        """Inverse of :meth:`to_dict`, its fields type-checked as a TOML file's are (a store is a file
+        someone was handed: a negative noise sd or a string for a flag is refused, not run).
+
+        Raises
+        ------
+        ConfigError
+            Naming ``source`` and the field.
+        """
+        _check_stored(data, source)
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k != "kind"}
         return cls(**data)
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import plotting
+from .datasets import printable
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
            "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
@@ -52,10 +53,15 @@ def _fmt(x) -> str:
     return f"{x:.4g}" if np.isfinite(x) else "nan"
 
 
+def _e(value) -> str:
+    """``value`` as HTML text (a stored configuration is text from a file someone was handed)."""
+    return html.escape(str(value))
+
+
 def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables for an SG-EnMCMC run."""
     cfg = store.config
-    lines = [f"run {store.path}  model {cfg.name!r}  SG-EnMCMC  {cfg.n_storeys}-storey shear building  "
+    lines = [f"run {printable(store.path)}  model '{printable(cfg.name)}'  SG-EnMCMC  {cfg.n_storeys}-storey shear building  "
              f"N={cfg.n_members} seed={cfg.seed}  blocks: {store.n_steps}  samples: {store.n_samples} "
              f"(dt = {cfg.dt:g} s)"]
     if store.n_steps == 0:
@@ -67,7 +73,7 @@ def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
     for r in rows:
         accept = "-" if r["acceptance"] is None else f"{r['acceptance']:.3f}"
         span = f"{r['first_sample']}-{r['first_sample'] + r['rows'] - 1}"
-        lines.append(f"{r['step']:>4}  {r['dataset'][:20]:<20} {span:>13} {r['time_end']:9.2f} {r['ess']:8.1f} "
+        lines.append(f"{r['step']:>4}  {printable(r['dataset'])[:20]:<20} {span:>13} {r['time_end']:9.2f} {r['ess']:8.1f} "
                      f"{r['ess'] / cfg.n_members:6.3f} {r['moves']:5d} {accept:>6} "
                      f"{r['log_evidence_increment']:12.4f} {r['log_evidence']:12.4f}")
     lines += textwrap.wrap(f"({ESS_NOTE_SG})", 100)
@@ -277,11 +283,11 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
              f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
     sensors = ", ".join([f"acceleration at floor {f}" for f in cfg.accelerations]
                         + [f"drift of storey {f}" for f in cfg.drifts])
-    parts.append(f"<p>Run <code>{html.escape(str(store.path))}</code>: SG-EnMCMC (resample-move, "
-                 f"N = {cfg.n_members}, seed {cfg.seed}) of a {cfg.n_storeys}-storey shear building; "
+    parts.append(f"<p>Run <code>{_e(store.path)}</code>: SG-EnMCMC (resample-move, "
+                 f"N = {_e(cfg.n_members)}, seed {_e(cfg.seed)}) of a {cfg.n_storeys}-storey shear building; "
                  f"{store.n_steps} block(s), {store.n_samples} samples at dt = {cfg.dt:g} s "
                  f"({store.n_samples * cfg.dt:.2f} s of record). Sensors: {html.escape(sensors)}. Model fingerprint "
-                 f"<code>{cfg.fingerprint()[:12]}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
+                 f"<code>{_e(cfg.fingerprint()[:12])}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
     parts.append("<h2>Model</h2>" + table_html(
         ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta"],
         [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})"]
@@ -290,9 +296,9 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
                  f"{cfg.damping_ratios[1]:g} in modes {cfg.damping_modes[0]} / {cfg.damping_modes[1]} of the "
                  f"undamaged building (coefficients fixed, so the damping ratios change with the stiffness); "
                  f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}"
-                 + (f", times a scale factor estimated with the ratios ({cfg.settings['noise_parameters']}; "
+                 + (f", times a scale factor estimated with the ratios ({_e(cfg.settings['noise_parameters'])}; "
                     f"log_noise_scale is its logarithm, log-uniform prior over "
-                    f"{tuple(cfg.settings.get('noise_scale_bounds', (0.25, 4.0)))})"
+                    f"{_e(tuple(cfg.settings.get('noise_scale_bounds', (0.25, 4.0))))})"
                     if cfg.settings.get("noise_parameters") else "")
                  + (f"; transition chosen at init by surrogate = \"auto\": {html.escape(cfg.surrogate_choice)}"
                     if cfg.surrogate_choice else "") + ".</p>")
@@ -334,7 +340,7 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
                                f"{r['ess']:.1f}", r["moves"], "-" if r["acceptance"] is None else f"{r['acceptance']:.3f}",
                                f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
                              left=(1,)))
-    parts.append(f"<p>{html.escape(ESS_NOTE_SG)} N = {cfg.n_members}.</p></body></html>")
+    parts.append(f"<p>{html.escape(ESS_NOTE_SG)} N = {_e(cfg.n_members)}.</p></body></html>")
     return "\n".join(parts)
 
 

@@ -77,6 +77,7 @@ import numpy as np
 
 from ..prognostics import FirstPassage, time_to_threshold
 from ..results import Result, StepInfo, StepRecord
+from ..rng import generator_from_state
 from . import snapshot
 from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, check_finite, json_value, json_values
 from .config import RunConfig
@@ -205,6 +206,10 @@ class RunStore(BaseStore):
             if not (isinstance(state, dict) and isinstance(state.get("bit_generator"), str)
                     and isinstance(state.get("state"), dict)):
                 raise StoreError(f"{path}: damaged run store: rng_state[{i}] is not a numpy generator state")
+        try:  # the state the next update resumes from (a crafted bit_generator name would be called)
+            generator_from_state(rng_states[-1])
+        except ValueError as err:
+            raise StoreError(f"{path}: damaged run store: rng_state[{len(rng_states) - 1}]: {err}") from None
         records = [StepRecord(_step_info(info), variables["posterior"][i], variables["log_weights"][i],
                               variables["predictive"][i])
                    for i, info in enumerate(json_values(text.get("step_info", []), path, "step_info"))]
@@ -239,6 +244,9 @@ class RunStore(BaseStore):
         if len(step_sizes) != n_steps:
             raise StoreError(f"{path}: inconsistent store ({len(step_sizes)} step sizes, n_steps = {n_steps})")
         check_finite(path, variables)
+        if not 0.0 <= float(attrs["initial_step_size"]) < np.inf:
+            raise StoreError(f"{path}: damaged run store: initial_step_size is {attrs['initial_step_size']!r}; "
+                             f"expected a finite number >= 0")
         return cls(path, stored, initial_particles=variables["initial_particles"],
                    initial_log_weights=variables["initial_log_weights"],
                    initial_step_size=float(attrs["initial_step_size"]), rng_states=rng_states, result=result,

@@ -256,13 +256,17 @@ def state_from_arrays(arrays_by_step, records, step_size: float, initial_prior, 
 
     prior, log_prior = prior_of(step)
     record = records[step - 1]
+    window_length = float(arrays.get("state_window", 0))
+    if not (window_length == int(window_length) and 0 <= window_length <= step):
+        raise ValueError(f"state_window: the conflict remedy's window at step {step} holds {window_length:g} steps; "
+                         f"expected an integer in [0, {step}] (the store was edited)")
     # the conflict remedy's window: the last steps' datasets, the priors they used, their posteriors
     # (sequential.assimilate keeps exactly these); a path-space step has a nonzero path_steps
     # (the cumulative variance before each: the step before's reported se, squared)
     window = tuple(PastStep(datasets[k - 1], prior_of(k - 1)[0], records[k - 1].posterior, records[k - 1].log_weights,
                             records[k - 1].info.log_evidence_increment, records[k - 1].info.path_steps > 0,
                             float(records[k - 2].info.log_evidence_se) ** 2 if k >= 2 else 0.0)
-                   for k in range(step - int(arrays.get("state_window", 0)) + 1, step + 1))
+                   for k in range(step - int(window_length) + 1, step + 1))
     paths = arrays.get("state_paths")
     lineage = arrays.get("state_lineage")
     previous_prior = prior_of(step - 1)[0] if step >= 2 and state_kind(arrays_by_step[-2]) == "mixture" else None
