@@ -1,6 +1,35 @@
-"""The engine's exceptions and warnings."""
+"""The engine's exceptions and warnings, and where the package documents them."""
 
-__all__ = ["ZeroLikelihoodError", "TemperingLimitError", "PriorDataConflictWarning", "InnerFilterWarning"]
+__all__ = ["ZeroLikelihoodError", "TemperingLimitError", "PriorDataConflictWarning", "InnerFilterWarning",
+           "zero_likelihood_message", "documented"]
+
+
+def zero_likelihood_message(step: int, prior: str, likelihood) -> str:
+    """Why no sample of ``step`` has a non-zero likelihood: the model returned NaN for every one (a failed
+    solve: the model's fault, not the prior's) or the ``prior`` is too far from the data.
+
+    ``likelihood``: the step's :class:`~seqbayes.engine.likelihood.ValidatedLikelihood` (its counts).
+    """
+    if 0 < likelihood.n_evals <= likelihood.n_nan:
+        return (f"step {step}: the likelihood returned NaN for every sample ({likelihood.n_nan} evaluations): the "
+                f"model failed at all of them (a solver that did not converge, a division by zero, ...); "
+                f"check the model at these parameters (NaN is read as zero likelihood)")
+    return f"step {step}: every sample has zero likelihood; the {prior} is too far from the data"
+
+
+def documented(page: str) -> str:
+    """Where ``page`` (a page of the documentation, e.g. ``"prior_data_conflict"``) is explained, for a
+    message: the short text that ships with the package (``seqbayes/data/WARNINGS.md``) and the page at
+    the documentation address the package declares, if it declares one."""
+    from importlib import metadata
+
+    try:
+        urls = metadata.metadata("seqbayes").get_all("Project-URL") or []
+    except metadata.PackageNotFoundError:  # run from a source tree without installing
+        urls = []
+    base = next((u.split(",", 1)[1].strip() for u in urls if u.split(",", 1)[0].strip() == "Documentation"), None)
+    online = f", and the page {page} at {base.rstrip('/')}/{page}/" if base else f" and docs/{page}.md in the sources"
+    return f"see seqbayes/data/WARNINGS.md in the installed package{online}"
 
 
 class ZeroLikelihoodError(RuntimeError):

@@ -17,6 +17,10 @@ from ..parallel import evaluate_loglike, read_only
 
 __all__ = ["ValidatedLikelihood", "check_dataset"]
 
+#: What a likelihood must be, for the errors of one that is not vectorised.
+_VECTORISED = ("the likelihood is called once for all samples: theta has shape {shape} = (N, d), one row per "
+               "sample (theta[:, 0] is the first parameter of every sample), and it must return an (N,) array")
+
 
 def check_dataset(dataset, step: int) -> None:
     """Raise ``ValueError`` for a missing or empty dataset of ``step``."""
@@ -72,7 +76,12 @@ class ValidatedLikelihood:
 
     def loglike_on(self, theta, dataset) -> np.ndarray:
         """The log-likelihood of any dataset (past ones for :class:`~seqbayes.predictive.history.HistoryPrior`)."""
-        values = evaluate_loglike(self.function, theta, dataset, self.executor, self.n_chunks)
+        try:
+            values = evaluate_loglike(self.function, theta, dataset, self.executor, self.n_chunks)
+        except ValueError as err:  # `a, b, c = theta`: a likelihood written for one sample at a time
+            if "values to unpack" not in str(err):
+                raise
+            raise ValueError(f"loglike: {err}: {_VECTORISED.format(shape=theta.shape)}") from err
         return self._checked(values, theta, "loglike")
 
     def summary_loglike(self, theta, summary) -> np.ndarray:
@@ -104,7 +113,7 @@ class ValidatedLikelihood:
         """``values (N,)`` of the user's function ``name`` at ``theta``, counted; +inf is an error, NaN -inf."""
         if values.shape != (theta.shape[0],):
             raise ValueError(f"{name}: returned shape {values.shape} for theta of shape {theta.shape}; "
-                             f"expected ({theta.shape[0]},)")
+                             f"expected ({theta.shape[0]},): {_VECTORISED.format(shape=theta.shape)}")
         self.n_evals += theta.shape[0]
         if self.on_evaluated is not None:
             self.on_evaluated(theta.shape[0])

@@ -11,7 +11,7 @@ from ..resampling import resample
 from ..results import prior_data_conflict
 from ..tempering import next_increment
 from ..weights import ess, logsumexp
-from .errors import TemperingLimitError, ZeroLikelihoodError
+from .errors import TemperingLimitError, ZeroLikelihoodError, zero_likelihood_message
 from .state import Cloud, Tempered
 
 __all__ = ["ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
@@ -96,6 +96,8 @@ def restricted_draws(prior, support, n, rng, step, likelihood, max_rounds=100):
         kept.append(draws[ok])
         kept_ll.append(loglike[ok])
         n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
+    if n_kept == 0 and 0 < likelihood.n_evals <= likelihood.n_nan:  # the model failed, the prior is not to blame
+        raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
     if n_kept == 0:
         raise ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood (0 of {n_drawn} draws of the "
@@ -152,8 +154,7 @@ def weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
     log_restricted_mass, n_found, restarted = 0.0, n, False
     labels = np.arange(n) if labels is None else labels
     if not valid.any() and (inside.all() or exact_prior):
-        raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
-                                  f"{prior_name(step)} is too far from the data")
+        raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < _min_valid(config, particles)):
         particles, loglike, log_restricted_mass, n_found, labels = restricted_draws(state.prior, problem.support,
                                                                                      n, rng, step, likelihood)
