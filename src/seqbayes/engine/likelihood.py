@@ -4,7 +4,9 @@
 history prior's past datasets, their running statistics, the path-space remedy's window) goes through it,
 so that shapes are checked, NaN counts as zero likelihood (``-inf``, counted in ``StepInfo.n_nan``),
 ``+inf`` is an error, every evaluated row is counted (``StepInfo.n_loglike_evals``) and the user's code
-sees read-only views (:func:`seqbayes.parallel.read_only`). The path-space views
+sees read-only views (:func:`seqbayes.parallel.read_only`) that it cannot make writable again: views of a
+copy of ``theta`` (``setflags(write=True)`` then changes only the copy) and of the dataset frozen in an
+immutable buffer (:func:`frozen`; ``setflags(write=True)`` raises). The path-space views
 (:meth:`ValidatedLikelihood.of_last_state`, :meth:`ValidatedLikelihood.over_window`) are thin compositions
 of it on flattened paths ``(M, T d)``.
 """
@@ -15,11 +17,38 @@ import numpy as np
 
 from ..parallel import evaluate_loglike, read_only
 
-__all__ = ["ValidatedLikelihood", "check_dataset"]
+__all__ = ["ValidatedLikelihood", "check_dataset", "frozen"]
 
 #: What a likelihood must be, for the errors of one that is not vectorised.
 _VECTORISED = ("the likelihood is called once for all samples: theta has shape {shape} = (N, d), one row per "
                "sample (theta[:, 0] is the first parameter of every sample), and it must return an (N,) array")
+
+
+def frozen(value):
+    """``value`` with every array moved into an immutable ``bytes`` buffer, so that no view of it can be made
+    writable again (``setflags(write=True)`` on a view of a read-only array that owns its memory succeeds;
+    on one of a ``bytes`` object it raises). Dicts, lists and tuples are rebuilt; other values returned as
+    they are. An array already frozen is returned as it is (no copy).
+
+    >>> a = frozen(np.arange(3.0))
+    >>> a.flags.writeable
+    False
+    >>> a.setflags(write=True)
+    Traceback (most recent call last):
+    ValueError: cannot set WRITEABLE flag to True of this array
+    """
+    if isinstance(value, np.ndarray):
+        root = value
+        while isinstance(root, np.ndarray):
+            root = root.base
+        if isinstance(root, bytes) or value.dtype.hasobject:
+            return value
+        return np.frombuffer(np.ascontiguousarray(value).tobytes(), dtype=value.dtype).reshape(value.shape)
+    if isinstance(value, dict):
+        return {key: frozen(item) for key, item in value.items()}
+    if type(value) in (list, tuple):
+        return type(value)(frozen(item) for item in value)
+    return value
 
 
 def check_dataset(dataset, step: int) -> None:
@@ -56,7 +85,7 @@ class ValidatedLikelihood:
 
     def __init__(self, loglike, dataset=None, step: int = 0, *, executor=None, n_chunks: int | None = None,
                  history=None, on_evaluated=None):
-        self.function, self.dataset, self.step = loglike, dataset, step
+        self.function, self.dataset, self.step = loglike, frozen(dataset), step
         self.executor, self.n_chunks, self.history, self.on_evaluated = executor, n_chunks, history, on_evaluated
         self.n_evals = 0
         self.n_nan = 0
@@ -76,18 +105,24 @@ class ValidatedLikelihood:
 
     def loglike_on(self, theta, dataset) -> np.ndarray:
         """The log-likelihood of any dataset (past ones for :class:`~seqbayes.predictive.history.HistoryPrior`)."""
+        # theta is copied (N d floats, less than any likelihood reads) so that a likelihood that makes its
+        # view writable changes only the copy; the dataset is frozen (once per step for the step's own)
         try:
-            values = evaluate_loglike(self.function, theta, dataset, self.executor, self.n_chunks)
-        except ValueError as err:  # `a, b, c = theta`: a likelihood written for one sample at a time
-            if "values to unpack" not in str(err):
-                raise
-            raise ValueError(f"loglike: {err}: {_VECTORISED.format(shape=theta.shape)}") from err
+            values = evaluate_loglike(self.function, np.array(theta, dtype=float), frozen(dataset), self.executor,
+                                      self.n_chunks)
+        except ValueError as err:
+            if "values to unpack" in str(err):  # `a, b, c = theta`: a likelihood written for one sample
+                raise ValueError(f"loglike: {err}: {_VECTORISED.format(shape=theta.shape)}") from err
+            if "WRITEABLE" in str(err):
+                raise ValueError(f"loglike: tried to make its data writable ({err}); the data are read-only so "
+                                 f"that the run cannot be corrupted: copy them first (np.array(data))") from err
+            raise
         return self._checked(values, theta, "loglike")
 
     def summary_loglike(self, theta, summary) -> np.ndarray:
         """``log prod_k L_k(theta)`` over past datasets from their summed statistics (one call; see
         :class:`~seqbayes.predictive.history.RunningStatistics`), counted as one evaluation per row."""
-        values = self.history.loglike(read_only(theta), read_only(summary))
+        values = self.history.loglike(read_only(np.array(theta, dtype=float)), read_only(frozen(summary)))
         return self._checked(np.asarray(values, dtype=float), theta, "history.loglike")
 
     def add_along_paths(self, out, states, datasets) -> np.ndarray:

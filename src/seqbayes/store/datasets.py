@@ -38,7 +38,7 @@ _NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf|infinity
 
 
 def printable(text, limit: int | None = None) -> str:
-    """``text`` made safe to print: control and format characters (newlines, escape sequences, bidi
+    r"""``text`` made safe to print: control and format characters (newlines, escape sequences, bidi
     overrides) escaped as ``repr`` does, then cut to ``limit`` characters with ``...``.
 
     File names and cells come from files a user was handed; printed raw, ``\x1b[2J`` clears the
