@@ -72,8 +72,47 @@ ESS_NOTE = ("ESS: effective sample size of the importance weights at the step's 
             "'distinct': distinct samples in the final set, after resampling and moves")
 
 
+#: Most sample-steps (horizon x N) a forecast or time-to-threshold of the command line simulates, and most
+#: steps of a forecast: the forecast holds its draws in memory (8 d bytes each) and re-draws the paths that
+#: leave the parameter space (up to 100 rounds of the whole horizon), so long horizons take minutes; beyond
+#: these the command refuses in one line (docs/guide.md gives the bounds).
+MAX_SIMULATED = 2_000_000
+MAX_FORECAST_STEPS = 1000
+
+
 class CommandError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
+
+
+def _check_horizon(option: str, steps: int, n_samples: int) -> None:
+    """Refuse a forecast horizon whose simulation would exceed :data:`MAX_SIMULATED` sample-steps."""
+    limit = min(MAX_SIMULATED // n_samples, MAX_FORECAST_STEPS if option != "--horizon" else MAX_SIMULATED)
+    if steps > limit:
+        raise CommandError(f"{option} {steps}: the command line simulates at most {limit} steps ahead for N = "
+                           f"{n_samples} samples (at most {MAX_FORECAST_STEPS} forecast steps and "
+                           f"{MAX_SIMULATED:.0e} sample-steps: a longer horizon takes minutes); use the Python API "
+                           f"(RunStore.predict, RunStore.time_to_threshold) for more")
+
+
+def _json(value) -> str:
+    """``value`` as JSON text with NaN and infinities written ``null`` (bare ``NaN`` is not JSON)."""
+    def clean(item):
+        if isinstance(item, float):
+            return item if item == item and abs(item) != float("inf") else None
+        if isinstance(item, dict):
+            return {key: clean(v) for key, v in item.items()}
+        if isinstance(item, (list, tuple)):
+            return [clean(v) for v in item]
+        return item
+
+    return json.dumps(clean(value), indent=1, allow_nan=False)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A warning as one line, ``seqbayes: warning: Category: text`` (no source line: the user did not write it)."""
+    from .store.datasets import printable
+
+    print(f"seqbayes: warning: {category.__name__}: {printable(message)}", file=file or sys.stderr)
 
 
 def list_examples() -> str:
@@ -127,6 +166,7 @@ def cmd_update(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
     from .store import BoundWarning, open_run
+    from .store.datasets import printable
     from .store.files import store_lock
 
     show = _progress_enabled() and not args.quiet
@@ -155,10 +195,10 @@ def cmd_update(args: argparse.Namespace) -> int:
                     except Exception as err:
                         raise CommandError(f"{path}: {_describe(err, store, done)}") from err
                 done.append(f"{Path(path).name} (step {store.n_steps})")
-                tqdm.write(f"{args.run}: {store.step_summary(info, Path(path).name)}", file=sys.stdout)
-                for warning in caught:
-                    if issubclass(warning.category, BoundWarning):
-                        print(f"seqbayes update: warning: {warning.message}", file=sys.stderr)
+                tqdm.write(printable(f"{args.run}: {store.step_summary(info, Path(path).name)}"), file=sys.stdout)
+                for warning in caught:  # one line each (BoundWarning says what it is in its text)
+                    kind = "" if issubclass(warning.category, BoundWarning) else f"{warning.category.__name__}: "
+                    print(f"seqbayes update: warning: {kind}{printable(warning.message)}", file=sys.stderr)
                 args.replace_last = False
         finally:
             close()
@@ -202,7 +242,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     store = open_run(args.run)
     if args.json:
-        print(json.dumps(store.status_json(args.level), indent=1))
+        print(_json(store.status_json(args.level)))
     else:
         print(store.status(args.level))
     return 0
@@ -219,6 +259,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.run}: no dataset assimilated yet; nothing to forecast from")
     if args.steps < 1:
         raise CommandError(f"--steps: must be >= 1, got {args.steps}")
+    _check_horizon("--steps", args.steps, store.config.n_samples)
     if args.output and Path(args.output).is_dir():
         raise CommandError(f"{args.output}: is a folder; give the forecast's file name, e.g. "
                            f"{Path(args.output) / 'forecast.csv'}")
@@ -231,10 +272,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
         _write_forecast(Path(args.output), store, draws)
     if args.json:
         if passages:  # with thresholds the output is an object; without, the forecast rows as before
-            print(json.dumps({"forecast": rows, "thresholds": [first_passage_json(store, t, p) for t, p in passages]},
-                             indent=1))
+            print(_json({"forecast": rows, "thresholds": [first_passage_json(store, t, p) for t, p in passages]}))
         else:
-            print(json.dumps(rows, indent=1))
+            print(_json(rows))
     else:
         print(f"forecast from step {store.n_steps} of {args.run} ({store.config.name!r}), {draws.shape[1]} draws")
         print(format_forecast(rows, args.level))
@@ -294,8 +334,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     stores, names, n_common = _open_for_comparison(args.runs)
     comparison = compare({n: s.result.log_evidence[:n_common] for n, s in zip(names, stores)})
     if args.json:
-        print(json.dumps({"steps": n_common, "best": comparison.best, "rows": comparison_rows(comparison)},
-                         indent=1))
+        print(_json({"steps": n_common, "best": comparison.best, "rows": comparison_rows(comparison)}))
         return 0
     if len({s.n_steps for s in stores}) > 1:
         print(f"note: runs have {', '.join(str(s.n_steps) for s in stores)} steps; comparing the first {n_common}")
@@ -317,6 +356,11 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.compare:
         stores, _, _ = _open_for_comparison([args.run, *args.compare], first=store)
         others = stores[1:]
+    n_samples = getattr(store.config, "n_samples", None) or store.config.n_members   # SG-EnMCMC: n_members
+    for option, steps in (("--forecast", args.forecast), ("--horizon", args.horizon if args.threshold else 0)):
+        if steps < 0 or (option == "--horizon" and args.threshold and steps < 1):
+            raise CommandError(f"{option}: must be >= {0 if option == '--forecast' else 1}, got {steps}")
+        _check_horizon(option, steps, n_samples)
     output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
     if output.is_dir():
         raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
@@ -424,17 +468,24 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     if args.command == "example":
-        return _run_example(args.name, rest)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return _run_example(args.name, rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     from .store import ConfigError, DataError, StoreError
 
+    from .store.datasets import printable
+
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning   # restored on leaving: main() is also called from Python
+            return int(args.func(args) or 0)
     except (CommandError, ConfigError, DataError, StoreError, ValueError, TypeError) as err:
         if args.traceback:
             raise
-        print(f"seqbayes {args.command}: error: {err}", file=sys.stderr)
+        # the line quotes file names and fields from files the user was handed: no raw control characters
+        print(f"seqbayes {args.command}: error: {printable(err)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `seqbayes status RUN | head`: the reader has what it wanted
         import os
@@ -445,7 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.traceback:
             raise
         where = f"{err.filename}: " if err.filename else ""
-        print(f"seqbayes {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
+        print(f"seqbayes {args.command}: error: {printable(f'{where}{err.strerror or err}')}", file=sys.stderr)
         return 2
 
 

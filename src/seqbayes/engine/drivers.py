@@ -17,7 +17,7 @@ from ..priors import as_samples, support_of
 from ..results import Result, StepInfo, StepRecord
 from ..rng import as_generator, generator_from_state, generator_state
 from ..tempering import blas_limit
-from .errors import InnerFilterWarning, PriorDataConflictWarning
+from .errors import InnerFilterWarning, PriorDataConflictWarning, documented
 from .forecast import forecast
 from .pipeline import assimilate
 from .settings import SamplerConfig
@@ -157,7 +157,7 @@ class _SequentialSampler:
                           f"than its noise, so the likelihood estimates are noisy and the moves rarely accept. A "
                           f"kernel the data contradict loses evidence anyway; otherwise raise n_inner, declare a "
                           f"KalmanInnerFilter if the model is linear-Gaussian in them, or for a short run use "
-                          f"predictive='transition'",
+                          f"predictive='transition' ({documented('core')})",
                           InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         # either half of the diagnostic: the posterior mean's shift, or a posterior carried by a few of the predictive
         # mixture's components (the ancestor ESS, which catches conflicts the shift misses; docs/prior_data_conflict.md)
@@ -173,7 +173,7 @@ class _SequentialSampler:
             remedy = (f"; assimilated on the path space of the last {record.info.path_steps} states, whose target is "
                       f"the model's exact one (StepInfo.path_steps)" if record.info.path_steps else
                       "; the predictive mixture's tail is a few particles there, so the sampler may be unreliable "
-                      "(the path-space remedy is off or does not apply: docs/prior_data_conflict.md)")
+                      f"(the path-space remedy is off or does not apply; {documented('prior_data_conflict')})")
             warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
                           f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
                           f"kernel too narrow for the data{remedy}",
