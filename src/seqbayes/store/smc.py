@@ -425,7 +425,16 @@ class RunStore(BaseStore):
             loglike, source = self._verified_likelihood()
             self.share_likelihood(executor, source)
         sampler = self.config.build_sampler(executor=executor, loglike=loglike)
-        sampler.restore(*self.state_at(step))
+        try:  # a state variable renamed or missing (the file was edited): one line, not a KeyError
+            state = self.state_at(step)
+            unknown = sorted(set(self.states[step - 1]) - set(snapshot.state_arrays(state[0]))) if step else []
+            if unknown:
+                raise KeyError(unknown[0])
+        except KeyError as err:
+            raise StoreError(f"{self.path}: damaged run store: the sampler state after step {step} does not match "
+                             f"its variables ({str(err)[:60]}); the file was edited or written by an incompatible "
+                             f"seqbayes") from None
+        sampler.restore(*state)
         return sampler
 
     # ------------------------------------------------------------- assimilation
