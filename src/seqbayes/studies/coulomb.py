@@ -429,6 +429,17 @@ def write_figures(study: CoulombStudy, out) -> list:
     return paths
 
 
+def kernel_legend() -> str:
+    """One line naming the candidate kernels T1 and T2 (Eqs. 21-22) from their settings in the model.
+
+    >>> kernel_legend()
+    'T1 = linear drift, F_mu - 0.375 + N(0, 0.04^2) (Eq. 21); T2 = exponential decay, exp(-0.47) F_mu + N(0, 0.09^2) (Eq. 22)'
+    """
+    (_, drift, drift_sd), (_, decay, decay_sd) = model.KERNELS["T1"], model.KERNELS["T2"]
+    return (f"T1 = linear drift, F_mu {'-' if drift < 0 else '+'} {abs(drift):g} + N(0, {drift_sd:g}^2) (Eq. 21); "
+            f"T2 = exponential decay, exp(-{decay:g}) F_mu + N(0, {decay_sd:g}^2) (Eq. 22)")
+
+
 def summary(study: CoulombStudy) -> str:
     """Plain-text summary: the most probable kernel per sampler and the posterior of F_mu per step."""
     combos = list(study.results)
@@ -438,6 +449,7 @@ def summary(study: CoulombStudy) -> str:
     lines = [f"Coulomb-friction study (Sec. 6.4): {n_runs} run(s) x {', '.join(samplers)} x {', '.join(kernels)}, "
              f"{study.results[combos[0]][0].steps[0].posterior.shape[0]} samples, 4 steps, "
              f"{study.wall_time:.1f} s", ""]
+    lines += [f"Kernels (how the friction force F_mu may change between datasets): {kernel_legend()}", ""]
     lines.append("Model selection (cumulative log-evidence at s = 4, mean +- std over runs):")
     best = {}
     for s in samplers:
