@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -329,10 +329,19 @@ class Result:
 
     def to_arviz(self, step: int | None = None, rng: int | np.random.Generator | None = None, *,
                  prior: Any = None, pointwise_loglike: Callable[[np.ndarray, Any], np.ndarray] | None = None,
-                 dataset: Any = None, loglike_step: int = -1) -> az.InferenceData:
+                 dataset: Any = None, loglike_step: int = -1, runs: Sequence[Result] = ()) -> az.InferenceData:
         """The run as :class:`arviz.InferenceData`, with a ``step`` dimension.
 
-        Groups (``chain`` has length 1, ``draw`` length ``N``):
+        ArviZ's conventions for SMC (PyMC's SMC does the same): a ``chain`` is one independent run
+        (this one, then each of ``runs``), the step is a dimension of every variable (not a chain),
+        and the sampler's own diagnostics (importance ESS, log-evidence, acceptance) are in
+        ``sample_stats``. R-hat compares chains, so it means something only across independent
+        runs (``runs``); with one run ``az.summary`` warns about the single chain and reports R-hat
+        NaN. ``ess_bulk``/``ess_tail`` treat the draws as a Markov chain, which resampled draws are
+        not: use ``sample_stats.ess`` and ``n_distinct`` instead. ``az.plot_trace`` draws one line per
+        step (the steps are not chains): select a step with ``coords={"step": s}``.
+
+        Groups (``chain`` has length ``1 + len(runs)``, ``draw`` length ``N``):
 
         - ``posterior``: one variable per parameter, ``(chain, draw, step)``: each step's
           ``N`` equal-weight draws (systematic resampling of the weighted particles). They are
@@ -373,6 +382,9 @@ class Result:
             The dataset of ``loglike_step``, as given to the likelihood.
         loglike_step : int
             Index into :attr:`steps` of ``dataset`` (``-1``: the last).
+        runs : sequence of Result
+            Independent runs of the same model on the same datasets (other seeds), one chain each,
+            so that R-hat compares runs. Each needs this run's parameters, sample size and steps.
 
         Returns
         -------
@@ -382,7 +394,8 @@ class Result:
         ------
         ValueError
             No steps, a ``step`` or ``loglike_step`` out of range, ``pointwise_loglike`` without
-            ``dataset`` (or the reverse), or a pointwise log-likelihood of the wrong shape.
+            ``dataset`` (or the reverse), a pointwise log-likelihood of the wrong shape, or a run of
+            ``runs`` with other parameters, sample size or steps.
         """
         try:
             import arviz as az
@@ -391,6 +404,31 @@ class Result:
         import xarray as xr
 
         from .rng import as_generator
+
+        rng = as_generator(0 if rng is None else rng)
+        groups = self._arviz_groups(step, rng, prior, pointwise_loglike, dataset, loglike_step)
+        for k, run in enumerate(runs, start=1):
+            shape = (run.names, len(run.steps), run.steps[0].posterior.shape[0] if run.steps else 0)
+            if shape != (self.names, len(self.steps), self.steps[0].posterior.shape[0]):
+                raise ValueError(f"runs[{k - 1}]: expected a run of {self.names} with {len(self.steps)} steps of "
+                                 f"N = {self.steps[0].posterior.shape[0]}, got {shape[0]} with {shape[1]} steps of "
+                                 f"N = {shape[2]}")
+            other = run._arviz_groups(step, rng, prior, pointwise_loglike, dataset, loglike_step)
+            groups = {key: xr.concat([ds, other[key].assign_coords(chain=[k])], dim="chain", combine_attrs="override")
+                      for key, ds in groups.items() if key in other}
+        if step is not None:
+            info = self.steps[int(step) % len(self.steps)].info
+            groups = {key: ds.isel(step=0) if "step" in ds.dims else ds for key, ds in groups.items()}
+            groups["posterior"].attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
+                                              "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
+        for ds in groups.values():
+            ds.attrs.update({"inference_library": "seqbayes", "created_by": "seqbayes.Result.to_arviz",
+                             "chain": "one independent SMC run per chain; step: the dataset index"})
+        return az.InferenceData(**groups)
+
+    def _arviz_groups(self, step, rng, prior, pointwise_loglike, dataset, loglike_step) -> dict:
+        """:meth:`to_arviz`'s groups for this run alone, as one chain, with the ``step`` dimension."""
+        import xarray as xr
 
         if not self.steps:
             raise ValueError("result: no steps to convert")
@@ -401,7 +439,6 @@ class Result:
         if (pointwise_loglike is None) != (dataset is None):
             raise ValueError("pointwise_loglike and dataset: give both (the log-likelihood of each observation "
                              "of that dataset) or neither")
-        rng = as_generator(0 if rng is None else rng)
         chosen = list(range(n_total)) if step is None else [int(step) % n_total]
         records = [self.steps[i] for i in chosen]
         n = records[0].posterior.shape[0]
@@ -458,11 +495,4 @@ class Result:
                 {"y": (("chain", "draw", "observation"), values[None])},
                 coords={"chain": [0], "draw": np.arange(n), "observation": np.arange(values.shape[1])},
                 attrs={"step": int(record.info.step)})
-        if step is not None:
-            info = records[0].info
-            groups = {key: ds.isel(step=0) if "step" in ds.dims else ds for key, ds in groups.items()}
-            groups["posterior"].attrs.update({"step": int(info.step), "log_evidence": float(info.log_evidence),
-                                              "ess": float(info.ess), "acceptance_rate": float(info.acceptance_rate)})
-        for ds in groups.values():
-            ds.attrs.update({"inference_library": "seqbayes", "created_by": "seqbayes.Result.to_arviz"})
-        return az.InferenceData(**groups)
+        return groups
