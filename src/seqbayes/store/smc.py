@@ -245,7 +245,7 @@ class RunStore(BaseStore):
             raise StoreError(f"{path}: inconsistent store ({len(step_sizes)} step sizes, n_steps = {n_steps})")
         check_finite(path, variables)
         if not 0.0 <= float(attrs["initial_step_size"]) < np.inf:
-            raise StoreError(f"{path}: damaged run store: initial_step_size is {attrs['initial_step_size']!r}; "
+            raise StoreError(f"{path}: damaged run store: initial_step_size is {float(attrs['initial_step_size'])}; "
                              f"expected a finite number >= 0")
         return cls(path, stored, initial_particles=variables["initial_particles"],
                    initial_log_weights=variables["initial_log_weights"],
