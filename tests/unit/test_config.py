@@ -155,7 +155,6 @@ def test_the_fast_csv_reader_gives_the_cell_readers_numbers(tmp_path, monkeypatc
         "blank_lines.csv": "t,y\n0,1\n\n1,2\n\n",
         "no_final_newline.csv": "t,y\n0,1\n1, 2 ",
         "quoted.csv": 't,y\n"0",1\n1,"2"\n',
-        "commas_only.csv": "t,y\n0,1\n,\n1,2\n",
     }
     fallbacks = []
     cells = datasets._read_csv_cells
@@ -165,7 +164,10 @@ def test_the_fast_csv_reader_gives_the_cell_readers_numbers(tmp_path, monkeypatc
         header, index = datasets._csv_header(tmp_path / name, cfg.columns)
         expected = cells(tmp_path / name, cfg.columns, header, index)
         np.testing.assert_array_equal(read_datafile(tmp_path / name, cfg), expected)
-    assert sorted(fallbacks) == ["commas_only.csv", "quoted.csv"]
+    assert sorted(fallbacks) == ["quoted.csv"]
+    (tmp_path / "commas_only.csv").write_text("t,y\n0,1\n,\n1,2\n")   # issue 24: refused, not dropped
+    with pytest.raises(DataError, match=r"commas_only.csv: line 3 has only empty cells"):
+        read_datafile(tmp_path / "commas_only.csv", cfg)
     np.testing.assert_array_equal(read_datafile(tmp_path / "extra.csv", cfg), [[0, 1.5], [1, 2]])
     (tmp_path / "wide.csv").write_text("t,y\n0,1\n1,2,3\n")
     with pytest.raises(DataError, match=r"wide.csv: line 3 has 3 fields, the header has 2"):

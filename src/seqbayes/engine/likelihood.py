@@ -167,6 +167,9 @@ class LastStateLikelihood:
     def __init__(self, base: ValidatedLikelihood, dim: int):
         self.base, self.dim, self.step = base, dim, base.step
 
+    n_evals = property(lambda self: self.base.n_evals, doc="Rows evaluated by the base likelihood.")
+    n_nan = property(lambda self: self.base.n_nan, doc="NaN values it returned.")
+
     def loglike(self, walkers) -> np.ndarray:
         return self.base.loglike(walkers[:, -self.dim:])
 
@@ -176,6 +179,9 @@ class WindowLikelihood:
 
     def __init__(self, base: ValidatedLikelihood, datasets: tuple, dim: int):
         self.base, self.datasets, self.dim, self.step = base, datasets, dim, base.step
+
+    n_evals = property(lambda self: self.base.n_evals, doc="Rows evaluated by the base likelihood.")
+    n_nan = property(lambda self: self.base.n_nan, doc="NaN values it returned.")
 
     def loglike(self, walkers) -> np.ndarray:
         states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows

@@ -145,7 +145,7 @@ def _csv_header(path, columns) -> tuple[list, list]:
     missing = [c for c in columns if c not in header]
     if missing:
         raise DataError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; "
-                        f"the header starts {_excerpt(header)}")
+                        f"the header has {_excerpt(header)}")
     twice = [c for c in columns if header.count(c) > 1]
     if twice:
         raise DataError(f"{path}: column(s) {', '.join(map(repr, twice))} appear more than once in the header; "
