@@ -156,9 +156,10 @@ class _CountingLikelihood:
 # what a kind of run cannot do, its backend refuses (BaseStore.require) with a message naming the alternative.
 def cmd_init(args: argparse.Namespace) -> int:
     from .store import create_run, load_config
+    from .store.datasets import printable
 
     store = create_run(args.run, load_config(args.config), overwrite=args.force)
-    print(f"created {store.describe()}")
+    print(f"created {printable(store.describe())}")
     return 0
 
 
@@ -310,9 +311,12 @@ def _open_for_comparison(paths, first=None):
         store = first if i == 0 and first is not None else open_run(path)
         store.require("compare")
         stores.append(store)
+    from .store.datasets import printable
+
     names = []
-    for store in stores:
-        name = store.config.name if store.config.name not in names else f"{store.config.name} ({store.path.name})"
+    for store in stores:  # shown in the comparison table: escaped like every name read from a file
+        name = printable(store.config.name if store.config.name not in names
+                         else f"{store.config.name} ({store.path.name})")
         names.append(name)
     n_common = min(s.n_steps for s in stores)
     if n_common == 0:
