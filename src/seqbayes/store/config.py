@@ -375,7 +375,7 @@ def _check_prior_keywords(dist_name, kwds, n_args, source, prefix):
     given = [*shapes, "loc", "scale"][:n_args]
     twice = [key for key in kwds if key in given]
     if twice:
-        _fail(source, f"{prefix}.{twice[0]}", f"given both in args and as a keyword")
+        _fail(source, f"{prefix}.{twice[0]}", "given both in args and as a keyword")
 
 
 def _memory_bound(n_samples, dim, source):
@@ -503,8 +503,6 @@ def _as_toml(data, source) -> dict:
             entry = dict(spec)
             if entry.get("type") == "static":  # stored with rate 0 and noise_std 0, written without them
                 entry = {"type": "static", **{k: v for k, v in entry.items() if k != "type" and v != 0}}
-            elif entry.get("type") == "jump" and entry.get("tail") is None:
-                entry.pop("tail", None)
             kernel[name] = entry
         sampler = {"type": data.get("sampler"), "n_samples": data.get("n_samples"), "seed": data.get("seed"),
                    **data.get("settings", {})}
