@@ -238,7 +238,7 @@ class RunStore(BaseStore):
         step_sizes = [float(v) for v in variables["state_step_size"]] if n_steps else []
         if len(step_sizes) != n_steps:
             raise StoreError(f"{path}: inconsistent store ({len(step_sizes)} step sizes, n_steps = {n_steps})")
-        check_finite(path, variables)
+        check_finite(path, variables, snapshot.output_name)
         return cls(path, stored, initial_particles=variables["initial_particles"],
                    initial_log_weights=variables["initial_log_weights"],
                    initial_step_size=float(attrs["initial_step_size"]), rng_states=rng_states, result=result,

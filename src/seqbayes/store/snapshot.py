@@ -49,7 +49,7 @@ from ..results import StepRecord
 from ..engine.state import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
-           "check_state", "is_state_variable", "fill_missing", "UnsupportedState"]
+           "check_state", "is_state_variable", "fill_missing", "output_name", "UnsupportedState"]
 
 
 class UnsupportedState(TypeError):
@@ -163,6 +163,23 @@ def is_state_variable(name: str) -> bool:
     """Whether a run-store variable ``name`` is one of :func:`state_arrays`' arrays."""
     return (name in _COMMON or name.startswith(_NESTED)
             or any(name.startswith(prefix) for prefix, *_ in _KINDS.values()))
+
+
+def output_name(variable: str) -> str:
+    """The engine's name of a run-store ``variable`` (:mod:`seqbayes.engine.outputs`, whose rules the store's
+    check on open shares with the engine's after every step): a state's own array without its prefix
+    (``state_log_evidence_variance`` -> ``log_evidence_variance``, ``nested_cloud_x`` -> ``cloud_x``), a mixture
+    prior's arrays ``prior_*`` (``mixture_centres`` -> ``prior_centres``), the initial draws ``particles`` and
+    ``log_weights``, the datasets ``dataset``."""
+    if variable in _COMMON or variable == "state_log_prior":   # the history prior's values: the state's log_prior
+        return variable[len("state_"):]
+    if variable.startswith(_NESTED):
+        return variable[len(_NESTED):]
+    for prefix, *_ in _KINDS.values():
+        if variable.startswith(prefix):
+            return "prior_" + variable[len(prefix):]
+    return {"initial_particles": "particles", "initial_log_weights": "log_weights",
+            "dataset_values": "dataset"}.get(variable, variable)
 
 
 def fill_missing(arrays: dict, n_samples: int) -> None:
