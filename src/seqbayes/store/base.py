@@ -376,6 +376,11 @@ class BaseStore:
         """Variables and coordinates written once, not per step: ``(data, coords)`` for a whole write."""
         return {}, {}
 
+    def _rewritten(self, start: int) -> list:
+        """``(name, index, values)``: the parts of :meth:`_whole_variables` that an append of the steps after
+        ``start`` rewrites in place (``f[name][index] = values``, the same shape); none by default."""
+        return []
+
     def _own_attrs(self) -> dict:
         """The backend's file attributes beside the common ones."""
         return {}
@@ -552,6 +557,12 @@ class BaseStore:
             if (dims[0] not in f or dataset.shape[0] != f[dims[0]].shape[0]
                     or dataset.shape[1:] != np.shape(values)[1:] or added.setdefault(dims[0], len(values)) != len(values)):
                 return False
+        rewritten = self._rewritten(start)
+        if any(name not in f or name in growing or np.empty(f[name].shape, bool)[index].shape != np.shape(values)
+               for name, index, values in rewritten):
+            return False
+        for name, index, values in rewritten:
+            f[name][index] = values
         for dim, n in added.items():
             if dim not in rows:                  # a dimension without coordinates: its scale grows too
                 files.extend(f[dim], n)
