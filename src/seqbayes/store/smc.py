@@ -43,7 +43,8 @@ and ``dataset_rows (step)`` when the state needs the datasets,
 ``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
 any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
 as JSON), ``dataset_sha256``, ``dataset_source``, ``likelihood_sha256``, ``record_sha256``,
-``state_step_size``, ``initial_particles``, ``initial_log_weights``, ``rng_state (rng_index)``;
+``state_step_size``, ``initial_particles``, ``initial_log_weights``, ``rng_state (rng_index)``,
+for SMC^2 its full state of the last two steps only (``nested_full_* (slot, ...)``, ``nested_slot_step``);
 attributes ``config`` (with the likelihood module's file and hash), ``model_fingerprint``,
 ``content_sha256``, ``seqbayes_store_format``. The growing dimensions (``step``,
 ``rng_index``, ``dataset_row``) are unlimited, in chunks of a few steps. Few variables keep

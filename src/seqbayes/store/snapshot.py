@@ -23,7 +23,8 @@ The kinds and their arrays (after the ``step`` dimension):
 - ``history`` (the exact history prior of static parameters): ``state_log_prior (N,)``, its
   values at the particles; resuming needs the assimilated datasets.
 - ``nested`` (SMC^2): ``nested_*``, the outer particles, inner filters and likelihood
-  estimates of :func:`~seqbayes.predictive.smc2.nested_state_arrays`; resuming needs the datasets.
+  estimates of :func:`~seqbayes.predictive.smc2.nested_state_arrays`; resuming needs the datasets, and
+  of the steps before only their guides (:data:`NESTED_PER_STEP`, :func:`per_step`).
 
 Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
 the cumulative log-evidence, ``state_window ()``, the length of the conflict remedy's window of
