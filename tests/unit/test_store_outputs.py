@@ -128,3 +128,22 @@ def test_the_engine_checks_every_step_against_the_same_rules(tmp_path):
     centres[0, 0] = np.nan
     with pytest.raises(InvalidStepError, match="prior_centres holds 1"):
         check_step(dataclasses.replace(state, prior=dataclasses.replace(state.prior, centres=centres)), record)
+
+
+def test_the_path_prior_density_of_no_walker_is_empty():
+    """The property test's streams met a path-space step whose rejection round left no walker inside the box:
+    the path prior's density of zero walkers is zero values, not a reshape error (which ended the update and,
+    in tools/result_hash.py's oscillator run 0 under T6 with SEMC, the run at step 3)."""
+    from types import SimpleNamespace
+
+    from seqbayes.engine.state import PastStep
+    from seqbayes.kernels import Drift, MarkovKernel
+    from seqbayes.predictive.paths import path_prior_logpdf
+
+    prior = SimpleNamespace(logpdf=lambda theta: np.zeros(len(theta)))
+    likelihood = SimpleNamespace(add_along_paths=lambda out, states, datasets: out)
+    window = (PastStep(np.zeros((3, 2)), prior, np.zeros((5, 2)), np.zeros(5), 0.0, False, 0.0),)
+    kernel = MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])
+    logpdf = path_prior_logpdf(window, kernel, likelihood, 2)
+    assert logpdf(np.zeros((0, 4))).shape == (0,)
+    np.testing.assert_array_equal(logpdf(np.zeros((3, 4))), kernel.logpdf(np.zeros((3, 2)), np.zeros((3, 2))))
