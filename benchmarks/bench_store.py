@@ -18,7 +18,12 @@ grows with the file although the store writes the same pages); the copy is not c
 prints the medians of both stores, the median of the per-pair ratios and the file sizes
 (issue 15 asks for time and bytes per update at step 500 within 1.5x of step 5). With
 ``--full`` each step is a real update of a new dataset (open, the sampler's step, the write),
-the time a user waits for ``seqbayes update``.
+the time a user waits for ``seqbayes update``. With ``--smc2`` the run is SMC^2 (the default
+predictive of static plus drifting parameters): y = a exp(-b t) + c with a and c drifting and b
+static, 3 parameters; the store keeps the sampler's full state (the inner filters) for the last two
+steps only, so the file grows by the posterior record per step (issue 24):
+
+    python benchmarks/bench_store.py --smc2 --samples 500 --repeat 3
 """
 
 from __future__ import annotations
@@ -41,6 +46,15 @@ sys.path.insert(0, str(ROOT / "tests"))
 from _user_model import decay_tables, write_config, write_model  # noqa: E402
 
 from seqbayes.store import RunStore, load_config  # noqa: E402
+
+
+#: The likelihood of ``--smc2``: y = a exp(-b t) + c, noise sd 0.1 (the decay model with an offset).
+SMC2_MODEL = """
+def offset_loglike(theta, data):
+    t, y = data[:, 0], data[:, 1]
+    pred = theta[:, [0]] * np.exp(-theta[:, [1]] * t[None, :]) + theta[:, [2]]
+    return -0.5 * np.sum((y - pred) ** 2, axis=1) / 0.1 ** 2
+"""
 
 
 def extend(store: RunStore, n_steps: int) -> None:
@@ -101,14 +115,23 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=15)
     parser.add_argument("--full", action="store_true",
                         help="time whole updates: open, assimilate a new dataset (the sampler runs), write")
+    parser.add_argument("--smc2", action="store_true",
+                        help="an SMC^2 run of 3 parameters (2 drifting, 1 static) instead of the transition prior")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        write_model(folder, "benchstoremodel")
+        write_model(folder, "benchstoremodel", extra=SMC2_MODEL)
         path = write_config(folder / "run.toml", "benchstoremodel", n_samples=args.samples, seed=1,
                             kernel='a = { type = "drift", rate = -0.01, noise_std = 0.02 }')
-        path.write_text(path.read_text() + 'predictive = "transition"\n')
-        store = RunStore.create(folder / "run.nc", load_config(path))
+        if args.smc2:
+            path.write_text(path.read_text().replace('likelihood = "benchstoremodel:loglike"',
+                                                     'likelihood = "benchstoremodel:offset_loglike"')
+                            .replace("[kernel]", 'c = { dist = "uniform", loc = -0.5, scale = 1.0 }\n[kernel]\n'
+                                     'c = { type = "drift", rate = 0.0, noise_std = 0.01 }'))
+        else:
+            path.write_text(path.read_text() + 'predictive = "transition"\n')
+        config = load_config(path)
+        store = RunStore.create(folder / "run.nc", config)
         for table in decay_tables([1.5 - 0.01 * s for s in range(4)], np.linspace(0, 3, 15), 0.1, seed=2):
             store.assimilate(table)
         saved = {}
@@ -123,7 +146,8 @@ def main(argv=None) -> int:
             for n in rows:
                 rows[n].append(one_update(saved[n], folder / f"work{n}.nc", new))
     short, long = rows[5], rows[args.steps]
-    print(f"run store, N = {args.samples}, 2 parameters, transition-density prior; median of {args.repeat} "
+    prior = ("3 parameters, SMC^2" if args.smc2 else "2 parameters, transition-density prior")
+    print(f"run store, N = {args.samples}, {prior} ({config.predictive_method}); median of {args.repeat} "
           f"interleaved pairs" + ("; whole updates: 'write' is the sampler's step and the write" if args.full else ""))
     print(f"{'update':>10} {'file size':>11} {'open (ms)':>10} {'write (ms)':>11} {'open+write':>11} "
           f"{'written':>10} {'to storage':>11}")
@@ -138,6 +162,8 @@ def main(argv=None) -> int:
             return float(np.median([(b["open"] + b["write"]) / (a["open"] + a["write"]) for a, b in zip(short, long)]))
         return float(np.median([b[key] / a[key] for a, b in zip(short, long)]))
 
+    growth = (long[0]["size"] - short[0]["size"]) / (long[0]["steps"] - short[0]["steps"])
+    print(f"file growth: {growth:,.0f} bytes per step between steps {short[0]['steps']} and {long[0]['steps']}")
     print(f"median ratio step {args.steps} / step 5 (per pair): open {ratio('open'):.2f}x, write "
           f"{ratio('write'):.2f}x, open+write {ratio('both'):.2f}x, bytes written {ratio('calls'):.2f}x, bytes to "
           f"storage {ratio('bytes'):.2f}x")

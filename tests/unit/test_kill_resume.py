@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from seqbayes import cli
-from seqbayes.store import RunStore, load_config
+from seqbayes.store import RunStore, load_config, snapshot
 from seqbayes.store.files import FAULT_ENV
 
 from _user_model import decay_tables, write_config, write_model
@@ -91,8 +91,9 @@ def assert_prefix_of_reference(store, reference):
         np.testing.assert_array_equal(a.predictive, b.predictive)
         assert a.info.log_evidence == b.info.log_evidence
     for mine, theirs in zip(store.states, reference.states):
-        assert set(mine) == set(theirs)
-        for name in mine:
+        # SMC^2's full state is kept for each store's last two steps only: compare what both hold
+        assert {n for n in mine if snapshot.per_step(n)} == {n for n in theirs if snapshot.per_step(n)}
+        for name in set(mine) & set(theirs):
             np.testing.assert_array_equal(mine[name], theirs[name])
     assert store.rng_states == reference.rng_states[:store.n_steps + 1]
     assert store.step_sizes == reference.step_sizes[:store.n_steps]

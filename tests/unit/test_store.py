@@ -257,7 +257,7 @@ def test_incompatible_version_model_and_damage_are_refused(tmp_path):
     ds.attrs["seqbayes_store_format"] = FORMAT_VERSION + 1
     ds.to_netcdf(tmp_path / "future.nc", engine="h5netcdf")
     with pytest.raises(StoreError, match=rf"future.nc: run-store format version {FORMAT_VERSION + 1}, but this "
-                                         rf"seqbayes reads versions 1, 2, 3, {FORMAT_VERSION}"):
+                                         rf"seqbayes reads versions 1, 2, 3, 4, {FORMAT_VERSION}"):
         RunStore.open(tmp_path / "future.nc")
     other = config(tmp_path, sampler="SMC", name="other.toml")
     with pytest.raises(StoreError, match=r"run.nc: the run was created for another model .*differing fields: "

@@ -33,6 +33,7 @@ from ..predictive.base import predictive_for
 from ..results import StepInfo, StepRecord
 from .errors import ZeroLikelihoodError
 from .likelihood import ValidatedLikelihood, check_dataset
+from .outputs import check_step
 from .stages import count_distinct
 
 __all__ = ["assimilate", "run_step"]
@@ -79,6 +80,8 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
     ------
     ZeroLikelihoodError
         If every sample has zero likelihood.
+    InvalidStepError
+        The new state or record holds a value the run store would refuse (:mod:`seqbayes.engine.outputs`).
     """
     start = time.perf_counter()
     check_dataset(dataset, state.step + 1)
@@ -91,15 +94,18 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
         if remedy is None:
             raise
         try:
-            return run_step(remedy, state, dataset, likelihood, rng, start)[:2]
+            new_state, record, _ = run_step(remedy, state, dataset, likelihood, rng, start)
         except ZeroLikelihoodError:
             raise error from None
+        check_step(new_state, record)
+        return new_state, record
     remedy = predictive.remedy(state, dataset, likelihood, record.info, weighed)
     if remedy is not None:
         try:
             new_state, record, _ = run_step(remedy, state, dataset, likelihood, rng, start)
         except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
             pass
+    check_step(new_state, record)  # what the run store re-opens (one definition: engine.outputs)
     return new_state, record
 
 

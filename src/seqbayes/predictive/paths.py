@@ -80,7 +80,7 @@ def path_prior_logpdf(window, kernel, likelihood, dim):
     normaliser = sum(past.log_evidence_increment for past in window)
 
     def logpdf(walkers):
-        states = walkers.reshape(walkers.shape[0], -1, dim)
+        states = walkers.reshape(walkers.shape[0], walkers.shape[1] // dim, dim)   # explicit: there may be no walker
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
         _add_transitions(out, states, kernel)  # transitions into steps w+1..s
         return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.outputs import violation
 from . import files, registry
 from .datasets import read_datafile
 from .errors import DuplicateDatasetError, StoreError
@@ -90,19 +91,21 @@ def json_value(text, path, what):
         raise StoreError(f"{path}: damaged run store: {what} is not valid JSON ({err})") from None
 
 
-def check_finite(path: Path, variables: dict) -> None:
-    """Refuse NaN anywhere in the numbers, and inf in samples and data: a store holding them cannot be resumed."""
-    finite = ("posterior", "predictive", "initial_particles", "dataset_values")
+#: Run-store variables that hold an engine output under another name (:mod:`seqbayes.engine.outputs`).
+_OUTPUT_NAMES = {"initial_particles": "particles", "initial_log_weights": "log_weights", "dataset_values": "dataset"}
+
+
+def check_finite(path: Path, variables: dict, output_name=None) -> None:
+    """Refuse a non-finite value where the engine may not leave one (:data:`seqbayes.engine.outputs.OUTPUTS`,
+    the rules of the engine's own check after every step): a store holding it cannot be resumed.
+
+    ``output_name(variable)`` is the engine's name of a variable (default: the variable's own, or
+    ``initial_particles`` -> ``particles`` ...)."""
     for name, values in variables.items():
-        if values.dtype.kind != "f" or name == "diagnostics":   # a diagnostic may be NaN (not computed)
-            continue
-        bad = ~np.isfinite(values) if name in finite else np.isnan(values)
-        if name == "log_weights":
-            bad |= values == np.inf
-        if bad.any():
-            where = np.argwhere(bad)[0]
-            raise StoreError(f"{path}: damaged run store: {name} holds {int(bad.sum())} NaN/inf value(s), "
-                             f"first at index {tuple(int(i) for i in where)}")
+        rule_name = output_name(name) if output_name is not None else _OUTPUT_NAMES.get(name, name)
+        message = violation(name, values, rule_name)
+        if message is not None:
+            raise StoreError(f"{path}: damaged run store: {message}")
 
 
 def _encoding(ds, growing: dict) -> dict:
@@ -373,6 +376,11 @@ class BaseStore:
         """Variables and coordinates written once, not per step: ``(data, coords)`` for a whole write."""
         return {}, {}
 
+    def _rewritten(self, start: int) -> list:
+        """``(name, index, values)``: the parts of :meth:`_whole_variables` that an append of the steps after
+        ``start`` rewrites in place (``f[name][index] = values``, the same shape); none by default."""
+        return []
+
     def _own_attrs(self) -> dict:
         """The backend's file attributes beside the common ones."""
         return {}
@@ -549,6 +557,12 @@ class BaseStore:
             if (dims[0] not in f or dataset.shape[0] != f[dims[0]].shape[0]
                     or dataset.shape[1:] != np.shape(values)[1:] or added.setdefault(dims[0], len(values)) != len(values)):
                 return False
+        rewritten = self._rewritten(start)
+        if any(name not in f or name in growing or np.empty(f[name].shape, bool)[index].shape != np.shape(values)
+               for name, index, values in rewritten):
+            return False
+        for name, index, values in rewritten:
+            f[name][index] = values
         for dim, n in added.items():
             if dim not in rows:                  # a dimension without coordinates: its scale grows too
                 files.extend(f[dim], n)

@@ -43,7 +43,8 @@ and ``dataset_rows (step)`` when the state needs the datasets,
 ``diagnostics (step, diagnostic)`` (acceptance, ESS, evidence, ... as float64 for
 any NetCDF reader), ``step_info`` (the exact :class:`~seqbayes.results.StepInfo`
 as JSON), ``dataset_sha256``, ``dataset_source``, ``likelihood_sha256``, ``record_sha256``,
-``state_step_size``, ``initial_particles``, ``initial_log_weights``, ``rng_state (rng_index)``;
+``state_step_size``, ``initial_particles``, ``initial_log_weights``, ``rng_state (rng_index)``,
+for SMC^2 its full state of the last two steps only (``nested_full_* (slot, ...)``, ``nested_slot_step``);
 attributes ``config`` (with the likelihood module's file and hash), ``model_fingerprint``,
 ``content_sha256``, ``seqbayes_store_format``. The growing dimensions (``step``,
 ``rng_index``, ``dataset_row``) are unlimited, in chunks of a few steps. Few variables keep
@@ -91,9 +92,15 @@ __all__ = ["RunStore", "FORMAT_VERSION", "posterior_to_arviz", "content_hash_v3"
 #: Version of the on-disk layout; a store of another version is refused. Version 2 added the
 #: history prior of static kernels, version 3 the likelihood module's hash per step, the
 #: content hash of the text variables and HDF5 checksums, version 4 the per-step record
-#: hashes (so that an appended step hashes only its own records). Versions 1 to 3 are still
-#: read; the next update rewrites them in version 4.
-FORMAT_VERSION = 4
+#: hashes (so that an appended step hashes only its own records), version 5 SMC^2's full state for the
+#: last two steps only (``nested_full_*``), not for every step. Versions 1 to 4 are still read; the next
+#: update rewrites them in version 5.
+FORMAT_VERSION = 5
+#: SMC^2's full state (all but :data:`~seqbayes.store.snapshot.NESTED_PER_STEP`) is kept for the last two steps
+#: only, in two slots (step ``k`` in slot ``(k - 1) % 2``): ``nested_full_<name> (slot, ...)`` and the step each
+#: slot holds, ``nested_slot_step (slot)`` (0: none). An append rewrites the slot of its step in place.
+_FULL = "nested_full_"
+_SLOT_STEP = "nested_slot_step"
 
 
 def content_hash_v3(attrs: dict, variables: dict) -> str:
@@ -137,7 +144,7 @@ class RunStore(BaseStore):
 
     title = "SEMC/SMC"
     format_version = FORMAT_VERSION
-    readable_versions = (1, 2, 3, 4)
+    readable_versions = (1, 2, 3, 4, 5)
     growing = {"step": 8, "rng_index": 8, "dataset_row": 256, **{f"{name}_row": 8 for name in snapshot.RAGGED}}
     operations = frozenset({"predict", "compare", "replace_last", "report --compare", "report --threshold",
                             "report --data"})
@@ -191,7 +198,8 @@ class RunStore(BaseStore):
         except (json.JSONDecodeError, TypeError) as err:
             raise StoreError(f"{path}: damaged run store: unreadable config attribute ({err})") from None
         cls._check_config(path, attrs, stored, config)
-        state_names = [name for name in variables if snapshot.is_state_variable(name)]
+        state_names = [name for name in variables if snapshot.is_state_variable(name)
+                       and not name.startswith(_FULL) and name != _SLOT_STEP]
         required = ["initial_particles", "initial_log_weights"]
         if n_steps:
             required += ["posterior", "log_weights", "predictive", "step_info", "dataset_sha256", "dataset_source",
@@ -226,6 +234,15 @@ class RunStore(BaseStore):
                   for i in range(n_steps)]
         for arrays, posterior in zip(states, variables.get("posterior", ())):
             snapshot.fill_missing(arrays, posterior.shape[0])   # a state array added since the store was written
+        if _SLOT_STEP in variables:           # SMC^2's full state of the last two steps
+            held = [int(k) for k in variables[_SLOT_STEP]]
+            if sorted(k for k in held if k) != list(range(max(n_steps - 1, 1), n_steps + 1)):
+                raise StoreError(f"{path}: inconsistent store ({_SLOT_STEP} {held} for {n_steps} steps)")
+            for slot, k in enumerate(held):
+                if k:
+                    states[k - 1].update({"nested_" + name[len(_FULL):]: variables[name][slot]
+                                          for name in variables if name.startswith(_FULL)})
+        _keep_full_state(states)
         if n_steps and snapshot.state_kind(states[0]) == "mixture" and stored.predictive_method == "history":
             raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
                              f"kernel-density prior; this version uses their exact history prior. Re-create "
@@ -243,7 +260,7 @@ class RunStore(BaseStore):
         step_sizes = [float(v) for v in variables["state_step_size"]] if n_steps else []
         if len(step_sizes) != n_steps:
             raise StoreError(f"{path}: inconsistent store ({len(step_sizes)} step sizes, n_steps = {n_steps})")
-        check_finite(path, variables)
+        check_finite(path, variables, snapshot.output_name)
         if not 0.0 <= float(attrs["initial_step_size"]) < np.inf:
             raise StoreError(f"{path}: damaged run store: initial_step_size is {float(attrs['initial_step_size'])}; "
                              f"expected a finite number >= 0")
@@ -276,7 +293,7 @@ class RunStore(BaseStore):
             "diagnostics": (("step", "diagnostic"), np.array([[float(i[k]) for k in numeric] for i in infos])),
             "state_step_size": (("step",), np.array(self.step_sizes[start:], dtype=float)),
         })
-        for name in self.states[start]:
+        for name in [name for name in self.states[start] if snapshot.per_step(name)]:
             if name in snapshot.RAGGED:       # concatenated along a growing dimension, with a count per step
                 parts = [arrays[name] for arrays in self.states[start:]]
                 data[name] = ((f"{name}_row",) + snapshot.state_dims(name, parts[0].ndim)[1:], np.concatenate(parts))
@@ -290,9 +307,36 @@ class RunStore(BaseStore):
                         dataset_rows=(("step",), np.array([t.shape[0] for t in self.tables[start:]])))
 
     def _whole_variables(self) -> tuple[dict, dict]:
-        return ({"initial_particles": (("sample", "parameter"), self.initial_particles),
-                 "initial_log_weights": (("sample",), self.initial_log_weights)},
-                {"sample": np.arange(self.initial_particles.shape[0]), "parameter": list(self.names)})
+        data = {"initial_particles": (("sample", "parameter"), self.initial_particles),
+                "initial_log_weights": (("sample",), self.initial_log_weights)}
+        held = self._slot_steps()
+        if held:          # SMC^2: the full state of the last two steps, a slot each (zeros in an empty slot)
+            full = {k: self.states[k - 1] for k in held if k}
+            last = full[self.n_steps]
+            data[_SLOT_STEP] = (("slot",), np.array(held))
+            for name in (name for name in last if not snapshot.per_step(name)):
+                dims = snapshot.state_dims(_FULL + name[len("nested_"):], last[name].ndim)
+                data[_FULL + name[len("nested_"):]] = (("slot",) + dims, np.stack(
+                    [full[k][name] if k else np.zeros_like(last[name]) for k in held]))
+        return data, {"sample": np.arange(self.initial_particles.shape[0]), "parameter": list(self.names)}
+
+    def _slot_steps(self) -> list:
+        """The step each slot of SMC^2's full state holds (``[]``: not an SMC^2 run, or no step yet)."""
+        if not self.n_steps or snapshot.state_kind(self.states[-1]) != "nested":
+            return []
+        held = [0, 0]
+        for k in range(max(self.n_steps - 1, 1), self.n_steps + 1):
+            held[(k - 1) % 2] = k
+        return held
+
+    def _rewritten(self, start: int) -> list:
+        """An append's rewrites of SMC^2's slots: the slots of the new steps among the last two."""
+        held = self._slot_steps()
+        out = [(_SLOT_STEP, slice(None), np.array(held))] if held else []
+        for k in (k for k in held if k > start):
+            out += [(_FULL + name[len("nested_"):], (k - 1) % 2, value)
+                    for name, value in self.states[k - 1].items() if not snapshot.per_step(name)]
+        return out
 
     # ---------------------------------------------------------------- the state
     def state_at(self, step: int) -> tuple:
@@ -300,6 +344,10 @@ class RunStore(BaseStore):
         (the state from :func:`seqbayes.store.snapshot.state_from_arrays`)."""
         if not 0 <= step <= self.n_steps:
             raise ValueError(f"step: must lie in [0, {self.n_steps}], got {step}")
+        if step and _full(self.states[-1]) and not _full(self.states[step - 1]):
+            raise ValueError(f"step: an SMC^2 run keeps its sampler's full state for the last two steps only "
+                             f"({max(self.n_steps - 1, 1)} and {self.n_steps}), not step {step}; every step's "
+                             f"posterior is in result.steps")
         prior = self.config.build_prior()
         if step == 0:
             state = snapshot.initial_state(self.config.predictive_method, prior, self.initial_particles,
@@ -508,6 +556,7 @@ class RunStore(BaseStore):
             self._record_hashes = self._record_hashes[:base]
             self.result = _replace(sampler.result, steps=tuple(records))
             self.states = self.states[:base] + [arrays]
+            _keep_full_state(self.states)
             if snapshot.needs_datasets(arrays) or self.tables:  # steps whose dataset is not kept: 0 rows
                 kept = self.tables[:base] + [np.zeros((0, table.shape[1]))] * (base - len(self.tables))
                 self.tables = kept + [table]
@@ -653,6 +702,19 @@ class RunStore(BaseStore):
 
 def _likelihood_not_needed(theta, data):  # pragma: no cover - a sampler built only to draw or forecast
     raise RuntimeError("the likelihood is not loaded for forecasts and new runs")
+
+
+def _keep_full_state(states: list) -> None:
+    """Drop (in place) SMC^2's full state of every step but the last two, as the file keeps it: only those can
+    be resumed from (:meth:`RunStore.state_at`), and an object kept open for many steps does not grow."""
+    for k in range(len(states) - 2):
+        if _full(states[k]):
+            states[k] = {name: value for name, value in states[k].items() if snapshot.per_step(name)}
+
+
+def _full(arrays: dict) -> bool:
+    """Whether a step's state arrays hold SMC^2's full state (not only what every step keeps)."""
+    return not all(snapshot.per_step(name) for name in arrays)
 
 
 _STEP_INFO_FIELDS = {f.name: f.type for f in dataclasses.fields(StepInfo)}

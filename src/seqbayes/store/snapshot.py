@@ -23,7 +23,8 @@ The kinds and their arrays (after the ``step`` dimension):
 - ``history`` (the exact history prior of static parameters): ``state_log_prior (N,)``, its
   values at the particles; resuming needs the assimilated datasets.
 - ``nested`` (SMC^2): ``nested_*``, the outer particles, inner filters and likelihood
-  estimates of :func:`~seqbayes.predictive.smc2.nested_state_arrays`; resuming needs the datasets.
+  estimates of :func:`~seqbayes.predictive.smc2.nested_state_arrays`; resuming needs the datasets, and
+  of the steps before only their guides (:data:`NESTED_PER_STEP`, :func:`per_step`).
 
 Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
 the cumulative log-evidence, ``state_window ()``, the length of the conflict remedy's window of
@@ -49,7 +50,8 @@ from ..results import StepRecord
 from ..engine.state import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
-           "check_state", "is_state_variable", "fill_missing", "UnsupportedState"]
+           "check_state", "is_state_variable", "fill_missing", "output_name", "per_step", "NESTED_PER_STEP",
+           "UnsupportedState"]
 
 
 class UnsupportedState(TypeError):
@@ -114,6 +116,10 @@ _NESTED = "nested_"
 _COMMON = ("state_log_evidence_variance", "state_window", "state_paths", "state_lineage")
 #: Arrays whose first axis may have another length at every step: the run store concatenates them.
 RAGGED = ("state_paths",)
+#: SMC^2's arrays that every later step needs (its guide, which PMMH re-runs of that step use); the others
+#: (outer particles, inner filters, ...) rebuild the state after their own step only, so the run store keeps
+#: them for the last two steps alone (:func:`per_step`).
+NESTED_PER_STEP = ("nested_guide_used", "nested_guide_mean", "nested_guide_cov")
 
 #: Dimension names (after ``step``) of the arrays whose axes have a meaning a NetCDF reader can use.
 _DIMS = {"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
@@ -163,6 +169,29 @@ def is_state_variable(name: str) -> bool:
     """Whether a run-store variable ``name`` is one of :func:`state_arrays`' arrays."""
     return (name in _COMMON or name.startswith(_NESTED)
             or any(name.startswith(prefix) for prefix, *_ in _KINDS.values()))
+
+
+def per_step(name: str) -> bool:
+    """Whether state array ``name`` is needed at every step, not only to resume from its own step: all but
+    SMC^2's full state (outer particles, inner filters, likelihood estimates; :data:`NESTED_PER_STEP`)."""
+    return not name.startswith(_NESTED) or name in NESTED_PER_STEP
+
+
+def output_name(variable: str) -> str:
+    """The engine's name of a run-store ``variable`` (:mod:`seqbayes.engine.outputs`, whose rules the store's
+    check on open shares with the engine's after every step): a state's own array without its prefix
+    (``state_log_evidence_variance`` -> ``log_evidence_variance``, ``nested_cloud_x`` -> ``cloud_x``), a mixture
+    prior's arrays ``prior_*`` (``mixture_centres`` -> ``prior_centres``), the initial draws ``particles`` and
+    ``log_weights``, the datasets ``dataset``."""
+    if variable in _COMMON or variable == "state_log_prior":   # the history prior's values: the state's log_prior
+        return variable[len("state_"):]
+    if variable.startswith(_NESTED):   # nested_full_x: the run store's copy kept for the last steps only
+        return variable[len(_NESTED):].removeprefix("full_")
+    for prefix, *_ in _KINDS.values():
+        if variable.startswith(prefix):
+            return "prior_" + variable[len(prefix):]
+    return {"initial_particles": "particles", "initial_log_weights": "log_weights",
+            "dataset_values": "dataset"}.get(variable, variable)
 
 
 def fill_missing(arrays: dict, n_samples: int) -> None:
