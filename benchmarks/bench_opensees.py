@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -60,20 +61,19 @@ def reference(args) -> None:
     print(header + text)
 
 
-def _seqbayes(*args, cwd) -> tuple[str, float]:
+def _seqbayes(*args, cwd) -> tuple[str, float, float]:
+    """Run ``seqbayes ARGS``: its output, wall seconds and CPU seconds (the process and its worker processes)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "seqbayes.cli", *args], cwd=cwd, capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise RuntimeError(f"seqbayes {' '.join(args)} failed ({done.returncode}):\n{done.stdout}\n{done.stderr}")
-    return done.stdout, seconds
+    return done.stdout, seconds, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def cli(args) -> None:
-    ref = None
-    if args.reference and Path(args.reference).exists():
-        ref = next(iter(read_reference_table(Path(args.reference).read_text(), ["grid"],
-                                             frame.PARAMETER_NAMES).values()))
     runs = {}
     for workers in args.workers:
         folder = Path(tempfile.mkdtemp(prefix=f"opensees-w{workers}-"))
@@ -85,40 +85,55 @@ def cli(args) -> None:
             _seqbayes("init", "frame.toml", "run.nc", cwd=folder)
             rows = []
             for path in paths:
-                out, seconds = _seqbayes("update", "-q", "run.nc", path.name, cwd=folder)
+                out, seconds, cpu = _seqbayes("update", "-q", "run.nc", path.name, cwd=folder)
                 calls, inside = SUMMARY.search(out).groups()
-                rows.append((int(calls), float(inside), seconds))
-                print(f"<!-- workers {workers}: {out.strip()} ({seconds:.1f} s with start-up) -->", flush=True)
-            status, _ = _seqbayes("status", "run.nc", cwd=folder)
+                rows.append((int(calls), float(inside), seconds, cpu))
+                print(f"<!-- workers {workers}: {out.strip()} ({seconds:.1f} s with start-up, {cpu:.1f} s CPU in all "
+                      f"processes, load {os.getloadavg()[0]:.1f}) -->", flush=True)
+            status, _, _ = _seqbayes("status", "run.nc", cwd=folder)
             _seqbayes("report", "run.nc", "-o", "run.html", cwd=folder)
             from seqbayes.store import open_run
 
             store = open_run(folder / "run.nc")
             result = store.result
             runs[workers] = (rows, result, status)
+            if args.keep:  # the run store, for another comparison later
+                shutil.copy(folder / "run.nc", Path(args.keep) / f"opensees_run_w{workers}.nc")
         finally:
             shutil.rmtree(folder, ignore_errors=True)
     load = os.getloadavg()
     print(f"\nload average at the end {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1, 5, 15 min) on {os.cpu_count()} cores\n")
-    print("| update | " + " | ".join(f"calls ({w} worker{'s' * (w > 1)}) | wall s ({w})" for w in runs) + " |")
-    print("|---|" + "---|---|" * len(runs))
+    print("| update | calls | " + " | ".join(f"wall s, {w} worker{'s' * (w > 1)} | CPU s ({w})" for w in runs) + " |")
+    print("|---|---|" + "---|---|" * len(runs))
+    first = next(iter(runs))
     for s in range(args.campaigns):
-        print(f"| {s + 1} | " + " | ".join(f"{runs[w][0][s][0]:,} | {runs[w][0][s][2]:.1f}" for w in runs) + " |")
-    print("| total | " + " | ".join(f"{sum(r[0] for r in runs[w][0]):,} | {sum(r[2] for r in runs[w][0]):.0f}"
-                                    for w in runs) + " |")
-    print("| median | " + " | ".join(f"{int(np.median([r[0] for r in runs[w][0]])):,} | "
-                                     f"{np.median([r[2] for r in runs[w][0]]):.1f}" for w in runs) + " |")
+        print(f"| {s + 1} | {runs[first][0][s][0]:,} | "
+              + " | ".join(f"{runs[w][0][s][2]:.1f} | {runs[w][0][s][3]:.1f}" for w in runs) + " |")
+    print(f"| total | {sum(r[0] for r in runs[first][0]):,} | "
+          + " | ".join(f"{sum(r[2] for r in runs[w][0]):.0f} | {sum(r[3] for r in runs[w][0]):.0f}" for w in runs) + " |")
+    print(f"| median | {int(np.median([r[0] for r in runs[first][0]])):,} | "
+          + " | ".join(f"{np.median([r[2] for r in runs[w][0]]):.1f} | {np.median([r[3] for r in runs[w][0]]):.1f}"
+                       for w in runs) + " |")
+    same_calls = all([r[0] for r in runs[w][0]] == [r[0] for r in runs[first][0]] for w in runs)
+    print(f"\nthe same likelihood calls with every worker count: {'yes' if same_calls else 'NO'}")
     results = [runs[w][1] for w in runs]
     identical = all(np.array_equal(a.steps[s].posterior, results[0].steps[s].posterior)
                     for a in results[1:] for s in range(args.campaigns))
     print(f"\nposteriors bit-identical across worker counts: {'yes' if identical else 'NO'}")
-    if ref is None:
+    print(runs[next(iter(runs))][2])
+    compare(results[0], args.reference, args.campaigns)
+
+
+def compare(result, reference_file, campaigns) -> None:
+    """Each campaign's posterior of ``result`` against the grid reference in ``reference_file``."""
+    if not (reference_file and Path(reference_file).exists()):
+        print(f"no reference at {reference_file}: run `python benchmarks/bench_opensees.py reference` first")
         return
-    result = results[0]
+    ref = next(iter(read_reference_table(Path(reference_file).read_text(), ["grid"], frame.PARAMETER_NAMES).values()))
     errors = ref.errors(result.means(), result.stds(), [rec.info.log_evidence for rec in result.steps])
     print("\n| campaign | exact kappa | mean err / sd (kappa, zeta, sigma) | sd ratio - 1 | log Z err |")
     print("|---|---|---|---|---|")
-    for s in range(args.campaigns):
+    for s in range(campaigns):
         print(f"| {s + 1} | {ref.mean[s, 0]:.4f} +- {ref.std[s, 0]:.4f} | "
               f"{', '.join(f'{e:+.2f}' for e in errors['mean_sd'][s])} | "
               f"{', '.join(f'{e:+.2f}' for e in errors['std_ratio'][s])} | {errors['log_evidence'][s]:+.2f} |")
@@ -138,8 +153,24 @@ def main() -> None:
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--campaigns", type=int, default=20)
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
+    p.add_argument("--keep", metavar="FOLDER", help="copy each run store there")
+    p = sub.add_parser("compare", help="kept run stores: identical to each other, and the first against the reference")
+    p.add_argument("runs", nargs="+")
+    p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
     args = parser.parse_args()
-    reference(args) if args.what == "reference" else cli(args)
+    if args.what == "reference":
+        reference(args)
+    elif args.what == "cli":
+        cli(args)
+    else:
+        from seqbayes.store import open_run
+
+        results = [open_run(run).result for run in args.runs]
+        identical = all(np.array_equal(r.steps[s].posterior, results[0].steps[s].posterior)
+                        and r.steps[s].info.n_loglike_evals == results[0].steps[s].info.n_loglike_evals
+                        for r in results[1:] for s in range(len(results[0].steps)))
+        print(f"posteriors and likelihood calls identical across {', '.join(args.runs)}: {'yes' if identical else 'NO'}")
+        compare(results[0], args.reference, len(results[0].steps))
 
 
 if __name__ == "__main__":
