@@ -165,11 +165,13 @@ def main() -> None:
     else:
         from seqbayes.store import open_run
 
-        results = [open_run(run).result for run in args.runs]
+        results = sorted((open_run(run).result for run in args.runs), key=lambda r: -len(r.steps))
+        common = min(len(r.steps) for r in results)
         identical = all(np.array_equal(r.steps[s].posterior, results[0].steps[s].posterior)
                         and r.steps[s].info.n_loglike_evals == results[0].steps[s].info.n_loglike_evals
-                        for r in results[1:] for s in range(len(results[0].steps)))
-        print(f"posteriors and likelihood calls identical across {', '.join(args.runs)}: {'yes' if identical else 'NO'}")
+                        for r in results[1:] for s in range(common))
+        print(f"posteriors and likelihood calls identical over their {common} common steps: "
+              f"{'yes' if identical else 'NO'}")
         compare(results[0], args.reference, len(results[0].steps))
 
 
