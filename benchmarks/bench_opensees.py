@@ -114,12 +114,14 @@ def cli(args) -> None:
     print(f"| median | {int(np.median([r[0] for r in runs[first][0]])):,} | "
           + " | ".join(f"{np.median([r[2] for r in runs[w][0]]):.1f} | {np.median([r[3] for r in runs[w][0]]):.1f}"
                        for w in runs) + " |")
-    same_calls = all([r[0] for r in runs[w][0]] == [r[0] for r in runs[first][0]] for w in runs)
-    print(f"\nthe same likelihood calls with every worker count: {'yes' if same_calls else 'NO'}")
+    if len(runs) > 1:
+        same_calls = all([r[0] for r in runs[w][0]] == [r[0] for r in runs[first][0]] for w in runs)
+        print(f"\nthe same likelihood calls with every worker count: {'yes' if same_calls else 'NO'}")
     results = [runs[w][1] for w in runs]
-    identical = all(np.array_equal(a.steps[s].posterior, results[0].steps[s].posterior)
-                    for a in results[1:] for s in range(args.campaigns))
-    print(f"\nposteriors bit-identical across worker counts: {'yes' if identical else 'NO'}")
+    if len(results) > 1:
+        identical = all(np.array_equal(a.steps[s].posterior, results[0].steps[s].posterior)
+                        for a in results[1:] for s in range(args.campaigns))
+        print(f"\nposteriors bit-identical across worker counts: {'yes' if identical else 'NO'}")
     print(runs[next(iter(runs))][2])
     compare(results[0], args.reference, args.campaigns)
 
