@@ -1,7 +1,8 @@
 """The OpenSees frame example through the command line, against its exact grid reference (issue 23, item 4).
 
     python benchmarks/bench_opensees.py reference [--workers 2] [--out examples/opensees/frame_reference.csv]
-    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--reference examples/opensees/frame_reference.csv]
+    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER]
+    python benchmarks/bench_opensees.py compare RUN.nc [RUN.nc ...]
 
 ``reference`` computes the exact filtering posterior of the example's 20 campaigns on a tensor grid
 (:func:`seqbayes.models.opensees_frame.grid_reference`; one OpenSees solve per (kappa, zeta) grid
@@ -13,7 +14,9 @@ frame.toml run.nc``, one ``seqbayes update run.nc campaignNN.csv`` per campaign,
 status`` and ``seqbayes report``. It prints per update the likelihood calls and the wall time
 (of the ``update`` process, start-up included), the totals, whether the runs with different worker
 counts stored bit-identical posteriors, and each campaign's posterior against the reference:
-mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error.
+mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error. ``compare`` does the
+last for stores kept with ``--keep`` and checks that they hold the same posteriors and calls over
+their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1).
 """
 
 from __future__ import annotations
