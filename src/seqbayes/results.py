@@ -112,6 +112,10 @@ class StepInfo:
     log_evidence_increment_se, log_evidence_se : float
         Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
         (:func:`~seqbayes.engine.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
+    n_screen_evaluations, n_screened_out : int
+        Delayed acceptance (``SamplerConfig.surrogate``): the cheap screen's evaluations and the proposals it
+        rejected without a likelihood call. The expensive calls are ``n_loglike_evals`` (of which the moves'
+        are ``n_move_evaluations``).
     """
 
     step: int
@@ -146,6 +150,8 @@ class StepInfo:
     jump_size_sd: float = float("nan")
     log_evidence_increment_se: float = float("nan")
     log_evidence_se: float = float("nan")
+    n_screen_evaluations: int = 0
+    n_screened_out: int = 0
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":

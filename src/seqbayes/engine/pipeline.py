@@ -59,7 +59,8 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
         n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(tempered.log_z),
         evidence_ess=estimate.evidence_ess, n_independent_accepted=estimate.n_independent,
-        n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start, **outcome.fields)
+        n_move_evaluations=moves.stats.n_evaluations, n_screen_evaluations=moves.stats.n_screen_evaluations,
+        n_screened_out=moves.stats.n_screened_out, wall_time=time.perf_counter() - start, **outcome.fields)
     return outcome.state, StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive), weighed
 
 

@@ -185,6 +185,17 @@ class SamplerConfig:
         ``n_independent`` independence sweeps, and the evidence estimated from all the sweeps' draws
         after that refit, sweeping on until the increment's standard error is below 0.02 nats (at most
         ``n_independent + 2 max_refits`` sweeps).
+    surrogate : None, "quadratic", "auto" or callable
+        Exact delayed acceptance of the moves (:mod:`seqbayes.moves.delayed`; Christen and Fox 2005): a cheap
+        log target screens every proposal of the random-walk and stretch moves, and only the survivors are
+        evaluated by the likelihood; a second accept/reject keeps the target exact. ``None`` (default): no
+        screen. ``"quadratic"``: a quadratic fitted to the stage's particles' log targets. ``"auto"``: that
+        quadratic, after a first plain sweep per stage, for as long as it yields more accepted moves per
+        likelihood evaluation than the plain sweep did. A callable ``surrogate(theta (n, d), dataset) -> (n,)``:
+        a cheap approximation of the log-likelihood (a coarser model), with the prior's part fitted by the
+        quadratic. ``StepInfo.n_screen_evaluations`` and ``n_screened_out`` count the cheap calls and the
+        proposals they stopped. Not applied to the scaled moves, to SMC^2's PMMH or to the path-space
+        remedy's sweeps.
     """
 
     move: str
@@ -221,6 +232,7 @@ class SamplerConfig:
     pseudo_marginal_from: int = 2048
     scaled_moves: bool | None = None
     economy: bool = False
+    surrogate: object = None
 
     def __post_init__(self):
         self._check_run()
@@ -247,6 +259,9 @@ class SamplerConfig:
             raise ValueError(f"pseudo_marginal_from: must be an integer >= 0, got {self.pseudo_marginal_from}")
         if self.economy not in (True, False):
             raise ValueError(f"economy: expected True or False, got {self.economy!r}")
+        if not (self.surrogate is None or callable(self.surrogate) or self.surrogate in ("quadratic", "auto")):
+            raise ValueError(f"surrogate: expected None, 'quadratic', 'auto' or a callable "
+                             f"surrogate(theta, dataset), got {self.surrogate!r}")
 
     def _check_tempering(self):
         if not 0.0 < self.tempering_threshold <= self.tempering_ess:

@@ -13,14 +13,15 @@ import numpy as np
 
 from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
 from ..priors import inside_space
-from .base import SweepStats
+from .base import SweepStats, combine
+from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
 from .proposals import DefensiveProposal
 from .scaled import DifferentialMove, FittedGaussian, differential_sweep, independence_sweep, whitened_jumps
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done", "StageMoves"]
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +91,9 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
             return out
 
     start = position
+    screening = Screening(stage_screen(config.surrogate, position, components, coefficients, beta, loglike,
+                                       None if transform is None else transform.inverse,
+                                       support if transform is None else None), config.surrogate == "auto")
     if config.uses_scaled_moves(walkers.shape[1]):
         position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
                                                                coefficients, support, rng)
@@ -99,8 +103,13 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         n_done = 0
         while True:
             move = GaussianMove(weighted_covariance(position), config.proposal_scale)
-            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, move,
-                                                         rng, support)
+            if screening.active():
+                position, components, sweep = screened_sweep(position, components, component_fn, coefficients, move,
+                                                             rng, support, screening.screen, halves=False)
+            else:
+                position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients,
+                                                             move, rng, support)
+            screening.record(sweep)
             stats = stats + sweep
             n_done += 1
             if stage_done(config, n_done, position, start):
@@ -112,8 +121,14 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         stats = SweepStats()
         n_virtual = 0
         while True:
-            position, components, sweep = stretch_sweep(position, components, component_fn, coefficients,
-                                                        StretchMove(step_size), rng, support)
+            if screening.active():
+                position, components, sweep = screened_sweep(position, components, component_fn, coefficients,
+                                                             StretchMove(step_size), rng, support, screening.screen,
+                                                             halves=True)
+            else:
+                position, components, sweep = stretch_sweep(position, components, component_fn, coefficients,
+                                                            StretchMove(step_size), rng, support)
+            screening.record(sweep)
             n_virtual += 1
             stats = stats + sweep
             alpha = sweep.acceptance_rate
@@ -129,6 +144,25 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     else:
         walkers = position
     return StageMoves(walkers, components, stats, step_size, n_virtual)
+
+
+def stage_screen(setting, position, components, coefficients, beta, loglike, to_theta, support):
+    """The cheap log target of one stage's delayed acceptance (``SamplerConfig.surrogate``), or ``None``.
+
+    A quadratic fitted to the particles' log targets, or, for a callable ``surrogate(theta, dataset)``,
+    ``beta`` times it plus the quadratic fitted to the other components (the prior's). ``None`` when the
+    particles are too few to fit it, or, for a callable, when the step's dataset is not at hand (the
+    path-space remedy's window likelihoods)."""
+    if setting is None:
+        return None
+    if not callable(setting):
+        return QuadraticScreen.fit(position, combine(components, coefficients))
+    # ``loglike`` is the step's ValidatedLikelihood.loglike, which holds the dataset the user's model needs
+    dataset = getattr(getattr(loglike, "__self__", None), "dataset", None)
+    rest = QuadraticScreen.fit(position, combine(components[:, 1:], coefficients[1:]))
+    if dataset is None or rest is None:
+        return None
+    return ModelScreen(setting, dataset, float(beta), rest, to_theta, support)
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng):
