@@ -13,8 +13,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
+import shutil
 import signal
 import stat
 import warnings
@@ -32,22 +34,33 @@ from _user_model import decay_tables, write_config, write_model
 from test_kill_resume import fork_cli, wait
 
 
+#: a drifting amplitude, so that steps use the transition-density predictive (fast)
+DRIFT = 'a = { type = "drift", rate = -0.05, noise_std = 0.02 }'
+
+
 def tables(n=3, seed=0):
     return decay_tables([1.5 - 0.05 * s for s in range(n)], np.linspace(0, 3, 15), 0.1, seed)
 
 
-def make_run(folder, module, n_steps=1):
-    folder.mkdir(parents=True, exist_ok=True)
-    write_model(folder, module)
-    path = write_config(folder / "run.toml", module, n_samples=40, seed=3,
-                        kernel='a = { type = "drift", rate = -0.05, noise_std = 0.02 }')
-    path.write_text(path.read_text() + 'predictive = "transition"\n')
-    store = RunStore.create(folder / "run.nc", load_config(path))
-    for k, table in enumerate(tables(n_steps)):
+@pytest.fixture(scope="module")
+def template(tmp_path_factory):
+    """A run of one step, made once and copied by :func:`run_dir` (the tests need its files, not a sampler)."""
+    folder = tmp_path_factory.mktemp("template")
+    write_model(folder, "hostmodel")
+    path = write_config(folder / "run.toml", "hostmodel", n_samples=24, seed=3, kernel=DRIFT)
+    for k, table in enumerate(tables(3)):
         np.savetxt(folder / f"d{k + 1}.csv", table, delimiter=",", header="t,y", comments="")
-        store.update(folder / f"d{k + 1}.csv")
-    np.savetxt(folder / "next.csv", tables(n_steps + 1)[-1], delimiter=",", header="t,y", comments="")
-    return store
+    RunStore.create(folder / "run.nc", load_config(path)).update(folder / "d1.csv")
+    (folder / "d2.csv").rename(folder / "next.csv")
+    return folder
+
+
+@pytest.fixture
+def run_dir(template, tmp_path):
+    """A copy of the template run in this test's folder: ``run.nc`` (step 1 from d1.csv), next.csv, d3.csv."""
+    for name in ("hostmodel.py", "run.toml", "run.nc", "d1.csv", "next.csv", "d3.csv"):
+        shutil.copy(template / name, tmp_path / name)
+    return tmp_path
 
 
 def one_line_error(capsys, argv, pattern):
@@ -82,21 +95,20 @@ def write_package(folder, name, noise=0.1, shift=0.0):
 
 def test_an_edit_of_another_file_of_the_package_is_refused(tmp_path):
     write_package(tmp_path, "hostpkg_a")
-    config = write_config(tmp_path / "run.toml", "hostpkg_a.model", n_samples=40, seed=3)
-    store = RunStore.create(tmp_path / "run.nc", load_config(config))
-    store.assimilate(tables(1)[0], "first")
+    config = write_config(tmp_path / "run.toml", "hostpkg_a.model", n_samples=24, seed=3, kernel=DRIFT)
+    store = RunStore.create(tmp_path / "run.nc", load_config(config))     # records the package's hash
     recorded = store.config.likelihood_sha256
     for edited in ("helper.py", "lazy.py"):       # neither is the named module
         original = (tmp_path / "hostpkg_a" / edited).read_text()
         (tmp_path / "hostpkg_a" / edited).write_text(original.replace("0", "3"))
         with pytest.raises(ModelChangedError, match="changed since the run recorded it"):
-            RunStore.open(tmp_path / "run.nc").assimilate(tables(2)[1], "second")
+            RunStore.open(tmp_path / "run.nc").assimilate(tables(1)[0], "first")
         (tmp_path / "hostpkg_a" / edited).write_text(original)
-    assert RunStore.open(tmp_path / "run.nc").n_steps == 1
+    assert RunStore.open(tmp_path / "run.nc").n_steps == 0
     # accepted on purpose: the package's new hash is recorded
     (tmp_path / "hostpkg_a" / "helper.py").write_text("NOISE = 0.2\n")
     store = RunStore.open(tmp_path / "run.nc")
-    store.assimilate(tables(2)[1], "second", accept_model_change=True)
+    store.assimilate(tables(1)[0], "first", accept_model_change=True)
     assert store.config.likelihood_sha256 != recorded
     assert RunStore.open(tmp_path / "run.nc").module_hashes[-1] == locate_module("hostpkg_a.model", tmp_path).sha256
 
@@ -112,12 +124,12 @@ def test_a_plain_module_keeps_the_hash_sha256sum_prints(tmp_path):
 
 def test_a_store_that_recorded_the_named_files_only_goes_on_with_a_warning(tmp_path):
     write_package(tmp_path, "hostpkg_b")
-    config = write_config(tmp_path / "run.toml", "hostpkg_b.model", n_samples=40, seed=3)
+    config = write_config(tmp_path / "run.toml", "hostpkg_b.model", n_samples=24, seed=3, kernel=DRIFT)
     store = RunStore.create(tmp_path / "run.nc", load_config(config))
     found = locate_module("hostpkg_b.model", tmp_path)
     assert found.legacy_sha256 != found.sha256
     # what an older seqbayes recorded: the hash of the package's __init__.py and model.py only
-    store.config = __import__("dataclasses").replace(store.config, likelihood_sha256=found.legacy_sha256)
+    store.config = dataclasses.replace(store.config, likelihood_sha256=found.legacy_sha256)
     store.module_hashes = []
     with pytest.warns(StoreWarning, match="own files only; its package's 4 files are hashed from this step on"):
         store.assimilate(tables(1)[0], "first")
@@ -166,12 +178,11 @@ def alarm():
 
 
 @pytest.mark.parametrize("kind", ["dev-zero", "fifo", "dangling", "huge"])
-def test_a_journal_that_is_not_a_bounded_regular_file_is_never_read(tmp_path, kind, alarm):
-    make_run(tmp_path, "hostjournal_" + kind.replace("-", "_"))
-    run = tmp_path / "run.nc"
+def test_a_journal_that_is_not_a_bounded_regular_file_is_never_read(run_dir, kind, alarm):
+    run = run_dir / "run.nc"
     journal = files.journal_path(run)
     before = run.read_bytes()
-    elsewhere = tmp_path / "elsewhere"
+    elsewhere = run_dir / "elsewhere"
     if kind == "dev-zero":
         journal.symlink_to("/dev/zero")
     elif kind == "fifo":
@@ -186,15 +197,14 @@ def test_a_journal_that_is_not_a_bounded_regular_file_is_never_read(tmp_path, ki
     assert RunStore.open(run).n_steps == 1
     assert not elsewhere.exists()
     # an update removes the entry itself (never its target) and writes its own journal
-    assert cli.main(["update", str(run), str(tmp_path / "next.csv")]) == 0
+    assert cli.main(["update", str(run), str(run_dir / "next.csv")]) == 0
     assert RunStore.open(run).n_steps == 2
     assert not os.path.lexists(journal) and not elsewhere.exists()
     assert os.path.exists("/dev/zero")
 
 
-def test_a_journal_with_pages_outside_its_size_is_not_a_journal(tmp_path):
-    make_run(tmp_path, "hostjournal_pages")
-    run = tmp_path / "run.nc"
+def test_a_journal_with_pages_outside_its_size_is_not_a_journal(run_dir):
+    run = run_dir / "run.nc"
     size = run.stat().st_size
     good = files._encode_journal(size, size, [(0, run.read_bytes()[:4096])])
     files.journal_path(run).write_bytes(good)
@@ -204,9 +214,8 @@ def test_a_journal_with_pages_outside_its_size_is_not_a_journal(tmp_path):
         assert files.read_journal(run) is None, bad
 
 
-def killed_with_committed_journal(tmp_path, module):
+def killed_with_committed_journal(tmp_path):
     """A store of 1 step whose update of step 2 was killed with half its pages written into the store."""
-    make_run(tmp_path, module)
     run = tmp_path / "run.nc"
     assert wait(fork_cli(["update", str(run), str(tmp_path / "next.csv")], fault="mid-apply")) == -signal.SIGKILL
     assert files.read_journal(run) is not None
@@ -221,8 +230,8 @@ def xarray_steps(run):
         return int(ds.attrs["n_steps"]), ds["posterior"].values
 
 
-def test_the_next_command_that_opens_the_store_completes_the_journal(tmp_path, capsys):
-    run = killed_with_committed_journal(tmp_path, "hostjournal_hot")
+def test_the_next_command_that_opens_the_store_completes_the_journal(run_dir, capsys):
+    run = killed_with_committed_journal(run_dir)
     assert cli.main(["status", str(run)]) == 0                # any command: here status
     assert "d1.csv" in capsys.readouterr().out
     assert not os.path.lexists(files.journal_path(run))
@@ -232,8 +241,8 @@ def test_the_next_command_that_opens_the_store_completes_the_journal(tmp_path, c
     np.testing.assert_array_equal(posterior, np.stack([s.posterior for s in store.result.steps]))
 
 
-def test_a_store_that_may_not_be_written_keeps_its_journal_and_says_so(tmp_path, monkeypatch):
-    run = killed_with_committed_journal(tmp_path, "hostjournal_ro")
+def test_a_store_that_may_not_be_written_keeps_its_journal_and_says_so(run_dir, monkeypatch):
+    run = killed_with_committed_journal(run_dir)
     monkeypatch.setattr(files.os, "access", lambda *a, **k: False)   # as a user without write permission
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -248,11 +257,10 @@ def test_a_store_that_may_not_be_written_keeps_its_journal_and_says_so(tmp_path,
 
 
 # ----------------------------------------------------------------------- declared sizes
-def test_a_store_declaring_more_than_it_holds_is_refused_before_reading(tmp_path):
+def test_a_store_declaring_more_than_it_holds_is_refused_before_reading(run_dir):
     import h5py
 
-    make_run(tmp_path, "hostsize_store")
-    run = tmp_path / "run.nc"
+    run = run_dir / "run.nc"
     with h5py.File(run, "r+") as f:                          # 2.4 GB declared, nothing written
         f.create_dataset("ghost", shape=(300_000_000,), dtype="f8", chunks=(1_000_000,))
     assert run.stat().st_size < 2_000_000
@@ -262,29 +270,26 @@ def test_a_store_declaring_more_than_it_holds_is_refused_before_reading(tmp_path
         RunStore.open(run)
 
 
-def test_a_data_file_declaring_more_than_it_holds_is_one_line(tmp_path, capsys):
+def test_a_data_file_declaring_more_than_it_holds_is_one_line(run_dir, capsys):
     import h5py
 
-    make_run(tmp_path, "hostsize_data")
-    data = tmp_path / "big.nc"
+    data = run_dir / "big.nc"
     with h5py.File(data, "w") as f:                          # 2 x 3.2 GB declared in a few KB
         for name in ("t", "y"):
             f.create_dataset(name, shape=(400_000_000,), dtype="f8", chunks=(1_000_000,))
     assert data.stat().st_size < 100_000
-    config = RunStore.open(tmp_path / "run.nc").config
+    config = RunStore.open(run_dir / "run.nc").config
     with pytest.raises(DataError, match=r"big.nc: variable 't' declares 400000000 values \(3,200,000,000 bytes\), "
                                         r"more than the file of [\d,]+ bytes holds"):
-        RunStore.open(tmp_path / "run.nc").read_datafile(data)
+        RunStore.open(run_dir / "run.nc").read_datafile(data)
     assert config is not None
-    one_line_error(capsys, ["update", tmp_path / "run.nc", data], "declares 400000000 values")
+    one_line_error(capsys, ["update", run_dir / "run.nc", data], "declares 400000000 values")
 
 
 # --------------------------------------------------------------- permissions and links
-def test_the_journal_lock_and_temporary_files_take_the_stores_permissions(tmp_path, monkeypatch):
-    make_run(tmp_path, "hostmode")
-    run = tmp_path / "run.nc"
+def test_the_journal_lock_and_temporary_files_take_the_stores_permissions(run_dir, monkeypatch):
+    run = run_dir / "run.nc"
     os.chmod(run, 0o600)
-    (tmp_path / "run.nc.lock").unlink()
     modes = {}
     real_write = files.write_file
 
@@ -295,41 +300,37 @@ def test_the_journal_lock_and_temporary_files_take_the_stores_permissions(tmp_pa
     monkeypatch.setattr(files, "write_file", write_file)
     old_umask = os.umask(0o022)
     try:
-        RunStore.open(run).update(tmp_path / "next.csv")                       # an append: the journal
-        RunStore.open(run).update(tmp_path / "next.csv", replace_last=True)    # a whole write: the temporary file
+        RunStore.open(run).update(run_dir / "next.csv")                       # an append: the journal
+        RunStore.open(run).update(run_dir / "next.csv", replace_last=True)    # a whole write: the temporary file
     finally:
         os.umask(old_umask)
     assert modes == {".run.nc.journal": 0o600, ".run.nc.tmp": 0o600}
-    assert stat.S_IMODE(os.stat(tmp_path / "run.nc.lock").st_mode) == 0o600
+    assert stat.S_IMODE(os.stat(run_dir / "run.nc.lock").st_mode) == 0o600
     assert stat.S_IMODE(os.stat(run).st_mode) == 0o600
 
 
-def test_a_dangling_lock_link_is_not_followed(tmp_path, capsys):
-    make_run(tmp_path, "hostlocklink")
-    lock = tmp_path / "run.nc.lock"
-    lock.unlink()
-    lock.symlink_to(tmp_path / "elsewhere.lock")
-    one_line_error(capsys, ["update", tmp_path / "run.nc", tmp_path / "next.csv"],
+def test_a_dangling_lock_link_is_not_followed(run_dir, capsys):
+    lock = run_dir / "run.nc.lock"
+    lock.symlink_to(run_dir / "elsewhere.lock")
+    one_line_error(capsys, ["update", run_dir / "run.nc", run_dir / "next.csv"],
                    r"run.nc.lock is a symbolic link, which seqbayes does not follow \(remove it\)")
-    assert not (tmp_path / "elsewhere.lock").exists()
+    assert not (run_dir / "elsewhere.lock").exists()
 
 
-def test_a_symlinked_store_is_written_through(tmp_path):
-    make_run(tmp_path, "hostlink")
-    link = tmp_path / "link.nc"
-    link.symlink_to(tmp_path / "run.nc")
-    assert cli.main(["update", str(link), str(tmp_path / "next.csv"), "--replace-last"]) == 0
+def test_a_symlinked_store_is_written_through(run_dir):
+    link = run_dir / "link.nc"
+    link.symlink_to(run_dir / "run.nc")
+    assert cli.main(["update", str(link), str(run_dir / "next.csv"), "--replace-last"]) == 0
     assert link.is_symlink()
-    assert RunStore.open(tmp_path / "run.nc").sources == ["next.csv"]
-    assert cli.main(["update", str(link), str(tmp_path / "d1.csv")]) == 0   # an append through the link
-    assert link.is_symlink() and RunStore.open(tmp_path / "run.nc").sources == ["next.csv", "d1.csv"]
-    assert not (tmp_path / "link.nc.lock").exists() and not os.path.lexists(tmp_path / ".link.nc.journal")
+    assert RunStore.open(run_dir / "run.nc").sources == ["next.csv"]
+    assert cli.main(["update", str(link), str(run_dir / "d1.csv")]) == 0   # an append through the link
+    assert link.is_symlink() and RunStore.open(run_dir / "run.nc").sources == ["next.csv", "d1.csv"]
+    assert not (run_dir / "link.nc.lock").exists() and not os.path.lexists(run_dir / ".link.nc.journal")
 
 
 # ------------------------------------------------------------------------------ the lock
-def test_a_held_lock_says_who_holds_it_and_is_given_up(tmp_path, capsys):
-    make_run(tmp_path, "hostlockheld")
-    run = tmp_path / "run.nc"
+def test_a_held_lock_says_who_holds_it_and_is_given_up(run_dir, capsys):
+    run = run_dir / "run.nc"
     ready_r, ready_w = os.pipe()
     done_r, done_w = os.pipe()
     pid = os.fork()
@@ -350,14 +351,14 @@ def test_a_held_lock_says_who_holds_it_and_is_given_up(tmp_path, capsys):
                 pass
         assert len(said) == 1 and f"waiting for up to 0.2 s for the lock run.nc.lock, held by pid {pid}" in said[0]
         before = run.read_bytes()
-        one_line_error(capsys, ["update", run, tmp_path / "next.csv", "--lock-timeout", "0"],
+        one_line_error(capsys, ["update", run, run_dir / "next.csv", "--lock-timeout", "0"],
                        rf"gave up after 0 s waiting for the lock .*held by pid {pid} on host")
         assert run.read_bytes() == before
     finally:
         os.write(done_w, b"x")
         assert wait(pid) == 0
-    assert (tmp_path / "run.nc.lock").read_bytes() == b""         # released: nobody named
-    assert cli.main(["update", str(run), str(tmp_path / "next.csv"), "--lock-timeout", "0"]) == 0
+    assert (run_dir / "run.nc.lock").read_bytes() == b""         # released: nobody named
+    assert cli.main(["update", str(run), str(run_dir / "next.csv"), "--lock-timeout", "0"]) == 0
 
 
 def test_the_lock_timeout_setting(monkeypatch):
@@ -373,17 +374,16 @@ def test_the_lock_timeout_setting(monkeypatch):
             files.lock_timeout()
 
 
-def test_missing_stores_folders_and_link_loops_are_one_line(tmp_path, capsys):
-    make_run(tmp_path, "hostmissing")
-    one_line_error(capsys, ["update", tmp_path / "nothere.nc", tmp_path / "next.csv"],
+def test_missing_stores_folders_and_link_loops_are_one_line(run_dir, capsys):
+    one_line_error(capsys, ["update", run_dir / "nothere.nc", run_dir / "next.csv"],
                    r"nothere.nc: no such run store \(create one with `seqbayes init CONFIG")
-    assert not (tmp_path / "nothere.nc.lock").exists()
-    one_line_error(capsys, ["update", tmp_path / "nofolder" / "run.nc", tmp_path / "next.csv"],
+    assert not (run_dir / "nothere.nc.lock").exists()
+    one_line_error(capsys, ["update", run_dir / "nofolder" / "run.nc", run_dir / "next.csv"],
                    r"run.nc: the folder .*nofolder does not exist")
-    one_line_error(capsys, ["init", tmp_path / "run.toml", tmp_path / "nofolder" / "run.nc"],
+    one_line_error(capsys, ["init", run_dir / "run.toml", run_dir / "nofolder" / "run.nc"],
                    r"the folder .*nofolder does not exist")
-    loop = tmp_path / "loop.nc"
+    loop = run_dir / "loop.nc"
     loop.symlink_to(loop)
-    for argv in (["init", tmp_path / "run.toml", loop], ["update", loop, tmp_path / "next.csv"], ["status", loop]):
+    for argv in (["init", run_dir / "run.toml", loop], ["update", loop, run_dir / "next.csv"], ["status", loop]):
         one_line_error(capsys, argv, r"loop.nc: a loop of symbolic links")
-    assert not (tmp_path / "loop.nc.lock").exists()
+    assert not (run_dir / "loop.nc.lock").exists()
