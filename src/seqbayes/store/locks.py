@@ -146,7 +146,7 @@ def _open_lock(lock_path: Path, store: Path) -> BinaryIO:
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
         raise StoreError(f"{store}: the lock file {lock_path} is not a regular file (remove it)")
-    return os.fdopen(fd, "r+b")
+    return os.fdopen(fd, "r+b", buffering=0)   # unbuffered: a full disk fails the holder line, not the close
 
 
 def _try_lock(fh) -> bool:
