@@ -1,6 +1,7 @@
 """The errors and warnings a user of the run stores catches."""
 
-__all__ = ["StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning", "StoreLockTimeout", "StoreWarning"]
+__all__ = ["StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning", "StoreLockTimeout",
+           "StoreWarning"]
 
 
 class StoreError(ValueError):

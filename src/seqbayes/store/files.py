@@ -46,8 +46,8 @@ from .locks import (LOCK_TIMEOUT_ENV, NOFOLLOW, NONBLOCK, file_mode, lock_file, 
 
 __all__ = ["FAULT_ENV", "LOCK_TIMEOUT_ENV", "fault", "lock_file", "unlock_file", "store_lock", "lock_timeout",
            "os_message", "now", "fsync_dir", "target", "file_mode", "plain", "read_file", "bare_dimension",
-           "read_token", "extend", "PendingWrites", "journal_path", "read_journal", "recover_journal", "complete_journal",
-           "apply_with_journal", "netcdf_bytes", "write_file", "check_free_space"]
+           "read_token", "extend", "PendingWrites", "journal_path", "read_journal", "recover_journal",
+           "complete_journal", "apply_with_journal", "netcdf_bytes", "write_file", "check_free_space"]
 
 #: Environment variable naming a fault-injection point (tests only): the process
 #: SIGKILLs itself there. One of ``before-write``, ``mid-write`` (the temporary file or the

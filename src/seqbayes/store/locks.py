@@ -127,7 +127,7 @@ def file_mode(path: str | os.PathLike) -> int | None:
         return None
 
 
-def _open_lock(lock_path: Path, store: Path) -> BinaryIO:
+def _open_lock(lock_path: Path, store: Path, name) -> BinaryIO:
     """Open (create) the lock file without following a link, with the store's permission bits."""
     flags = os.O_RDWR | NOFOLLOW | NONBLOCK
     try:
@@ -140,12 +140,12 @@ def _open_lock(lock_path: Path, store: Path) -> BinaryIO:
             fd = os.open(lock_path, flags)
     except OSError as err:
         if err.errno == errno.ELOOP or os.path.islink(lock_path):
-            raise StoreError(f"{store}: the lock file {lock_path} is a symbolic link, which seqbayes does not "
+            raise StoreError(f"{name}: the lock file {lock_path} is a symbolic link, which seqbayes does not "
                              f"follow (remove it)") from None
-        raise StoreError(f"{store}: cannot take the lock {lock_path}: {os_message(err)}") from None
+        raise StoreError(f"{name}: cannot take the lock {lock_path}: {os_message(err)}") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
-        raise StoreError(f"{store}: the lock file {lock_path} is not a regular file (remove it)")
+        raise StoreError(f"{name}: the lock file {lock_path} is not a regular file (remove it)")
     return os.fdopen(fd, "r+b", buffering=0)   # unbuffered: a full disk fails the holder line, not the close
 
 
@@ -259,7 +259,7 @@ def store_lock(path: str | os.PathLike, *, create: bool = False, timeout: float 
                 raise StoreError(f"{path}: the folder {store.parent} does not exist")
             if not create and not os.path.lexists(store):
                 raise StoreError(f"{path}: no such run store (create one with `seqbayes init CONFIG {path}`)")
-            fh = _open_lock(lock_path, store)
+            fh = _open_lock(lock_path, store, path)
             try:
                 _acquire(fh, lock_path, path, timeout, notify)
             except BaseException:
