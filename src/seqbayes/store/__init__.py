@@ -2,8 +2,8 @@
 
 One base (:mod:`seqbayes.store.base`: hashes, open, append and whole writes, duplicate checks, over
 :mod:`seqbayes.store.files`: the redo journal, atomic writes, and :mod:`seqbayes.store.locks`) and one
-backend per run kind, found through :mod:`seqbayes.store.registry`: SMC/SEMC runs (:class:`RunStore`) and SG-EnMCMC runs
-(:class:`SGRunStore`). :func:`open_run` opens any run, :func:`create_run` starts one from
+backend per run kind, found through :mod:`seqbayes.store.registry`: SMC/SEMC runs (:class:`RunStore`)
+and SG-EnMCMC runs (:class:`SGRunStore`). :func:`open_run` opens any run, :func:`create_run` starts one from
 :func:`load_config`'s configuration.
 """
 
