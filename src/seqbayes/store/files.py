@@ -536,7 +536,7 @@ def write_file(path: Path, content, mode: int | None = None) -> None:
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EINVAL, "not a regular file", str(path))
-        if mode is not None:
+        if mode is not None and hasattr(os, "fchmod"):   # not on Windows before Python 3.13
             os.fchmod(fd, mode)
         view = memoryview(content)
         while view:

@@ -134,7 +134,7 @@ def _open_lock(lock_path: Path, store: Path, name) -> BinaryIO:
         mode = file_mode(store)
         try:   # created private and then given the store's bits (a new store's: the umask's)
             fd = os.open(lock_path, flags | os.O_CREAT | os.O_EXCL, 0o666 if mode is None else 0o600)
-            if mode is not None:
+            if mode is not None and hasattr(os, "fchmod"):   # not on Windows before Python 3.13
                 os.fchmod(fd, mode)
         except FileExistsError:
             fd = os.open(lock_path, flags)
@@ -196,7 +196,7 @@ def _acquire(fh, lock_path: Path, store, timeout: float, notify) -> None:
     while True:
         if time.monotonic() >= deadline:
             raise StoreLockTimeout(f"{store}: gave up after {timeout:g} s waiting for the lock {lock_path}, held by "
-                                   f"{holder}; the run store is unchanged (--lock-timeout or ${LOCK_TIMEOUT_ENV} "
+                                   f"{_holder(fh)}; the run store is unchanged (--lock-timeout or ${LOCK_TIMEOUT_ENV} "
                                    f"sets how long to wait)")
         time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
         if _try_lock(fh):
