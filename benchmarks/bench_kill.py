@@ -66,10 +66,12 @@ def setup(folder: Path, n_steps: int) -> RunStore:
 
 def xarray_steps_in_child(path: Path) -> int:
     """The ``n_steps`` xarray reads from the file, in a forked child (a torn file must not harm this
-    process); -1 when xarray cannot read it."""
+    process); -1 when xarray cannot read it, -2 when it had not returned after 120 s (HDF5 can loop
+    for ever on a torn file: the child's alarm ends it)."""
     pid = os.fork()
     if pid == 0:  # pragma: no cover - the child
         code = 255
+        signal.alarm(120)
         try:
             import xarray as xr
 
@@ -81,7 +83,7 @@ def xarray_steps_in_child(path: Path) -> int:
         finally:
             os._exit(code)
     code = wait(pid)
-    return -1 if code == 255 else code
+    return -1 if code == 255 else -2 if code < 0 else code
 
 
 def main(argv=None) -> int:
@@ -97,7 +99,7 @@ def main(argv=None) -> int:
         reference = setup(folder, args.steps)
         run = folder / "killed.nc"
         kills = lost = stored = torn = runs = torn_journal = committed_journal = 0
-        unreadable = stale = 0                 # what xarray saw before seqbayes opened the store
+        unreadable = hung = stale = 0          # what xarray saw before seqbayes opened the store
         journal = folder / f".{run.name}.journal"
         # the duration of each step's update, from one run nobody kills (the kill delays are drawn from it)
         durations = {}
@@ -138,7 +140,8 @@ def main(argv=None) -> int:
                         committed_journal += complete
                         torn_journal += left and not complete
                         assert not left or complete == (store.n_steps == before + 1)
-                        unreadable += seen < 0
+                        unreadable += seen == -1
+                        hung += seen == -2
                         stale += 0 <= seen != store.n_steps
                     assert_prefix_of_reference(store, reference)
             final = RunStore.open(run)
@@ -152,7 +155,8 @@ def main(argv=None) -> int:
     print(f"{kills} SIGKILLs of `seqbayes update` ({lost} before the step was stored, of which {torn} left a "
           f"half-written temporary file and {torn_journal} a torn journal; {stored} after the step was committed, "
           f"of which {committed_journal} left its complete journal); before seqbayes opened the store, xarray "
-          f"could not read it after {unreadable} kills and read it without the committed step after {stale}; after "
+          f"could not read it after {unreadable} kills, hung on it after {hung} and read it without the committed "
+          f"step after {stale}; after "
           f"`seqbayes status` xarray read every file whole, with seqbayes' steps; after each kill "
           f"the store loaded and every stored step was bit-identical; "
           f"{runs} runs of {args.steps} datasets completed bit for bit; one update takes "
