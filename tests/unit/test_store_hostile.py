@@ -35,8 +35,15 @@ from _user_model import decay_tables, write_config, write_model
 from test_kill_resume import fork_cli, wait
 
 
-#: a drifting amplitude, so that steps use the transition-density predictive (fast)
+#: a drifting amplitude
 DRIFT = 'a = { type = "drift", rate = -0.05, noise_std = 0.02 }'
+
+
+def config_file(path, module):
+    """The decay model's configuration with the drifting amplitude and the transition-density predictive (fast)."""
+    path = write_config(path, module, n_samples=24, seed=3, kernel=DRIFT)
+    path.write_text(path.read_text() + 'predictive = "transition"\n')
+    return path
 
 
 def tables(n=3, seed=0):
@@ -48,7 +55,7 @@ def template(tmp_path_factory):
     """A run of one step, made once and copied by :func:`run_dir` (the tests need its files, not a sampler)."""
     folder = tmp_path_factory.mktemp("template")
     write_model(folder, "hostmodel")
-    path = write_config(folder / "run.toml", "hostmodel", n_samples=24, seed=3, kernel=DRIFT)
+    path = config_file(folder / "run.toml", "hostmodel")
     for k, table in enumerate(tables(3)):
         np.savetxt(folder / f"d{k + 1}.csv", table, delimiter=",", header="t,y", comments="")
     RunStore.create(folder / "run.nc", load_config(path)).update(folder / "d1.csv")
@@ -96,7 +103,7 @@ def write_package(folder, name, noise=0.1, shift=0.0):
 
 def test_an_edit_of_another_file_of_the_package_is_refused(tmp_path):
     write_package(tmp_path, "hostpkg_a")
-    config = write_config(tmp_path / "run.toml", "hostpkg_a.model", n_samples=24, seed=3, kernel=DRIFT)
+    config = config_file(tmp_path / "run.toml", "hostpkg_a.model")
     store = RunStore.create(tmp_path / "run.nc", load_config(config))     # records the package's hash
     recorded = store.config.likelihood_sha256
     for edited in ("helper.py", "lazy.py"):       # neither is the named module
@@ -125,7 +132,7 @@ def test_a_plain_module_keeps_the_hash_sha256sum_prints(tmp_path):
 
 def test_a_store_that_recorded_the_named_files_only_goes_on_with_a_warning(tmp_path):
     write_package(tmp_path, "hostpkg_b")
-    config = write_config(tmp_path / "run.toml", "hostpkg_b.model", n_samples=24, seed=3, kernel=DRIFT)
+    config = config_file(tmp_path / "run.toml", "hostpkg_b.model")
     store = RunStore.create(tmp_path / "run.nc", load_config(config))
     found = locate_module("hostpkg_b.model", tmp_path)
     assert found.legacy_sha256 != found.sha256
