@@ -60,7 +60,7 @@ def read_datafile(path, config) -> np.ndarray:
         raise DataError(f"{path}: no such file")
     try:
         if path.suffix.lower() in NETCDF_SUFFIXES:
-            table = _read_netcdf(path, config.columns, getattr(config, "rows", None))
+            table = _read_netcdf(path, config.columns)
         else:
             table = _read_csv(path, config.columns)
     except OSError as err:  # unreadable (permissions, I/O error)
@@ -171,7 +171,7 @@ def _read_csv_cells(path, columns, header, index) -> np.ndarray:
     return out
 
 
-def _read_netcdf(path, columns, rows=None) -> np.ndarray:
+def _read_netcdf(path, columns) -> np.ndarray:
     import xarray as xr
 
     with open(path, "rb") as fh:
@@ -188,7 +188,7 @@ def _read_netcdf(path, columns, rows=None) -> np.ndarray:
                             f"the file has {', '.join(map(repr, map(str, ds.variables)))}")
         arrays = []
         for c in columns:
-            _check_declared(path, c, ds[c], rows)
+            _check_declared(path, c, ds[c])
             values = np.asarray(ds[c].values)
             if values.ndim != 1:
                 raise DataError(f"{path}: variable {c!r} has shape {values.shape} (dims {ds[c].dims}); "
@@ -207,12 +207,9 @@ def _read_netcdf(path, columns, rows=None) -> np.ndarray:
 _MAX_COMPRESSION = 1100
 
 
-def _check_declared(path: Path, name: str, variable, rows=None) -> None:
-    """Refuse a column whose declared size the file cannot hold, or whose length is not the configuration's
-    ``rows``, before it is read (a header of a few bytes can declare gigabytes of unwritten values)."""
-    if rows is not None and variable.ndim == 1 and variable.shape[0] != rows:
-        raise DataError(f"{path}: expected {rows} rows (data.rows), but variable {name!r} declares "
-                        f"{variable.shape[0]}")
+def _check_declared(path: Path, name: str, variable) -> None:
+    """Refuse a column whose declared size the file cannot hold (before it is read: a header of a few
+    bytes can declare gigabytes of unwritten values)."""
     size = path.stat().st_size
     encoding = variable.encoding
     compressed = bool(encoding.get("zlib") or encoding.get("compression") or encoding.get("szip"))
