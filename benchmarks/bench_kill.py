@@ -10,12 +10,18 @@ bit-identical to an uninterrupted in-process run, with the generator states and 
 of that run; a run that reaches the last dataset must equal the uninterrupted run bit for
 bit. Runs are repeated until ``--kills`` kills have been made.
 
+After every kill, before seqbayes looks at the store, a forked child tries to read it with xarray
+(what another program sees); then ``seqbayes status`` runs (any command that opens the store
+writes a committed journal into it), and xarray must read the whole file, with the steps and
+samples seqbayes sees.
+
     python benchmarks/bench_kill.py --kills 200
 
 prints the number of kills, how many landed before the step was stored (and of those, how many left
 a half-written temporary file of a whole write or a torn journal of an append) and after it (and
-of those, how many left a complete journal, which readers lay over the store and the next update
-applies), the number of completed runs and the time taken.
+of those, how many left a complete journal), how many kills left a file that xarray could not read
+or read without the committed step before seqbayes opened it, that xarray read every file after
+``seqbayes status``, the number of completed runs and the time taken.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "unit")]
 
 from _user_model import decay_tables, write_config, write_model  # noqa: E402
-from test_kill_resume import assert_prefix_of_reference, fork_cli, wait  # noqa: E402
+from test_kill_resume import assert_prefix_of_reference, assert_xarray_reads, fork_cli, wait  # noqa: E402
 
 from seqbayes import cli  # noqa: E402
 from seqbayes.store import RunStore, load_config  # noqa: E402
@@ -58,12 +64,26 @@ def setup(folder: Path, n_steps: int) -> RunStore:
     return reference
 
 
-def journal_stamp(path: Path):
-    """``(inode, size, mtime)`` of a journal file, or None."""
-    with contextlib.suppress(OSError):
-        st = path.stat()
-        return st.st_ino, st.st_size, st.st_mtime_ns
-    return None
+def xarray_steps_in_child(path: Path) -> int:
+    """The ``n_steps`` xarray reads from the file, in a forked child (a torn file must not harm this
+    process); -1 when xarray cannot read it, -2 when it had not returned after 120 s (HDF5 can loop
+    for ever on a torn file: the child's alarm ends it)."""
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 255
+        signal.alarm(120)
+        try:
+            import xarray as xr
+
+            with xr.open_dataset(path, engine="h5netcdf") as ds:
+                ds.load()
+                code = int(ds.attrs["n_steps"])
+        except BaseException:
+            code = 255
+        finally:
+            os._exit(code)
+    code = wait(pid)
+    return -1 if code == 255 else -2 if code < 0 else code
 
 
 def main(argv=None) -> int:
@@ -79,6 +99,7 @@ def main(argv=None) -> int:
         reference = setup(folder, args.steps)
         run = folder / "killed.nc"
         kills = lost = stored = torn = runs = torn_journal = committed_journal = 0
+        unreadable = hung = stale = 0          # what xarray saw before seqbayes opened the store
         journal = folder / f".{run.name}.journal"
         # the duration of each step's update, from one run nobody kills (the kill delays are drawn from it)
         durations = {}
@@ -92,7 +113,7 @@ def main(argv=None) -> int:
             for s in range(1, args.steps + 1):
                 while RunStore.open(run).n_steps < s:
                     before = RunStore.open(run).n_steps
-                    old_journal = journal_stamp(journal)   # one left by an earlier kill stays until an update applies it
+                    assert not journal.exists()             # the open above completed any journal
                     pid = fork_cli(["update", str(run), str(folder / f"d{s}.csv")])
                     if kills < args.kills:
                         # half the kills anywhere in the update, half near its end, where the store is written
@@ -104,17 +125,24 @@ def main(argv=None) -> int:
                     if code != 0:
                         assert code == -signal.SIGKILL, code
                         kills += 1
+                        left = journal.exists()
+                        complete = left and read_journal(run) is not None
+                        seen = xarray_steps_in_child(run)     # another program, before seqbayes opens the store
+                        torn += (folder / f".{run.name}.tmp-{pid}").exists()   # this child's own temporary file
+                        assert wait(fork_cli(["status", str(run)])) == 0      # any seqbayes command
+                        assert not journal.exists()
                     store = RunStore.open(run)               # loads whatever the kill hit
                     assert store.n_steps in (before, before + 1), (before, store.n_steps)
+                    assert_xarray_reads(run, store)          # other programs read the whole file
                     if code != 0:
                         lost += store.n_steps == before
                         stored += store.n_steps == before + 1
-                        torn += (folder / f".{run.name}.tmp-{pid}").exists()   # this child's own temporary file
-                        if journal.exists() and journal_stamp(journal) != old_journal:   # this kill's journal
-                            complete = read_journal(run) is not None
-                            committed_journal += complete
-                            torn_journal += not complete
-                            assert complete == (store.n_steps == before + 1)
+                        committed_journal += complete
+                        torn_journal += left and not complete
+                        assert not left or complete == (store.n_steps == before + 1)
+                        unreadable += seen == -1
+                        hung += seen == -2
+                        stale += 0 <= seen != store.n_steps
                     assert_prefix_of_reference(store, reference)
             final = RunStore.open(run)
             assert final.n_steps == args.steps
@@ -126,7 +154,10 @@ def main(argv=None) -> int:
     elapsed = time.perf_counter() - start
     print(f"{kills} SIGKILLs of `seqbayes update` ({lost} before the step was stored, of which {torn} left a "
           f"half-written temporary file and {torn_journal} a torn journal; {stored} after the step was committed, "
-          f"of which {committed_journal} left its complete journal for the next reader and writer); after each "
+          f"of which {committed_journal} left its complete journal); before seqbayes opened the store, xarray "
+          f"could not read it after {unreadable} kills, hung on it after {hung} and read it without the committed "
+          f"step after {stale}; after "
+          f"`seqbayes status` xarray read every file whole, with seqbayes' steps; after each kill "
           f"the store loaded and every stored step was bit-identical; "
           f"{runs} runs of {args.steps} datasets completed bit for bit; one update takes "
           f"{np.median(list(durations.values())):.2f} s; {elapsed:.0f} s in all")

@@ -157,8 +157,11 @@ class _CountingLikelihood:
 def cmd_init(args: argparse.Namespace) -> int:
     from .store import create_run, load_config
     from .store.datasets import printable
+    from .store.files import store_lock
 
-    store = create_run(args.run, load_config(args.config), overwrite=args.force)
+    config = load_config(args.config)
+    with store_lock(args.run, create=True, timeout=args.lock_timeout):
+        store = create_run(args.run, config, overwrite=args.force)
     print(f"created {printable(store.describe())}")
     return 0
 
@@ -171,7 +174,7 @@ def cmd_update(args: argparse.Namespace) -> int:
     from .store.files import store_lock
 
     show = _progress_enabled() and not args.quiet
-    with store_lock(args.run):
+    with store_lock(args.run, timeout=args.lock_timeout):
         store = open_run(args.run)
         if args.replace_last:
             store.require("replace_last")
@@ -395,6 +398,11 @@ def _assimilated_dataset(store, path) -> tuple:
 
 
 # ----------------------------------------------------------------------- parser
+#: ``--lock-timeout`` of the commands that write a run store.
+LOCK_TIMEOUT_OPTION = dict(type=float, default=None, metavar="SECONDS",
+                           help="how long to wait while another update holds the run store's lock (which says who "
+                                "holds it) before giving up; 0: do not wait, inf: no limit (default: "
+                                "$SEQBAYES_LOCK_TIMEOUT, else 3600)")
 def build_parser() -> argparse.ArgumentParser:
     from ._version import __version__
 
@@ -408,6 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config", help="TOML run configuration (see seqbayes.store.config)")
     p.add_argument("run", help="run store to create (a .nc file)")
     p.add_argument("--force", action="store_true", help="overwrite an existing run store")
+    p.add_argument("--lock-timeout", **LOCK_TIMEOUT_OPTION)
     p.set_defaults(func=cmd_init)
 
     p = sub.add_parser("update", help="assimilate one or more datasets (CSV or NetCDF), one step each")
@@ -419,6 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--accept-model-change", action="store_true",
                    help="run the likelihood module although its file changed since the run recorded it "
                         "(the new hash is recorded)")
+    p.add_argument("--lock-timeout", **LOCK_TIMEOUT_OPTION)
     p.set_defaults(func=cmd_update)
 
     p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")

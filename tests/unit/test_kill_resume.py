@@ -8,7 +8,9 @@
   after the rename) and at
   random times drawn from a seeded generator. After every kill the store loads, holds
   every completed step (bit-identical to the uninterrupted run), and rerunning
-  ``update`` completes the run with the uninterrupted run's numbers.
+  ``update`` completes the run with the uninterrupted run's numbers. Once a seqbayes
+  command has opened the store, xarray reads it whole (a committed journal was written
+  into it), with the steps seqbayes sees.
 
 The assertions hold wherever a random kill lands (that is the property tested), so
 the test does not depend on timing; the fault-injection points make sure the write
@@ -82,6 +84,17 @@ def wait(pid) -> int:
     return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
 
 
+def assert_xarray_reads(path, store):
+    """Another program (xarray, h5netcdf) reads the whole file, with the steps and samples seqbayes sees."""
+    import xarray as xr
+
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        ds.load()
+        assert int(ds.attrs["n_steps"]) == store.n_steps
+        if store.n_steps:
+            np.testing.assert_array_equal(ds["posterior"].values, np.stack([s.posterior for s in store.result.steps]))
+
+
 def assert_prefix_of_reference(store, reference):
     """Every stored step is bit-identical to the uninterrupted run's step."""
     assert store.n_steps <= reference.n_steps
@@ -124,10 +137,12 @@ def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir
 
     def killed(args, point, steps, journal_left):
         assert wait(fork_cli(args, fault=point)) == -signal.SIGKILL
-        store = RunStore.open(run)                        # still loads
+        assert journal.exists() == journal_left, point
+        store = RunStore.open(run)                        # still loads, and completes a committed journal
         assert store.n_steps == steps, point              # every completed step, nothing torn
         assert_prefix_of_reference(store, reference)
-        assert journal.exists() == journal_left, point
+        assert not journal.exists(), point
+        assert_xarray_reads(run, store)
 
     # a step is appended through the journal: killed before the journal is complete (before-write,
     # a torn journal) the store is unchanged; once it is complete the step is committed, and readers
@@ -136,8 +151,7 @@ def test_sigkill_at_each_write_stage_keeps_the_store_and_rerun_completes(workdir
     killed(update[2], "before-write", 1, False)
     killed(update[2], "mid-write", 1, True)
     killed(update[2], "before-replace", 2, True)
-    assert cli.main(update[2]) == 2                       # a duplicate: refused, the journal applied
-    assert not journal.exists()
+    assert cli.main(update[2]) == 2                       # a duplicate: refused
     killed(update[3], "mid-apply", 3, True)               # half its pages written into the store
     assert cli.main(update[3]) == 2 and not journal.exists()
     killed(update[4], "after-replace", 4, False)
@@ -176,6 +190,7 @@ def test_sigkill_at_random_times(workdir):
                 os.kill(pid, signal.SIGKILL)
             code = wait(pid)
             store = RunStore.open(run)                     # loads whatever the kill hit
+            assert_xarray_reads(run, store)
             if code == 0:                                  # the kill came too late: the step is stored
                 assert store.n_steps == before + 1
             assert store.n_steps in (before, before + 1)

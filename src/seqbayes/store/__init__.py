@@ -1,19 +1,20 @@
 """Run stores: a monitoring run kept in one NetCDF-4 file that resumes exactly where it stopped.
 
 One base (:mod:`seqbayes.store.base`: hashes, open, append and whole writes, duplicate checks, over
-:mod:`seqbayes.store.files`: locks, the redo journal, atomic writes) and one backend per run kind,
-found through :mod:`seqbayes.store.registry`: SMC/SEMC runs (:class:`RunStore`) and SG-EnMCMC runs
-(:class:`SGRunStore`). :func:`open_run` opens any run, :func:`create_run` starts one from
+:mod:`seqbayes.store.files`: the redo journal, atomic writes, and :mod:`seqbayes.store.locks`) and one
+backend per run kind, found through :mod:`seqbayes.store.registry`: SMC/SEMC runs (:class:`RunStore`)
+and SG-EnMCMC runs (:class:`SGRunStore`). :func:`open_run` opens any run, :func:`create_run` starts one from
 :func:`load_config`'s configuration.
 """
 
 from .config import ConfigError, RunConfig, load_config
 from .datasets import DataError
-from .errors import BoundWarning, DuplicateDatasetError, ModelChangedError, StoreError
+from .errors import BoundWarning, DuplicateDatasetError, ModelChangedError, StoreError, StoreLockTimeout, StoreWarning
 from .registry import create_run, open_run
 # the backends register their run kinds as they are imported
 from .sg import SGRunStore
 from .smc import RunStore, posterior_to_arviz
 
 __all__ = ["RunStore", "SGRunStore", "open_run", "create_run", "load_config", "StoreError", "DuplicateDatasetError",
-           "ModelChangedError", "BoundWarning", "ConfigError", "DataError", "RunConfig", "posterior_to_arviz"]
+           "ModelChangedError", "BoundWarning", "ConfigError", "DataError", "RunConfig", "posterior_to_arviz",
+           "StoreLockTimeout", "StoreWarning"]

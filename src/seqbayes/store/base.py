@@ -192,7 +192,7 @@ class BaseStore:
         path = Path(path)
         if path.is_dir():
             raise StoreError(f"{path}: is a folder; give the run store's file name, e.g. {path / 'run.nc'}")
-        with files.store_lock(path):
+        with files.store_lock(path, create=True):
             if path.exists() and not overwrite:
                 raise StoreError(f"{path}: a run store already exists (pass overwrite=True / --force to replace it)")
             store = cls._new(path, config)
@@ -447,17 +447,18 @@ class BaseStore:
         StoreError
             The folder is read-only, full, or the path is a folder; the previous store is kept.
         """
-        with files.store_lock(self.path):
+        with files.store_lock(self.path, create=True):
             self._write_locked()
 
     def _write_locked(self) -> None:
         """With the lock held: in place through the journal when :meth:`_append` can, else the whole file
         to a temporary file that replaces it (fsync-ed, the file mode kept; a killed writer's temporary
-        files are removed first)."""
-        folder = self.path.resolve().parent
+        files are removed first). A symbolic link to the store is written through: its target is replaced."""
+        real = files.target(self.path)
+        folder = real.parent
         if self.path.is_dir():
             raise StoreError(f"{self.path}: is a folder, not a run store file")
-        prefix = f".{self.path.name}.tmp-"
+        prefix = f".{real.name}.tmp-"
         try:
             folder.mkdir(parents=True, exist_ok=True)
             for entry in os.listdir(folder):  # left by a killed writer (the lock is held: no live one)
@@ -470,9 +471,7 @@ class BaseStore:
         if self._append():
             return
         ds = self.to_xarray()
-        mode = None
-        with contextlib.suppress(OSError):
-            mode = os.stat(self.path).st_mode & 0o7777
+        mode = files.file_mode(real)
         # HDF5 writes to memory; the file is written by plain OS calls, so a full disk or an I/O
         # error is one OSError here, never an error inside HDF5 (which, on ENOSPC, crashed the process)
         content = files.netcdf_bytes(ds, _encoding(ds, self.growing),
@@ -481,14 +480,12 @@ class BaseStore:
         files.fault("before-write")
         tmp = folder / f"{prefix}{os.getpid()}"
         try:
-            files.write_file(tmp, content)
+            files.write_file(tmp, content, mode=mode)
             if os.environ.get(files.FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn temporary file
                 os.truncate(tmp, len(content) // 2)
                 files.fault("mid-write")
-            if mode is not None:
-                os.chmod(tmp, mode)
             files.fault("before-replace")
-            os.replace(tmp, self.path)
+            os.replace(tmp, real)
         except OSError as err:
             with contextlib.suppress(OSError):
                 os.remove(tmp)

@@ -230,6 +230,7 @@ def _read_netcdf(path, columns) -> np.ndarray:
                             f"the file has {', '.join(map(repr, map(str, ds.variables)))}")
         arrays = []
         for c in columns:
+            _check_declared(path, c, ds[c])
             values = np.asarray(ds[c].values)
             if values.ndim != 1:
                 raise DataError(f"{path}: variable {c!r} has shape {values.shape} (dims {ds[c].dims}); "
@@ -242,6 +243,23 @@ def _read_netcdf(path, columns) -> np.ndarray:
         shapes = ", ".join(f"{c}: {a.shape}" for c, a in zip(columns, arrays))
         raise DataError(f"{path}: columns have different lengths ({shapes})")
     return np.column_stack(arrays)
+
+
+#: deflate, the strongest compression NetCDF files use, shrinks data at most 1032-fold
+_MAX_COMPRESSION = 1100
+
+
+def _check_declared(path: Path, name: str, variable) -> None:
+    """Refuse a column whose declared size the file cannot hold (before it is read: a header of a few
+    bytes can declare gigabytes of unwritten values)."""
+    size = path.stat().st_size
+    encoding = variable.encoding
+    compressed = bool(encoding.get("zlib") or encoding.get("compression") or encoding.get("szip"))
+    declared = variable.size * variable.dtype.itemsize
+    if declared > size * (_MAX_COMPRESSION if compressed else 1):
+        raise DataError(f"{path}: variable {name!r} declares {variable.size} values ({declared:,} bytes), more than "
+                        f"the file of {size:,} bytes holds{' even compressed' if compressed else ''}; the file is "
+                        f"damaged or truncated")
 
 
 def as_likelihood_data(table: np.ndarray, config):

@@ -1,6 +1,7 @@
 """The errors and warnings a user of the run stores catches."""
 
-__all__ = ["StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning"]
+__all__ = ["StoreError", "DuplicateDatasetError", "ModelChangedError", "BoundWarning", "StoreLockTimeout",
+           "StoreWarning"]
 
 
 class StoreError(ValueError):
@@ -18,3 +19,12 @@ class ModelChangedError(StoreError):
 
 class BoundWarning(UserWarning):
     """Most of a step's posterior lies at a bound of the prior (wrong units? too narrow a prior?)."""
+
+
+class StoreLockTimeout(StoreError):
+    """Another process held the run store's lock longer than the lock timeout (the message says who)."""
+
+
+class StoreWarning(UserWarning):
+    """Something about a run store the user should know that does not stop the command (e.g. a step that
+    could not be written into a read-only store)."""

@@ -1,20 +1,23 @@
-"""The file machinery under every run store: locks, the redo journal, whole-file writes, reads.
+"""The file machinery under every run store: the redo journal, whole-file writes, reads (and, from
+:mod:`seqbayes.store.locks`, the locks).
 
 A run store is one NetCDF-4 (HDF5) file. Writes are atomic, and an update writes only what it
 adds. A new step is appended in place, through a redo journal: HDF5 appends the step's rows to
 an in-memory overlay of the file (:class:`PendingWrites`), the changed pages are written to the
-journal ``.RUN.journal`` with their SHA-256 and ``fsync``-ed (from then on the step is
+journal ``.RUN.nc.journal`` with their SHA-256 and ``fsync``-ed (from then on the step is
 committed), written into the store under an exclusive lock on it, and the journal is removed. A
 crash before the journal is complete leaves the store as it was (an incomplete journal is ignored
-and removed); a crash after it leaves a complete journal, which readers lay over the file
-(:func:`read_file`) and the next writer applies (:func:`recover_journal`; writing pages is
-idempotent). Readers hold a shared lock on the file while they read it, so they see the store
-before or after a step, never between. A new layout is written whole by HDF5 to memory
-(:func:`netcdf_bytes`), then to a temporary file with plain OS calls (:func:`write_file`) and
-moved over the old one. A full disk or a read-only folder is one
+and removed); a crash after it leaves a complete journal, which the next seqbayes command that
+opens the store writes into it (:func:`complete_journal`, as SQLite's next reader does with a hot
+journal; writing pages is idempotent), so that other programs read the file whole again. Readers
+hold a shared lock on the file while they read it, so they see the store before or after a step,
+never between; one that may not write the store lays the journal over it. The journal is read only
+if it is a regular file of bounded size, opened without following a link. A new layout is
+written whole by HDF5 to memory (:func:`netcdf_bytes`), then to a temporary file with plain OS
+calls (:func:`write_file`) and moved over the old one. The journal, the lock and temporary files
+take the store's permission bits. A full disk or a read-only folder is one
 :class:`~seqbayes.store.errors.StoreError`. Every read-modify-write holds an exclusive lock on
-``RUN.lock`` (:func:`store_lock`). The locks are ``flock`` on POSIX and ``msvcrt.locking`` on
-Windows (:func:`lock_file`).
+``RUN.nc.lock`` (:func:`store_lock`).
 
 This module knows nothing of what a store holds: :class:`seqbayes.store.base.BaseStore` and its
 backends do.
@@ -23,7 +26,6 @@ backends do.
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import errno
 import hashlib
 import io
@@ -31,20 +33,21 @@ import mmap
 import os
 import shutil
 import signal
+import stat
 import struct
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
-from .errors import StoreError
+from .errors import StoreError, StoreLockTimeout, StoreWarning
+from .locks import (LOCK_TIMEOUT_ENV, NOFOLLOW, NONBLOCK, file_mode, lock_file, lock_timeout, now, os_message,
+                    store_lock, target, unlock_file)
 
-__all__ = ["FAULT_ENV", "fault", "lock_file", "unlock_file", "store_lock", "os_message", "now", "fsync_dir",
-           "plain", "read_file", "bare_dimension", "read_token", "extend", "PendingWrites", "journal_path",
-           "read_journal", "recover_journal", "apply_with_journal", "netcdf_bytes", "write_file",
-           "check_free_space"]
+__all__ = ["FAULT_ENV", "LOCK_TIMEOUT_ENV", "fault", "lock_file", "unlock_file", "store_lock", "lock_timeout",
+           "os_message", "now", "fsync_dir", "target", "file_mode", "plain", "read_file", "bare_dimension",
+           "read_token", "extend", "PendingWrites", "journal_path", "read_journal", "recover_journal",
+           "complete_journal", "apply_with_journal", "netcdf_bytes", "write_file", "check_free_space"]
 
 #: Environment variable naming a fault-injection point (tests only): the process
 #: SIGKILLs itself there. One of ``before-write``, ``mid-write`` (the temporary file or the
@@ -56,94 +59,6 @@ FAULT_ENV = "SEQBAYES_STORE_FAULT"
 def fault(point: str) -> None:
     if os.environ.get(FAULT_ENV) == point:  # pragma: no cover - the process dies here
         os.kill(os.getpid(), signal.SIGKILL)
-
-
-# ------------------------------------------------------------------------- locks
-def lock_file(fh: BinaryIO, exclusive: bool = True) -> None:
-    """Block until this process holds an advisory lock on the open file ``fh``.
-
-    POSIX: ``flock`` (shared or exclusive, released when ``fh`` is closed or by
-    :func:`unlock_file`). Windows: ``msvcrt.locking`` of one byte far beyond any
-    run store's end (Windows locks are mandatory, so a lock on the content would block
-    readers of it), always exclusive, retried every 10 ms.
-    """
-    if os.name == "nt":  # pragma: no cover - exercised on Windows only
-        import msvcrt
-
-        fh.seek(_WINDOWS_LOCK_OFFSET)
-        while True:
-            try:
-                msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)
-                return
-            except OSError:
-                time.sleep(0.01)
-    import fcntl
-
-    fcntl.flock(fh.fileno(), fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
-
-
-def unlock_file(fh) -> None:
-    """Release :func:`lock_file`'s lock on ``fh``."""
-    if os.name == "nt":  # pragma: no cover - exercised on Windows only
-        import msvcrt
-
-        fh.seek(_WINDOWS_LOCK_OFFSET)
-        msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
-        return
-    import fcntl
-
-    fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
-
-
-_WINDOWS_LOCK_OFFSET = 2 ** 40
-_LOCKS: dict = {}                      # resolved lock path -> [threading.RLock, depth, open lock file]
-_LOCKS_GUARD = threading.Lock()
-
-
-@contextlib.contextmanager
-def store_lock(path: str | os.PathLike) -> Iterator[None]:
-    """Exclusive advisory lock on ``<path>.lock`` (:func:`lock_file`), held for a read-modify-write.
-
-    Re-entrant within a process (the CLI holds it around :meth:`RunStore.assimilate`, which
-    takes it too) and exclusive between threads and between processes. The lock file
-    stays (removing it would let two processes lock two different files).
-
-    Raises
-    ------
-    StoreError
-        The lock file cannot be created (a read-only folder, ...).
-    """
-    lock_path = str(path) + ".lock"
-    key = os.path.abspath(lock_path)
-    with _LOCKS_GUARD:
-        entry = _LOCKS.setdefault(key, [threading.RLock(), 0, None])
-    with entry[0]:
-        if entry[1] == 0:
-            try:
-                fh = open(lock_path, "a+b")
-            except OSError as err:
-                raise StoreError(f"{path}: cannot take the lock {lock_path}: {os_message(err)}") from None
-            lock_file(fh)
-            entry[2] = fh
-        entry[1] += 1
-        try:
-            yield
-        finally:
-            entry[1] -= 1
-            if entry[1] == 0:
-                fh, entry[2] = entry[2], None
-                unlock_file(fh)
-                fh.close()
-
-
-def os_message(err: OSError) -> str:
-    """``strerror`` (and the file, when the error names one) of an OS error, for one-line messages."""
-    text = err.strerror or str(err)
-    return f"{text} ({err.filename})" if err.filename else text
-
-
-def now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
 def fsync_dir(folder: Path) -> None:
@@ -174,13 +89,22 @@ def plain(value):
 def read_file(path: Path) -> tuple[dict, dict]:
     """``(attributes, variables)`` of the store: every variable read whole (text as ``str``), under a
     shared lock on the file and through a committed journal; a :class:`StoreError` for anything that
-    is not a readable run store."""
+    is not a readable run store.
+
+    A committed journal an interrupted update left is first written into the store
+    (:func:`complete_journal`), so that other programs read the file whole again. No variable is
+    read whose declared size exceeds what the file can hold (a crafted header cannot make a
+    read allocate gigabytes)."""
     import h5py
 
     if path.is_dir():
         raise StoreError(f"{path}: is a folder, not a run store")
+    target(path)
     if not path.is_file():
+        if os.path.lexists(path) and not os.path.islink(path):
+            raise StoreError(f"{path}: not a regular file, so not a run store")
         raise StoreError(f"{path}: no such run store (create one with `seqbayes init CONFIG {path}`)")
+    complete_journal(path)
     try:
         with open(path, "rb") as fh:
             head = fh.read(8)
@@ -195,13 +119,14 @@ def read_file(path: Path) -> tuple[dict, dict]:
             # HDF5 reads the file itself (faster than through Python) unless a journal is laid over it;
             # the shared lock taken on fh holds either way
             source = PendingWrites(fh, journal) if journal is not None else path
+            size = journal[1] if journal is not None else os.fstat(fh.fileno()).st_size
             with h5py.File(source, "r") as f:
                 attrs = {key: plain(value) for key, value in f.attrs.items()}
-                variables = {}
-                for name, obj in f.items():
-                    if not isinstance(obj, h5py.Dataset) or bare_dimension(obj):
-                        continue
-                    variables[name] = obj.asstr()[()] if h5py.check_string_dtype(obj.dtype) else obj[()]
+                datasets = {name: obj for name, obj in f.items()
+                            if isinstance(obj, h5py.Dataset) and not bare_dimension(obj)}
+                _check_declared(path, datasets, size)
+                variables = {name: obj.asstr()[()] if h5py.check_string_dtype(obj.dtype) else obj[()]
+                             for name, obj in datasets.items()}
     except StoreError:
         raise
     except OSError as err:
@@ -211,6 +136,18 @@ def read_file(path: Path) -> tuple[dict, dict]:
     except Exception as err:
         raise StoreError(f"{path}: cannot read the run store: {type(err).__name__}: {err}{_checksum_hint(err)}") from None
     return attrs, variables
+
+
+def _check_declared(path: Path, datasets: dict, size: int) -> None:
+    """Refuse variables whose declared sizes add up to more than the file holds: a store's arrays are
+    written whole and uncompressed, so an honest store's add up to less (text variables declare 8 bytes
+    per string, less than HDF5 stores for each)."""
+    declared = {name: obj.size * obj.dtype.itemsize for name, obj in datasets.items()}
+    if sum(declared.values()) > size:
+        name = max(declared, key=declared.get)
+        raise StoreError(f"{path}: damaged run store: its variables declare {sum(declared.values()):,} bytes "
+                         f"({name!r} alone {tuple(datasets[name].shape)}, {declared[name]:,} bytes), more than the "
+                         f"whole file of {size:,} bytes holds; nothing was read")
 
 
 def bare_dimension(dataset) -> bool:
@@ -360,7 +297,9 @@ _JOURNAL_MAGIC = b"seqbayes run-store journal 1\n"
 
 
 def journal_path(path: Path) -> Path:
-    return path.parent / f".{path.name}.journal"
+    """``.RUN.nc.journal`` beside the store's real file (:func:`target`)."""
+    store = Path(os.path.realpath(path))
+    return store.parent / f".{store.name}.journal"
 
 
 def _encode_journal(old_size: int, new_size: int, pages) -> bytes:
@@ -372,13 +311,49 @@ def _encode_journal(old_size: int, new_size: int, pages) -> bytes:
     return body + hashlib.sha256(body).digest()
 
 
+_JOURNAL_HEAD = len(_JOURNAL_MAGIC) + 24
+#: slack of a journal's size over twice the store's (on filesystems without posix_fallocate the store is
+#: not yet grown when the journal is written)
+_JOURNAL_SLACK = 64 << 20
+
+
+def _read_regular(file: Path, limit: int) -> bytes | None:
+    """The bytes of ``file`` if it is a regular file of at most ``limit`` bytes, opened without following
+    a link (a FIFO, a device or a link to /dev/zero is never read), else None."""
+    try:
+        fd = os.open(file, os.O_RDONLY | NOFOLLOW | NONBLOCK)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > limit:
+            return None
+        parts, left = [], st.st_size
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 24))
+            if not chunk:
+                break
+            parts.append(chunk)
+            left -= len(chunk)
+        return b"".join(parts)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+
+
 def read_journal(path: Path):
     """``(old size, new size, [(offset, bytes)])`` of a complete journal of the store ``path``, or
-    ``None`` when there is none or it is incomplete (torn by a crash while it was written: then the
-    store was not touched)."""
+    ``None`` when there is none, it is incomplete (torn by a crash while it was written: then the
+    store was not touched), or it is not a journal: not a regular file (a link is not followed,
+    a FIFO not opened for long), larger than twice the store plus 64 MiB, or with pages outside
+    its declared size."""
     try:
-        content = journal_path(path).read_bytes()
+        store_size = os.stat(path).st_size
     except OSError:
+        return None
+    content = _read_regular(journal_path(path), 2 * store_size + _JOURNAL_SLACK)
+    if content is None or len(content) < _JOURNAL_HEAD + 32:
         return None
     body, digest = content[:-32], content[-32:]
     if not body.startswith(_JOURNAL_MAGIC) or hashlib.sha256(body).digest() != digest:
@@ -386,13 +361,20 @@ def read_journal(path: Path):
     pos = len(_JOURNAL_MAGIC)
     old_size, new_size, count = struct.unpack_from("<QQQ", body, pos)
     pos += 24
+    if count > (len(body) - pos) // 16:
+        return None
     pages = []
     for _ in range(count):
+        if pos + 16 > len(body):
+            return None
         offset, length = struct.unpack_from("<QQ", body, pos)
         pos += 16
+        if offset % PendingWrites.PAGE or length > PendingWrites.PAGE or offset + length > new_size \
+                or pos + length > len(body):
+            return None
         pages.append((offset, body[pos:pos + length]))
         pos += length
-    return old_size, new_size, pages
+    return (old_size, new_size, pages) if pos == len(body) else None
 
 
 def _apply_pages(path: Path, journal, inject_fault: bool = False) -> None:
@@ -428,7 +410,7 @@ def _apply_pages(path: Path, journal, inject_fault: bool = False) -> None:
                 os.close(direct)
         # the journal goes while readers are still locked out: they never see the store half written
         os.remove(journal_path(path))
-        fsync_dir(path.resolve().parent)
+        fsync_dir(journal_path(path).parent)
 
 
 def _direct_fd(path: Path):
@@ -442,9 +424,10 @@ def _direct_fd(path: Path):
 
 
 def recover_journal(path: Path) -> None:
-    """Under the store's lock: finish a step a crash left in a complete journal, or drop an incomplete one."""
+    """Under the store's lock: finish a step a crash left in a complete journal, or drop an incomplete one
+    (or anything else in the journal's place: a link or a FIFO is removed itself, never followed)."""
     journal_file = journal_path(path)
-    if not journal_file.exists():
+    if not os.path.lexists(journal_file):
         return
     journal = read_journal(path)
     try:
@@ -457,6 +440,41 @@ def recover_journal(path: Path) -> None:
                          f"{os_message(err)}; readers still see it") from None
 
 
+def complete_journal(path: Path) -> None:
+    """Write a committed journal into the store when opening it, as SQLite's next reader does with a hot
+    journal: afterwards xarray, ncdump and MATLAB read the file whole again, not only seqbayes (which
+    lays the journal over it).
+
+    Skipped while an update holds the store's lock (it completes the journal itself). A store this
+    process may not write keeps its journal, and a :class:`~seqbayes.store.errors.StoreWarning` says so
+    in one line; readers still see the step."""
+    journal_file = journal_path(path)
+    if not os.path.lexists(journal_file):
+        return
+    folder = journal_file.parent
+    if not (os.access(path, os.R_OK | os.W_OK) and os.access(folder, os.W_OK | os.X_OK)):
+        if read_journal(path) is not None:
+            _warn_unwritten(path, journal_file, "no permission to write the store or its folder")
+        return
+    try:
+        with store_lock(path, timeout=0, notify=None):
+            recover_journal(path)
+    except StoreLockTimeout:
+        return
+    except StoreError as err:
+        if read_journal(path) is not None:
+            _warn_unwritten(path, journal_file, str(err).split(": ")[-1])
+
+
+def _warn_unwritten(path: Path, journal_file: Path, why: str) -> None:
+    import warnings
+
+    warnings.warn(f"{path}: read with the step an interrupted update left in {journal_file.name}, which could not "
+                  f"be written into the store ({why}); until a seqbayes command that may write the store opens it, "
+                  f"other programs (xarray, ncdump) read it without that step, or not at all", StoreWarning,
+                  stacklevel=3)
+
+
 def apply_with_journal(path: Path, journal) -> None:
     """Commit the appended pages ``journal = (old size, new size, [(offset, bytes)])``
     (:meth:`PendingWrites.changes`): the store's new size is allocated (``posix_fallocate``,
@@ -465,7 +483,7 @@ def apply_with_journal(path: Path, journal) -> None:
     (:func:`_apply_pages`). A failure before the commit restores the store's size: the
     store stays byte-identical."""
     content = _encode_journal(*journal)
-    folder = path.resolve().parent
+    folder = target(path).parent
     old_size = os.path.getsize(path)
     check_free_space(path, folder, len(content) + max(0, journal[1] - old_size))
     fault("before-write")
@@ -475,9 +493,9 @@ def apply_with_journal(path: Path, journal) -> None:
             with open(path, "r+b") as fh:
                 os.posix_fallocate(fh.fileno(), 0, journal[1])   # beyond HDF5's end of file: readers ignore it
         if os.environ.get(FAULT_ENV) == "mid-write":  # pragma: no cover - simulate a torn journal
-            write_file(journal_file, content[:len(content) // 2])
+            write_file(journal_file, content[:len(content) // 2], mode=file_mode(path))
             fault("mid-write")
-        write_file(journal_file, content)
+        write_file(journal_file, content, mode=file_mode(path))
         fsync_dir(folder)
     except OSError as err:
         with contextlib.suppress(OSError):
@@ -509,10 +527,17 @@ def netcdf_bytes(ds, encoding, unlimited_dims=()):
     return ds.to_netcdf(**kwargs)
 
 
-def write_file(path: Path, content) -> None:
-    """Write ``content`` to a new file ``path`` and ``fsync`` it."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+def write_file(path: Path, content, mode: int | None = None) -> None:
+    """Write ``content`` to a new file ``path`` and ``fsync`` it; a link in its place is not followed (an
+    error). With ``mode`` (the store's :func:`file_mode`) the file has those permission bits before
+    anything is written to it, else the umask's."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | NOFOLLOW | NONBLOCK,
+                 0o666 if mode is None else 0o600)
     try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", str(path))
+        if mode is not None and hasattr(os, "fchmod"):   # not on Windows before Python 3.13
+            os.fchmod(fd, mode)
         view = memoryview(content)
         while view:
             view = view[os.write(fd, view):]
@@ -531,9 +556,3 @@ def check_free_space(path: Path, folder: Path, needed: int) -> None:
         raise StoreError(f"{path}: not enough free space in {folder}: about {needed // 1024} KiB needed, "
                          f"{free // 1024} KiB free ({os.strerror(errno.ENOSPC)}); the previous store is kept")
 
-
-import typing as _typing  # noqa: E402
-
-if _typing.TYPE_CHECKING:  # names used only in annotations
-    from collections.abc import Iterator
-    from typing import BinaryIO

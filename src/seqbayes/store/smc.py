@@ -83,7 +83,7 @@ from . import snapshot
 from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, check_finite, json_value, json_values
 from .config import RunConfig
 from .datasets import as_likelihood_data, check_table, dataset_digest
-from .errors import BoundWarning, ModelChangedError, StoreError
+from .errors import BoundWarning, ModelChangedError, StoreError, StoreWarning
 from .modules import ConfigError, ModuleSource, load_located, locate_module
 from .registry import register
 
@@ -392,6 +392,12 @@ class RunStore(BaseStore):
             chosen = candidates[0] if candidates else None
         else:
             chosen = next((c for c in candidates if c.sha256 == recorded), None)
+            legacy = next((c for c in candidates if c.legacy_sha256 == recorded), None) if chosen is None else None
+            if legacy is not None:   # recorded when only the module's own files were hashed: from now on, its package
+                warnings.warn(f"{self.path}: the run recorded the hash of {legacy.name!r}'s own files only; its "
+                              f"package's {legacy.package_files} files are hashed from this step on (a change "
+                              f"to them before now cannot be told)", StoreWarning, stacklevel=3)
+                chosen = legacy
             if chosen is None and accept_model_change and candidates:
                 chosen = candidates[0]
         if chosen is None:
