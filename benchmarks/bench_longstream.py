@@ -6,6 +6,7 @@ Usage (each prints a markdown table for docs/benchmarks.md):
     python benchmarks/bench_longstream.py static [--seeds 10] [--steps 1000] [--n 1000]
     python benchmarks/bench_longstream.py predictive [--seeds 2] [--steps 300]
     python benchmarks/bench_longstream.py particles [--seeds 10] [--steps 100]
+    python benchmarks/bench_longstream.py nonlinear [--seeds 3] [--steps 300]
 
 ``mixed``: one AR(1)-decaying, one drifting and two static parameters
 (:meth:`~seqbayes.models.linear_gaussian.LinearGaussianStateSpace.mixed`), ``predictive="auto"``
@@ -24,6 +25,11 @@ mixed problem, for their long-stream errors.
 ``particles``: against ``particles``' SMC^2 (``make bench`` installs it) on the mixed problem,
 paired per seed, the same N_x and bootstrap inner filters; particles with its defaults (waste-free,
 chains of 10) and with 5 PMMH steps per rejuvenation, ours at N and 4 N.
+
+``nonlinear`` (issue 23): ``y_j = a sin(x_s + u_j) + e_j`` with a static amplitude ``a`` and a drifting phase
+``x_s`` (random walk, sd 0.05), five observations per dataset, uniform priors; the defaults (N = 1000, particle
+inner filter with M = 100) against the exact grid filter at s = 10, 30, 100, 200, 300, and the cost: total
+evaluations, the largest update over the median, the PMMH acceptance of every rejuvenation.
 """
 
 from __future__ import annotations
@@ -237,9 +243,99 @@ def particles_comparison(args):
         print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.3f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
 
 
+class SinePhase:
+    """The nonlinear static + drifting problem: ``y_j = a sin(x + u_j) + e_j``, ``e_j ~ N(0, 0.5^2)``."""
+
+    box = np.array([[0.2, 3.0], [-3.0, 3.0]])
+    u = np.linspace(0.0, np.pi, 5)
+    noise, drift = 0.5, 0.05
+
+    def __init__(self):
+        from scipy import stats
+
+        from seqbayes.kernels import Drift, MarkovKernel, Static
+
+        self.prior = seqbayes.JointPrior({"a": stats.uniform(0.2, 2.8), "x": stats.uniform(-3.0, 6.0)})
+        self.kernel = MarkovKernel([Static(), Drift(0.0, noise_std=self.drift)])
+
+    def loglike(self, theta, y):
+        mean = theta[:, :1] * np.sin(theta[:, 1:2] + self.u)
+        return -0.5 * np.sum((y - mean) ** 2, axis=1) / self.noise**2 - self.u.size * np.log(self.noise * np.sqrt(2 * np.pi))
+
+    def simulate(self, steps, rng):
+        rng = np.random.default_rng(rng)
+        x = 0.3 + np.cumsum(np.r_[0.0, rng.normal(0.0, self.drift, steps - 1)])
+        return [1.2 * np.sin(xs + self.u) + rng.normal(0.0, self.noise, self.u.size) for xs in x]
+
+    def exact(self, data):
+        """The grid filter's steps (``mean``, ``std``, ``log_evidence_increment``)."""
+        from seqbayes import reference
+
+        def log_likelihood(axes, y):
+            a, x = axes[0][:, None, None], axes[1][None, :, None]
+            r = y - a * np.sin(x + self.u)
+            return (-0.5 * np.sum(r**2, axis=2) / self.noise**2
+                    - self.u.size * np.log(self.noise * np.sqrt(2 * np.pi)))
+
+        return reference.grid_filter(data, log_likelihood, self.box, [lambda v: v, lambda v: v], [0.0, self.drift],
+                                     (1601, 201))
+
+
+def nonlinear(args):
+    problem = SinePhase()
+    checkpoints = tuple(c for c in (10, 30, 100, 200, 300) if c <= args.steps)
+    rows, cost_rows = {}, []
+    for cls in (seqbayes.SMC, seqbayes.SEMC):
+        label = cls.__name__
+        rows[label] = []
+        for seed in range(args.seeds):
+            data = problem.simulate(args.steps, rng=4000 + seed)
+            grid = problem.exact(data)
+            log_z = np.cumsum([g.log_evidence_increment for g in grid])
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed)
+            errs, evals, rejuvenations = {}, [], []
+            start = time.perf_counter()
+            for s, y in enumerate(data, start=1):
+                info = sampler.update(y)
+                evals.append(info.n_loglike_evals)
+                if info.resampled and s > 1:
+                    rejuvenations.append((s, info.pmmh_acceptance))
+                if s in checkpoints:
+                    record, g = sampler.result.steps[-1], grid[s - 1]
+                    errs[s] = (float(np.max(np.abs(record.mean() - g.mean) / g.std)),
+                               float(np.max(np.abs(record.std() / g.std - 1.0))), float(abs(info.log_evidence - log_z[s - 1])))
+            evals = np.array(evals)
+            # a rejuvenation's acceptance over all its attempts: the tally at the step before the next one starts
+            acceptances = [sampler.result.steps[s - 2].info.pmmh_acceptance for s, _ in rejuvenations[1:]]
+            acceptances.append(info.pmmh_acceptance)
+            rows[label].append(errs)
+            cost_rows.append((label, seed, evals.sum(), evals.max() / np.median(evals), np.median(evals),
+                              np.nanmin(acceptances) if acceptances else float("nan"), len(rejuvenations),
+                              time.perf_counter() - start))
+            print(f"{label} seed {seed}: {cost_rows[-1][-1]:.0f} s, {evals.sum():.3g} evals, max/median "
+                  f"{cost_rows[-1][3]:.1f}, acceptance per rejuvenation "
+                  + " ".join(f"{s}:{a:.2f}" for (s, _), a in zip(rejuvenations, acceptances)) + "; "
+                  + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats" for s, e in errs.items()), flush=True)
+    print(f"\n### Nonlinear static + drifting, SMC^2 defaults (M = 100), N = {args.n}, {args.seeds} seeds\n")
+    print("| sampler | s | mean err / sd (median, worst) | sd err (median, worst) | log Z err (median, worst) "
+          "| within 0.3 sd, 20 %, 0.5 nats |")
+    print("|---|---|---|---|---|---|")
+    for label, per_seed in rows.items():
+        for s in checkpoints:
+            e = np.array([r[s] for r in per_seed])
+            ok = np.sum((e[:, 0] < 0.3) & (e[:, 1] < 0.2) & (e[:, 2] < 0.5))
+            print(f"| {label} | {s} | {np.median(e[:, 0]):.3f}, {e[:, 0].max():.3f} | {np.median(e[:, 1]):.3f}, "
+                  f"{e[:, 1].max():.3f} | {np.median(e[:, 2]):.3f}, {e[:, 2].max():.3f} | {ok}/{len(e)} |")
+    print("\n| sampler | seed | evaluations | largest update / median | median update | lowest PMMH acceptance "
+          "| rejuvenations | wall time, s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, seed, total, ratio, median, lowest, n_rej, wall in cost_rows:
+        print(f"| {label} | {seed} | {total:.3g} | {ratio:.1f} | {median:.0f} | {lowest:.2f} | {n_rej} | {wall:.0f} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles"))
+    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles", "nonlinear"))
     parser.add_argument("--seeds", type=int, default=None)
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--n", type=int, default=1000)
@@ -248,10 +344,12 @@ def main():
     parser.add_argument("--particles-defaults", action="store_true",
                         help="particles: also run particles' default SMC^2 (waste-free, ~800 s a seed)")
     args = parser.parse_args()
-    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30)}[args.case]
+    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30),
+                "nonlinear": (3, 300)}[args.case]
     args.seeds = defaults[0] if args.seeds is None else args.seeds
     args.steps = defaults[1] if args.steps is None else args.steps
-    {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison}[args.case](args)
+    {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison,
+     "nonlinear": nonlinear}[args.case](args)
 
 
 if __name__ == "__main__":

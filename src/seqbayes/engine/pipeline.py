@@ -59,7 +59,8 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(tempered.log_z),
         evidence_ess=estimate.evidence_ess, n_independent_accepted=estimate.n_independent,
         n_move_evaluations=moves.stats.n_evaluations, wall_time=time.perf_counter() - start, **outcome.fields)
-    return outcome.state, StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive), weighed
+    record = StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive, outcome.moments)
+    return outcome.state, record, weighed
 
 
 def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng: np.random.Generator, *,
