@@ -7,6 +7,7 @@ Usage (each prints a markdown table for docs/benchmarks.md):
     python benchmarks/bench_longstream.py predictive [--seeds 2] [--steps 300]
     python benchmarks/bench_longstream.py particles [--seeds 10] [--steps 100]
     python benchmarks/bench_longstream.py nonlinear [--seeds 3] [--steps 300]
+    python benchmarks/bench_longstream.py drifting [--seeds 10] [--steps 30] [--n 200]
 
 ``mixed``: one AR(1)-decaying, one drifting and two static parameters
 (:meth:`~seqbayes.models.linear_gaussian.LinearGaussianStateSpace.mixed`), ``predictive="auto"``
@@ -30,6 +31,10 @@ chains of 10) and with 5 PMMH steps per rejuvenation, ours at N and 4 N.
 ``x_s`` (random walk, sd 0.05), five observations per dataset, uniform priors; the defaults (N = 1000, particle
 inner filter with M = 100) against the exact grid filter at s = 10, 30, 100, 200, 300, and the cost: total
 evaluations, the largest update over the median, the PMMH acceptance of every rejuvenation.
+
+``drifting`` (issue 23): the drifting parameters' posterior on the mixed problem, from one inner draw per outer
+particle against the Rao-Blackwellised moments over every inner filter (the record's ``mean()``/``std()``), in the
+same runs; RMS over seeds and steps of the |mean error| in exact posterior sds and of |sd ratio - 1|.
 """
 
 from __future__ import annotations
@@ -333,9 +338,44 @@ def nonlinear(args):
         print(f"| {label} | {seed} | {total:.3g} | {ratio:.1f} | {median:.0f} | {lowest:.2f} | {n_rej} | {wall:.0f} |")
 
 
+def drifting(args):
+    problem = LinearGaussianStateSpace.mixed()
+    split = (np.array([2, 3]), np.array([0, 1]))
+    out = {}
+    for cls in (seqbayes.SMC, seqbayes.SEMC):
+        for name in ("pf", "kalman"):
+            errs = {"one draw": [], "Rao-Blackwellised": []}
+            for seed in range(args.seeds):
+                data, _ = problem.simulate(args.steps, rng=5000 + seed)
+                exact = problem.exact(data)
+                inner = KalmanInnerFilter(problem.observe) if name == "kalman" else ParticleInnerFilter(args.m)
+                result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                             inner_filter=inner).run(data)
+                for record, e in zip(result.steps, exact):
+                    sd = np.sqrt(np.diag(e.cov))[split[1]]
+                    w = np.exp(record.log_weights - np.logaddexp.reduce(record.log_weights))
+                    draws = record.posterior[:, split[1]]
+                    mean = w @ draws
+                    for label, (m, s) in {"one draw": (mean, np.sqrt(w @ (draws - mean) ** 2)),
+                                          "Rao-Blackwellised": (record.mean()[split[1]], record.std()[split[1]])}.items():
+                        errs[label].append(np.r_[np.abs(m - e.mean[split[1]]) / sd, np.abs(s / sd - 1)])
+            for label, e in errs.items():
+                e = np.array(e)
+                out[(cls.__name__, name, label)] = np.sqrt(np.mean(e**2, axis=0))
+            print(cls.__name__, name, {k[2]: np.round(v, 3) for k, v in out.items() if k[:2] == (cls.__name__, name)},
+                  flush=True)
+    print(f"\n### Drifting parameters, mixed problem, N = {args.n}, {args.steps} datasets, {args.seeds} seeds "
+          f"(RMS over seeds and steps)\n")
+    print("| sampler | inner filter | moments | mean err / sd (a, b) | sd err (a, b) |")
+    print("|---|---|---|---|---|")
+    for (cls, name, label), v in out.items():
+        inner = "Kalman" if name == "kalman" else f"particle, M = {args.m}"
+        print(f"| {cls} | {inner} | {label} | {v[0]:.3f}, {v[1]:.3f} | {v[2]:.3f}, {v[3]:.3f} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles", "nonlinear"))
+    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles", "nonlinear", "drifting"))
     parser.add_argument("--seeds", type=int, default=None)
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--n", type=int, default=1000)
@@ -345,11 +385,11 @@ def main():
                         help="particles: also run particles' default SMC^2 (waste-free, ~800 s a seed)")
     args = parser.parse_args()
     defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30),
-                "nonlinear": (3, 300)}[args.case]
+                "nonlinear": (3, 300), "drifting": (10, 30)}[args.case]
     args.seeds = defaults[0] if args.seeds is None else args.seeds
     args.steps = defaults[1] if args.steps is None else args.steps
     {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison,
-     "nonlinear": nonlinear}[args.case](args)
+     "nonlinear": nonlinear, "drifting": drifting}[args.case](args)
 
 
 if __name__ == "__main__":

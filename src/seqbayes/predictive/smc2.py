@@ -56,7 +56,7 @@ from .pmmh import MOVE_BUDGET, Rejuvenation, outer_logpdf, rejuvenate
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
-           "nested_guide"]
+           "nested_guide", "nested_record_moments", "nested_moments", "warn_rejuvenation", "LOW_ACCEPTANCE"]
 
 
 def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
@@ -419,6 +419,8 @@ class NestedState:
         The PMMH moves still to make since the last resampling (:mod:`seqbayes.predictive.pmmh`).
     n_evals_total : int
         Likelihood evaluations of every step so far (the amortised cost is this over ``step``).
+    moments : tuple ``(mean (d,), sd (d,))`` or None
+        The step's posterior moments with the drifting parameters Rao-Blackwellised (:func:`nested_moments`).
     """
 
     step: int
@@ -435,6 +437,7 @@ class NestedState:
     guides: tuple = ()
     pending: Rejuvenation = field(default_factory=Rejuvenation)
     n_evals_total: int = 0
+    moments: tuple | None = None
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -581,9 +584,10 @@ class NestedPredictive:
         step_size = estimate.moves.step_size
         pending, step = outer.pending, state.step + 1
         n_evals_total = state.n_evals_total + likelihood.n_evals
+        moments = nested_moments(posterior, log_weights, self.inner.moments(cloud), split[1])
         new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
                                 components[:, 2] + components[:, 0], weighed.datasets, log_evidence, float(step_size),
-                                posterior, predictive, weighed.guides, pending, n_evals_total)
+                                posterior, predictive, weighed.guides, pending, n_evals_total, moments)
         warn_rejuvenation(step, outer.concluded, weighed.inner_ess, len(weighed.datasets),
                           int(getattr(self.inner, "n_inner", 0)))
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
@@ -591,8 +595,7 @@ class NestedPredictive:
                       pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
                       pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))
         return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
-                       float(step_size) if config.move == "stretch" else float("nan"), fields,
-                       moments=nested_moments(posterior, log_weights, self.inner.moments(cloud), split[1]))
+                       float(step_size) if config.move == "stretch" else float("nan"), fields, moments=moments)
 
 
 #: A rejuvenation whose PMMH acceptance ends below this draws a warning: the inner likelihood estimates are too
@@ -616,16 +619,19 @@ def warn_rejuvenation(step: int, acceptance: float, inner_ess: float, n_datasets
                   f"re-runs of an inner filter over the whole history: {advice}", InnerFilterWarning, stacklevel=2)
 
 
-def nested_moments(posterior: np.ndarray, log_weights: np.ndarray, inner_moments: tuple[np.ndarray, np.ndarray],
-                   drifting: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nested_moments(posterior: np.ndarray, log_weights: np.ndarray,
+                   inner_moments: tuple[np.ndarray, np.ndarray] | None, drifting: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The posterior's mean and sd ``(d,)``, the drifting columns Rao-Blackwellised: from each outer particle's whole
     inner filter (its weighted mean and variance ``inner_moments``, each ``(N, d_x)``) instead of its one draw.
 
-    ``E[x] = sum_i W_i m_i`` and ``Var[x] = sum_i W_i (v_i + m_i^2) - E[x]^2`` (the law of total variance)."""
+    ``E[x] = sum_i W_i m_i`` and ``Var[x] = sum_i W_i (v_i + m_i^2) - E[x]^2`` (the law of total variance);
+    ``inner_moments=None``: every column from the draws."""
     w = np.exp(log_weights - log_weights.max())
     w /= w.sum()
     mean = w @ posterior
     var = w @ (posterior - mean) ** 2
+    if inner_moments is None:
+        return mean, np.sqrt(var)
     m, v = inner_moments
     mean[drifting] = w @ m
     var[drifting] = np.maximum(w @ (v + (m - mean[drifting]) ** 2), 0.0)
@@ -646,8 +652,9 @@ class JointFirstStep(ParticlePredictive):
                                         cloud.particles, cloud.log_weights, cloud.components, dataset,
                                         outcome.log_evidence, outcome.state.step_size, cloud.particles,
                                         outcome.predictive, likelihood.n_evals)
+        moments = nested_moments(outcome.posterior, outcome.log_weights, None, np.zeros(0, dtype=int))
         fields = dict(outcome.fields, amortised_evals=float(likelihood.n_evals))
-        return replace(outcome, state=nested, fields=fields)
+        return replace(outcome, state=replace(nested, moments=moments), fields=fields, moments=moments)
 
 
 def nested_state_arrays(state: NestedState) -> dict:
@@ -668,6 +675,8 @@ def nested_state_arrays(state: NestedState) -> dict:
     queue[:pending.queue.size] = pending.queue
     out["pmmh_queue"] = queue
     out["pmmh_tally"] = np.array([pending.sweeps_left, pending.n_proposed, pending.n_accepted, state.n_evals_total])
+    out["moments"] = np.vstack(state.moments if state.moments is not None
+                               else nested_moments(state.particles, state.log_weights, None, np.zeros(0, dtype=int)))
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
 
 
@@ -692,11 +701,20 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
         queue = np.asarray(arrays["pmmh_queue"], dtype=float)
         sweeps_left, n_proposed, n_accepted, n_evals_total = (int(v) for v in np.asarray(arrays["pmmh_tally"]))
         pending = Rejuvenation(queue[queue >= 0].astype(int), sweeps_left, n_proposed, n_accepted)
+    moments = nested_record_moments(arrays)
     return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
                        np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),
                        float(log_evidence), float(step_size), np.array(arrays["particles"]),
                        np.array(arrays["predictive"]) if "predictive" in arrays else None,
-                       tuple(guides) + (nested_guide(arrays),), pending, n_evals_total)
+                       tuple(guides) + (nested_guide(arrays),), pending, n_evals_total, moments)
+
+
+def nested_record_moments(arrays: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """The Rao-Blackwellised ``(mean, sd)`` kept in a step's :func:`nested_state_arrays` (``None`` if not kept)."""
+    moments = np.asarray(arrays.get("moments", np.nan), dtype=float)
+    if moments.ndim != 2 or not np.all(np.isfinite(moments)):
+        return None
+    return moments[0].copy(), moments[1].copy()
 
 import typing as _typing  # noqa: E402
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..predictive.history import HistoryPrior
 from ..predictive.mixture import GaussianMixture, MixtureSum
-from ..predictive.smc2 import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from ..predictive.smc2 import NestedState, nested_guide, nested_moments, nested_state_arrays, nested_state_from_arrays, start_nested
 from ..results import StepRecord
 from ..engine.state import PastStep, SamplerState
 
@@ -171,6 +171,11 @@ def fill_missing(arrays: dict, n_samples: int) -> None:
     set of arrays and the next step is appended, not the whole file rewritten)."""
     if "state_lineage" not in arrays and state_kind(arrays) != "nested":
         arrays["state_lineage"] = np.repeat(np.arange(float(n_samples))[:, None], 2, axis=1)
+    if state_kind(arrays) == "nested" and _NESTED + "pmmh_queue" not in arrays:  # before issue 23: nothing pending
+        arrays[_NESTED + "pmmh_queue"] = np.full(n_samples, -1.0)
+        arrays[_NESTED + "pmmh_tally"] = np.zeros(4)
+        arrays[_NESTED + "moments"] = np.vstack(nested_moments(arrays[_NESTED + "particles"],
+                                                               arrays[_NESTED + "log_weights"], None, []))
 
 
 def state_kind(arrays) -> str:
