@@ -290,7 +290,7 @@ def nonlinear(args):
     problem = SinePhase()
     checkpoints = tuple(c for c in (10, 30, 100, 200, 300) if c <= args.steps)
     rows, cost_rows = {}, []
-    for cls in (seqbayes.SMC, seqbayes.SEMC):
+    for cls in [c for c in (seqbayes.SMC, seqbayes.SEMC) if c.__name__ in args.samplers]:
         label = cls.__name__
         rows[label] = []
         for seed in range(args.seeds):
@@ -381,6 +381,7 @@ def main():
     parser.add_argument("--n", type=int, default=1000)
     parser.add_argument("--m", type=int, default=100, help="inner particles (particle inner filter)")
     parser.add_argument("--inner", choices=("kalman", "pf"), default="kalman")
+    parser.add_argument("--samplers", nargs="+", default=["SMC", "SEMC"], help="nonlinear: which samplers to run")
     parser.add_argument("--particles-defaults", action="store_true",
                         help="particles: also run particles' default SMC^2 (waste-free, ~800 s a seed)")
     args = parser.parse_args()

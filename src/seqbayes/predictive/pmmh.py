@@ -30,8 +30,8 @@ __all__ = ["MOVE_BUDGET", "Rejuvenation", "rejuvenate", "run_inner", "outer_logp
 
 
 #: Evaluations one update may spend on PMMH, in units of one advance of every inner filter (``N M``): with the
-#: advance itself and the guide's pilot an update then costs at most ~12x an update without moves.
-MOVE_BUDGET = 10
+#: advance itself an update then costs at most ~6 ``N M`` (plus the guide's pilot), over any horizon.
+MOVE_BUDGET = 5
 
 
 @dataclass(frozen=True, eq=False)
