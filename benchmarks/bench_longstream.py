@@ -49,6 +49,7 @@ import numpy as np  # noqa: E402
 
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
+from seqbayes.models.sine_phase import SinePhase  # noqa: E402
 from seqbayes.predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
 
 CHECKPOINTS = (10, 100, 1000)
@@ -248,46 +249,8 @@ def particles_comparison(args):
         print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.3f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
 
 
-class SinePhase:
-    """The nonlinear static + drifting problem: ``y_j = a sin(x + u_j) + e_j``, ``e_j ~ N(0, 0.5^2)``."""
-
-    box = np.array([[0.2, 3.0], [-3.0, 3.0]])
-    u = np.linspace(0.0, np.pi, 5)
-    noise, drift = 0.5, 0.05
-
-    def __init__(self):
-        from scipy import stats
-
-        from seqbayes.kernels import Drift, MarkovKernel, Static
-
-        self.prior = seqbayes.JointPrior({"a": stats.uniform(0.2, 2.8), "x": stats.uniform(-3.0, 6.0)})
-        self.kernel = MarkovKernel([Static(), Drift(0.0, noise_std=self.drift)])
-
-    def loglike(self, theta, y):
-        mean = theta[:, :1] * np.sin(theta[:, 1:2] + self.u)
-        return -0.5 * np.sum((y - mean) ** 2, axis=1) / self.noise**2 - self.u.size * np.log(self.noise * np.sqrt(2 * np.pi))
-
-    def simulate(self, steps, rng):
-        rng = np.random.default_rng(rng)
-        x = 0.3 + np.cumsum(np.r_[0.0, rng.normal(0.0, self.drift, steps - 1)])
-        return [1.2 * np.sin(xs + self.u) + rng.normal(0.0, self.noise, self.u.size) for xs in x]
-
-    def exact(self, data):
-        """The grid filter's steps (``mean``, ``std``, ``log_evidence_increment``)."""
-        from seqbayes import reference
-
-        def log_likelihood(axes, y):
-            a, x = axes[0][:, None, None], axes[1][None, :, None]
-            r = y - a * np.sin(x + self.u)
-            return (-0.5 * np.sum(r**2, axis=2) / self.noise**2
-                    - self.u.size * np.log(self.noise * np.sqrt(2 * np.pi)))
-
-        return reference.grid_filter(data, log_likelihood, self.box, [lambda v: v, lambda v: v], [0.0, self.drift],
-                                     (1601, 201))
-
-
 def nonlinear(args):
-    problem = SinePhase()
+    problem = SinePhase()  # y_j = a sin(x_s + u_j) + e_j, a static, x drifting
     checkpoints = tuple(c for c in (10, 30, 100, 200, 300) if c <= args.steps)
     rows, cost_rows = {}, []
     for cls in [c for c in (seqbayes.SMC, seqbayes.SEMC) if c.__name__ in args.samplers]:
