@@ -20,15 +20,17 @@ parameter through a density at all:
   Metropolis-Hastings: a proposal ``phi'`` (the sampler's own move: SMC's Gaussian random walk
   or SEMC's stretch move with its adaptive step size, in log/logit coordinates of bounded
   parameters) re-runs its inner filter over every dataset so far, and is accepted with the
-  ratio of ``p_0(phi) p^(D^{1:s-1} | phi) p^(D^s | D^{1:s-1}, phi)^beta``. As the posterior
-  concentrates the ESS falls ever more slowly, so these O(s) re-runs space out and the
-  amortised cost of an update stays bounded (``docs/benchmarks.md``, long streams);
+  ratio of ``p_0(phi) p^(D^{1:s-1} | phi) p^(D^s | D^{1:s-1}, phi)^beta``. A re-run costs O(s), so
+  the sweeps are queued and each update spends at most a fixed budget on them
+  (:mod:`seqbayes.predictive.pmmh`, exact): the cost of an update is bounded over any horizon
+  (``docs/benchmarks.md``, long streams);
 - the evidence increment is the weighted mean of the likelihood estimates (Eq. 1 over the
   tempering stages).
 
 Per step the record holds one draw of ``(phi_i, x_i)`` per outer particle (``x_i`` from its
 inner filter), so the drifting parameters' filtering posterior, forecasts through the kernel
-and the cumulative log-evidence come out as from the other samplers.
+and the cumulative log-evidence come out as from the other samplers; its mean and sd are
+Rao-Blackwellised over every inner filter (:func:`nested_moments`).
 
 Why by hand: ``particles`` has SMC^2, but its inner filters are Python objects, one per outer
 particle, and its models are per-particle classes; here every inner filter of every outer
