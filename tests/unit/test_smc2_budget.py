@@ -150,3 +150,28 @@ def test_a_low_acceptance_warns_and_says_what_to_change():
         warnings.simplefilter("error")
         warn_rejuvenation(200, 0.3, 0.5, 180, 100)
         warn_rejuvenation(200, float("nan"), 0.5, 180, 100)
+
+
+def test_the_store_keeps_the_moments_and_status_reports_the_cost(tmp_path):
+    from _user_model import decay_tables, write_config, write_model
+
+    from seqbayes.store import RunStore, load_config
+
+    write_model(tmp_path, "budgetmodel")
+    cfg = load_config(write_config(tmp_path / "run.toml", "budgetmodel", func="loglike", sampler="SMC", n_samples=80,
+                                   seed=3, kernel='a = { type = "drift", rate = -0.05, noise_std = 0.02 }'))
+    store = RunStore.create(tmp_path / "run.nc", cfg)
+    for table in decay_tables([1.5, 1.45, 1.4], np.linspace(0, 3, 15), 0.1, 0):
+        store.assimilate(table)
+    loaded = RunStore.open(tmp_path / "run.nc")
+    for a, b in zip(store.result.steps, loaded.result.steps):
+        assert a.moments is not None
+        np.testing.assert_array_equal(a.mean(), b.mean())
+        np.testing.assert_array_equal(a.std(), b.std())
+    last = loaded.result.steps[-1]
+    w = np.exp(last.log_weights - np.logaddexp.reduce(last.log_weights))
+    assert not np.array_equal(last.mean(), w @ last.posterior)      # the drifting column is Rao-Blackwellised
+    evals = [r.info.n_loglike_evals for r in loaded.result.steps]
+    text = loaded.status()
+    assert f"likelihood evaluations: last update {evals[-1]:,}, amortised {sum(evals) / 3:,.0f} per update" in text
+    assert loaded.result.steps[-1].info.amortised_evals == pytest.approx(sum(evals) / 3)
