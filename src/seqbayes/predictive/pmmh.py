@@ -88,7 +88,8 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     what makes the noisy likelihood estimate an exact PMMH target. Particles are attempted in batches (one
     vectorised re-run each): SMC's Gaussian random walk with the weighted particles' covariance, or SEMC's stretch
     move against the particles outside the batch with its step size adapted by Eq. (9) after each batch.
-    At least one particle is attempted when anything is pending, so a rejuvenation always progresses.
+    When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
+    attempted all the same, so a rejuvenation always progresses.
 
     Returns
     -------
@@ -111,7 +112,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         if config.move == "stretch":  # the stretch move needs a complement to draw partners from
             k = min(k, n // 2)
         if k < 1:
-            if spent:
+            if spent or budget <= 0:
                 break
             k = 1
         if not copied:

@@ -547,7 +547,7 @@ class NestedPredictive:
                 index = resample(config.resampling, weights, rng, n)
                 static, components, cloud = static[index], components[index], _take(cloud, index)
                 log_weights = np.full(n, -np.log(n))
-                if pending.n_proposed:  # the previous rejuvenation ends here, finished or not
+                if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
                     concluded = pending.acceptance
                 pending = pending.restarted(config.n_moves)
             if pending.pending:
