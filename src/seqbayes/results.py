@@ -118,8 +118,8 @@ class StepInfo:
         SMC^2: PMMH acceptance of the current rejuvenation so far, or of the one that ended in this step
         (NaN when none has run). Below ~0.2 the moves cost more than they diversify (raise ``n_inner``).
     pending_moves : int
-        SMC^2: PMMH attempts still scheduled for later updates (a rejuvenation spreads its sweeps over
-        updates within a budget, :mod:`seqbayes.predictive.pmmh`).
+        SMC^2: at most this many PMMH attempts are still scheduled for later updates (a rejuvenation
+        spreads its sweeps over updates within a budget, :mod:`seqbayes.predictive.pmmh`).
     """
 
     step: int

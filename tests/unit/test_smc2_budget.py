@@ -110,7 +110,7 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
     log_weights = past + last + prior - log_q
     log_weights -= np.logaddexp.reduce(log_weights)
     components = np.column_stack([last, prior, past])
-    pending = Rejuvenation().restarted(1)
+    pending = Rejuvenation().restarted(1, n)
     budget = (n // 2) * len(data)          # half a sweep
     out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights, cloud,
                      components, 1.0, 1.0, pending, budget, likelihood, rng)

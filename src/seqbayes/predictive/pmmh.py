@@ -37,7 +37,8 @@ MOVE_BUDGET = 5
 @dataclass(frozen=True, eq=False)
 class Rejuvenation:
     """The pending rejuvenation: the particles still to move in the current sweep (``queue``, indices in
-    order), the sweeps not yet started, and the proposals and acceptances since the last resampling.
+    order), the most sweeps still allowed, the proposals and acceptances since the last resampling, and
+    which particles have moved since (``moved``, ``(N,)`` bool, or empty before any resampling).
 
     ``queue`` is empty and ``sweeps_left`` 0 when nothing is pending."""
 
@@ -45,6 +46,7 @@ class Rejuvenation:
     sweeps_left: int = 0
     n_proposed: int = 0
     n_accepted: int = 0
+    moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def pending(self) -> bool:
@@ -54,9 +56,9 @@ class Rejuvenation:
     def acceptance(self) -> float:
         return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
 
-    def restarted(self, n_sweeps: int) -> "Rejuvenation":
-        """After a resampling: ``n_sweeps`` fresh sweeps, the tally reset."""
-        return Rejuvenation(np.zeros(0, dtype=int), int(n_sweeps), 0, 0)
+    def restarted(self, n_sweeps: int, n: int) -> "Rejuvenation":
+        """After a resampling of ``n`` particles: at most ``n_sweeps`` sweeps, the tally reset."""
+        return Rejuvenation(np.zeros(0, dtype=int), int(n_sweeps), 0, 0, np.zeros(n, dtype=bool))
 
 
 def outer_logpdf(prior, columns, outer) -> np.ndarray:
@@ -87,7 +89,10 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets`` (fresh randomness), which is
     what makes the noisy likelihood estimate an exact PMMH target. Particles are attempted in batches (one
     vectorised re-run each): SMC's Gaussian random walk with the weighted particles' covariance, or SEMC's stretch
-    move against the particles outside the batch with its step size adapted by Eq. (9) after each batch.
+    move against the particles outside the batch with its step size adapted by Eq. (9) after each batch. Sweeps
+    stop as the stages' schedule says (:func:`~seqbayes.moves.schedule.stage_done`'s rule): after at least
+    ``n_moves`` once ``moved_fraction`` of the particles have moved since the resampling, or at the last sweep
+    allowed. Only that decision looks at the particles (as a whole); which particle moves never does.
     When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
     attempted all the same, so a rejuvenation always progresses.
 
@@ -104,9 +109,15 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     stats, n_batches, spent = SweepStats(), 0, 0
     queue, sweeps_left = pending.queue, pending.sweeps_left
     n_proposed, n_accepted = pending.n_proposed, pending.n_accepted
+    moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
+    most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
+            done = most - sweeps_left
+            if done >= config.n_moves and (config.moved_fraction == 0 or moved_since.mean() >= config.moved_fraction):
+                sweeps_left = 0
+                break
             queue, sweeps_left = rng.permutation(n), sweeps_left - 1
         k = min(queue.size, (budget - spent) // per_particle)
         if config.move == "stretch":  # the stretch move needs a complement to draw partners from
@@ -151,6 +162,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         proposed = np.where(np.isnan(proposed), -np.inf, proposed)
         accept = metropolis_accept(np.where(np.isnan(current), -np.inf, current), proposed, log_hastings, rng) & inside
         moved = active[accept]
+        moved_since[moved] = True
         static[moved] = phi[accept]
         components[moved] = new_components[accept]
         for key in cloud:
@@ -161,4 +173,4 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         if config.move == "stretch":
             step_size = next_step_size(step_size, float(accept.mean()), config.target_acceptance)  # Eq. (9)
     return (static, cloud, components, stats, step_size, n_batches,
-            Rejuvenation(queue, sweeps_left, n_proposed, n_accepted))
+            Rejuvenation(queue, sweeps_left, n_proposed, n_accepted, moved_since))

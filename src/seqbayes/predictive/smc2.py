@@ -549,7 +549,7 @@ class NestedPredictive:
                 log_weights = np.full(n, -np.log(n))
                 if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
                     concluded = pending.acceptance
-                pending = pending.restarted(config.n_moves)
+                pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
             if pending.pending:
                 was_pending = pending.n_proposed
                 static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
@@ -595,7 +595,7 @@ class NestedPredictive:
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       inner_ess=weighed.inner_ess, amortised_evals=n_evals_total / step,
                       pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
-                      pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))
+                      pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))  # at most
         return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
                        float(step_size) if config.move == "stretch" else float("nan"), fields, moments=moments)
 
@@ -677,6 +677,7 @@ def nested_state_arrays(state: NestedState) -> dict:
     queue[:pending.queue.size] = pending.queue
     out["pmmh_queue"] = queue
     out["pmmh_tally"] = np.array([pending.sweeps_left, pending.n_proposed, pending.n_accepted, state.n_evals_total])
+    out["pmmh_moved"] = pending.moved if pending.moved.size else np.zeros(queue.size, dtype=bool)
     out["moments"] = np.vstack(state.moments if state.moments is not None
                                else nested_moments(state.particles, state.log_weights, None, np.zeros(0, dtype=int)))
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
@@ -702,7 +703,8 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
     if "pmmh_queue" in arrays:  # stores written before issue 23 have no pending moves
         queue = np.asarray(arrays["pmmh_queue"], dtype=float)
         sweeps_left, n_proposed, n_accepted, n_evals_total = (int(v) for v in np.asarray(arrays["pmmh_tally"]))
-        pending = Rejuvenation(queue[queue >= 0].astype(int), sweeps_left, n_proposed, n_accepted)
+        moved = np.asarray(arrays.get("pmmh_moved", np.zeros(queue.size)), dtype=float) > 0
+        pending = Rejuvenation(queue[queue >= 0].astype(int), sweeps_left, n_proposed, n_accepted, moved)
     moments = nested_record_moments(arrays)
     return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
                        np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),

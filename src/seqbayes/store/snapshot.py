@@ -174,6 +174,7 @@ def fill_missing(arrays: dict, n_samples: int) -> None:
     if state_kind(arrays) == "nested" and _NESTED + "pmmh_queue" not in arrays:  # before issue 23: nothing pending
         arrays[_NESTED + "pmmh_queue"] = np.full(n_samples, -1.0)
         arrays[_NESTED + "pmmh_tally"] = np.zeros(4)
+        arrays[_NESTED + "pmmh_moved"] = np.zeros(n_samples)
         arrays[_NESTED + "moments"] = np.vstack(nested_moments(arrays[_NESTED + "particles"],
                                                                arrays[_NESTED + "log_weights"], None, []))
 
