@@ -6,6 +6,8 @@ Usage (each prints a markdown table for docs/benchmarks.md):
     python benchmarks/bench_longstream.py static [--seeds 10] [--steps 1000] [--n 1000]
     python benchmarks/bench_longstream.py predictive [--seeds 2] [--steps 300]
     python benchmarks/bench_longstream.py particles [--seeds 10] [--steps 100]
+    python benchmarks/bench_longstream.py nonlinear [--seeds 3] [--steps 300]
+    python benchmarks/bench_longstream.py drifting [--seeds 10] [--steps 30] [--n 200]
 
 ``mixed``: one AR(1)-decaying, one drifting and two static parameters
 (:meth:`~seqbayes.models.linear_gaussian.LinearGaussianStateSpace.mixed`), ``predictive="auto"``
@@ -24,6 +26,15 @@ mixed problem, for their long-stream errors.
 ``particles``: against ``particles``' SMC^2 (``make bench`` installs it) on the mixed problem,
 paired per seed, the same N_x and bootstrap inner filters; particles with its defaults (waste-free,
 chains of 10) and with 5 PMMH steps per rejuvenation, ours at N and 4 N.
+
+``nonlinear`` (issue 23): ``y_j = a sin(x_s + u_j) + e_j`` with a static amplitude ``a`` and a drifting phase
+``x_s`` (random walk, sd 0.05), five observations per dataset, uniform priors; the defaults (N = 1000, particle
+inner filter with M = 100) against the exact grid filter at s = 10, 30, 100, 200, 300, and the cost: total
+evaluations, the largest update over the median, the PMMH acceptance of every rejuvenation.
+
+``drifting`` (issue 23): the drifting parameters' posterior on the mixed problem, from one inner draw per outer
+particle against the Rao-Blackwellised moments over every inner filter (the record's ``mean()``/``std()``), in the
+same runs; RMS over seeds and steps of the |mean error| in exact posterior sds and of |sd ratio - 1|.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ import numpy as np  # noqa: E402
 
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
+from seqbayes.models.sine_phase import SinePhase  # noqa: E402
 from seqbayes.predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
 
 CHECKPOINTS = (10, 100, 1000)
@@ -237,21 +249,111 @@ def particles_comparison(args):
         print(f"| {label} | {np.median(t):.1f} | {np.median(t / base):.3f} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} |")
 
 
+def nonlinear(args):
+    problem = SinePhase()  # y_j = a sin(x_s + u_j) + e_j, a static, x drifting
+    checkpoints = tuple(c for c in (10, 30, 100, 200, 300) if c <= args.steps)
+    rows, cost_rows = {}, []
+    for cls in [c for c in (seqbayes.SMC, seqbayes.SEMC) if c.__name__ in args.samplers]:
+        label = cls.__name__
+        rows[label] = []
+        for seed in range(args.seeds):
+            data = problem.simulate(args.steps, rng=4000 + seed)
+            grid = problem.exact(data)
+            log_z = np.cumsum([g.log_evidence_increment for g in grid])
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed)
+            errs, evals, rejuvenations = {}, [], []
+            start = time.perf_counter()
+            for s, y in enumerate(data, start=1):
+                info = sampler.update(y)
+                evals.append(info.n_loglike_evals)
+                if info.resampled and s > 1:
+                    rejuvenations.append((s, info.pmmh_acceptance))
+                if s in checkpoints:
+                    record, g = sampler.result.steps[-1], grid[s - 1]
+                    errs[s] = (float(np.max(np.abs(record.mean() - g.mean) / g.std)),
+                               float(np.max(np.abs(record.std() / g.std - 1.0))), float(abs(info.log_evidence - log_z[s - 1])))
+            evals = np.array(evals)
+            # a rejuvenation's acceptance over all its attempts: the tally at the step before the next one starts
+            acceptances = [sampler.result.steps[s - 2].info.pmmh_acceptance for s, _ in rejuvenations[1:]]
+            acceptances.append(info.pmmh_acceptance)
+            rows[label].append(errs)
+            cost_rows.append((label, seed, evals.sum(), evals.max() / np.median(evals), np.median(evals),
+                              np.nanmin(acceptances) if acceptances else float("nan"), len(rejuvenations),
+                              time.perf_counter() - start))
+            print(f"{label} seed {seed}: {cost_rows[-1][-1]:.0f} s, {evals.sum():.3g} evals, max/median "
+                  f"{cost_rows[-1][3]:.1f}, acceptance per rejuvenation "
+                  + " ".join(f"{s}:{a:.2f}" for (s, _), a in zip(rejuvenations, acceptances)) + "; "
+                  + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats" for s, e in errs.items()), flush=True)
+    print(f"\n### Nonlinear static + drifting, SMC^2 defaults (M = 100), N = {args.n}, {args.seeds} seeds\n")
+    print("| sampler | s | mean err / sd (median, worst) | sd err (median, worst) | log Z err (median, worst) "
+          "| within 0.3 sd, 20 %, 0.5 nats |")
+    print("|---|---|---|---|---|---|")
+    for label, per_seed in rows.items():
+        for s in checkpoints:
+            e = np.array([r[s] for r in per_seed])
+            ok = np.sum((e[:, 0] < 0.3) & (e[:, 1] < 0.2) & (e[:, 2] < 0.5))
+            print(f"| {label} | {s} | {np.median(e[:, 0]):.3f}, {e[:, 0].max():.3f} | {np.median(e[:, 1]):.3f}, "
+                  f"{e[:, 1].max():.3f} | {np.median(e[:, 2]):.3f}, {e[:, 2].max():.3f} | {ok}/{len(e)} |")
+    print("\n| sampler | seed | evaluations | largest update / median | median update | lowest PMMH acceptance "
+          "| rejuvenations | wall time, s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, seed, total, ratio, median, lowest, n_rej, wall in cost_rows:
+        print(f"| {label} | {seed} | {total:.3g} | {ratio:.1f} | {median:.0f} | {lowest:.2f} | {n_rej} | {wall:.0f} |")
+
+
+def drifting(args):
+    problem = LinearGaussianStateSpace.mixed()
+    split = (np.array([2, 3]), np.array([0, 1]))
+    out = {}
+    for cls in (seqbayes.SMC, seqbayes.SEMC):
+        for name in ("pf", "kalman"):
+            errs = {"one draw": [], "Rao-Blackwellised": []}
+            for seed in range(args.seeds):
+                data, _ = problem.simulate(args.steps, rng=5000 + seed)
+                exact = problem.exact(data)
+                inner = KalmanInnerFilter(problem.observe) if name == "kalman" else ParticleInnerFilter(args.m)
+                result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                             inner_filter=inner).run(data)
+                for record, e in zip(result.steps, exact):
+                    sd = np.sqrt(np.diag(e.cov))[split[1]]
+                    w = np.exp(record.log_weights - np.logaddexp.reduce(record.log_weights))
+                    draws = record.posterior[:, split[1]]
+                    mean = w @ draws
+                    for label, (m, s) in {"one draw": (mean, np.sqrt(w @ (draws - mean) ** 2)),
+                                          "Rao-Blackwellised": (record.mean()[split[1]], record.std()[split[1]])}.items():
+                        errs[label].append(np.r_[np.abs(m - e.mean[split[1]]) / sd, np.abs(s / sd - 1)])
+            for label, e in errs.items():
+                e = np.array(e)
+                out[(cls.__name__, name, label)] = np.sqrt(np.mean(e**2, axis=0))
+            print(cls.__name__, name, {k[2]: np.round(v, 3) for k, v in out.items() if k[:2] == (cls.__name__, name)},
+                  flush=True)
+    print(f"\n### Drifting parameters, mixed problem, N = {args.n}, {args.steps} datasets, {args.seeds} seeds "
+          f"(RMS over seeds and steps)\n")
+    print("| sampler | inner filter | moments | mean err / sd (a, b) | sd err (a, b) |")
+    print("|---|---|---|---|---|")
+    for (cls, name, label), v in out.items():
+        inner = "Kalman" if name == "kalman" else f"particle, M = {args.m}"
+        print(f"| {cls} | {inner} | {label} | {v[0]:.3f}, {v[1]:.3f} | {v[2]:.3f}, {v[3]:.3f} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles"))
+    parser.add_argument("case", choices=("mixed", "static", "predictive", "particles", "nonlinear", "drifting"))
     parser.add_argument("--seeds", type=int, default=None)
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--n", type=int, default=1000)
     parser.add_argument("--m", type=int, default=100, help="inner particles (particle inner filter)")
     parser.add_argument("--inner", choices=("kalman", "pf"), default="kalman")
+    parser.add_argument("--samplers", nargs="+", default=["SMC", "SEMC"], help="nonlinear: which samplers to run")
     parser.add_argument("--particles-defaults", action="store_true",
                         help="particles: also run particles' default SMC^2 (waste-free, ~800 s a seed)")
     args = parser.parse_args()
-    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30)}[args.case]
+    defaults = {"mixed": (10, 1000), "static": (10, 1000), "predictive": (2, 300), "particles": (5, 30),
+                "nonlinear": (3, 300), "drifting": (10, 30)}[args.case]
     args.seeds = defaults[0] if args.seeds is None else args.seeds
     args.steps = defaults[1] if args.steps is None else args.steps
-    {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison}[args.case](args)
+    {"mixed": mixed, "static": static, "predictive": predictive, "particles": particles_comparison,
+     "nonlinear": nonlinear, "drifting": drifting}[args.case](args)
 
 
 if __name__ == "__main__":

@@ -116,6 +116,14 @@ class StepInfo:
         Delayed acceptance (``SamplerConfig.surrogate``): the cheap screen's evaluations and the proposals it
         rejected without a likelihood call. The expensive calls are ``n_loglike_evals`` (of which the moves'
         are ``n_move_evaluations``).
+    amortised_evals : float
+        SMC^2: likelihood evaluations per update so far, ``sum of n_loglike_evals / step`` (NaN otherwise).
+    pmmh_acceptance : float
+        SMC^2: PMMH acceptance of the current rejuvenation so far, or of the one that ended in this step
+        (NaN when none has run). Below ~0.2 the moves cost more than they diversify (raise ``n_inner``).
+    pending_moves : int
+        SMC^2: at most this many PMMH attempts are still scheduled for later updates (a rejuvenation
+        spreads its sweeps over updates within a budget, :mod:`seqbayes.predictive.pmmh`).
     """
 
     step: int
@@ -152,6 +160,9 @@ class StepInfo:
     log_evidence_se: float = float("nan")
     n_screen_evaluations: int = 0
     n_screened_out: int = 0
+    amortised_evals: float = float("nan")
+    pmmh_acceptance: float = float("nan")
+    pending_moves: int = 0
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":
@@ -211,22 +222,31 @@ class StepRecord:
         Their normalised log-weights (all equal after resampling).
     predictive : (N, d) array
         Samples of ``p(theta_{s+1} | D^{1:s})`` (Eq. A3), the next step's prior.
+    moments : tuple ``(mean (d,), sd (d,))`` or None
+        Posterior moments better than the samples' (SMC^2: the drifting parameters' over every inner
+        filter, Rao-Blackwellised), which :meth:`mean` and :meth:`std` return; ``None``: from the samples.
+        Not kept by the run store.
     """
 
     info: StepInfo
     posterior: np.ndarray
     log_weights: np.ndarray
     predictive: np.ndarray
+    moments: tuple | None = None
 
     def _w(self):
         return np.exp(normalise(self.log_weights))
 
     def mean(self) -> np.ndarray:
         """Weighted posterior mean, ``(d,)``."""
+        if self.moments is not None:
+            return self.moments[0].copy()
         return self._w() @ self.posterior
 
     def std(self) -> np.ndarray:
         """Weighted posterior standard deviation, ``(d,)``."""
+        if self.moments is not None:
+            return self.moments[1].copy()
         return np.sqrt(self._w() @ (self.posterior - self.mean()) ** 2)
 
     def quantile(self, q: ArrayLike) -> np.ndarray:

@@ -61,7 +61,8 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         evidence_ess=estimate.evidence_ess, n_independent_accepted=estimate.n_independent,
         n_move_evaluations=moves.stats.n_evaluations, n_screen_evaluations=moves.stats.n_screen_evaluations,
         n_screened_out=moves.stats.n_screened_out, wall_time=time.perf_counter() - start, **outcome.fields)
-    return outcome.state, StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive), weighed
+    record = StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive, outcome.moments)
+    return outcome.state, record, weighed
 
 
 def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng: np.random.Generator, *,

@@ -207,6 +207,9 @@ class Outcome:
     fields : dict
         The optional :class:`~seqbayes.results.StepInfo` fields the predictive fills (conflict, ancestor
         ESS, standard errors, path steps, inner ESS, jumps).
+    moments : tuple of two (d,) arrays or None
+        The posterior's mean and sd when the predictive knows them better than the draws do (SMC^2's
+        Rao-Blackwellised drifting parameters); ``None``: from the weighted draws.
     """
 
     state: object
@@ -217,6 +220,7 @@ class Outcome:
     log_evidence: float
     step_size: float
     fields: dict
+    moments: tuple | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -20,15 +20,17 @@ parameter through a density at all:
   Metropolis-Hastings: a proposal ``phi'`` (the sampler's own move: SMC's Gaussian random walk
   or SEMC's stretch move with its adaptive step size, in log/logit coordinates of bounded
   parameters) re-runs its inner filter over every dataset so far, and is accepted with the
-  ratio of ``p_0(phi) p^(D^{1:s-1} | phi) p^(D^s | D^{1:s-1}, phi)^beta``. As the posterior
-  concentrates the ESS falls ever more slowly, so these O(s) re-runs space out and the
-  amortised cost of an update stays bounded (``docs/benchmarks.md``, long streams);
+  ratio of ``p_0(phi) p^(D^{1:s-1} | phi) p^(D^s | D^{1:s-1}, phi)^beta``. A re-run costs O(s), so
+  the sweeps are queued and each update spends at most a fixed budget on them
+  (:mod:`seqbayes.predictive.pmmh`, exact): the cost of an update is bounded over any horizon
+  (``docs/benchmarks.md``, long streams);
 - the evidence increment is the weighted mean of the likelihood estimates (Eq. 1 over the
   tempering stages).
 
 Per step the record holds one draw of ``(phi_i, x_i)`` per outer particle (``x_i`` from its
 inner filter), so the drifting parameters' filtering posterior, forecasts through the kernel
-and the cumulative log-evidence come out as from the other samplers.
+and the cumulative log-evidence come out as from the other samplers; its mean and sd are
+Rao-Blackwellised over every inner filter (:func:`nested_moments`).
 
 Why by hand: ``particles`` has SMC^2, but its inner filters are Python objects, one per outer
 particle, and its models are per-particle classes; here every inner filter of every outer
@@ -37,26 +39,26 @@ particle advances in one vectorised ``(N, M, d)`` call of the user's ``loglike(t
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..engine.errors import ZeroLikelihoodError
+from ..engine.errors import InnerFilterWarning, ZeroLikelihoodError
 from ..engine.protocol import ParticlePredictive
 from ..engine.stages import prior_name, reweight_stage
 from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
 from ..kernels import Decay, Drift, MarkovKernel, Static
-from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
-from ..moves.schedule import stage_done
+from ..moves import SweepStats
 from ..priors import JointPrior, inside_support
 from ..resampling import resample
 from ..results import prior_data_conflict
 from ..tempering import next_increment
-from ..transforms import BoxTransform
+from .pmmh import MOVE_BUDGET, Rejuvenation, outer_logpdf, rejuvenate
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
-           "nested_guide"]
+           "nested_guide", "nested_record_moments", "nested_moments", "warn_rejuvenation", "LOW_ACCEPTANCE"]
 
 
 def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
@@ -273,6 +275,13 @@ class ParticleInnerFilter:
         # "ess": each inner filter's ESS fraction after weighting, before resampling (a health diagnostic)
         return log_increment, {"x": x, "log_w": log_w, "ess": np.where(alive, ess, 0.0) / m}
 
+    def moments(self, cloud: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Each inner filter's weighted mean and variance of the drifting parameters, ``(K, d_x)`` each."""
+        w = np.exp(cloud["log_w"] - cloud["log_w"].max(axis=1, keepdims=True))
+        w /= w.sum(axis=1, keepdims=True)
+        mean = np.einsum("km,kmj->kj", w, cloud["x"])
+        return mean, np.einsum("km,kmj->kj", w, (cloud["x"] - mean[:, None]) ** 2)
+
     def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
         """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
         index = _categorical_rows(cloud["log_w"], rng)
@@ -370,6 +379,10 @@ class KalmanInnerFilter:
         mean, cov = mean + correction, posterior_cov
         return log_increment, {"mean": mean, "cov": cov}
 
+    def moments(self, cloud: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Each filter's mean and marginal variances, ``(K, d_x)`` each."""
+        return cloud["mean"], np.diagonal(cloud["cov"], axis1=1, axis2=2).copy()
+
     def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
         chol = np.linalg.cholesky(cloud["cov"] + 1e-300 * np.eye(cloud["cov"].shape[1]))
         return cloud["mean"] + np.einsum("kij,kj->ki", chol, rng.standard_normal(cloud["mean"].shape))
@@ -404,6 +417,12 @@ class NestedState:
     guides : tuple
         Per step, the inner filters' guide ``(mean, cov)`` or ``None`` (:meth:`ParticleInnerFilter.fit_guide`);
         PMMH re-runs use the same guides, which keeps their likelihood estimates unbiased.
+    pending : Rejuvenation
+        The PMMH moves still to make since the last resampling (:mod:`seqbayes.predictive.pmmh`).
+    n_evals_total : int
+        Likelihood evaluations of every step so far (the amortised cost is this over ``step``).
+    moments : tuple ``(mean (d,), sd (d,))`` or None
+        The step's posterior moments with the drifting parameters Rao-Blackwellised (:func:`nested_moments`).
     """
 
     step: int
@@ -418,6 +437,9 @@ class NestedState:
     particles: np.ndarray = field(default=None)
     predictive: np.ndarray | None = None
     guides: tuple = ()
+    pending: Rejuvenation = field(default_factory=Rejuvenation)
+    n_evals_total: int = 0
+    moments: tuple | None = None
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -438,125 +460,32 @@ def start_nested(prior: JointPrior, columns: np.ndarray, draws: np.ndarray, step
     outer particles' columns."""
     n = draws.shape[0]
     outer = draws[:, columns]
-    return NestedState(0, outer, {}, np.full(n, -np.log(n)), _outer_logpdf(prior, columns, outer),
+    return NestedState(0, outer, {}, np.full(n, -np.log(n)), outer_logpdf(prior, columns, outer),
                        np.zeros(n), (), 0.0, float(step_size), draws)
 
 
 def after_joint_first_step(split: tuple[np.ndarray, np.ndarray], n_inner: int, particles: np.ndarray, log_weights: np.ndarray,
                            components: np.ndarray, dataset: Any, log_evidence: float, step_size: float,
-                           posterior: np.ndarray, predictive: np.ndarray) -> NestedState:
+                           posterior: np.ndarray, predictive: np.ndarray, n_evals: int = 0) -> NestedState:
     """The state after a first step done jointly over every parameter (``joint_first_step``):
     ``components`` are ``(log L_1, log p_0)`` at ``particles (N, d)``; each inner filter holds
-    ``n_inner`` copies of its outer particle's drifting values."""
+    ``n_inner`` copies of its outer particle's drifting values; ``n_evals`` is the step's evaluations."""
     n = particles.shape[0]
     x = np.repeat(particles[:, None, split[1]], n_inner, axis=1)
     return NestedState(1, particles, {"x": x, "log_w": np.full((n, n_inner), -np.log(n_inner)), "ess": np.ones(n)},
                        log_weights, components[:, 1].copy(), components[:, 0].copy(), (kept_copy(dataset),),
-                       float(log_evidence), float(step_size), posterior, predictive, (None,))
-
-
-def _outer_logpdf(prior, columns, outer) -> np.ndarray:
-    total = np.zeros(outer.shape[0])
-    for column, j in enumerate(columns):
-        total += prior.marginal_logpdf(j, outer[:, column])
-    return total
-
-
-def _pmmh(problem, config, inner, split, datasets, guides, static, cloud, components, beta, step_size, likelihood, rng):
-    """Particle-marginal MH sweeps of the static parameters at tempering exponent ``beta``.
-
-    ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``;
-    the target is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets``
-    (fresh randomness), which is what makes the noisy likelihood estimate an exact PMMH target.
-    Sweeps stop by the stages' schedule (:func:`~seqbayes.moves.schedule.stage_done`), SEMC's step size
-    adapting by Eq. (9) as in its virtual iterations.
-    """
-    static, components = static.copy(), components.copy()
-    cloud = {key: value.copy() for key, value in cloud.items()}
-    columns = inner.outer_columns(split, problem.kernel.dim)
-    support = problem.support[columns]
-    transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
-    position = transform.forward(static) if transform is not None else static.copy()
-    jacobian = transform.log_jacobian(position) if transform is not None else np.zeros(static.shape[0])
-    coefficients = np.array([beta, 1.0, 1.0])
-
-    def target(comp, jac):
-        with np.errstate(invalid="ignore"):
-            out = comp @ coefficients + jac
-        return np.where(np.isnan(out), -np.inf, out)
-
-    current = target(components, jacobian)
-    start = position.copy()
-    stats, n_sweeps, alpha_old = SweepStats(), 0, config.target_acceptance
-    n = static.shape[0]
-    while True:
-        if config.move == "stretch":
-            order = rng.permutation(n)
-            groups = (order[: n // 2], order[n // 2:])
-        else:
-            groups = (np.arange(n),)
-            move = GaussianMove(weighted_covariance(position), config.proposal_scale)
-        sweep_accepted = 0
-        for g, active in enumerate(groups):
-            if config.move == "stretch":
-                proposals, log_hastings, identical = StretchMove(step_size).propose(
-                    position[active], position[groups[1 - g]], rng)
-            else:
-                proposals, log_hastings = move.propose(position[active], rng)
-                identical = np.zeros(active.size, dtype=bool)
-            phi = transform.inverse(proposals) if transform is not None else proposals
-            inside = ~identical & inside_support(phi, support)
-            new_components = np.full((active.size, 3), -np.inf)
-            new_jacobian = np.zeros(active.size)
-            new_cloud = _take(cloud, active)
-            if inside.any():
-                rows = np.flatnonzero(inside)
-                past, last, rerun = _run_inner(problem, inner, split, phi[rows], datasets, guides, likelihood, rng)
-                new_components[rows] = np.column_stack([last, _outer_logpdf(problem.prior, columns, phi[rows]), past])
-                for key in new_cloud:
-                    new_cloud[key][rows] = rerun[key]
-                if transform is not None:
-                    new_jacobian[rows] = transform.log_jacobian(proposals[rows])
-            proposal_target = target(new_components, new_jacobian)
-            accept = metropolis_accept(current[active], proposal_target, log_hastings, rng) & inside
-            moved = active[accept]
-            position[moved] = proposals[accept]
-            static[moved] = phi[accept]
-            components[moved] = new_components[accept]
-            jacobian[moved] = new_jacobian[accept]
-            current[moved] = proposal_target[accept]
-            for key in cloud:
-                cloud[key][moved] = new_cloud[key][accept]
-            sweep_accepted += int(accept.sum())
-            stats = stats + SweepStats(active.size, int(accept.sum()), int(identical.sum()), int(inside.sum()))
-        n_sweeps += 1
-        alpha = sweep_accepted / n
-        if config.move == "stretch":
-            step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-        if stage_done(config, n_sweeps, position, start, alpha, alpha_old):
-            break
-        alpha_old = alpha
-    return static, cloud, components, stats, step_size, n_sweeps
-
-
-def _run_inner(problem, inner, split, static, datasets, guides, likelihood, rng):
-    """Re-run inner filters from the first dataset (with each step's guide): ``log p^(D^{1:s-1})``,
-    ``log p^(D^s | D^{1:s-1})`` and the final cloud, for the outer particles ``static``."""
-    past = np.zeros(static.shape[0])
-    cloud, last = None, None
-    for k, dataset in enumerate(datasets):
-        if last is not None:
-            past = past + last
-        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, likelihood, rng, guides[k])
-    return past, last, cloud
+                       float(log_evidence), float(step_size), posterior, predictive, (None,), Rejuvenation(),
+                       int(n_evals))
 
 
 @dataclass(frozen=True, eq=False)
 class OuterCloud(Cloud):
     """The outer particles between stages (``particles`` the static parameters, ``components`` the ``(N, 3)`` of
-    :func:`_pmmh`) with their inner filters (``inner``)."""
+    :func:`~seqbayes.predictive.pmmh.rejuvenate`) with their inner filters (``inner``) and the pending moves."""
 
     inner: dict | None = None
+    pending: Rejuvenation = field(default_factory=Rejuvenation)
+    concluded: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -571,8 +500,9 @@ class OuterWeighed(Weighed):
 
 class NestedPredictive:
     """SMC^2 as a step's predictive (:class:`~seqbayes.engine.protocol.Predictive`): the inner filters' likelihood
-    estimates weigh the outer particles; they are resampled and moved by PMMH when the ESS has fallen; the
-    evidence increment is the tempering path's (Eq. 1)."""
+    estimates weigh the outer particles; they are resampled when the ESS has fallen and moved by PMMH within a
+    per-update budget (:func:`~seqbayes.predictive.pmmh.rejuvenate`); the evidence increment is the tempering
+    path's (Eq. 1)."""
 
     def __init__(self, problem, config):
         self.problem, self.config = problem, config
@@ -592,44 +522,56 @@ class NestedPredictive:
         if not np.isfinite(log_increment).any():
             raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
                                       f"{prior_name(step)} is too far from the data")
-        return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud), None,
-                            MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
+        return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud, pending=state.pending),
+                            None, MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
                             datasets=state.datasets + (kept_copy(dataset),), guides=state.guides + (guide,),
                             inner_ess=inner_ess)
 
     def temper(self, weighed, likelihood, rng) -> Tempered:
-        """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls,
-        resample and move by PMMH (:func:`_pmmh`)."""
+        """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls, resample
+        and schedule ``n_moves`` PMMH sweeps; at every stage, spend what is left of the update's budget
+        (:data:`~seqbayes.predictive.pmmh.MOVE_BUDGET` ``x N M`` evaluations) on the pending sweeps."""
         config, n = self.config, self.config.n_samples
         static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
-        components, cloud = weighed.cloud.components, weighed.cloud.inner
-        beta, log_z, temperatures = 0.0, 0.0, []
-        stats, step_size, n_sweeps, resampled = SweepStats(), weighed.moves.step_size, 0, False
+        components, cloud, pending = weighed.cloud.components, weighed.cloud.inner, weighed.cloud.pending
+        budget, start = MOVE_BUDGET * n * int(getattr(self.inner, "n_inner", 1)), likelihood.n_evals
+        beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
+        stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
         while beta < 1.0:
             beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
                 log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
             log_z += stage_log_z
             temperatures.append(beta)
             resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
-            if resampled:  # resample-move (PMMH) only when the ESS has fallen
+            if resampled:
                 index = resample(config.resampling, weights, rng, n)
                 static, components, cloud = static[index], components[index], _take(cloud, index)
                 log_weights = np.full(n, -np.log(n))
-                static, cloud, components, sweep, step_size_new, sweeps = _pmmh(
-                    self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static, cloud,
-                    components, beta, step_size, likelihood, rng)
-                stats, n_sweeps = stats + sweep, n_sweeps + sweeps
+                if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
+                    concluded = pending.acceptance
+                pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
+            if pending.pending:
+                was_pending = pending.n_proposed
+                static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
+                    self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
+                    log_weights, cloud, components, beta, step_size, pending,
+                    budget - (likelihood.n_evals - start), likelihood, rng)
+                stats, n_batches = stats + sweep, n_batches + batches
                 if config.move == "stretch":
                     step_size = step_size_new
-        return Tempered(OuterCloud(static, log_weights, components, inner=cloud), log_z, tuple(temperatures),
-                        MoveTally(stats, step_size, n_sweeps), resampled, stage_ess)
+                if not pending.pending and pending.n_proposed > was_pending:
+                    concluded = pending.acceptance
+        return Tempered(OuterCloud(static, log_weights, components, inner=cloud, pending=pending,
+                                   concluded=concluded),
+                        log_z, tuple(temperatures), MoveTally(stats, step_size, n_batches), resampled, stage_ess)
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
         """The tempering path's estimate (Eq. 1): the likelihood estimates are unbiased, so is it."""
         return Estimate(tempered.cloud, tempered.log_z, float("nan"), 0, False, tempered.moves)
 
     def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
-        """One joint draw per outer particle (its drifting values from its inner filter), propagated."""
+        """One joint draw per outer particle (its drifting values from its inner filter), propagated; the record's
+        moments are Rao-Blackwellised over every inner filter (:func:`nested_moments`)."""
         kernel, split, config = self.problem.kernel, self.split, self.config
         outer = estimate.cloud
         static, cloud, components, log_weights = outer.particles, outer.inner, outer.components, outer.log_weights
@@ -642,13 +584,60 @@ class NestedPredictive:
         conflict = prior_data_conflict(state.prior_draws, state.log_weights, posterior, log_weights)
         predictive = kernel.propagate(posterior, rng)
         step_size = estimate.moves.step_size
-        new_state = NestedState(state.step + 1, static, cloud, log_weights, components[:, 1],
+        pending, step = outer.pending, state.step + 1
+        n_evals_total = state.n_evals_total + likelihood.n_evals
+        moments = nested_moments(posterior, log_weights, self.inner.moments(cloud), split[1])
+        new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
                                 components[:, 2] + components[:, 0], weighed.datasets, log_evidence, float(step_size),
-                                posterior, predictive, weighed.guides)
+                                posterior, predictive, weighed.guides, pending, n_evals_total, moments)
+        warn_rejuvenation(step, outer.concluded, weighed.inner_ess, len(weighed.datasets),
+                          int(getattr(self.inner, "n_inner", 0)))
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      inner_ess=weighed.inner_ess)
+                      inner_ess=weighed.inner_ess, amortised_evals=n_evals_total / step,
+                      pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
+                      pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))  # at most
         return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
-                       float(step_size) if config.move == "stretch" else float("nan"), fields)
+                       float(step_size) if config.move == "stretch" else float("nan"), fields, moments=moments)
+
+
+#: A rejuvenation whose PMMH acceptance ends below this draws a warning: the inner likelihood estimates are too
+#: noisy for the moves to keep the outer particles diverse at a bounded cost.
+LOW_ACCEPTANCE = 0.2
+
+
+def warn_rejuvenation(step: int, acceptance: float, inner_ess: float, n_datasets: int, n_inner: int) -> None:
+    """One line when a rejuvenation ended with a PMMH acceptance below :data:`LOW_ACCEPTANCE`, saying what to change."""
+    if not acceptance < LOW_ACCEPTANCE:
+        return
+    advice = (f"raise n_inner (now {n_inner}; the variance of the inner filters' log-likelihood estimates grows "
+              f"like s / n_inner, so doubling n_inner halves it)" if n_inner else "the Kalman inner filter is exact: the static parameters' proposal is "
+              "too wide; use SEMC, whose step size adapts")
+    if n_inner and inner_ess < 0.1:
+        advice += (f"; the inner filters keep only {100 * inner_ess:.0f} % of their particles per step, so a kernel "
+                   f"noise closer to the drift the data show, or a KalmanInnerFilter if the model is linear-Gaussian "
+                   f"in the drifting parameters, pays more than n_inner")
+    warnings.warn(f"step {step}: SMC^2's PMMH moves accepted {100 * acceptance:.0f} % of proposals over the last "
+                  f"rejuvenation (at s = {n_datasets}); each accepted move costs ~{1 / max(acceptance, 1e-3):.0f} "
+                  f"re-runs of an inner filter over the whole history: {advice}", InnerFilterWarning, stacklevel=2)
+
+
+def nested_moments(posterior: np.ndarray, log_weights: np.ndarray,
+                   inner_moments: tuple[np.ndarray, np.ndarray] | None, drifting: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The posterior's mean and sd ``(d,)``, the drifting columns Rao-Blackwellised: from each outer particle's whole
+    inner filter (its weighted mean and variance ``inner_moments``, each ``(N, d_x)``) instead of its one draw.
+
+    ``E[x] = sum_i W_i m_i`` and ``Var[x] = sum_i W_i (v_i + m_i^2) - E[x]^2`` (the law of total variance);
+    ``inner_moments=None``: every column from the draws."""
+    w = np.exp(log_weights - log_weights.max())
+    w /= w.sum()
+    mean = w @ posterior
+    var = w @ (posterior - mean) ** 2
+    if inner_moments is None:
+        return mean, np.sqrt(var)
+    m, v = inner_moments
+    mean[drifting] = w @ m
+    var[drifting] = np.maximum(w @ (v + (m - mean[drifting]) ** 2), 0.0)
+    return mean, np.sqrt(var)
 
 
 class JointFirstStep(ParticlePredictive):
@@ -664,8 +653,10 @@ class JointFirstStep(ParticlePredictive):
         nested = after_joint_first_step(nested_split(self.problem.kernel), self.problem.inner_filter.n_inner,
                                         cloud.particles, cloud.log_weights, cloud.components, dataset,
                                         outcome.log_evidence, outcome.state.step_size, cloud.particles,
-                                        outcome.predictive)
-        return replace(outcome, state=nested)
+                                        outcome.predictive, likelihood.n_evals)
+        moments = nested_moments(outcome.posterior, outcome.log_weights, None, np.zeros(0, dtype=int))
+        fields = dict(outcome.fields, amortised_evals=float(likelihood.n_evals))
+        return replace(outcome, state=replace(nested, moments=moments), fields=fields, moments=moments)
 
 
 def nested_state_arrays(state: NestedState) -> dict:
@@ -681,6 +672,14 @@ def nested_state_arrays(state: NestedState) -> dict:
     out["guide_used"] = np.array(float(guide is not None))  # this step's guide only: the store keeps every step
     out["guide_mean"] = guide[0] if guide is not None else np.zeros(d_x)
     out["guide_cov"] = guide[1] if guide is not None else np.zeros((d_x, d_x))
+    pending = state.pending  # the queue padded with -1 to a fixed (N,), so that every step's arrays have one shape
+    queue = np.full(state.log_weights.size, -1.0)
+    queue[:pending.queue.size] = pending.queue
+    out["pmmh_queue"] = queue
+    out["pmmh_tally"] = np.array([pending.sweeps_left, pending.n_proposed, pending.n_accepted, state.n_evals_total])
+    out["pmmh_moved"] = pending.moved if pending.moved.size else np.zeros(queue.size, dtype=bool)
+    out["moments"] = np.vstack(state.moments if state.moments is not None
+                               else nested_moments(state.particles, state.log_weights, None, np.zeros(0, dtype=int)))
     return {key: np.asarray(value, dtype=float) for key, value in out.items()}
 
 
@@ -700,11 +699,26 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
     cloud = {key[len("cloud_"):]: np.array(value) for key, value in arrays.items() if key.startswith("cloud_")}
     if len(guides) != int(step) - 1:
         raise ValueError(f"guides: {len(guides)} guides for a state at step {int(step)} (expected {int(step) - 1})")
+    pending, n_evals_total = Rejuvenation(), 0
+    if "pmmh_queue" in arrays:  # stores written before issue 23 have no pending moves
+        queue = np.asarray(arrays["pmmh_queue"], dtype=float)
+        sweeps_left, n_proposed, n_accepted, n_evals_total = (int(v) for v in np.asarray(arrays["pmmh_tally"]))
+        moved = np.asarray(arrays.get("pmmh_moved", np.zeros(queue.size)), dtype=float) > 0
+        pending = Rejuvenation(queue[queue >= 0].astype(int), sweeps_left, n_proposed, n_accepted, moved)
+    moments = nested_record_moments(arrays)
     return NestedState(int(step), np.array(arrays["outer"]), cloud, np.array(arrays["log_weights"]),
                        np.array(arrays["log_prior"]), np.array(arrays["log_likelihood"]), tuple(datasets),
                        float(log_evidence), float(step_size), np.array(arrays["particles"]),
                        np.array(arrays["predictive"]) if "predictive" in arrays else None,
-                       tuple(guides) + (nested_guide(arrays),))
+                       tuple(guides) + (nested_guide(arrays),), pending, n_evals_total, moments)
+
+
+def nested_record_moments(arrays: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """The Rao-Blackwellised ``(mean, sd)`` kept in a step's :func:`nested_state_arrays` (``None`` if not kept)."""
+    moments = np.asarray(arrays.get("moments", np.nan), dtype=float)
+    if moments.ndim != 2 or not np.all(np.isfinite(moments)):
+        return None
+    return moments[0].copy(), moments[1].copy()
 
 import typing as _typing  # noqa: E402
 

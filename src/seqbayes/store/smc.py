@@ -76,6 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..predictive.smc2 import nested_record_moments
 from ..prognostics import FirstPassage, time_to_threshold
 from ..results import Result, StepInfo, StepRecord
 from ..rng import generator_from_state
@@ -243,6 +244,10 @@ class RunStore(BaseStore):
                     states[k - 1].update({"nested_" + name[len(_FULL):]: variables[name][slot]
                                           for name in variables if name.startswith(_FULL)})
         _keep_full_state(states)
+        if n_steps and snapshot.state_kind(states[0]) == "nested":  # SMC^2's Rao-Blackwellised moments (issue 23)
+            records = [dataclasses.replace(r, moments=nested_record_moments(
+                {k[len("nested_"):]: v for k, v in a.items()})) for r, a in zip(records, states)]
+            result = Result(stored.names, tuple(records), result.meta)
         if n_steps and snapshot.state_kind(states[0]) == "mixture" and stored.predictive_method == "history":
             raise StoreError(f"{path}: written by an earlier seqbayes, which gave static parameters a "
                              f"kernel-density prior; this version uses their exact history prior. Re-create "
@@ -688,7 +693,19 @@ class RunStore(BaseStore):
     def status(self, level: float = 0.95) -> str:
         from .report import format_status
 
-        return format_status(self, level)
+        text = format_status(self, level)
+        if not self.n_steps:
+            return text
+        # the cost per update and amortised (issue 23): what an expensive model's user plans by
+        infos = [record.info for record in self.result.steps]
+        last = infos[-1]
+        line = (f"\nlikelihood evaluations: last update {last.n_loglike_evals:,}, amortised "
+                f"{sum(i.n_loglike_evals for i in infos) / len(infos):,.0f} per update, largest "
+                f"{max(i.n_loglike_evals for i in infos):,}")
+        if np.isfinite(last.pmmh_acceptance):
+            line += (f"; SMC^2 PMMH acceptance {last.pmmh_acceptance:.2f}, {last.pending_moves:,} moves pending "
+                     f"for later updates")
+        return text + line
 
     def status_json(self, level: float = 0.95) -> dict:
         from .report import status_rows

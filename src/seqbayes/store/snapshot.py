@@ -45,7 +45,7 @@ import numpy as np
 
 from ..predictive.history import HistoryPrior
 from ..predictive.mixture import GaussianMixture, MixtureSum
-from ..predictive.smc2 import NestedState, nested_guide, nested_state_arrays, nested_state_from_arrays, start_nested
+from ..predictive.smc2 import NestedState, nested_guide, nested_moments, nested_state_arrays, nested_state_from_arrays, start_nested
 from ..results import StepRecord
 from ..engine.state import PastStep, SamplerState
 
@@ -119,7 +119,7 @@ RAGGED = ("state_paths",)
 #: SMC^2's arrays that every later step needs (its guide, which PMMH re-runs of that step use); the others
 #: (outer particles, inner filters, ...) rebuild the state after their own step only, so the run store keeps
 #: them for the last two steps alone (:func:`per_step`).
-NESTED_PER_STEP = ("nested_guide_used", "nested_guide_mean", "nested_guide_cov")
+NESTED_PER_STEP = ("nested_guide_used", "nested_guide_mean", "nested_guide_cov", "nested_moments")
 
 #: Dimension names (after ``step``) of the arrays whose axes have a meaning a NetCDF reader can use.
 _DIMS = {"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
@@ -200,6 +200,13 @@ def fill_missing(arrays: dict, n_samples: int) -> None:
     set of arrays and the next step is appended, not the whole file rewritten)."""
     if "state_lineage" not in arrays and state_kind(arrays) != "nested":
         arrays["state_lineage"] = np.repeat(np.arange(float(n_samples))[:, None], 2, axis=1)
+    if (state_kind(arrays) == "nested" and _NESTED + "particles" in arrays  # a full state (format 5 keeps two)
+            and _NESTED + "pmmh_queue" not in arrays):  # written before budgeted PMMH: nothing pending
+        arrays[_NESTED + "pmmh_queue"] = np.full(n_samples, -1.0)
+        arrays[_NESTED + "pmmh_tally"] = np.zeros(4)
+        arrays[_NESTED + "pmmh_moved"] = np.zeros(n_samples)
+        arrays[_NESTED + "moments"] = np.vstack(nested_moments(arrays[_NESTED + "particles"],
+                                                               arrays[_NESTED + "log_weights"], None, []))
 
 
 def state_kind(arrays) -> str:

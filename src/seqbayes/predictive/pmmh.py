@@ -1,0 +1,176 @@
+"""SMC^2's rejuvenation: particle-marginal Metropolis-Hastings of the static parameters, spread over updates.
+
+A PMMH proposal re-runs its inner filter over every dataset so far, so one sweep at step ``s`` costs
+``N M s`` evaluations against ``N M`` for an update without moves. Done at once, a late rejuvenation is
+hundreds of times an ordinary update (issue 23: 148-186 s at s = 260 against 0.03 s). Here a rejuvenation
+is a queue: resampling schedules ``n_moves`` sweeps, each a fresh random permutation of the particles, and
+every update (and every tempering stage) spends at most :data:`MOVE_BUDGET` ``x N M`` evaluations on the
+queue's next particles; the rest waits for the next update.
+
+Why it stays exact: each attempt is a PMMH kernel that leaves the current extended target invariant
+(the step's ``p_0(phi) p^(D^{1:s} | phi)`` at the stage's exponent; Andrieu & Roberts 2009), applied to a
+subset of particles chosen by a permutation drawn independently of their values and weights. A kernel
+that leaves ``pi`` invariant, applied to a weighted sample of ``pi``, keeps it one (``E[w K f(x)] =
+pi(K f) = pi(f)``), so the particles left waiting stay a weighted sample of each later target and the
+moved ones join it. Choosing particles by their values or their past acceptances would not be exact
+(a kernel applied only where ``x`` lies in some set is not ``pi``-invariant), hence the permutations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..priors import inside_support
+from ..transforms import BoxTransform
+
+__all__ = ["MOVE_BUDGET", "Rejuvenation", "rejuvenate", "run_inner", "outer_logpdf"]
+
+
+#: Evaluations one update may spend on PMMH, in units of one advance of every inner filter (``N M``): with the
+#: advance itself an update then costs at most ~6 ``N M`` (plus the guide's pilot), over any horizon.
+MOVE_BUDGET = 5
+
+
+@dataclass(frozen=True, eq=False)
+class Rejuvenation:
+    """The pending rejuvenation: the particles still to move in the current sweep (``queue``, indices in
+    order), the most sweeps still allowed, the proposals and acceptances since the last resampling, and
+    which particles have moved since (``moved``, ``(N,)`` bool, or empty before any resampling).
+
+    ``queue`` is empty and ``sweeps_left`` 0 when nothing is pending."""
+
+    queue: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    sweeps_left: int = 0
+    n_proposed: int = 0
+    n_accepted: int = 0
+    moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def pending(self) -> bool:
+        return bool(self.queue.size or self.sweeps_left)
+
+    @property
+    def acceptance(self) -> float:
+        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
+
+    def restarted(self, n_sweeps: int, n: int) -> "Rejuvenation":
+        """After a resampling of ``n`` particles: at most ``n_sweeps`` sweeps, the tally reset."""
+        return Rejuvenation(np.zeros(0, dtype=int), int(n_sweeps), 0, 0, np.zeros(n, dtype=bool))
+
+
+def outer_logpdf(prior, columns, outer) -> np.ndarray:
+    """``log p_0`` of outer particles ``outer (K, len(columns))`` under the independent marginals of ``prior``."""
+    total = np.zeros(outer.shape[0])
+    for column, j in enumerate(columns):
+        total += prior.marginal_logpdf(j, outer[:, column])
+    return total
+
+
+def run_inner(problem, inner, split, static, datasets, guides, likelihood, rng):
+    """Re-run inner filters from the first dataset (with each step's guide): ``log p^(D^{1:s-1})``,
+    ``log p^(D^s | D^{1:s-1})`` and the final cloud, for the outer particles ``static``."""
+    past = np.zeros(static.shape[0])
+    cloud, last = None, None
+    for k, dataset in enumerate(datasets):
+        if last is not None:
+            past = past + last
+        last, cloud = inner.advance(problem, split, static, cloud, dataset, k == 0, likelihood, rng, guides[k])
+    return past, last, cloud
+
+
+def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
+               step_size, pending: Rejuvenation, budget: int, likelihood, rng):
+    """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
+
+    ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``; the target
+    is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets`` (fresh randomness), which is
+    what makes the noisy likelihood estimate an exact PMMH target. Particles are attempted in batches (one
+    vectorised re-run each): SMC's Gaussian random walk with the weighted particles' covariance, or SEMC's stretch
+    move against the particles outside the batch with its step size adapted by Eq. (9) after each batch. Sweeps
+    stop as the stages' schedule says (:func:`~seqbayes.moves.schedule.stage_done`'s rule): after at least
+    ``n_moves`` once ``moved_fraction`` of the particles have moved since the resampling, or at the last sweep
+    allowed. Only that decision looks at the particles (as a whole); which particle moves never does.
+    When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
+    attempted all the same, so a rejuvenation always progresses.
+
+    Returns
+    -------
+    static, cloud, components, SweepStats, step_size, n_batches, Rejuvenation
+    """
+    n = static.shape[0]
+    per_particle = max(1, int(getattr(inner, "n_inner", 1)) * len(datasets))
+    columns = inner.outer_columns(split, problem.kernel.dim)
+    support = problem.support[columns]
+    transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
+    coefficients = np.array([beta, 1.0, 1.0])
+    stats, n_batches, spent = SweepStats(), 0, 0
+    queue, sweeps_left = pending.queue, pending.sweeps_left
+    n_proposed, n_accepted = pending.n_proposed, pending.n_accepted
+    moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
+    most = config.max_virtual if config.move == "stretch" else config.max_moves
+    copied = False
+    while queue.size or sweeps_left:
+        if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
+            done = most - sweeps_left
+            if done >= config.n_moves and (config.moved_fraction == 0 or moved_since.mean() >= config.moved_fraction):
+                sweeps_left = 0
+                break
+            queue, sweeps_left = rng.permutation(n), sweeps_left - 1
+        k = min(queue.size, (budget - spent) // per_particle)
+        if config.move == "stretch":  # the stretch move needs a complement to draw partners from
+            k = min(k, n // 2)
+        if k < 1:
+            if spent or budget <= 0:
+                break
+            k = 1
+        if not copied:
+            static, components = static.copy(), components.copy()
+            cloud = {key: value.copy() for key, value in cloud.items()}
+            copied = True
+        active, queue = queue[:k], queue[k:]
+        position = transform.forward(static) if transform is not None else static
+        if config.move == "stretch":
+            rest = np.ones(n, dtype=bool)
+            rest[active] = False
+            proposals, log_hastings, identical = StretchMove(step_size).propose(position[active], position[rest], rng)
+        else:
+            move = GaussianMove(weighted_covariance(position, log_weights), config.proposal_scale)
+            proposals, log_hastings = move.propose(position[active], rng)
+            identical = np.zeros(k, dtype=bool)
+        phi = transform.inverse(proposals) if transform is not None else proposals
+        inside = ~identical & inside_support(phi, support)
+        new_components = np.full((k, 3), -np.inf)
+        jac_new, jac_old = np.zeros(k), np.zeros(k)
+        if transform is not None:
+            jac_old = transform.log_jacobian(position[active])
+        new_cloud = {key: value[active] for key, value in cloud.items()}
+        if inside.any():
+            rows = np.flatnonzero(inside)
+            past, last, rerun = run_inner(problem, inner, split, phi[rows], datasets, guides, likelihood, rng)
+            new_components[rows] = np.column_stack([last, outer_logpdf(problem.prior, columns, phi[rows]), past])
+            for key in new_cloud:
+                new_cloud[key][rows] = rerun[key]
+            if transform is not None:
+                jac_new[rows] = transform.log_jacobian(proposals[rows])
+            spent += rows.size * per_particle
+        with np.errstate(invalid="ignore"):
+            current = components[active] @ coefficients + jac_old
+            proposed = new_components @ coefficients + jac_new
+        proposed = np.where(np.isnan(proposed), -np.inf, proposed)
+        accept = metropolis_accept(np.where(np.isnan(current), -np.inf, current), proposed, log_hastings, rng) & inside
+        moved = active[accept]
+        moved_since[moved] = True
+        static[moved] = phi[accept]
+        components[moved] = new_components[accept]
+        for key in cloud:
+            cloud[key][moved] = new_cloud[key][accept]
+        n_batches += 1
+        n_proposed, n_accepted = n_proposed + k, n_accepted + int(accept.sum())
+        stats = stats + SweepStats(k, int(accept.sum()), int(identical.sum()), int(inside.sum()))
+        if config.move == "stretch":
+            step_size = next_step_size(step_size, float(accept.mean()), config.target_acceptance)  # Eq. (9)
+    return (static, cloud, components, stats, step_size, n_batches,
+            Rejuvenation(queue, sweeps_left, n_proposed, n_accepted, moved_since))
