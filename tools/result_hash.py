@@ -27,7 +27,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-_TIME_FIELDS = {"wall_time", "elapsed", "seconds"}
+_TIME_FIELDS = {"wall_time", "elapsed", "seconds"}  # plus --skip-fields: diagnostics a commit added
 
 
 def _load(name: str, *modules: str):
@@ -181,7 +181,11 @@ def main(argv=None) -> int:
     parser.add_argument("--only", default=",".join(STUDIES), help="comma-separated studies")
     parser.add_argument("--save", help="write the hashes to this JSON file")
     parser.add_argument("--check", help="compare with the hashes in this JSON file")
+    parser.add_argument("--skip-fields", default="",
+                        help="comma-separated record fields not hashed: fields a commit added, so the rest of the "
+                             "results can still be compared with hashes saved before it")
     args = parser.parse_args(argv)
+    _TIME_FIELDS.update(name for name in args.skip_fields.split(",") if name)
     hashes = {}
     for name in args.only.split(","):
         start = time.perf_counter()
