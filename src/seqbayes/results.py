@@ -112,6 +112,9 @@ class StepInfo:
     log_evidence_increment_se, log_evidence_se : float
         Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
         (:func:`~seqbayes.engine.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
+    jump_probability_se : float
+        Monte Carlo standard error of ``jump_probability``
+        (:func:`~seqbayes.predictive.mixture.jump_probability_se`; NaN where that is).
     """
 
     step: int
@@ -146,6 +149,7 @@ class StepInfo:
     jump_size_sd: float = float("nan")
     log_evidence_increment_se: float = float("nan")
     log_evidence_se: float = float("nan")
+    jump_probability_se: float = float("nan")
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":

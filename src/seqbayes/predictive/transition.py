@@ -15,7 +15,13 @@ from .mixture import GaussianMixture, jump_step_fields, predictive_density
 from .paths import PathSpace, remedy_applies
 from .pseudo_marginal import SubsampledPrior
 
-__all__ = ["TransitionMixture"]
+__all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
+
+#: A conflict costs accuracy when the mixture's finite ancestors alone make the step's log-evidence uncertain by
+#: more than this (sd, nats; ``sqrt(1 / ancestor_ess - 1 / N)``): the mixture's own posterior is then off the
+#: model's by a sizeable fraction of its sd too, and the error carries into every later step
+#: (docs/jump_kernels.md, moderate damage). At N = 1000 it is an ancestor ESS of 91.
+REMEDY_ANCESTOR_SE = 0.1
 
 
 class TransitionMixture(ParticlePredictive):
@@ -45,7 +51,8 @@ class TransitionMixture(ParticlePredictive):
         return state.prior if isinstance(state.prior, GaussianMixture) else None
 
     def jump_fields(self, state, cloud) -> dict:
-        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights)
+        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
+                                posterior_labels(state))
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
@@ -72,7 +79,9 @@ class TransitionMixture(ParticlePredictive):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
         predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
-        conflict), its mean shifted by more than ``conflict_threshold`` prior sds, or its restart found fewer
+        conflict) or so few that they alone make the increment's log-evidence uncertain by more than
+        :data:`REMEDY_ANCESTOR_SE` nats, its mean shifted by more than ``conflict_threshold`` prior sds, or its
+        restart found fewer
         than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
         grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
         None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
@@ -82,9 +91,10 @@ class TransitionMixture(ParticlePredictive):
             return None
         if info is None:
             return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
-        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0)
+        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0) * config.n_samples
+        if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
+            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
         starved = weighed.n_found < STARVED_RESTART * config.n_samples
-        if (info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold
-                or starved):
+        if (info.ancestor_ess < threshold or info.prior_data_conflict > config.conflict_threshold or starved):
             return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
         return None
