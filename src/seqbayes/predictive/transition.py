@@ -17,11 +17,12 @@ from .pseudo_marginal import SubsampledPrior
 
 __all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
 
-#: A conflict costs accuracy when the mixture's finite ancestors alone make the step's log-evidence uncertain by
-#: more than this (sd, nats; ``sqrt(1 / ancestor_ess - 1 / N)``): the mixture's own posterior is then off the
-#: model's by a sizeable fraction of its sd too, and the error carries into every later step
-#: (docs/jump_kernels.md, moderate damage). At N = 1000 it is an ancestor ESS of 91.
-REMEDY_ANCESTOR_SE = 0.1
+#: A conflict costs accuracy when the mixture's finite ancestors alone would make the step's log-evidence
+#: uncertain by more than this (sd, nats; ``sqrt(1 / ancestor_ess - 1 / N)`` for independent ancestors): the
+#: step's error is then the tilt onto the previous posterior's tail times that posterior's own error, several
+#: times this iid term, and it carries into every later step (docs/jump_kernels.md, moderate damage). At
+#: N = 1000 it is an ancestor ESS of 286.
+REMEDY_ANCESTOR_SE = 0.05
 
 
 class TransitionMixture(ParticlePredictive):
