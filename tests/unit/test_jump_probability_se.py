@@ -9,7 +9,8 @@ import pytest
 from scipy import stats
 
 from seqbayes import SMC, Drift, Jump, MarkovKernel, jump_posterior
-from seqbayes.predictive.mixture import jump_probability_se, predictive_density
+from seqbayes.predictive.jumps import jump_probability_se
+from seqbayes.predictive.mixture import predictive_density
 from seqbayes.predictive.transition import REMEDY_ANCESTOR_SE
 from seqbayes.reference import component_transition, kernel_grid_filter, simpson_weights
 
@@ -72,6 +73,16 @@ def test_jump_probability_se_is_its_formula():
     a, b = np.einsum("k,kci->i", v, r), np.einsum("k,ki->i", v, r[:, 1])
     anc = np.array([sum(b[i] - p * a[i] for i in range(6) if anc_labels[i] == g) for g in range(4)])
     assert se == pytest.approx(math.sqrt(post @ post + anc @ anc), rel=1e-10)
+    # the ancestors' own mixture prior (4 earlier particles): u = f R summed per earlier label
+    earlier, _ = predictive_density(1.0 + 0.005 * rng.standard_normal((4, 1)), np.zeros(4), kernel, rng)
+    resp = np.array([[sum(np.exp(lv) * stats.norm.pdf(ancestors[i, 0], earlier.mixtures[0].centres[g, 0] + shift, sd)
+                          for lv, shift, sd in zip(*JUMP.branches())) for g in range(4)] for i in range(6)])
+    resp /= resp.sum(axis=1, keepdims=True)
+    u = (b - p * a) @ resp
+    u = np.array([u[0] + u[1], u[2], u[3]])
+    full = jump_probability_se(kernel, prior, theta, logw, labels, anc_labels, ancestors=ancestors,
+                               earlier_prior=earlier, earlier_labels=np.array([0, 0, 1, 2]))
+    assert full == pytest.approx(math.sqrt(post @ post + anc @ anc + u @ u), rel=1e-10)
     # distinct labels: the plain sums of squares
     plain = jump_probability_se(kernel, prior, theta, logw)
     assert plain == pytest.approx(math.sqrt(np.sum((v * (s - p)) ** 2) + np.sum((b - p * a) ** 2)), rel=1e-10)

@@ -40,13 +40,11 @@ import numpy as np
 from scipy import sparse
 
 from ..gaussian_sum import TruncatedSum
-from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import logsumexp, normalise
 from .ancestry import AncestorSpread, grouped_sums, label_groups
 
-__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "jump_step_fields",
-           "jump_probability_se", "systematic_selection"]
+__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection"]
 
 
 #: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
@@ -698,76 +696,6 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
     else:
         density = GaussianMixture(centres, bandwidth, log_weights)
     return density, density.draw_one_per_component(rng)
-
-def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.ndarray, log_weights: np.ndarray,
-                        labels: np.ndarray | None = None, ancestor_labels: np.ndarray | None = None) -> float:
-    """Monte Carlo standard error of the Rao-Blackwellised jump probability ``P = sum_k v_k s_k``.
-
-    ``s_k = sum_{c jumped} sum_i r_kci`` is the exact probability that particle ``k`` came through a jump
-    branch, ``r_kci = V_c W_i N_c(theta_k; centre_ci, h_c^2) / pi(theta_k)`` its responsibility for ancestor
-    ``i`` and branch ``c`` (:func:`~seqbayes.kernels.jump_posterior`). Two terms, each a sum of squared
-    influences over groups of dependent particles (copies of one draw, as for the evidence's se):
-
-    - the posterior sample's, ``sum_e (sum_{k in e} v_k (s_k - P))^2`` over ``labels``;
-    - the ancestors', ``sum_g (sum_{i in g} (b_i - P a_i))^2`` over ``ancestor_labels``, with
-      ``a_i = sum_k v_k sum_c r_kci`` the posterior's mass on ancestor ``i`` and ``b_i`` its part through a
-      jump branch: ``P`` is the ratio ``sum_i b_i / sum_i a_i`` of two sums over the N ancestors, whose
-      first-order (delta-method) variance this is.
-
-    Parameters
-    ----------
-    kernel : MarkovKernel
-        With Jump components.
-    prior : MixtureSum
-        The step's predictive prior.
-    posterior : (m, d) array
-    log_weights : (m,) array
-    labels : (m,) int array, optional
-        Groups of dependent posterior particles (distinct if omitted).
-    ancestor_labels : (N,) int array, optional
-        Groups of dependent ancestors (the previous posterior's labels; distinct if omitted).
-
-    Returns
-    -------
-    float
-    """
-    posterior = as_samples(posterior, prior.dim, "posterior")
-    v = np.exp(normalise(np.asarray(log_weights, dtype=float)))
-    jumped = kernel.branches.jumped.any(axis=1)
-    n = prior.mixtures[0].centres.shape[0]
-    s = np.empty(posterior.shape[0])
-    a, b = np.zeros(n), np.zeros(n)
-    block = max(1, _BLOCK_FLOATS // max(1, n * len(prior.mixtures)))
-    for start in range(0, posterior.shape[0], block):      # (block, C, N) log terms, never m x N x d
-        x = posterior[start:start + block]
-        logits = np.stack([lv + m.log_weights[None, :]
-                           - 0.5 * np.sum(((x[:, None, :] - m.centres[None]) / m.bandwidth) ** 2, axis=2)
-                           - np.sum(np.log(m.bandwidth)) for lv, m in zip(prior.log_weights, prior.mixtures)], axis=1)
-        logits -= logits.max(axis=(1, 2), keepdims=True)
-        r = np.exp(logits)
-        r /= r.sum(axis=(1, 2), keepdims=True)
-        vb = v[start:start + block]
-        s[start:start + block] = r[:, jumped].sum(axis=(1, 2))
-        a += vb @ r.sum(axis=1)
-        b += vb @ r[:, jumped].sum(axis=1)
-    p = float(v @ s)
-    post = grouped_sums(v * (s - p), label_groups(labels, v.size))
-    anc = grouped_sums(b - p * a, label_groups(ancestor_labels, n))
-    return float(np.sqrt(post @ post + anc @ anc))
-
-
-def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights, labels: np.ndarray | None = None,
-                     ancestor_labels: np.ndarray | None = None) -> dict:
-    """The :class:`~seqbayes.results.StepInfo` fields of :func:`~seqbayes.kernels.jump_posterior` (``jump_probability``,
-    ``jump_parameter``, ``jump_size``, ``jump_size_sd``) and the jump probability's standard error
-    (:func:`jump_probability_se`, ``jump_probability_se``) when ``prior`` is the step's :class:`MixtureSum` of a
-    jump kernel; ``{}`` otherwise (step 1, no jumps)."""
-    if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
-        return {}
-    fields = jump_posterior(kernel, prior, posterior, log_weights).step_fields()
-    fields["jump_probability_se"] = jump_probability_se(kernel, prior, posterior, log_weights, labels, ancestor_labels)
-    return fields
-
 
 import typing as _typing  # noqa: E402
 

@@ -16,7 +16,8 @@ from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..weights import logsumexp
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
-from .mixture import GaussianMixture, jump_step_fields
+from .jumps import jump_step_fields
+from .mixture import GaussianMixture
 
 __all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
 

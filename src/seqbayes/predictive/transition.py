@@ -11,7 +11,8 @@ from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
 from .lineage import ancestor_mass, mass_spread, posterior_labels
-from .mixture import GaussianMixture, jump_step_fields, predictive_density
+from .jumps import jump_step_fields
+from .mixture import GaussianMixture, MixtureSum, predictive_density
 from .paths import PathSpace, remedy_applies
 from .pseudo_marginal import SubsampledPrior
 
@@ -52,8 +53,15 @@ class TransitionMixture(ParticlePredictive):
         return state.prior if isinstance(state.prior, GaussianMixture) else None
 
     def jump_fields(self, state, cloud) -> dict:
+        earlier = {}
+        last = state.window[-1] if state.window else None
+        if (last is not None and isinstance(last.prior, (GaussianMixture, MixtureSum)) and state.posterior is not None
+                and np.array_equal(last.posterior, state.posterior)):
+            # the ancestors' own mixture prior: the two-step term of the jump probability's se
+            earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
+                           earlier_labels=posterior_labels(state, 1))
         return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
-                                posterior_labels(state))
+                                posterior_labels(state), **earlier)
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
