@@ -91,7 +91,7 @@ def test_jump_probability_se_is_its_formula():
 @pytest.mark.slow
 def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
     """A random walk (N = 200) whose data move by 0.022 (4 predictive sds) at step 4: the ancestor ESS (~24) lands above
-    remedy_ess * N = 10 but below 1 / (0.05^2 + 1 / N) = 133, so the remedy runs only through the new trigger."""
+    remedy_ess * N = 10 but below 1 / (0.1^2 + 1 / N) = 67, so the remedy runs only through the new trigger."""
     kernel = MarkovKernel([Drift(0.0, noise_std=0.004)])
     data = [np.full(5, 1.0) + 0.01 * np.random.default_rng(s).standard_normal(5) for s in range(4)]
     data[3] = data[3] - 0.022
