@@ -20,7 +20,9 @@ se, and the log Bayes factor of jump against random walk (the same sampler seed 
 
 Printed: one row per (drop, model, sampler, kernel) with the worst over steps of the median and the
 9th-of-10 (the acceptance's ">= 9 of 10 seeds") errors, and the P(jump) se calibration (RMS reported se
-over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]).
+over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]) and, with 3 seeds
+or more, the calibration step by step. ``--steps`` stops every history early (``--steps 14``: the drop and one
+step after).
 ``--reduced`` is the variant ``tests/statistical/test_moderate_damage.py`` runs.
 """
 
@@ -104,8 +106,9 @@ def exact(drop_percent: float, model: str, kernel: str) -> dict:
 
 
 def run(args) -> dict:
-    drop_percent, model, kernel, sampler, seed, n = args
+    drop_percent, model, kernel, sampler, seed, n, *steps = args
     _, datasets = simulate(drop_percent, model)
+    datasets = datasets[:steps[0]] if steps else datasets
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = SAMPLERS[sampler](prior(), kernels()[kernel], log_likelihood(model), n_samples=n,
@@ -126,7 +129,7 @@ def errors(runs: list, refs: dict) -> dict:
     out = {}
     for key, r in by_key.items():
         drop, model, kernel, sampler, seed = key
-        ref = refs[(drop, model, kernel)]
+        ref = {k: v[:len(r["mean"])] for k, v in refs[(drop, model, kernel)].items()}
         e = {"mean": np.abs(np.subtract(r["mean"], ref["mean"])) / np.array(ref["sd"]),
              "sd": np.abs(np.divide(r["sd"], ref["sd"]) - 1.0),
              "logz": np.abs(np.subtract(r["log_evidence"], ref["log_evidence"])),
@@ -139,7 +142,7 @@ def errors(runs: list, refs: dict) -> dict:
             e["p_ok"][0] = True
             walk = by_key.get((drop, model, "walk", sampler, seed))
             if walk is not None:
-                ref_walk = refs[(drop, model, "walk")]
+                ref_walk = {k: v[:len(r["mean"])] for k, v in refs[(drop, model, "walk")].items()}
                 e["bf"] = np.abs(np.subtract(r["log_evidence"], walk["log_evidence"])
                                  - np.subtract(ref["log_evidence"], ref_walk["log_evidence"]))
         out[key] = e
@@ -154,13 +157,31 @@ def se_calibration(runs: list, refs: dict, drop, model, sampler) -> float:
         return float("nan")
     p = np.array([r["jump_probability"] for r in group])
     se = np.array([r["jump_probability_se"] for r in group])
-    exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])
+    exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
     worst = 1.0
     for s in np.flatnonzero((exact_p > 0.02) & (exact_p < 0.98)):
         ratio = np.sqrt(np.mean(se[:, s] ** 2)) / max(p[:, s].std(ddof=1), 1e-12)
         if abs(np.log(ratio)) > abs(np.log(worst)):
             worst = ratio
     return float(worst) if worst != 1.0 else float("nan")
+
+
+def se_lines(runs: list, refs: dict) -> list[str]:
+    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se
+    and their ratio."""
+    out = []
+    for drop, model, _, sampler in sorted({tuple(r["key"][:4]) for r in runs if r["key"][2] == "jump"}):
+        group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
+        if len(group) < 3:
+            continue
+        p = np.array([r["jump_probability"] for r in group])
+        se = np.array([r["jump_probability_se"] for r in group])
+        exact_p = refs[(drop, model, "jump")]["jump_probability"]
+        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({len(group)} seeds): step exact mean sd rms-se ratio")
+        for s in range(1, p.shape[1]):
+            spread, rms = p[:, s].std(ddof=1), np.sqrt(np.mean(se[:, s] ** 2))
+            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} {rms / spread:.2f}")
+    return out
 
 
 def table(runs: list, refs: dict) -> str:
@@ -204,12 +225,13 @@ def main(argv=None):
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--samples", type=int, default=1000)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=N_STEPS, help="assimilate only the first STEPS datasets")
     parser.add_argument("--out", help="write every run's and reference's numbers as JSON here")
     args = parser.parse_args(argv)
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
     refs = {(d, m, k): exact(d, m, k) for d in drops for m in models for k in kernel_names}
-    tasks = [(d, m, k, s, seed, args.samples) for d in drops for m in models for s in samplers
+    tasks = [(d, m, k, s, seed, args.samples, args.steps) for d in drops for m in models for s in samplers
              for k in kernel_names for seed in range(args.first_seed, args.first_seed + args.seeds)]
     if args.workers > 1:
         with ProcessPoolExecutor(args.workers) as pool:
@@ -217,6 +239,7 @@ def main(argv=None):
     else:
         runs = [run(t) for t in tasks]
     print(table(runs, refs))
+    print("\n".join(se_lines(runs, refs)))
     if args.out:
         with open(args.out, "w") as fh:
             json.dump({"runs": runs, "refs": [[list(k), v] for k, v in refs.items()]}, fh)
