@@ -90,8 +90,7 @@ class TransitionMixture(ParticlePredictive):
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
         conflict) or so few that they alone make the increment's log-evidence uncertain by more than
         :data:`REMEDY_ANCESTOR_SE` nats, its mean shifted by more than ``conflict_threshold`` prior sds, or its
-        restart found fewer
-        than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
+        restart found fewer than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
         grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
         None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
         paths."""
