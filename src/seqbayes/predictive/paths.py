@@ -81,7 +81,9 @@ def path_prior_logpdf(window, kernel, likelihood, dim):
     normaliser = sum(past.log_evidence_increment for past in window)
 
     def logpdf(walkers):
-        states = walkers.reshape(walkers.shape[0], -1, dim)
+        if walkers.shape[0] == 0:    # a sweep none of whose proposals is inside the box
+            return np.zeros(0)
+        states = walkers.reshape(walkers.shape[0], walkers.shape[1] // dim, dim)
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
         _add_transitions(out, states, kernel)  # transitions into steps w+1..s
         return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'
