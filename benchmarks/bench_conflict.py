@@ -35,7 +35,7 @@ from seqbayes.studies import oscillator as study  # noqa: E402
 REMEDY_ESS = SamplerConfig(move="gaussian").remedy_ess
 #: ``--off``: the remedy's bookkeeping on (so the mixture step's ancestor ESS is recorded) but never triggered:
 #: the same draws as ``conflict_remedy=False``, whose steps record no ancestor ESS
-NEVER_REMEDY = {"remedy_ess": 1e-300, "conflict_threshold": 1e300}
+NEVER_REMEDY = {"remedy_ess": 0.0, "conflict_threshold": 1e300}
 
 
 def task(args):

@@ -47,7 +47,7 @@ from scipy.special import logsumexp
 
 __all__ = ["simpson_weights", "log_integral", "marginal_moments", "adaptive_axes", "propagate",
            "GridStep", "grid_update", "GridReference", "grid_filter", "reference_from_steps",
-           "reference_table", "read_reference_table"]
+           "reference_table", "read_reference_table", "component_transition", "kernel_grid_filter"]
 
 
 def simpson_weights(grid: ArrayLike) -> np.ndarray:
@@ -558,6 +558,143 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box: ArrayLike, no
             raise
         steps.append(step)
     return steps
+
+
+def component_transition(new_axis: np.ndarray, old_axis: np.ndarray, component: Any,
+                         slab_only: bool = False) -> np.ndarray:
+    """``M[i, l] = sum_b P_b N(new_i; Gamma(old_l) + shift_b, sd_b^2) w_l`` for one parameter's kernel
+    component, ``w`` the Simpson weights of ``old_axis`` (the per-axis convolution of Eq. A3).
+
+    A :class:`~seqbayes.kernels.Jump` contributes its spike and slab branches (``Jump.branches``), any
+    other component its single Gaussian; ``slab_only`` keeps a jump's slab branches alone (times
+    their probabilities), whose integral against ``L_s`` is the jump's posterior mass.
+
+    Parameters
+    ----------
+    new_axis : ndarray, shape (m,)
+    old_axis : ndarray, shape (n,)
+        A uniform or geometric odd-length grid.
+    component : Drift, Decay, Custom or Jump
+    slab_only : bool
+
+    Returns
+    -------
+    ndarray, shape (m, n)
+    """
+    from .kernels import Jump
+
+    if isinstance(component, Jump):
+        log_p, shift, sd = component.branches()
+    else:
+        log_p, shift, sd = np.zeros(1), np.zeros(1), np.array([component.noise_std])
+    if slab_only:
+        log_p, shift, sd = log_p[1:], shift[1:], sd[1:]
+    new_axis, old_axis = np.asarray(new_axis, dtype=float), np.asarray(old_axis, dtype=float)
+    mean = np.asarray(component.nominal(old_axis), dtype=float)
+    out = np.zeros((new_axis.size, old_axis.size))
+    for lp, b, s in zip(log_p, shift, sd):      # a few branches
+        z = (new_axis[:, None] - mean[None, :] - b) / s
+        out += np.exp(lp - 0.5 * z * z) / (s * np.sqrt(2.0 * np.pi))
+    return out * simpson_weights(old_axis)[None, :]
+
+
+def kernel_grid_filter(datasets: Sequence, log_likelihood: Callable, kernel: Any, first_window: ArrayLike, *,
+                       log_prior: Callable | None = None, box: ArrayLike | None = None, n_points: int = 201,
+                       points_per_sd: float = 5.0, tail_mass: float = 1e-100, n_coarse: int = 201,
+                       max_points: int = 2001, widen: float = 20.0,
+                       log_axes: Sequence[bool] | None = None) -> tuple[list[GridStep], np.ndarray]:
+    """Grid filter under any prior density and a :class:`~seqbayes.kernels.MarkovKernel` whose components act
+    on one parameter each, :class:`~seqbayes.kernels.Jump` included: the posterior of every step and the
+    probability that each jump parameter jumped into it.
+
+    Step 1's target is ``log_prior + L_1``; step ``s`` convolves the last posterior with each axis's
+    transition mixture (:func:`component_transition`, Eq. A3) and multiplies by ``L_s``. The probability
+    that parameter ``j`` jumped into step ``s`` is ``int L_s pi_s^{slab j} / Z_s``, ``pi_s^{slab j}`` the
+    predictive with only ``j``'s slab branches (times their probability).
+
+    Parameters
+    ----------
+    datasets : sequence
+        One item per step, passed to ``log_likelihood``.
+    log_likelihood : callable ``(axes, dataset) -> ndarray (n_0, ..., n_{d-1})``
+        On a tensor grid; NaN counts as zero.
+    kernel : MarkovKernel
+        Built from components (every one with process noise).
+    first_window : array_like, shape (d, 2)
+        Step 1's initial window (widened where mass reaches an edge inside ``box``).
+    log_prior : callable ``(axes) -> ndarray``, optional
+        Log prior density on the grid (default: uniform on ``box``, which must then be finite).
+    box : array_like, shape (d, 2), optional
+        The parameter space (hard bounds; default unbounded).
+    n_points, points_per_sd, tail_mass, n_coarse, max_points, log_axes
+        As :func:`adaptive_axes`.
+    widen : float
+        A later step's window is the previous grid carried through each branch, widened by ``widen``
+        of that branch's sds.
+
+    Returns
+    -------
+    steps : list of GridStep
+    jump_probability : ndarray, shape (S, d)
+        NaN at step 1 and for components that are not jumps.
+    """
+    from .kernels import Jump
+
+    components = tuple(getattr(kernel, "components", ()))
+    if not components or np.any(np.asarray(kernel.noise_std) == 0):
+        raise ValueError("kernel: expected a MarkovKernel of per-parameter components, each with process noise")
+    d = len(components)
+    box = np.tile([-np.inf, np.inf], (d, 1)) if box is None else np.array(box, dtype=float)
+    first_window = np.array(first_window, dtype=float)
+    if box.shape != (d, 2) or first_window.shape != (d, 2):
+        raise ValueError(f"box, first_window: expected shape ({d}, 2), got {box.shape}, {first_window.shape}")
+    if log_prior is None:
+        if not np.all(np.isfinite(box)):
+            raise ValueError("log_prior: required when the box is unbounded")
+        log_volume = float(np.sum(np.log(box[:, 1] - box[:, 0])))
+
+        def log_prior(axes):
+            return np.full(tuple(a.size for a in axes), -log_volume)
+    scales = np.empty(d)          # the transition's width seen from the previous grid
+    for j, c in enumerate(components):
+        ends = np.asarray(c.nominal(first_window[j]), dtype=float)
+        scales[j] = c.noise_std * (first_window[j, 1] - first_window[j, 0]) / abs(ends[1] - ends[0])
+    settings = dict(n_coarse=n_coarse, tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
+                    max_points=max_points, log_axes=log_axes)
+    branches = [c.branches() if isinstance(c, Jump) else (np.zeros(1), np.zeros(1), np.array([c.noise_std]))
+                for c in components]
+
+    def predictive(prev, axes, slab_axis=None):
+        return apply_axis_transitions(prev.log_density, [
+            component_transition(axes[j], prev.axes[j], c, j == slab_axis) for j, c in enumerate(components)])
+
+    steps: list[GridStep] = []
+    jumps = np.full((len(datasets), d), np.nan)
+    for s, dataset in enumerate(datasets):
+        if s == 0:
+            window = first_window
+
+            def log_target(axes, dataset=dataset):
+                return log_prior(axes) + log_likelihood(axes, dataset)
+        else:
+            prev = steps[-1]
+            window = np.empty((d, 2))
+            for j, c in enumerate(components):
+                ends = np.asarray(c.nominal(prev.axes[j][[0, -1]]), dtype=float)
+                _, shift, sd = branches[j]
+                window[j] = ends.min() + np.min(shift - widen * sd), ends.max() + np.max(shift + widen * sd)
+
+            def log_target(axes, dataset=dataset, prev=prev):
+                return predictive(prev, axes) + log_likelihood(axes, dataset)
+        step = grid_update(log_target, window, n_points, hard=box, **settings)
+        if s > 0:
+            for j, c in enumerate(components):
+                if isinstance(c, Jump):
+                    slab = predictive(prev, step.axes, slab_axis=j) + _clean(log_likelihood(step.axes, dataset))
+                    jumps[s, j] = np.exp(log_integral(slab, step.axes) - step.log_evidence_increment)
+        steps.append(step)
+    jumps.setflags(write=False)
+    return steps, jumps
 
 
 def reference_from_steps(steps: Sequence[GridStep], parameter_names: Sequence[str], n_steps: int,

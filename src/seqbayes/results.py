@@ -124,6 +124,9 @@ class StepInfo:
     pending_moves : int
         SMC^2: at most this many PMMH attempts are still scheduled for later updates (a rejuvenation
         spreads its sweeps over updates within a budget, :mod:`seqbayes.predictive.pmmh`).
+    jump_probability_se : float
+        Monte Carlo standard error of ``jump_probability``
+        (:func:`~seqbayes.predictive.jumps.jump_probability_se`; NaN where that is).
     """
 
     step: int
@@ -163,6 +166,7 @@ class StepInfo:
     amortised_evals: float = float("nan")
     pmmh_acceptance: float = float("nan")
     pending_moves: int = 0
+    jump_probability_se: float = float("nan")
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":

@@ -278,4 +278,11 @@ def test_run_store_resumes_a_jump_kernel_run_bit_for_bit(tmp_path, sampler):
     assert np.isnan(probability[0]) and probability[2] > 0.9 and max(probability[1], probability[3]) < 0.1
     rows = status_rows(store)                                        # what `seqbayes status --json` prints
     assert [r["jump_probability"] for r in rows[1:]] == probability[1:] and rows[2]["jump_parameter"] == "a"
+    se = [r["jump_probability_se"] for r in rows]                    # beside it: its Monte Carlo se (issue 26)
+    assert np.isnan(se[0]) and se[1:] == [s.info.jump_probability_se for s in store.result.steps][1:]
+    assert all(0 < x < 0.5 for x in se[1:])
+    text = store.status()
+    assert "P(jump)" in text and f"{rows[2]['jump_probability']:.4f}" in text
+    from seqbayes.store.report import render_report
+    assert "<h2>Jumps</h2>" in render_report(store, forecast_steps=0)
     sys.modules.pop("jumpstoremodel", None)

@@ -40,13 +40,11 @@ import numpy as np
 from scipy import sparse
 
 from ..gaussian_sum import TruncatedSum
-from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import logsumexp, normalise
 from .ancestry import AncestorSpread, grouped_sums, label_groups
 
-__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "jump_step_fields",
-           "systematic_selection"]
+__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection"]
 
 
 #: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
@@ -698,15 +696,6 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
     else:
         density = GaussianMixture(centres, bandwidth, log_weights)
     return density, density.draw_one_per_component(rng)
-
-def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights) -> dict:
-    """The :class:`~seqbayes.results.StepInfo` fields of :func:`~seqbayes.kernels.jump_posterior` (``jump_probability``,
-    ``jump_parameter``, ``jump_size``, ``jump_size_sd``) when ``prior`` is the step's
-    :class:`MixtureSum` of a jump kernel; ``{}`` otherwise (step 1, no jumps)."""
-    if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
-        return {}
-    return jump_posterior(kernel, prior, posterior, log_weights).step_fields()
-
 
 import typing as _typing  # noqa: E402
 

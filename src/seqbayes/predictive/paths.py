@@ -16,7 +16,8 @@ from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..weights import logsumexp
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
-from .mixture import GaussianMixture, jump_step_fields
+from .jumps import jump_step_fields
+from .mixture import GaussianMixture
 
 __all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
 
@@ -80,7 +81,9 @@ def path_prior_logpdf(window, kernel, likelihood, dim):
     normaliser = sum(past.log_evidence_increment for past in window)
 
     def logpdf(walkers):
-        states = walkers.reshape(walkers.shape[0], walkers.shape[1] // dim, dim)   # explicit: there may be no walker
+        if walkers.shape[0] == 0:    # a sweep none of whose proposals is inside the box
+            return np.zeros(0)
+        states = walkers.reshape(walkers.shape[0], walkers.shape[1] // dim, dim)
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
         _add_transitions(out, states, kernel)  # transitions into steps w+1..s
         return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'

@@ -11,11 +11,19 @@ from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
 from .lineage import ancestor_mass, mass_spread, posterior_labels
-from .mixture import GaussianMixture, jump_step_fields, predictive_density
+from .jumps import jump_step_fields
+from .mixture import GaussianMixture, MixtureSum, predictive_density
 from .paths import PathSpace, remedy_applies
 from .pseudo_marginal import SubsampledPrior
 
-__all__ = ["TransitionMixture"]
+__all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
+
+#: A conflict costs accuracy when the mixture's finite ancestors alone would make the step's log-evidence
+#: uncertain by more than this (sd, nats; ``sqrt(1 / ancestor_ess - 1 / N)`` for independent ancestors): the
+#: step's error is then the tilt onto the previous posterior's tail times that posterior's own error, several
+#: times this iid term, and it carries into every later step (docs/jump_kernels.md, moderate damage). At
+#: N = 1000 it is an ancestor ESS of 91.
+REMEDY_ANCESTOR_SE = 0.1
 
 
 class TransitionMixture(ParticlePredictive):
@@ -45,7 +53,15 @@ class TransitionMixture(ParticlePredictive):
         return state.prior if isinstance(state.prior, GaussianMixture) else None
 
     def jump_fields(self, state, cloud) -> dict:
-        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights)
+        earlier = {}
+        last = state.window[-1] if state.window else None
+        if (last is not None and isinstance(last.prior, (GaussianMixture, MixtureSum)) and state.posterior is not None
+                and np.array_equal(last.posterior, state.posterior)):
+            # the ancestors' own mixture prior: the two-step term of the jump probability's se
+            earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
+                           earlier_labels=posterior_labels(state, 1))
+        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
+                                posterior_labels(state), **earlier)
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
@@ -72,8 +88,9 @@ class TransitionMixture(ParticlePredictive):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
         predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
-        conflict), its mean shifted by more than ``conflict_threshold`` prior sds, or its restart found fewer
-        than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
+        conflict) or so few that they alone make the increment's log-evidence uncertain by more than
+        :data:`REMEDY_ANCESTOR_SE` nats, its mean shifted by more than ``conflict_threshold`` prior sds, or its
+        restart found fewer than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
         grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
         None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
         paths."""
@@ -82,9 +99,10 @@ class TransitionMixture(ParticlePredictive):
             return None
         if info is None:
             return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
-        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0)
+        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0) * config.n_samples
+        if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
+            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
         starved = weighed.n_found < STARVED_RESTART * config.n_samples
-        if (info.ancestor_ess < threshold * config.n_samples or info.prior_data_conflict > config.conflict_threshold
-                or starved):
+        if (info.ancestor_ess < threshold or info.prior_data_conflict > config.conflict_threshold or starved):
             return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
         return None

@@ -51,7 +51,7 @@ def status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
 
     Keys: ``step, dataset, likelihood_sha256, acceptance_rate, ess, n_distinct, resampled, log_evidence_increment,
     log_evidence, step_size, n_loglike_evals, wall_time, prior_data_conflict, conflict_parameter, inner_ess,
-    jump_probability, jump_parameter, jump_size, jump_size_sd, parameters`` where
+    jump_probability, jump_parameter, jump_size, jump_size_sd, jump_probability_se, parameters`` where
     ``parameters`` maps each name to ``{mean, sd, lower, upper}`` (the central
     ``level`` interval).
     """
@@ -74,6 +74,7 @@ def status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
             # jump kernels: P(a jump into this step), the parameter, its drop fraction (NaN without jumps)
             "jump_probability": float(info.jump_probability), "jump_parameter": store.names[int(info.jump_parameter)],
             "jump_size": float(info.jump_size), "jump_size_sd": float(info.jump_size_sd),
+            "jump_probability_se": float(getattr(info, "jump_probability_se", float("nan"))),
             "parameters": {name: {"mean": float(mean[j]), "sd": float(sd[j]), "lower": float(q[0, j]),
                                   "upper": float(q[1, j])} for j, name in enumerate(store.names)},
         })
@@ -128,6 +129,7 @@ def format_status(store: BaseStore, level: float = 0.95) -> str:
             lines.append(f"note: the likelihood module changed at step {r['step']} (sha256 {previous[:12] or '?'} -> "
                          f"{r['likelihood_sha256'][:12] or '?'})")
             previous = r["likelihood_sha256"]
+    lines += _jump_lines(rows)
     pct = f"{level:.0%}"
     lines.append("")
     lines.append(f"{'step':>4}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}")
@@ -136,6 +138,22 @@ def format_status(store: BaseStore, level: float = 0.95) -> str:
             lines.append(f"{r['step']:>4}  {printable(name)[:14]:<14} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
                          f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
     return "\n".join(lines)
+
+
+def _jump_rows(rows) -> list[list]:
+    """``[step, P(jump), se, parameter, drop fraction, its sd]`` of the steps with a jump probability."""
+    return [[r["step"], f"{r['jump_probability']:.4f}", _fmt(r["jump_probability_se"]), r["jump_parameter"],
+             _fmt(r["jump_size"]), _fmt(r["jump_size_sd"])] for r in rows if np.isfinite(r["jump_probability"])]
+
+
+def _jump_lines(rows) -> list[str]:
+    jumps = _jump_rows(rows)
+    if not jumps:
+        return []
+    out = ["", f"{'step':>4}  {'P(jump)':>8} {'+- se':>8}  {'parameter':<14} {'drop':>9} {'sd':>9}"]
+    out += [f"{j[0]:>4}  {j[1]:>8} {j[2]:>8}  {j[3][:14]:<14} {j[4]:>9} {j[5]:>9}" for j in jumps]
+    return out + ["(P(jump): posterior probability of a jump into the step, +- its Monte Carlo standard error; "
+                  "drop: the fraction of the reference, given a jump.)"]
 
 
 def forecast_rows(store: BaseStore, n_steps: int, level: float = 0.95,
@@ -440,6 +458,9 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
                   for r in rows for name, p in r["parameters"].items()]
     parts.append(table_html(["step", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"], param_rows,
                              left=(1,)))
+    if _jump_rows(rows):
+        parts.append("<h2>Jumps</h2>" + table_html(["step", "P(jump)", "+- se", "parameter", "drop fraction", "sd"],
+                                                   _jump_rows(rows), left=(3,)))
     if forecast is not None:
         parts.append("<h2>Forecast</h2>")
         frows = forecast_rows(store, forecast_steps, level, forecast)

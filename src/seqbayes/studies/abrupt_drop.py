@@ -181,24 +181,10 @@ def candidate_kernels(decay_rate=DECAY_RATE, process_std=PROCESS_STD, *, p: floa
 # ------------------------------------------------------------ exact reference with a jump kernel
 
 def _axis_transition(new_axis, old_axis, component, slab_only: bool = False) -> np.ndarray:
-    """``M[i, l] = sum_b P_b N(new_i; Gamma(old_l) + shift_b, sd_b^2) w_l`` for one parameter's component,
-    ``w`` the Simpson weights of ``old_axis`` (the per-axis convolution of Eq. A3); ``slab_only`` keeps
-    the jump branches of a :class:`~seqbayes.kernels.Jump`."""
-    from ..kernels import Jump
-    from ..reference import simpson_weights
+    """One parameter's per-axis transition matrix (:func:`seqbayes.reference.component_transition`)."""
+    from ..reference import component_transition
 
-    if isinstance(component, Jump):
-        log_p, shift, sd = component.branches()
-    else:
-        log_p, shift, sd = np.zeros(1), np.zeros(1), np.array([component.noise_std])
-    if slab_only:
-        log_p, shift, sd = log_p[1:], shift[1:], sd[1:]
-    mean = np.asarray(component.nominal(np.asarray(old_axis, dtype=float)), dtype=float)
-    out = np.zeros((new_axis.size, old_axis.size))
-    for lp, b, s in zip(log_p, shift, sd):      # a few branches
-        z = (new_axis[:, None] - mean[None, :] - b) / s
-        out += np.exp(lp - 0.5 * z * z) / (s * np.sqrt(2.0 * np.pi))
-    return out * simpson_weights(old_axis)[None, :]
+    return component_transition(np.asarray(new_axis), np.asarray(old_axis), component, slab_only)
 
 
 def _propagate(log_density, old_axes, new_axes, components, slab_axis=None) -> np.ndarray:

@@ -1,0 +1,250 @@
+"""Moderate damage (issue 26): a stiffness drop of a few per cent, against the exact grid filter.
+
+    python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
+                                               [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
+                                               [--workers 2] [--out FILE] [--reduced]
+
+One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
+
+- ``frequency``: ``f = 2 sqrt(k)`` Hz with noise sd 0.02 (1 % of f), the issue's nonlinear likelihood;
+- ``linear``: ``k`` itself with noise sd 0.01 (1 % of k).
+
+The truth starts at ``k_0 = 1``, wanders as ``k_s = k_{s-1} + 0.004 z_s`` and drops by ``drop`` per cent
+of its value at step 13 (:func:`simulate`; the history is ``default_rng(1000 + drop)``'s, the same noise
+for both models). Two kernels (:func:`kernels`): the jump kernel
+``Jump(Drift(0.0, noise_std=0.004), p=0.05, drop_mean=0.1, drop_sd=0.08, reference=1.0)`` and the random
+walk ``Drift(0.0, noise_std=0.004)``. Every (drop, model, kernel, sampler, seed) run, N = 1000 and library
+defaults, is compared at every step with :func:`seqbayes.reference.kernel_grid_filter` (exact spike/slab
+transition): posterior mean in exact sds, sd ratio, cumulative log-evidence, P(jump) and its reported
+se, and the log Bayes factor of jump against random walk (the same sampler seed for both kernels).
+
+Printed: one row per (drop, model, sampler, kernel) with the worst over steps of the median and the
+9th-of-10 (the acceptance's ">= 9 of 10 seeds") errors, and the P(jump) se calibration (RMS reported se
+over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]) and, with 3 seeds
+or more, the calibration step by step. ``--steps`` stops every history early (``--steps 14``: the drop and one
+step after).
+``--reduced`` is the variant ``tests/statistical/test_moderate_damage.py`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from seqbayes import SEMC, SMC, Drift, JointPrior, Jump, MarkovKernel  # noqa: E402
+from seqbayes.reference import kernel_grid_filter  # noqa: E402
+
+N_STEPS, DROP_STEP, N_OBS, WANDER = 20, 13, 5, 0.004
+NOISE = {"frequency": 0.02, "linear": 0.01}
+SAMPLERS = {"SEMC": SEMC, "SMC": SMC}
+KERNEL_NAMES = ("jump", "walk")
+
+
+def response(model: str, k: np.ndarray) -> np.ndarray:
+    """The observed quantity at stiffness ``k``: ``2 sqrt(k)`` (NaN for k < 0) or ``k``."""
+    if model == "frequency":
+        with np.errstate(invalid="ignore"):
+            return 2.0 * np.sqrt(k)
+    return k
+
+
+def simulate(drop_percent: float, model: str, n_steps: int = N_STEPS, drop_step: int = DROP_STEP):
+    """``(truth (S,), datasets [(N_OBS,)])``: the history for one drop; the noise depends on ``drop`` only."""
+    rng = np.random.default_rng(1000 + int(round(10 * drop_percent)))
+    z, e = rng.standard_normal(n_steps), rng.standard_normal((n_steps, N_OBS))
+    truth, k = np.empty(n_steps), 1.0
+    for s in range(n_steps):
+        k = k + WANDER * z[s]
+        if s + 1 == drop_step:
+            k *= 1.0 - drop_percent / 100.0
+        truth[s] = k
+    datasets = [response(model, truth[s]) + NOISE[model] * e[s] for s in range(n_steps)]
+    return truth, datasets
+
+
+def log_likelihood(model: str):
+    """``loglike(theta (N, 1), y (N_OBS,)) -> (N,)``; ``-inf`` where ``f`` is undefined (k < 0)."""
+    sd = NOISE[model]
+
+    def loglike(theta, y):
+        g = response(model, np.asarray(theta, dtype=float)[:, 0])
+        out = (-0.5 * (np.sum(y * y) - 2.0 * g * np.sum(y) + y.size * g * g) / sd**2
+               - y.size * np.log(sd * np.sqrt(2.0 * np.pi)))
+        return np.where(np.isnan(out), -np.inf, out)
+    return loglike
+
+
+def prior() -> JointPrior:
+    return JointPrior({"k": stats.norm(1.0, 0.1)})
+
+
+def kernels() -> dict:
+    return {"jump": MarkovKernel([Jump(Drift(0.0, noise_std=WANDER), p=0.05, drop_mean=0.1, drop_sd=0.08,
+                                       reference=1.0)]),
+            "walk": MarkovKernel([Drift(0.0, noise_std=WANDER)])}
+
+
+def exact(drop_percent: float, model: str, kernel: str) -> dict:
+    """The grid filter's per-step mean, sd, cumulative log-evidence and P(jump) (NaN for the walk)."""
+    _, datasets = simulate(drop_percent, model)
+    loglike = log_likelihood(model)
+    steps, jumps = kernel_grid_filter(
+        datasets, lambda axes, y: loglike(axes[0][:, None], y), kernels()[kernel], [[0.2, 1.8]],
+        log_prior=lambda axes: stats.norm(1.0, 0.1).logpdf(axes[0]))
+    return {"mean": [float(s.mean[0]) for s in steps], "sd": [float(s.std[0]) for s in steps],
+            "log_evidence": np.cumsum([s.log_evidence_increment for s in steps]).tolist(),
+            "jump_probability": jumps[:, 0].tolist()}
+
+
+def run(args) -> dict:
+    drop_percent, model, kernel, sampler, seed, n, *steps = args
+    _, datasets = simulate(drop_percent, model)
+    datasets = datasets[:steps[0]] if steps else datasets
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = SAMPLERS[sampler](prior(), kernels()[kernel], log_likelihood(model), n_samples=n,
+                                   rng=np.random.default_rng(seed)).run(datasets)
+    infos = [s.info for s in result.steps]
+    return {"key": [drop_percent, model, kernel, sampler, seed],
+            "mean": result.means()[:, 0].tolist(), "sd": result.stds()[:, 0].tolist(),
+            "log_evidence": [i.log_evidence for i in infos],
+            "jump_probability": [i.jump_probability for i in infos],
+            "jump_probability_se": [getattr(i, "jump_probability_se", float("nan")) for i in infos],
+            "path_steps": [int(i.path_steps) for i in infos]}
+
+
+def errors(runs: list, refs: dict) -> dict:
+    """Per run key: ``(S,)`` arrays of |mean error| [exact sd], |sd ratio - 1|, |log-evidence error|, P(jump)
+    error, P(jump) error / se, |log Bayes factor error| (jump runs only; walk runs at the same seed)."""
+    by_key = {tuple(r["key"]): r for r in runs}
+    out = {}
+    for key, r in by_key.items():
+        drop, model, kernel, sampler, seed = key
+        ref = {k: v[:len(r["mean"])] for k, v in refs[(drop, model, kernel)].items()}
+        e = {"mean": np.abs(np.subtract(r["mean"], ref["mean"])) / np.array(ref["sd"]),
+             "sd": np.abs(np.divide(r["sd"], ref["sd"]) - 1.0),
+             "logz": np.abs(np.subtract(r["log_evidence"], ref["log_evidence"])),
+             "path": np.array(r["path_steps"]) > 0}
+        if kernel == "jump":
+            p, p_exact = np.array(r["jump_probability"]), np.array(ref["jump_probability"])
+            e["p"] = np.abs(p - p_exact)
+            e["p"][0] = 0.0                              # no transition into step 1
+            e["p_ok"] = (e["p"] <= 0.05) | (e["p"] <= 3.0 * np.array(r["jump_probability_se"]))
+            e["p_ok"][0] = True
+            walk = by_key.get((drop, model, "walk", sampler, seed))
+            if walk is not None:
+                ref_walk = {k: v[:len(r["mean"])] for k, v in refs[(drop, model, "walk")].items()}
+                e["bf"] = np.abs(np.subtract(r["log_evidence"], walk["log_evidence"])
+                                 - np.subtract(ref["log_evidence"], ref_walk["log_evidence"]))
+        out[key] = e
+    return out
+
+
+def se_calibration(runs: list, refs: dict, drop, model, sampler) -> float:
+    """Worst ratio (RMS reported se) / (sd over seeds of P(jump)) over the steps whose exact P(jump) is in
+    [0.02, 0.98], returned as the factor furthest from 1 (>= 1 means the se over-states), NaN if no such step."""
+    group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
+    if len(group) < 3:
+        return float("nan")
+    p = np.array([r["jump_probability"] for r in group])
+    se = np.array([r["jump_probability_se"] for r in group])
+    exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
+    worst = 1.0
+    for s in np.flatnonzero((exact_p > 0.02) & (exact_p < 0.98)):
+        ratio = np.sqrt(np.mean(se[:, s] ** 2)) / max(p[:, s].std(ddof=1), 1e-12)
+        if abs(np.log(ratio)) > abs(np.log(worst)):
+            worst = ratio
+    return float(worst) if worst != 1.0 else float("nan")
+
+
+def se_lines(runs: list, refs: dict) -> list[str]:
+    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se
+    and their ratio."""
+    out = []
+    for drop, model, _, sampler in sorted({tuple(r["key"][:4]) for r in runs if r["key"][2] == "jump"}):
+        group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
+        if len(group) < 3:
+            continue
+        p = np.array([r["jump_probability"] for r in group])
+        se = np.array([r["jump_probability_se"] for r in group])
+        exact_p = refs[(drop, model, "jump")]["jump_probability"]
+        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({len(group)} seeds): step exact mean sd rms-se ratio")
+        for s in range(1, p.shape[1]):
+            spread, rms = p[:, s].std(ddof=1), np.sqrt(np.mean(se[:, s] ** 2))
+            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} {rms / spread:.2f}")
+    return out
+
+
+def table(runs: list, refs: dict) -> str:
+    """Markdown: per (drop, model, sampler, kernel) the worst step of the 9th-best seed's error (acceptance:
+    >= 9 of 10 seeds within the bar), seeds meeting every bar, path-space steps and the P(jump) se ratio."""
+    errs = errors(runs, refs)
+    groups = sorted({k[:4] for k in errs}, key=lambda k: (k[0], k[1], k[3], k[2]))
+    lines = ["| drop | likelihood | sampler | kernel | seeds | mean err [sd] | sd err | log Z err [nats] | "
+             "P(jump) err | log BF err [nats] | seeds meeting all bars | path-space steps | P(jump) se / spread |",
+             "|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for drop, model, kernel, sampler in groups:
+        members = [e for k, e in errs.items() if k[:4] == (drop, model, kernel, sampler)]
+        n = len(members)
+        rank = max(n - 1, 1) if n >= 10 else n          # the 9th of 10: one seed may miss
+
+        def kth(name):
+            worst = sorted(float(np.max(e[name])) for e in members if name in e)
+            return worst[min(rank, len(worst)) - 1] if worst else float("nan")
+        ok = 0
+        for e in members:
+            good = np.all(e["mean"] <= 0.3) and np.all(e["sd"] <= 0.2) and np.all(e["logz"] <= 0.5)
+            if "p_ok" in e:
+                good = good and np.all(e["p_ok"]) and ("bf" not in e or np.all(e["bf"] <= 0.5))
+            ok += bool(good)
+        paths = sum(int(e["path"].sum()) for e in members)
+        ratio = se_calibration(runs, refs, drop, model, sampler) if kernel == "jump" else float("nan")
+        fmt = lambda x: "-" if not np.isfinite(x) else f"{x:.3f}"   # noqa: E731
+        lines.append(f"| {drop:g} % | {model} | {sampler} | {kernel} | {n} | {fmt(kth('mean'))} | {fmt(kth('sd'))} | "
+                     f"{fmt(kth('logz'))} | {fmt(kth('p'))} | {fmt(kth('bf'))} | {ok} of {n} | {paths} | "
+                     f"{fmt(ratio)} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--drops", default="2,4,6,10")
+    parser.add_argument("--models", default="frequency,linear")
+    parser.add_argument("--samplers", default="SEMC,SMC")
+    parser.add_argument("--kernels", default="jump,walk")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--samples", type=int, default=1000)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=N_STEPS, help="assimilate only the first STEPS datasets")
+    parser.add_argument("--out", help="write every run's and reference's numbers as JSON here")
+    args = parser.parse_args(argv)
+    drops = [float(x) for x in args.drops.split(",")]
+    models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
+    refs = {(d, m, k): exact(d, m, k) for d in drops for m in models for k in kernel_names}
+    tasks = [(d, m, k, s, seed, args.samples, args.steps) for d in drops for m in models for s in samplers
+             for k in kernel_names for seed in range(args.first_seed, args.first_seed + args.seeds)]
+    if args.workers > 1:
+        with ProcessPoolExecutor(args.workers) as pool:
+            runs = list(pool.map(run, tasks))
+    else:
+        runs = [run(t) for t in tasks]
+    print(table(runs, refs))
+    print("\n".join(se_lines(runs, refs)))
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump({"runs": runs, "refs": [[list(k), v] for k, v in refs.items()]}, fh)
+    return runs, refs
+
+
+if __name__ == "__main__":
+    sys.exit(main() and 0)

@@ -1,0 +1,75 @@
+"""Moderate damage (issue 26): a 4 % stiffness drop seen through a frequency, against the exact grid filter.
+
+The reduced variant of ``benchmarks/bench_moderate_damage.py`` (its scenario, imported from the script): the
+4 % drop with the frequency likelihood, one sampler seed, SMC and SEMC under the jump and random-walk kernels,
+checked at every one of the 20 steps with the issue's bars (means within 0.3 exact sds, sds within 20 %,
+cumulative log-evidence within 0.5 nats, P(jump) within 0.05 or 3 reported se, log Bayes factor of jump
+against random walk within 0.5 nats). The benchmark's 10-seed table (docs/jump_kernels.md) puts the 9th-best
+seed's worst step below every bar, so one seed passes with probability at least 0.9 under the measured
+Monte Carlo error; seed 0 is not a chosen one (the first).
+
+The exact reference is checked first: the grid filter at half the resolution agrees, and on the linear
+likelihood with the random walk (a linear-Gaussian model) it is the Kalman filter.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+_SPEC = importlib.util.spec_from_file_location(
+    "bench_moderate_damage", Path(__file__).resolve().parents[2] / "benchmarks" / "bench_moderate_damage.py")
+bench = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(bench)
+
+
+def test_exact_reference_is_converged_and_is_the_kalman_filter_where_linear():
+    from seqbayes.reference import kernel_grid_filter
+
+    _, data = bench.simulate(4.0, "frequency")
+    loglike = bench.log_likelihood("frequency")
+    kernel = bench.kernels()["jump"]
+    coarse, jumps = kernel_grid_filter(data, lambda axes, y: loglike(axes[0][:, None], y), kernel, [[0.2, 1.8]],
+                                       log_prior=lambda axes: stats.norm.logpdf(axes[0], 1.0, 0.1),
+                                       n_points=101, points_per_sd=3.0)
+    fine = bench.exact(4.0, "frequency", "jump")
+    np.testing.assert_allclose(np.cumsum([s.log_evidence_increment for s in coarse]), fine["log_evidence"],
+                               rtol=0, atol=1e-8)
+    np.testing.assert_allclose([s.mean[0] for s in coarse], fine["mean"], rtol=0, atol=1e-8 * min(fine["sd"]))
+    np.testing.assert_allclose(jumps[1:, 0], fine["jump_probability"][1:], rtol=0, atol=1e-8)
+    # linear likelihood, random walk: the Kalman filter (prior N(1, 0.1^2), 5 observations of sd 0.01 per step)
+    _, data = bench.simulate(4.0, "linear")
+    walk = bench.exact(4.0, "linear", "walk")
+    mean, var, log_z = 1.0, 0.01, 0.0
+    for s, y in enumerate(data):
+        var += 0.0 if s == 0 else bench.WANDER**2
+        log_z += stats.multivariate_normal.logpdf(y, np.full(y.size, mean), var + 0.01**2 * np.eye(y.size))
+        gain = var / (var + 0.01**2 / y.size)
+        mean, var = mean + gain * (y.mean() - mean), (1.0 - gain) * var
+        assert abs(walk["mean"][s] - mean) < 1e-8 * math.sqrt(var)
+        assert walk["sd"][s] == pytest.approx(math.sqrt(var), rel=1e-8)
+        assert walk["log_evidence"][s] == pytest.approx(log_z, abs=1e-8)
+
+
+@pytest.fixture(scope="module")
+def references():
+    return {kernel: bench.exact(4.0, "frequency", kernel) for kernel in bench.KERNEL_NAMES}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sampler", ["SMC", "SEMC"])
+def test_a_four_per_cent_drop_at_every_step(references, sampler):
+    runs = [bench.run((4.0, "frequency", kernel, sampler, 0, 1000)) for kernel in bench.KERNEL_NAMES]
+    refs = {(4.0, "frequency", kernel): ref for kernel, ref in references.items()}
+    for key, e in bench.errors(runs, refs).items():
+        assert np.all(e["mean"] <= 0.3), (key, e["mean"])
+        assert np.all(e["sd"] <= 0.2), (key, e["sd"])
+        assert np.all(e["logz"] <= 0.5), (key, e["logz"])
+        if key[2] == "jump":
+            assert np.all(e["p_ok"]), (key, e["p"])
+            assert np.all(e["bf"] <= 0.5), (key, e["bf"])

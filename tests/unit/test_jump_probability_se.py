@@ -1,0 +1,111 @@
+"""Issue 26's exact pieces: the kernel grid filter (any prior, jump transitions), the Rao-Blackwellised
+jump probability's standard error against its formula summed term by term, and the remedy's trigger on
+the ancestors' share of the evidence error."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from seqbayes import SMC, Drift, Jump, MarkovKernel, jump_posterior
+from seqbayes.predictive.jumps import jump_probability_se
+from seqbayes.predictive.mixture import predictive_density
+from seqbayes.predictive.transition import REMEDY_ANCESTOR_SE
+from seqbayes.reference import component_transition, kernel_grid_filter, simpson_weights
+
+JUMP = Jump(Drift(0.0, noise_std=0.004), p=0.05, drop_mean=0.1, drop_sd=0.08, reference=1.0)
+
+
+def test_component_transition_is_the_kernels_density():
+    kernel = MarkovKernel([JUMP])
+    old, new = np.linspace(0.9, 1.1, 41), np.linspace(0.7, 1.2, 201)
+    matrix = component_transition(new, old, JUMP)
+    expected = np.exp(kernel.logpdf(np.repeat(new, old.size)[:, None], np.tile(old, new.size)[:, None]))
+    np.testing.assert_allclose(matrix, expected.reshape(new.size, old.size) * simpson_weights(old), rtol=1e-12)
+    slab = component_transition(new, old, JUMP, slab_only=True)
+    sd = math.hypot(0.004, 0.08)
+    np.testing.assert_allclose(slab, 0.05 * stats.norm.pdf(new[:, None], old[None, :] - 0.1, sd) * simpson_weights(old),
+                               rtol=1e-12)
+
+
+def test_kernel_grid_filter_is_the_kalman_filter_on_a_random_walk():
+    """Prior N(1, 0.1^2), k observed directly (sd 0.01, 5 per step), random walk sd 0.004: closed form."""
+    rng = np.random.default_rng(3)
+    data = [1.0 + 0.01 * rng.standard_normal(5) - 0.01 * s for s in range(6)]
+    steps, jumps = kernel_grid_filter(
+        data, lambda axes, y: stats.norm.logpdf(y[None, :], axes[0][:, None], 0.01).sum(axis=1),
+        MarkovKernel([Drift(0.0, noise_std=0.004)]), [[0.5, 1.5]], log_prior=lambda axes: stats.norm.logpdf(axes[0], 1, .1))
+    assert np.all(np.isnan(jumps))
+    mean, var, log_z = 1.0, 0.01, 0.0
+    for s, y in enumerate(data):
+        if s:
+            var += 0.004**2
+        cov = var * np.ones((5, 5)) + 0.01**2 * np.eye(5)
+        log_z += stats.multivariate_normal.logpdf(y, np.full(5, mean), cov)
+        gain = var / (var + 0.01**2 / 5)
+        mean, var = mean + gain * (y.mean() - mean), (1 - gain) * var
+        assert abs(steps[s].mean[0] - mean) < 1e-9 * math.sqrt(var)
+        assert steps[s].std[0] == pytest.approx(math.sqrt(var), rel=1e-9)
+        assert sum(st.log_evidence_increment for st in steps[:s + 1]) == pytest.approx(log_z, abs=1e-9)
+
+
+def test_jump_probability_se_is_its_formula():
+    """Both terms summed by explicit loops over particles, ancestors and branches, with dependent groups."""
+    rng = np.random.default_rng(0)
+    kernel = MarkovKernel([JUMP])
+    ancestors, anc_logw = 1.0 + 0.005 * rng.standard_normal((6, 1)), rng.normal(size=6)
+    prior, _ = predictive_density(ancestors, anc_logw, kernel, rng)
+    theta, logw = 0.975 + 0.015 * rng.standard_normal((9, 1)), rng.normal(size=9)
+    labels, anc_labels = np.array([0, 0, 1, 2, 3, 3, 3, 4, 5]), np.array([0, 1, 1, 2, 3, 3])
+    se = jump_probability_se(kernel, prior, theta, logw, labels, anc_labels)
+    v, w = np.exp(logw) / np.exp(logw).sum(), np.exp(anc_logw) / np.exp(anc_logw).sum()
+    r = np.zeros((9, 2, 6))                     # r_kci
+    for k in range(9):
+        for c, (lv, shift, sd) in enumerate(zip(*JUMP.branches())):
+            for i in range(6):
+                r[k, c, i] = np.exp(lv) * w[i] * stats.norm.pdf(theta[k, 0], ancestors[i, 0] + shift, sd)
+        r[k] /= r[k].sum()
+    s = r[:, 1].sum(axis=1)
+    p = v @ s
+    assert p == pytest.approx(jump_posterior(kernel, prior, theta, logw).any_probability, rel=1e-9)
+    post = np.array([sum(v[k] * (s[k] - p) for k in range(9) if labels[k] == e) for e in range(6)])
+    a, b = np.einsum("k,kci->i", v, r), np.einsum("k,ki->i", v, r[:, 1])
+    anc = np.array([sum(b[i] - p * a[i] for i in range(6) if anc_labels[i] == g) for g in range(4)])
+    assert se == pytest.approx(math.sqrt(post @ post + anc @ anc), rel=1e-10)
+    # the ancestors' own mixture prior (4 earlier particles): u = f R summed per earlier label
+    earlier, _ = predictive_density(1.0 + 0.005 * rng.standard_normal((4, 1)), np.zeros(4), kernel, rng)
+    resp = np.array([[sum(np.exp(lv) * stats.norm.pdf(ancestors[i, 0], earlier.mixtures[0].centres[g, 0] + shift, sd)
+                          for lv, shift, sd in zip(*JUMP.branches())) for g in range(4)] for i in range(6)])
+    resp /= resp.sum(axis=1, keepdims=True)
+    u = (b - p * a) @ resp
+    u = np.array([u[0] + u[1], u[2], u[3]])
+    full = jump_probability_se(kernel, prior, theta, logw, labels, anc_labels, ancestors=ancestors,
+                               earlier_prior=earlier, earlier_labels=np.array([0, 0, 1, 2]))
+    assert full == pytest.approx(math.sqrt(post @ post + anc @ anc + u @ u), rel=1e-10)
+    # distinct labels: the plain sums of squares
+    plain = jump_probability_se(kernel, prior, theta, logw)
+    assert plain == pytest.approx(math.sqrt(np.sum((v * (s - p)) ** 2) + np.sum((b - p * a) ** 2)), rel=1e-10)
+
+
+@pytest.mark.slow
+def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
+    """A random walk (N = 200) whose data move by 0.022 (4 predictive sds) at step 4: the ancestor ESS (~24) lands above
+    remedy_ess * N = 10 but below 1 / (0.1^2 + 1 / N) = 67, so the remedy runs only through the new trigger."""
+    kernel = MarkovKernel([Drift(0.0, noise_std=0.004)])
+    data = [np.full(5, 1.0) + 0.01 * np.random.default_rng(s).standard_normal(5) for s in range(4)]
+    data[3] = data[3] - 0.022
+
+    def loglike(theta, y):
+        return stats.norm.logpdf(y[None, :], theta[:, :1], 0.01).sum(axis=1)
+
+    from seqbayes import JointPrior
+    infos = [SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed).run(data).steps[3].info
+             for seed in range(2)]
+    floor = 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / 200)
+    hit = [i for i in infos if i.path_steps > 0]
+    assert hit, [i.ancestor_ess for i in infos]
+    off = [SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed, remedy_ess=0.0)
+           .run(data).steps[3].info for seed in range(2)]
+    assert all(i.path_steps == 0 for i in off)
+    assert any(10 <= i.ancestor_ess < floor for i in off), [i.ancestor_ess for i in off]
