@@ -50,6 +50,7 @@ import numpy as np  # noqa: E402
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
 from seqbayes.models.sine_phase import SinePhase  # noqa: E402
+from seqbayes.predictive.pmmh import MOVE_BUDGET  # noqa: E402
 from seqbayes.predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
 
 CHECKPOINTS = (10, 100, 1000)
@@ -260,7 +261,8 @@ def nonlinear(args):
             data = problem.simulate(args.steps, rng=4000 + seed)
             grid = problem.exact(data)
             log_z = np.cumsum([g.log_evidence_increment for g in grid])
-            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed)
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
+                          move_budget=MOVE_BUDGET)   # the long-stream setting (SamplerConfig.move_budget)
             errs, evals, rejuvenations = {}, [], []
             start = time.perf_counter()
             for s, y in enumerate(data, start=1):

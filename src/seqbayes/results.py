@@ -444,7 +444,9 @@ class Result:
                                  f"N = {self.steps[0].posterior.shape[0]}, got {shape[0]} with {shape[1]} steps of "
                                  f"N = {shape[2]}")
             other = run._arviz_groups(step, rng, prior, pointwise_loglike, dataset, loglike_step)
-            groups = {key: xr.concat([ds, other[key].assign_coords(chain=[k])], dim="chain", combine_attrs="override")
+            # runs differ in their number of tempering stages: the shorter ones' temperatures are padded with NaN
+            groups = {key: xr.concat([ds, other[key].assign_coords(chain=[k])], dim="chain", combine_attrs="override",
+                                     join="outer", fill_value=np.nan)
                       for key, ds in groups.items() if key in other}
         if step is not None:
             info = self.steps[int(step) % len(self.steps)].info
@@ -510,7 +512,8 @@ class Result:
         for k, r in enumerate(records):
             temperatures[0, k, :len(r.info.temperatures)] = r.info.temperatures
         stats["temperatures"] = (("chain", "step", "stage"), temperatures)
-        groups["sample_stats"] = xr.Dataset(stats, coords={"chain": [0], "step": steps})
+        groups["sample_stats"] = xr.Dataset(stats, coords={"chain": [0], "step": steps,
+                                                           "stage": np.arange(temperatures.shape[2])})
 
         if pointwise_loglike is not None:
             at = int(loglike_step) % n_total

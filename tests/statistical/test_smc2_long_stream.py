@@ -31,7 +31,8 @@ def test_a_long_stream_stays_exact_at_a_bounded_cost(cls, stream):
     problem, data, grid = stream
     n, m = 500, 50
     log_z = np.cumsum([g.log_evidence_increment for g in grid])
-    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, n_inner=m)
+    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, n_inner=m,
+                  move_budget=MOVE_BUDGET)
     infos = []
     for s, y in enumerate(data, start=1):
         info = sampler.update(y)

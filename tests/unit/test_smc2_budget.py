@@ -42,7 +42,7 @@ def test_update_cost_stays_within_the_budget_and_the_amortised_cost_is_reported(
     problem, data = mixed
     n = 100
     sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=1,
-                  inner_filter=KalmanInnerFilter(problem.observe))
+                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
     infos = [sampler.update(y) for y in data]
     evals = np.array([i.n_loglike_evals for i in infos])
     steps = np.arange(1, len(data) + 1)
@@ -60,7 +60,7 @@ def test_pending_moves_survive_the_state_arrays(mixed):
 
     def fresh():
         return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=100, rng=4,
-                   inner_filter=KalmanInnerFilter(problem.observe))
+                   inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
 
     sampler = fresh()
     for s, y in enumerate(data[:30], start=1):
@@ -94,7 +94,7 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
     problem, data = mixed
     data = data[:12]
     sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=4000, rng=0,
-                  inner_filter=KalmanInnerFilter(problem.observe))
+                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
     config, inner = sampler.config, sampler.problem.inner_filter
     split = nested_split(problem.kernel)
     exact = problem.exact(data)[-1]

@@ -257,7 +257,7 @@ class SEMC(_SequentialSampler):
 predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
 move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
 conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, scaled_moves, economy, \
-surrogate
+surrogate, move_budget
         The fields of :class:`SamplerConfig` of the same names, with its defaults and
         validation (see there for what each does).
 
@@ -289,7 +289,8 @@ surrogate
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None):
+                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
+                 move_budget: float | None = None):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
@@ -323,7 +324,8 @@ class SMC(_SequentialSampler):
                  n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None):
+                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
+                 move_budget: float | None = None):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))

@@ -4,8 +4,10 @@ A PMMH proposal re-runs its inner filter over every dataset so far, so one sweep
 ``N M s`` evaluations against ``N M`` for an update without moves. Done at once, a late rejuvenation is
 hundreds of times an ordinary update (issue 23: 148-186 s at s = 260 against 0.03 s). Here a rejuvenation
 is a queue: resampling schedules ``n_moves`` sweeps, each a fresh random permutation of the particles, and
-every update (and every tempering stage) spends at most :data:`MOVE_BUDGET` ``x N M`` evaluations on the
-queue's next particles; the rest waits for the next update.
+with ``SamplerConfig.move_budget`` set (e.g. :data:`MOVE_BUDGET`) every update (and every tempering stage)
+spends at most ``move_budget x N M`` evaluations on the queue's next particles; the rest waits for the next
+update. By default the whole rejuvenation runs in its update: a cloud left degenerate after a resampling
+costs accuracy until its moves are done.
 
 Why it stays exact: each attempt is a PMMH kernel that leaves the current extended target invariant
 (the step's ``p_0(phi) p^(D^{1:s} | phi)`` at the stage's exponent; Andrieu & Roberts 2009), applied to a
@@ -29,8 +31,8 @@ from ..transforms import BoxTransform
 __all__ = ["MOVE_BUDGET", "Rejuvenation", "rejuvenate", "run_inner", "outer_logpdf"]
 
 
-#: Evaluations one update may spend on PMMH, in units of one advance of every inner filter (``N M``): with the
-#: advance itself an update then costs at most ~6 ``N M`` (plus the guide's pilot), over any horizon.
+#: A budget for long streams (``move_budget=MOVE_BUDGET``), in units of one advance of every inner filter
+#: (``N M``): with the advance itself an update then costs at most ~6 ``N M`` (plus the guide's pilot).
 MOVE_BUDGET = 5
 
 

@@ -39,6 +39,7 @@ particle advances in one vectorised ``(N, M, d)`` call of the user's ``loglike(t
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass, field, replace
 
@@ -54,7 +55,7 @@ from ..priors import JointPrior, inside_support
 from ..resampling import resample
 from ..results import prior_data_conflict
 from ..tempering import next_increment
-from .pmmh import MOVE_BUDGET, Rejuvenation, outer_logpdf, rejuvenate
+from .pmmh import Rejuvenation, outer_logpdf, rejuvenate
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
@@ -530,11 +531,13 @@ class NestedPredictive:
     def temper(self, weighed, likelihood, rng) -> Tempered:
         """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls, resample
         and schedule ``n_moves`` PMMH sweeps; at every stage, spend what is left of the update's budget
-        (:data:`~seqbayes.predictive.pmmh.MOVE_BUDGET` ``x N M`` evaluations) on the pending sweeps."""
+        (``SamplerConfig.move_budget x N M`` evaluations; no limit by default) on the pending sweeps."""
         config, n = self.config, self.config.n_samples
         static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
         components, cloud, pending = weighed.cloud.components, weighed.cloud.inner, weighed.cloud.pending
-        budget, start = MOVE_BUDGET * n * int(getattr(self.inner, "n_inner", 1)), likelihood.n_evals
+        budget = (sys.maxsize if config.move_budget is None  # None: the rejuvenation completes in this update
+                  else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
+        start = likelihood.n_evals
         beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
         stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
         while beta < 1.0:
