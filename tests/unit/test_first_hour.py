@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+from scipy import stats
 
+import seqbayes
 from seqbayes import cli
 from seqbayes.engine.errors import PriorDataConflictWarning, documented
 from seqbayes.engine.likelihood import ValidatedLikelihood
@@ -352,6 +354,16 @@ def test_an_all_nan_likelihood_blames_the_model_not_the_prior(tmp_path, capsys):
     code, _, err = cli_run(capsys, "update", tmp_path / "nan.nc", tmp_path / "d.csv")
     assert code == 2 and "the likelihood returned NaN for every sample (40 evaluations)" in err
     assert "prior is too far" not in err
+
+
+def test_an_all_nan_likelihood_under_smc2_blames_the_model_too():
+    """Static and drifting parameters together (SMC^2): the same message from the inner filters' estimates."""
+    prior = seqbayes.JointPrior({"a": stats.norm(0, 1), "b": stats.norm(0, 1)})
+    kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=0.1), seqbayes.Static()])
+    sampler = seqbayes.SMC(prior, kernel, lambda theta, y: np.full(theta.shape[0], np.nan), n_samples=50, rng=0,
+                           n_inner=5)
+    with pytest.raises(seqbayes.ZeroLikelihoodError, match="the likelihood returned NaN for every sample"):
+        sampler.update(1.0)
 
 
 def test_status_json_writes_null_not_nan(run, capsys):

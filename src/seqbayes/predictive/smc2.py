@@ -45,7 +45,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..engine.errors import InnerFilterWarning, ZeroLikelihoodError
+from ..engine.errors import InnerFilterWarning, ZeroLikelihoodError, zero_likelihood_message
 from ..engine.protocol import ParticlePredictive
 from ..engine.stages import prior_name, reweight_stage
 from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
@@ -521,8 +521,7 @@ class NestedPredictive:
         inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
         components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
         if not np.isfinite(log_increment).any():
-            raise ZeroLikelihoodError(f"step {step}: every sample has zero likelihood; the "
-                                      f"{prior_name(step)} is too far from the data")
+            raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
         return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud, pending=state.pending),
                             None, MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
                             datasets=state.datasets + (kept_copy(dataset),), guides=state.guides + (guide,),
