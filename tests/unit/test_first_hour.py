@@ -126,6 +126,7 @@ def cli_run(capsys, *argv):
 
 
 # ----------------------------------------------------------------- the report escapes every stored field
+@pytest.mark.slow
 def test_the_report_escapes_the_stored_sampler_and_a_store_cannot_name_an_unknown_one(run, tmp_path):
     store = open_run(run)
     store.config = dataclasses.replace(store.config, sampler="<script>alert(1)</script>",
@@ -229,6 +230,7 @@ def test_a_stored_configuration_is_type_checked_with_the_key_named(run, tmp_path
         open_run(crafted)
 
 
+@pytest.mark.slow
 def test_a_nan_initial_step_size_and_a_crafted_bit_generator_are_refused(run, tmp_path):
     def step_size(ds):
         ds.attrs["initial_step_size"] = float("nan")
@@ -247,6 +249,7 @@ def test_a_nan_initial_step_size_and_a_crafted_bit_generator_are_refused(run, tm
             open_run(craft(run, tmp_path / f"{name}.nc", generator))
 
 
+@pytest.mark.slow
 def test_a_crafted_conflict_window_and_a_renamed_state_variable_are_one_line(run, tmp_path, capsys):
     (tmp_path / "d2.csv").write_text("t,y\n" + "\n".join(f"{t},{y}" for t, y in table(2)))
 

@@ -141,6 +141,7 @@ def test_run_store_with_a_dask_client_resumes_identically(client, tmp_path):
     assert_identical(local.result, RunStore.open(tmp_path / "dask.nc").result)
 
 
+@pytest.mark.slow
 def test_history_prior_evaluates_past_datasets_on_the_executor_with_the_serial_numbers(client, tmp_path):
     """Static parameters: the exact history prior re-evaluates past datasets, on the workers too."""
     prior = JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)})

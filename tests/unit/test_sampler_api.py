@@ -206,6 +206,7 @@ def _pointwise(theta, y):
     return stats.norm.logpdf(np.asarray(y)[None, :], mean, PROBLEM.noise_std)
 
 
+@pytest.mark.slow
 def test_to_arviz_every_step_with_prior_stats_and_pointwise_loglike():
     import warnings
 

@@ -160,7 +160,8 @@ def fork_update(run, block, fault):
     return status
 
 
-@pytest.mark.parametrize("fault", ["before-write", "mid-write", "before-replace", "mid-apply", "after-replace"])
+@pytest.mark.parametrize("fault", ["mid-write"] + [pytest.param(fault, marks=pytest.mark.slow) for fault in
+                                                   ("before-write", "before-replace", "mid-apply", "after-replace")])
 def test_killed_update_resumes_bit_identically(workdir, tmp_path, fault):
     config = load_config(workdir / "run.toml")
     run = tmp_path / "run.nc"
@@ -340,6 +341,7 @@ def test_modal_results_match_a_direct_eigen_solution():
     assert np.all(summary.mac_identified[:, ::-1].diagonal() > 0.99)   # three nearby parameter vectors
 
 
+@pytest.mark.slow
 def test_store_modal_and_the_report_contain_them(workdir, tmp_path, capsys):
     from seqbayes.store.sg_report import modal_rows, render_sg_report
     from seqbayes.structural.structures.modal import modal_summary

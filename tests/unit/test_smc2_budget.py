@@ -152,6 +152,7 @@ def test_a_low_acceptance_warns_and_says_what_to_change():
         warn_rejuvenation(200, float("nan"), 0.5, 180, 100)
 
 
+@pytest.mark.slow
 def test_the_store_keeps_the_moments_and_status_reports_the_cost(tmp_path):
     from _user_model import decay_tables, write_config, write_model
 

@@ -79,7 +79,7 @@ def test_transition_interpolation_error_falls_with_level():
     assert errs[2] < 0.01
 
 
-@pytest.mark.parametrize("dim, level", [(32, 2), (21, 3)])
+@pytest.mark.parametrize("dim, level", [(32, 2), pytest.param(21, 3, marks=pytest.mark.slow)])
 def test_no_cap_on_dim_times_level(dim, level):
     # dim * level = 64, 63 > 62: the point keys take two int64 words (11 storeys at level 6, 114,687
     # points, build the same way; too slow for the unit tests)

@@ -91,6 +91,7 @@ def test_resume_is_bit_identical(case, uninterrupted, k):
     assert other.history[0].log_evidence.tolist() != whole.history[0].log_evidence.tolist()
 
 
+@pytest.mark.slow
 def test_snapshot_survives_savez_without_pickle(case, uninterrupted, tmp_path):
     whole, snaps = uninterrupted
     snap = snaps[4]

@@ -128,6 +128,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     np.testing.assert_array_equal(store.predict(2), reference.predict(2))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])
 def test_history_prior_run_resumes_bit_for_bit_and_replaces_last(tmp_path, sampler):
     """Static parameters: the store keeps the datasets the history prior re-evaluates and its

@@ -100,6 +100,7 @@ def write_package(folder, name, noise=0.1, shift=0.0):
     (pkg / "lazy.py").write_text(f"SHIFT = {shift}\n")
 
 
+@pytest.mark.slow
 def test_an_edit_of_another_file_of_the_package_is_refused(tmp_path):
     write_package(tmp_path, "hostpkg_a")
     config = config_file(tmp_path / "run.toml", "hostpkg_a.model")

@@ -35,6 +35,7 @@ def full_names(arrays):
     return {name for name in arrays if not snapshot.per_step(name)}
 
 
+@pytest.mark.slow
 def test_the_full_state_is_kept_for_the_last_two_steps_and_the_run_resumes_bit_for_bit(tmp_path):
     cfg = smc2_config(tmp_path, n_samples=40)
     data = tables(3)
