@@ -7,11 +7,15 @@ object opened from the file before every step (:meth:`RunStore.open` checks ever
 engine's own rules, :mod:`seqbayes.engine.outputs`). An abrupt change used to leave a NaN
 ``state_log_evidence_variance`` that the store then refused. Every tenth stream is also run uninterrupted
 in memory and must give the store's steps bit for bit.
+
+The suite runs the first 60 of the seeded streams (they are drawn in sequence, so a prefix of the full
+set); ``SEQBAYES_STREAMS=200`` runs all 200 of issue 24 (about 340 s of CPU).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 
 import numpy as np
@@ -44,7 +48,7 @@ seed = {seed}
 DRIFT = '{ type = "drift", rate = 0.02, noise_std = 0.02 }'
 JUMP = ('{ type = "jump", base = "drift", rate = 0.02, noise_std = 0.02, p = 0.05, drop_mean = 0.3, '
         'drop_sd = 0.1, reference = 2.0 }')
-N_STREAMS = 200
+N_STREAMS = int(os.environ.get("SEQBAYES_STREAMS", "60"))
 
 
 def stream(rng):
