@@ -8,6 +8,8 @@ module name, and Python keeps the first module of a name for the whole test sess
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 CONFIG = """\
@@ -59,3 +61,29 @@ def decay_tables(amplitudes, t, noise, seed, rate=0.4):
     drawn in order from ``default_rng(seed)``."""
     rng = np.random.default_rng(seed)
     return [np.column_stack([t, a * np.exp(-rate * t) + noise * rng.standard_normal(t.size)]) for a in amplitudes]
+
+
+LINE_MODEL = """
+import numpy as np
+def loglike(theta, data):
+    pred = theta[:, [0]] + theta[:, [1]] * data[:, 0][None, :]
+    return -0.5 * np.sum((data[:, 1][None, :] - pred) ** 2, axis=1) / {noise} ** 2
+"""
+
+
+def line_model(noise: float) -> str:
+    """Source of a module whose ``loglike`` is the straight line y = a + b t with Gaussian noise sd ``noise``;
+    the data table's columns are (t, y)."""
+    return LINE_MODEL.format(noise=noise)
+
+
+def assert_same_steps(steps_a, steps_b):
+    """Two runs' steps are bit-identical: samples, weights, predictive and every diagnostic but the wall time."""
+    assert len(steps_a) == len(steps_b)
+    for a, b in zip(steps_a, steps_b):
+        np.testing.assert_array_equal(a.posterior, b.posterior)
+        np.testing.assert_array_equal(a.log_weights, b.log_weights)
+        np.testing.assert_array_equal(a.predictive, b.predictive)
+        info_a, info_b = dataclasses.asdict(a.info), dataclasses.asdict(b.info)
+        info_a.pop("wall_time"), info_b.pop("wall_time")  # the only field allowed to differ
+        np.testing.assert_equal(info_a, info_b)  # every diagnostic, NaN == NaN

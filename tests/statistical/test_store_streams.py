@@ -14,21 +14,17 @@ set); ``SEQBAYES_STREAMS=200`` runs all 200 of issue 24 (about 340 s of CPU).
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import warnings
 
 import numpy as np
 import pytest
 
+from _user_model import assert_same_steps, line_model
+
 from seqbayes.store import RunStore, load_config
 
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    pred = theta[:, [0]] + theta[:, [1]] * data[:, 0][None, :]
-    return -0.5 * np.sum((data[:, 1][None, :] - pred) ** 2, axis=1) / 0.1 ** 2
-"""
+MODEL = line_model(0.1)
 CONFIG = """
 [model]
 likelihood = "streammodel:loglike"
@@ -75,17 +71,6 @@ def stream(rng):
     keywords = dict(a_kernel=JUMP if rng.random() < 0.25 else DRIFT, sampler="SEMC" if rng.random() < 0.8 else "SMC",
                     n=20, seed=int(rng.integers(2**31)))
     return tables, keywords
-
-
-def assert_same_steps(steps_a, steps_b):
-    assert len(steps_a) == len(steps_b)
-    for x, y in zip(steps_a, steps_b):
-        np.testing.assert_array_equal(x.posterior, y.posterior)
-        np.testing.assert_array_equal(x.log_weights, y.log_weights)
-        np.testing.assert_array_equal(x.predictive, y.predictive)
-        info_x, info_y = dataclasses.asdict(x.info), dataclasses.asdict(y.info)
-        info_x.pop("wall_time"), info_y.pop("wall_time")
-        np.testing.assert_equal(info_x, info_y)
 
 
 @pytest.mark.slow

@@ -27,36 +27,9 @@ from seqbayes.store.sg_config import parse_sg_config
 from seqbayes.store import DuplicateDatasetError, RunStore, StoreError
 from seqbayes.store.files import FAULT_ENV, read_file
 from seqbayes.structural.structures.shear_building import discretise, simulate
+from _sg_model import sg_toml
 
-TOML = """
-[model]
-name = "two-storey"
-
-[building]
-masses = [20000.0, 16000.0]
-stiffnesses = [3.0e7, 2.0e7]
-damping_ratios = [0.02, 0.03]
-
-[sensors]
-accelerations = [1, 2]
-
-[data]
-dt = 0.02
-input = "ag"
-responses = ["a1", "a2"]
-time = "t"
-
-[priors]
-lower = 0.5
-upper = 1.5
-
-[noise]
-measurement_std = 0.05
-
-[sampler]
-n_members = 48
-seed = 7
-"""
+TOML = sg_toml("two-storey", 48, sensors=True)
 TRUTH = np.array([0.9, 0.8])
 N_BLOCKS = 3
 

@@ -21,40 +21,16 @@ from seqbayes.store.sg_config import parse_sg_config
 from seqbayes.structural.drop_paths import simulate_drop
 from seqbayes.structural.stiffness_drop import DropBlock
 from seqbayes.store.files import FAULT_ENV
+from _sg_model import sg_toml
 
-TOML = """
-[model]
-name = "two-storey-drop"
-
-[building]
-masses = [20000.0, 16000.0]
-stiffnesses = [3.0e7, 2.0e7]
-damping_ratios = [0.02, 0.03]
-
-[data]
-dt = 0.02
-input = "ag"
-responses = ["a1", "a2"]
-time = "t"
-
-[priors]
-lower = 0.5
-upper = 1.5
-
-[noise]
-measurement_std = 0.05
-
-[sampler]
-n_members = 24
-seed = 7
-
+TOML = sg_toml("two-storey-drop", 24, extra="""
 [monitor]
 n_particles = 24
 change_every = 5
 change_rate = 0.5
 prune_after = 10
 prune_below = 1e-6
-"""
+""")
 N_BLOCKS = 3
 
 

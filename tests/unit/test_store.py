@@ -3,7 +3,6 @@ store unchanged on failure, ArviZ conversion."""
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 
 import numpy as np
@@ -13,7 +12,7 @@ from seqbayes.store import DuplicateDatasetError, RunStore, StoreError, load_con
 from seqbayes.store.base import rehash
 from seqbayes.store.smc import FORMAT_VERSION
 
-from _user_model import decay_tables, write_config, write_model
+from _user_model import assert_same_steps, decay_tables, write_config, write_model
 
 WRONG_SHAPE = """
 def wrong_shape(theta, data):
@@ -35,17 +34,6 @@ def config(tmp_path, sampler="SEMC", func="loglike", name="run.toml", static=Fal
 
 def sha(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def assert_same_steps(steps_a, steps_b):
-    assert len(steps_a) == len(steps_b)
-    for a, b in zip(steps_a, steps_b):
-        np.testing.assert_array_equal(a.posterior, b.posterior)
-        np.testing.assert_array_equal(a.log_weights, b.log_weights)
-        np.testing.assert_array_equal(a.predictive, b.predictive)
-        info_a, info_b = dataclasses.asdict(a.info), dataclasses.asdict(b.info)
-        info_a.pop("wall_time"), info_b.pop("wall_time")  # the only field allowed to differ
-        np.testing.assert_equal(info_a, info_b)  # every diagnostic, NaN == NaN
 
 
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])

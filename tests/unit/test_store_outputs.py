@@ -10,16 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _user_model import line_model
+
 from seqbayes.engine.outputs import OUTPUTS, InvalidStepError, allowed, check_step
 from seqbayes.store import RunStore, StoreError, load_config, snapshot
 from seqbayes.store.base import check_finite
 
-MODEL = """
-import numpy as np
-def loglike(theta, data):
-    pred = theta[:, [0]] + theta[:, [1]] * data[:, 0][None, :]
-    return -0.5 * np.sum((data[:, 1][None, :] - pred) ** 2, axis=1) / 0.1 ** 2
-"""
+MODEL = line_model(0.1)
 CONFIG = """
 [model]
 likelihood = "linearmodel:loglike"

@@ -8,32 +8,9 @@ from _user_model import decay_tables, write_config, write_model
 
 from seqbayes.store import RunStore, SGRunStore, StoreError, create_run, load_config, open_run, registry
 from seqbayes.store.base import BaseStore
+from _sg_model import sg_toml
 
-SG_TOML = """
-[model]
-name = "two-storey"
-
-[building]
-masses = [20000.0, 16000.0]
-stiffnesses = [3.0e7, 2.0e7]
-damping_ratios = [0.02, 0.03]
-
-[data]
-dt = 0.02
-input = "ag"
-responses = ["a1", "a2"]
-
-[priors]
-lower = 0.5
-upper = 1.5
-
-[noise]
-measurement_std = 0.05
-
-[sampler]
-n_members = 16
-seed = 7
-"""
+SG_TOML = sg_toml("two-storey", 16, time=False)
 
 
 @pytest.fixture
