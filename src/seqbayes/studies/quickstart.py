@@ -30,8 +30,9 @@ def main(argv: list[str] | None = None) -> int:
         record = sampler.result.steps[-1]
         sd = np.sqrt(np.diag(exact[s].cov))
         for j, name in enumerate(problem.prior.names):
-            tail = (f"   {info.log_evidence:8.3f} ({exact[s].log_evidence:8.3f})    {info.acceptance_rate:.2f}"
-                    if j == 0 else "")
+            # a step whose ESS stayed high moves nothing: no acceptance rate to show
+            acceptance = "   -" if np.isnan(info.acceptance_rate) else f"{info.acceptance_rate:.2f}"
+            tail = f"   {info.log_evidence:8.3f} ({exact[s].log_evidence:8.3f})    {acceptance}" if j == 0 else ""
             print(f"{s + 1:4d}  {name:9s} {truth[s, j]:7.3f}   {record.mean()[j]:7.3f} +- {record.std()[j]:5.3f}"
                   f"     {exact[s].mean[j]:7.3f} +- {sd[j]:5.3f}{tail}")
     forecast = sampler.predict(2)
@@ -39,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
 
     drift = seqbayes.MarkovKernel([seqbayes.Drift(0.5, noise_std=0.05), seqbayes.Static()])
     other = seqbayes.SEMC(problem.prior, drift, problem.loglike, n_samples=args.samples, rng=args.seed)
+    print("\na second model class, a drifting by +0.5 a step, which the data contradict: expect warnings about it",
+          flush=True)
     table = seqbayes.compare({"random walk": sampler.result, "drift +0.5": other.run(datasets)})
     print("\nmodel-class selection (cumulative log-evidence, posterior probability):")
     print(table.table())
