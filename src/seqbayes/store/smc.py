@@ -420,7 +420,7 @@ class RunStore(BaseStore):
             return (f"{self.path}: the likelihood module {module_name!r} the run recorded ({where}, sha256 "
                     f"{recorded[:12]}) is not there, nor next to the store, nor installed; copy that file next "
                     f"to the store")
-        found = "; ".join(f"{c.file or c.name} has sha256 {c.sha256[:12] or '(no source)'}" for c in candidates)
+        found = "; ".join(f"{_hashed_what(c)} has sha256 {c.sha256[:12] or '(no source)'}" for c in candidates)
         return (f"{self.path}: the likelihood module changed since the run recorded it (sha256 {recorded[:12]} "
                 f"for {where}); {found}; it is not run. If the change is intended, update with "
                 f"--accept-model-change (API: accept_model_change=True): the new hash is recorded for the "
@@ -774,3 +774,10 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
     from numpy.typing import ArrayLike
 
     from ..engine.drivers import SEMC, SMC
+
+
+def _hashed_what(source) -> str:
+    """What a module's hash covers: its file, or every Python file of its package."""
+    if source.package_files > 1:
+        return f"the package of {source.file} ({source.package_files} .py files)"
+    return source.file or source.name
