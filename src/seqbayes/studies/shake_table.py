@@ -103,9 +103,14 @@ def make_data(case: Case, duration: float = 40.0, noise: float = 0.05, process_n
     rng = as_generator(rng)
     building = building_of(case)
     gm = ground_motion(case, duration)
-    u = gm.acceleration
+    return _record(building, np.array(case.theta), gm.acceleration, noise, process_noise, rng)
+
+
+def _record(building: ShearBuilding, theta: np.ndarray, u: np.ndarray, noise: float, process_noise: float,
+            rng: np.random.Generator) -> dict:
+    """The building's noisy floor accelerations under ground acceleration ``u`` (n_t,): an unmeasured input
+    noise of ``process_noise`` x the input RMS and measurement noise of ``noise`` x each channel's RMS."""
     sw = process_noise * float(np.sqrt(np.mean(u**2)))
-    theta = np.array(case.theta)
     model = discretise(building, theta, DT)
     y, X, drifts = simulate(model, u, process_noise_std=sw, rng=rng,
                             extra_observations=[building.observation_matrix(theta, "drift")])
@@ -268,15 +273,7 @@ def synthetic_record(building: ShearBuilding, theta, duration: float, rng=None, 
                           ground_damping=ground_damping, rng=rng)
     else:
         gm = scale_to_pga(resample(load_el_centro(record[-3:]), DT).truncate(duration), pga_g)
-    u = gm.acceleration
-    sw = process_noise * float(np.sqrt(np.mean(u**2)))
-    theta = np.asarray(theta, float)
-    model = discretise(building, theta, DT)
-    y, X, drifts = simulate(model, u, process_noise_std=sw, rng=rng,
-                            extra_observations=[building.observation_matrix(theta, "drift")])
-    noisy, std = add_measurement_noise(y[0], noise, rng)
-    return {"building": building, "u": u, "y": noisy, "noise_std": std, "process_noise_std": sw,
-            "drifts": drifts[0], "theta": theta, "time": np.arange(u.size) * DT}
+    return _record(building, np.asarray(theta, float), gm.acceleration, noise, process_noise, rng)
 
 
 @dataclass(frozen=True)
