@@ -23,10 +23,10 @@ writes, per method, ``{"alarm_day", "storey", "false_alarm_days", "statistic" (o
 false-alarm days are the alarm times at or before the damage day (all of them in a year without
 damage) and the delay is the first alarm time after the damage day minus that day.
 
-A directory (``--data DIR``): every ``*.csv`` in it, and a markdown table per method (``--table
-OUT.md``) of the damage day and storey, the delay, the storey at that alarm and the false-alarm
-days, with a summary line: years detected within 7 days with the storey right, years with any false
-alarm. The building defaults to that of the simulated years (``bench_environment.py simulate``).
+A directory (``--data DIR``): every ``*.csv`` in it, and a markdown table (``--table OUT.md``) with a
+row per year (its damage day and storey, and per method the delay, the storey at that alarm and
+the number of false-alarm days) and a summary per method: years alarmed within 7 days (with the
+storey right), the median delay, years with any false alarm. The building defaults to that of the simulated years (``bench_environment.py simulate``).
 """
 
 from __future__ import annotations
@@ -85,27 +85,49 @@ def run_year(path: Path, building: ShearBuilding, args) -> dict:
     return out
 
 
-def table(results: dict, method: str) -> list:
-    """Markdown rows of one method over the years, and its summary line."""
-    rows = ["| year | damage day (storey) | delay [days] | storey found | false-alarm days |",
-            "|---|---|---|---|---|"]
+def _cell(truth: dict, m: dict) -> str:
+    """``delay / storey found / false-alarm days`` of one method on one year."""
+    delay, found = m["detection_delay"], m["storey_after_damage"]
+    if truth.get("damage_day") is None:
+        return f"- / - / {len(m['false_alarm_days'])}"
+    return f"{'-' if delay is None else f'{delay:.0f}'} / {'-' if found is None else found} / {len(m['false_alarm_days'])}"
+
+
+def summary(results: dict, method: str) -> dict:
+    """Years detected within ``WITHIN_DAYS`` days, with the storey right, years with a false alarm."""
     damaged = detected = right = with_false = 0
-    for name, r in results.items():
+    delays = []
+    for r in results.values():
         truth, m = r["truth"] or {}, r[method]
-        damage_day = truth.get("damage_day")
-        delay, found = m["detection_delay"], m["storey_after_damage"]
-        if damage_day is not None:
+        if truth.get("damage_day") is not None:
             damaged += 1
+            delay = m["detection_delay"]
             hit = delay is not None and delay <= WITHIN_DAYS
             detected += hit
-            right += hit and found == truth.get("damage_storey")
+            right += hit and m["storey_after_damage"] == truth.get("damage_storey")
+            if delay is not None:
+                delays.append(delay)
         with_false += bool(m["false_alarm_days"])
-        truth_text = "-" if damage_day is None else f"{damage_day:.0f} ({truth.get('damage_storey')})"
-        rows.append(f"| {name} | {truth_text} "
-                    f"| {'-' if delay is None else f'{delay:.0f}'} | {'-' if found is None else found} "
-                    f"| {len(m['false_alarm_days'])} |")
-    rows.append(f"\n{method}: alarm within {WITHIN_DAYS} days in {detected} of {damaged} damaged years, "
-                f"with the storey right in {right}; false alarms in {with_false} of {len(results)} years.")
+    return {"damaged": damaged, "detected": detected, "storey_right": right, "years": len(results),
+            "years_with_false_alarms": with_false,
+            "false_alarm_days": sum(len(r[method]["false_alarm_days"]) for r in results.values()),
+            "median_delay": float(np.median(delays)) if delays else None}
+
+
+def table(results: dict) -> list:
+    """Markdown: one row per year (``delay / storey found / false-alarm days`` per method), then the summary."""
+    rows = ["| year | damage day (storey) | " + " | ".join(METHODS) + " |", "|---|---|" + "---|" * len(METHODS)]
+    for name, r in results.items():
+        truth = r["truth"] or {}
+        truth_text = "-" if truth.get("damage_day") is None else f"{truth['damage_day']:.0f} ({truth.get('damage_storey')})"
+        rows.append(f"| {name} | {truth_text} | " + " | ".join(_cell(truth, r[m]) for m in METHODS) + " |")
+    rows += ["", f"| method | alarm within {WITHIN_DAYS} days, storey right | alarm within {WITHIN_DAYS} days "
+             "| median delay [days] | years with false alarms | false-alarm days in all |", "|---|---|---|---|---|---|"]
+    for method in METHODS:
+        s = summary(results, method)
+        median = "-" if s["median_delay"] is None else f"{s['median_delay']:.0f}"
+        rows.append(f"| {method} | {s['storey_right']} of {s['damaged']} | {s['detected']} of {s['damaged']} | {median} "
+                    f"| {s['years_with_false_alarms']} of {s['years']} | {s['false_alarm_days']} |")
     return rows
 
 
@@ -131,10 +153,7 @@ def main(argv=None) -> dict:
         if not files:
             raise SystemExit(f"--data: no *.csv in {data}")
         results = {path.stem: run_year(path, building, args) for path in files}
-        lines = []
-        for method in METHODS:
-            lines += [f"\n### {method}\n"] + table(results, method)
-        text = "\n".join(lines)
+        text = "\n".join(table(results))
         print(text)
         if args.table:
             Path(args.table).write_text(text + "\n")

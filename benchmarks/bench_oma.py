@@ -60,16 +60,20 @@ def accuracy(building: ShearBuilding, args) -> dict:
     """Largest frequency error and smallest MAC per mode over ``args.seeds`` records."""
     theta = np.ones(building.n_storeys)
     frequencies, shapes = building.modes(theta)
-    errors, macs = [], []
+    errors, macs, damping = [], [], []
+    true_damping = building.modal_damping_ratios(theta)[0]
     for seed in range(args.seeds):
         y = ambient_record(building, theta, args.duration, args.dt, rng=np.random.default_rng([25, seed]))
         modes = ssi_cov(y, args.dt, n_modes=building.n_storeys)
         errors.append(modes.frequencies / frequencies[0] - 1)
         macs.append(np.diag(mac(modes.shapes, shapes[0])))
-    errors, macs = np.array(errors), np.array(macs)
+        damping.append(modes.damping_ratios / true_damping - 1)
+    errors, macs, damping = np.array(errors), np.array(macs), np.array(damping)
     return {"true_frequencies": frequencies[0].tolist(), "seeds": args.seeds,
             "max_abs_error": np.abs(errors).max(axis=0).tolist(),
-            "rms_error": np.sqrt(np.mean(errors**2, axis=0)).tolist(), "min_mac": macs.min(axis=0).tolist()}
+            "rms_error": np.sqrt(np.mean(errors**2, axis=0)).tolist(), "min_mac": macs.min(axis=0).tolist(),
+            "true_damping": true_damping.tolist(), "damping_max_abs_error": np.abs(damping).max(axis=0).tolist(),
+            "damping_rms_error": np.sqrt(np.mean(damping**2, axis=0)).tolist()}
 
 
 def data_file(building: ShearBuilding, args) -> dict:
@@ -120,10 +124,11 @@ def main(argv=None) -> dict:
         report["accuracy"] = accuracy(building, args)
         acc = report["accuracy"]
         print(f"{args.seeds} records of {args.duration:g} s at {1 / args.dt:g} Hz")
-        print("mode  f_true [Hz]  max |error| %  rms error %  min MAC")
+        print("| mode | f [Hz] | max abs error % | rms error % | min MAC | damping | damping rms error % |")
+        print("|---|---|---|---|---|---|---|")
         for j, f in enumerate(acc["true_frequencies"]):
-            print(f"{j + 1:>4}  {f:11.4f}  {100 * acc['max_abs_error'][j]:13.3f}  "
-                  f"{100 * acc['rms_error'][j]:11.3f}  {acc['min_mac'][j]:.5f}")
+            print(f"| {j + 1} | {f:.4f} | {100 * acc['max_abs_error'][j]:.3f} | {100 * acc['rms_error'][j]:.3f} "
+                  f"| {acc['min_mac'][j]:.5f} | {acc['true_damping'][j]:.4f} | {100 * acc['damping_rms_error'][j]:.1f} |")
     if args.out:
         report["data_file"] = data_file(building, args)
         errs = report["data_file"]["max_abs_error"]

@@ -80,10 +80,10 @@ def test_sensitivities_match_finite_differences():
 
 def test_ekf_converges_to_the_stiffnesses_of_noise_free_frequencies():
     theta = np.array([1.0, 0.9, 1.1, 0.95])
-    frequencies = np.repeat(BUILDING.modes(theta)[0], 2000, axis=0)
+    frequencies = np.repeat(BUILDING.modes(theta)[0], 1200, axis=0)
     track = ekf_track(frequencies, BUILDING)
-    # the eigen-derivative Jacobian is exact, so the fixed point is the truth (to round-off by row 2000)
-    np.testing.assert_allclose(track[-1], theta, rtol=1e-12)
+    # the eigen-derivative Jacobian is exact, so the fixed point is the truth (7e-10 off at row 1000, 1e-15 at row 2000)
+    np.testing.assert_allclose(track[-1], theta, rtol=1e-9)
 
 
 @pytest.mark.parametrize("method, storey", [("regression", 1), ("regression", 3), ("pca", 1), ("ekf", 1), ("ekf", 3)])
@@ -125,3 +125,38 @@ def test_bad_input_is_named():
         ekf_tracking(day, temperature, frequencies, BUILDING, false_alarm_rate=1.5)
     with pytest.raises(ValueError, match="measurement_std"):
         ekf_tracking(day, temperature, frequencies, BUILDING, measurement_std=0.0)
+
+
+def test_script_writes_the_json_of_every_method_and_the_table(tmp_path):
+    """benchmarks/bench_environment_baselines.py on a directory of two small years with truth sidecars."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "bench_environment_baselines",
+        Path(__file__).resolve().parents[2] / "benchmarks" / "bench_environment_baselines.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    for name, damage_day in (("damaged_00", 110), ("healthy_00", None)):
+        day, temperature, frequencies = _year(np.random.default_rng([25, 7]), n_days=130, per_day=4,
+                                              damage_day=damage_day, storey=1)
+        np.savetxt(tmp_path / f"{name}.csv", np.column_stack([day, temperature, frequencies]), delimiter=",",
+                   header="day,temperature,f1,f2,f3,f4", comments="")
+        (tmp_path / f"{name}.json").write_text(json.dumps({"damage_day": damage_day,
+                                                           "damage_storey": None if damage_day is None else 1}))
+    out = tmp_path / "out.json"
+    report = bench.main(["--data", str(tmp_path), "--json", str(out), "--table", str(tmp_path / "table.md")])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(report))
+    for method in bench.METHODS:
+        damaged, healthy = report["damaged_00"][method], report["healthy_00"][method]
+        assert set(damaged) >= {"alarm_day", "storey", "false_alarm_days", "statistic"}
+        assert len(damaged["statistic"]) == 130
+        assert damaged["detection_delay"] is not None and damaged["storey_after_damage"] == 1
+        assert all(t <= 110 for t in damaged["false_alarm_days"])
+        assert healthy["false_alarm_days"] == healthy["alarm_days"] and healthy["detection_delay"] is None
+    assert "| damaged_00 | 110 (1) |" in (tmp_path / "table.md").read_text()
+    single = bench.main(["--data", str(tmp_path / "damaged_00.csv")])
+    assert single["regression"]["alarm_day"] == report["damaged_00"]["regression"]["alarm_day"]
+    with pytest.raises(SystemExit, match="--data"):
+        bench.main(["--data", str(tmp_path / "missing.csv")])

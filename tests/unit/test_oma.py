@@ -70,17 +70,19 @@ def test_bad_input_is_named():
 
 @pytest.mark.slow
 def test_ambient_record_four_storeys_within_half_percent():
-    """Ten minutes at 100 Hz with 5 % measurement noise: every frequency within 0.5 % (the issue's
-    acceptance bullet), every shape with MAC > 0.99. Over 20 seeds (benchmarks/bench_oma.py
-    --seeds 20) the largest error was 0.24 % (docs/oma.md), so 0.5 % is a two-fold margin."""
-    building = ShearBuilding([1e5] * 4, [1.5e8] * 4, damping_ratios=(0.02, 0.02))
+    """The simulated years' building (f = 2.09 .. 10.34 Hz, 2 % damping) with a 5 % loss in storey
+    2, twenty minutes at 100 Hz with 5 % measurement noise: every frequency within 0.5 % (the issue's
+    acceptance bullet) and every shape with MAC > 0.99, the four modes found by the stabilisation
+    diagram alone; damping ratios within 25 % (5 rms errors). Over 20 seeds of the undamaged building (``benchmarks/bench_oma.py --seeds 20``)
+    the largest error was 0.25 % (mode 1; rms 0.12 %, docs/oma.md): 0.5 % is four rms errors."""
+    building = ShearBuilding([2.0e5, 2.0e5, 2.0e5, 1.6e5], [3.0e8, 2.6e8, 2.2e8, 1.8e8], damping_ratios=(0.02, 0.02))
     theta = np.array([1.0, 0.95, 1.0, 1.0])
-    y = ambient_record(building, theta, duration=600.0, dt=0.01, rng=3)
-    modes = ssi_cov(y, 0.01, n_modes=4)
+    y = ambient_record(building, theta, duration=1200.0, dt=0.01, rng=3)
+    modes = ssi_cov(y, 0.01)  # no n_modes: the modes stable over at least half the orders
     frequencies, shapes = building.modes(theta)
+    assert modes.frequencies.size == 4
     assert np.max(np.abs(modes.frequencies / frequencies[0] - 1)) < 0.005
     assert np.all(np.diag(mac(modes.shapes, shapes[0])) > 0.99)
-    diagram = stabilisation_diagram(y, 0.01)
-    assert modes.n_stable.min() >= len(diagram) // 2  # the physical modes persist over most orders
+    np.testing.assert_allclose(modes.damping_ratios, building.modal_damping_ratios(theta)[0], rtol=0.25)
     row = record_row(y, 0.01, day=3.5, temperature=-2.0, n_modes=4)
     np.testing.assert_array_equal(row, np.concatenate([[3.5, -2.0], modes.frequencies]))
