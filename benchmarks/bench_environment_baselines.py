@@ -25,8 +25,10 @@ damage) and the delay is the first alarm time after the damage day minus that da
 
 A directory (``--data DIR``): every ``*.csv`` in it, and a markdown table (``--table OUT.md``) with a
 row per year (its damage day and storey, and per method the delay, the storey at that alarm and
-the number of false-alarm days) and a summary per method: years alarmed within 7 days (with the
-storey right), the median delay, years with any false alarm. The building defaults to that of the simulated years (``bench_environment.py simulate``).
+the number of false-alarm days; ``*`` when the alarm already held the day before the damage, so
+that the "detection" is no news) and a summary per method: years alarmed within 7 days with the
+storey right (and of those, the ones not already in alarm), the median delay, years with any false
+alarm. The building defaults to that of the simulated years (``bench_environment.py simulate``).
 """
 
 from __future__ import annotations
@@ -81,7 +83,9 @@ def run_year(path: Path, building: ShearBuilding, args) -> dict:
                        "statistic": [None if not np.isfinite(v) else float(v) for v in result.statistic],
                        "alarm_days": result.alarm_days, "threshold": result.threshold,
                        "detection_delay": after[0][0] - damage_day if after else None,
-                       "storey_after_damage": after[0][1] if after else None}
+                       "storey_after_damage": after[0][1] if after else None,
+                       # the alarm already held at the end of the day before the damage: the "detection" is no news
+                       "in_alarm_at_damage": damage_day is not None and damage_day in result.alarm_days}
     return out
 
 
@@ -90,12 +94,14 @@ def _cell(truth: dict, m: dict) -> str:
     delay, found = m["detection_delay"], m["storey_after_damage"]
     if truth.get("damage_day") is None:
         return f"- / - / {len(m['false_alarm_days'])}"
-    return f"{'-' if delay is None else f'{delay:.0f}'} / {'-' if found is None else found} / {len(m['false_alarm_days'])}"
+    star = "*" if m["in_alarm_at_damage"] else ""
+    return (f"{'-' if delay is None else f'{delay:.0f}'}{star} / {'-' if found is None else found} "
+            f"/ {len(m['false_alarm_days'])}")
 
 
 def summary(results: dict, method: str) -> dict:
     """Years detected within ``WITHIN_DAYS`` days, with the storey right, years with a false alarm."""
-    damaged = detected = right = with_false = 0
+    damaged = detected = right = with_false = news = 0
     delays = []
     for r in results.values():
         truth, m = r["truth"] or {}, r[method]
@@ -105,10 +111,12 @@ def summary(results: dict, method: str) -> dict:
             hit = delay is not None and delay <= WITHIN_DAYS
             detected += hit
             right += hit and m["storey_after_damage"] == truth.get("damage_storey")
+            news += hit and m["storey_after_damage"] == truth.get("damage_storey") and not m["in_alarm_at_damage"]
             if delay is not None:
                 delays.append(delay)
         with_false += bool(m["false_alarm_days"])
-    return {"damaged": damaged, "detected": detected, "storey_right": right, "years": len(results),
+    return {"damaged": damaged, "detected": detected, "storey_right": right, "not_already_alarming": news,
+            "years": len(results),
             "years_with_false_alarms": with_false,
             "false_alarm_days": sum(len(r[method]["false_alarm_days"]) for r in results.values()),
             "median_delay": float(np.median(delays)) if delays else None}
@@ -121,12 +129,15 @@ def table(results: dict) -> list:
         truth = r["truth"] or {}
         truth_text = "-" if truth.get("damage_day") is None else f"{truth['damage_day']:.0f} ({truth.get('damage_storey')})"
         rows.append(f"| {name} | {truth_text} | " + " | ".join(_cell(truth, r[m]) for m in METHODS) + " |")
-    rows += ["", f"| method | alarm within {WITHIN_DAYS} days, storey right | alarm within {WITHIN_DAYS} days "
-             "| median delay [days] | years with false alarms | false-alarm days in all |", "|---|---|---|---|---|---|"]
+    rows += ["", "`*`: the alarm already held at the end of the day before the damage.", "",
+             f"| method | alarm within {WITHIN_DAYS} days, storey right | of which not already in alarm "
+             f"| alarm within {WITHIN_DAYS} days | median delay [days] | years with false alarms "
+             "| false-alarm days in all |", "|---|---|---|---|---|---|---|"]
     for method in METHODS:
         s = summary(results, method)
         median = "-" if s["median_delay"] is None else f"{s['median_delay']:.0f}"
-        rows.append(f"| {method} | {s['storey_right']} of {s['damaged']} | {s['detected']} of {s['damaged']} | {median} "
+        rows.append(f"| {method} | {s['storey_right']} of {s['damaged']} | {s['not_already_alarming']} of {s['damaged']} "
+                    f"| {s['detected']} of {s['damaged']} | {median} "
                     f"| {s['years_with_false_alarms']} of {s['years']} | {s['false_alarm_days']} |")
     return rows
 

@@ -16,18 +16,21 @@ issue's model ``1 + alpha (T - T_ref) + beta min(T, 0)`` (``--alpha -0.0015 --be
 --t-ref 10``, as the simulated years), with an optional stiffness loss (``--damage-day``, ``--damage-storey``, ``--damage-size``).
 Each record becomes the row ``day, temperature, f1 .. f4``
 (:func:`seqbayes.structural.oma.record_row`): the file that ``benchmarks/bench_environment.py
---data`` reads. The true frequencies and the errors go to ``--json``.
+--data`` reads, with its truth sidecar ``FILE.json`` in the simulator's shape (damage day, storey,
+size, seed, settings). The true frequencies and the errors go to ``--json`` (not ``FILE.json``).
 
 Run::
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma.py --seeds 20
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma.py --out oma_days.csv --days 6 --per-day 4
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma.py --out oma_days.csv --days 8 --per-day 4 \
+        --damage-day 5 --damage-storey 2
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -91,8 +94,19 @@ def data_file(building: ShearBuilding, args) -> dict:
     header = "day,temperature," + ",".join(f"f{i + 1}" for i in range(building.n_storeys))
     np.savetxt(args.out, rows, delimiter=",", header=header, comments="", fmt="%.6f")
     errors = rows[:, 2:] / truth - 1
-    return {"out": args.out, "rows": len(rows), "max_abs_error": np.abs(errors).max(axis=0).tolist(),
-            "true_frequencies": truth.tolist()}
+    report = {"out": args.out, "rows": len(rows), "max_abs_error": np.abs(errors).max(axis=0).tolist(),
+              "true_frequencies": truth.tolist()}
+    # the truth sidecar in the simulator's shape (studies/environment.py), so that bench_environment.py
+    # can count false alarms and the delay on this file too
+    sidecar = {"damage_day": args.damage_day, "damage_storey": None if args.damage_day is None else args.damage_storey,
+               "damage_size": args.damage_size if args.damage_day is not None else 0.0, "seed": args.seed,
+               "settings": {"masses": list(args.masses), "stiffnesses": list(args.stiffness), "alpha": args.alpha,
+                            "beta": args.beta, "reference_temperature": args.t_ref, "record_seconds": args.duration,
+                            "dt": args.dt, "identification": "SSI-cov (seqbayes.structural.oma)",
+                            "max_abs_frequency_error": report["max_abs_error"]}}
+    with open(Path(args.out).with_suffix(".json"), "w") as fh:
+        json.dump(sidecar, fh, indent=1)
+    return report
 
 
 def main(argv=None) -> dict:
@@ -116,6 +130,8 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     if not args.seeds and not args.out:
         parser.error("give --seeds N (accuracy) and/or --out FILE.csv (a data file)")
+    if args.json and args.out and Path(args.json).resolve() == Path(args.out).with_suffix(".json").resolve():
+        parser.error("--json: that path is the data file's truth sidecar; choose another")
     if not 1 <= args.damage_storey <= len(args.masses):
         parser.error(f"--damage-storey: expected 1..{len(args.masses)}")
     building = ShearBuilding(args.masses, args.stiffness, damping_ratios=(0.02, 0.02))
