@@ -252,9 +252,10 @@ def stabilisation_diagram(y: ArrayLike, dt: float, max_order: int = 40, block_ro
         poles = _poles_from_svd(U, S, p, order, dt)
         stable = np.zeros(poles.frequencies.size, dtype=bool)
         if previous is not None and previous.frequencies.size and poles.frequencies.size:
-            df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
-            dz = np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None]) / np.abs(
-                poles.damping_ratios[:, None])
+            with np.errstate(divide="ignore", invalid="ignore"):  # a zero damping ratio never matches
+                df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
+                dz = np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None]) / np.abs(
+                    poles.damping_ratios[:, None])
             match = (df < frequency_tol) & (dz < damping_tol) & (_complex_mac(poles.shapes, previous.shapes) > mac_tol)
             stable = match.any(axis=1) & (poles.damping_ratios > 0) & (poles.damping_ratios < max_damping)
         poles = Poles(order, poles.frequencies, poles.damping_ratios, poles.shapes, stable)
