@@ -25,7 +25,7 @@ Storey localisation (novelty detection has none by itself): a stiffness loss ``d
 eigen-derivative sensitivities of the undamaged building (:func:`frequency_sensitivities`). The
 storey is the ``j`` whose ``-s_j``, passed through the same residual map (the regression leaves it
 as is, the PCA variant projects it off the removed components), has the largest cosine with the
-mean residual of the alarm's days (:func:`localise`).
+mean residual of the ``consecutive`` days that raised the alarm (:func:`localise`).
 
 **EKF** (:func:`ekf_tracking`): the state is the vector of storey stiffness ratios ``theta``
 (a random walk, ``process_std`` per row), the observation the frequencies of the row, with
@@ -239,13 +239,9 @@ def novelty_detection(day: ArrayLike, temperature: ArrayLike, frequencies: Array
     threshold = np.quantile(statistic[training_days], 1 - false_alarm_rate)
 
     def storey_at(alarm: float) -> int:
-        # the mean residual of the run of exceedances that ended in the alarm
-        above = np.nan_to_num(statistic, nan=-np.inf) > threshold
+        # the mean residual of the days that raised the alarm (within a long run, the latest ones)
         i = int(np.searchsorted(days, alarm))
-        start = i
-        while start > 0 and above[start - 1]:
-            start -= 1
-        return localise(np.nanmean(means[start: i + 1], axis=0), patterns)
+        return localise(np.nanmean(means[i + 1 - int(consecutive): i + 1], axis=0), patterns)
 
     return _result(days, statistic, threshold, consecutive, end, storey_at)
 
