@@ -7,14 +7,164 @@ Simulate (the files of docs/environment.md)::
 writes ``damaged_00.csv`` ... (5 % loss of a random storey from the start of a random day in
 183..350) and ``healthy_00.csv`` ..., each with a ``.json`` truth sidecar
 (:func:`seqbayes.studies.environment.simulate_years`).
+
+Run the workflow on one year::
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_environment.py --data FILE.csv \\
+        --masses m1,m2,m3,m4 --stiffness k1,k2,k3,k4 --json OUT.json
+
+:class:`seqbayes.structural.environment.EnvironmentMonitor` at its defaults (256 particles per
+model, alarm when P(damage) > 0.95 on 2 days in a row), one update per whole day
+(``floor(day)``). ``OUT.json`` holds:
+
+- ``p_damage``: P(damage by the end of the day), one value per day with data;
+- ``alarm_days``: the times at which the alarm rule holds, each the end of the day whose update
+  raised it (``floor(day) + 1``, in the CSV's day units);
+- ``alarm_day``: the first of them, or null; ``storey``: the monitor's storey (1-based) at that day, or null;
+- ``false_alarm_days``: with a truth sidecar (``FILE.json``, as the simulator writes), the alarm
+  days at or before the true damage day (every alarm day if the year has no damage); with no
+  sidecar there is no truth to judge by and the list is empty (``truth`` is then null);
+- ``detection_delay``: the first alarm day after the true damage day minus that day (null if none);
+- ``wall_seconds``, ``n_particle_evaluations`` (particle likelihood calls, each over one day or a
+  whole history) and ``n_set_evaluations`` (particle x frequency-set terms).
+
+Every year of a directory (the table of docs/environment.md)::
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_environment.py --dir DIR [--json OUT.json]
+
+with the simulator's building unless ``--masses``/``--stiffness`` are given.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import time
+from pathlib import Path
 
-from seqbayes.studies.environment import simulate_years
+import numpy as np
+
+from seqbayes.structural.environment import EnvironmentMonitor, alarm_days, split_days
+from seqbayes.structural.structures import ShearBuilding
+from seqbayes.studies.environment import MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_years
+
+
+def run_year(path, masses, stiffnesses, *, n_particles: int = 256, seed: int = 0, threshold: float = 0.95,
+             consecutive: int = 2) -> dict:
+    """The workflow on one CSV year; the dict written as ``OUT.json`` (see the module)."""
+    table = read_year_csv(path)
+    frequencies = np.column_stack([table[k] for k in table if k.startswith("f")])
+    building = ShearBuilding(masses, stiffnesses)
+    if frequencies.shape[1] != building.n_storeys:
+        raise ValueError(f"--data: {frequencies.shape[1]} frequencies per row, but {building.n_storeys} storeys")
+    monitor = EnvironmentMonitor(building, n_particles=n_particles, threshold=threshold, consecutive=consecutive,
+                                 rng=np.random.default_rng(seed))
+    start = time.perf_counter()
+    days, records = [], []
+    for day, temperature, freqs in split_days(table["day"], table["temperature"], frequencies):
+        records.append(monitor.update(temperature, freqs))
+        days.append(day)
+    wall = time.perf_counter() - start
+    p_damage = [r.p_damage for r in records]
+    alarms = alarm_days(p_damage, threshold, consecutive)
+    alarm_times = [float(days[i] + 1) for i in alarms]
+    truth = read_truth(path)
+    false_alarms, delay, detection = [], None, None
+    if truth is not None:
+        damage_day = truth.damage_day
+        false_alarms = [t for t in alarm_times if damage_day is None or t <= damage_day]
+        after = [t for t in alarm_times if damage_day is not None and t > damage_day]
+        delay = after[0] - damage_day if after else None
+        if after:
+            detection = records[alarms[alarm_times.index(after[0])]]
+    first = alarms[0] if alarms.size else None
+    return {"alarm_day": alarm_times[0] if alarm_times else None,
+            "storey": records[first].storey if first is not None else None,
+            "damage_size": records[first].damage_size if first is not None else None,
+            "false_alarm_days": false_alarms, "p_damage": p_damage, "alarm_days": alarm_times,
+            "detection_delay": delay, "storey_at_detection": None if detection is None else detection.storey,
+            "damage_size_at_detection": None if detection is None else detection.damage_size,
+            "truth": None if truth is None else {"damage_day": truth.damage_day, "damage_storey": truth.damage_storey,
+                                                 "damage_size": truth.damage_size},
+            "final_model_probabilities": records[-1].model_probabilities.tolist(),
+            "environment": {"alpha": float(records[-1].models[0].mean[building.n_storeys]),
+                            "beta": float(records[-1].models[0].mean[building.n_storeys + 1]),
+                            "sigma": float(records[-1].models[0].mean[building.n_storeys + 2])},
+            "n_particles": n_particles, "wall_seconds": wall,
+            "n_particle_evaluations": monitor.n_particle_evaluations,
+            "n_set_evaluations": monitor.n_set_evaluations}
+
+
+def _floats(text: str, name: str) -> list:
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise SystemExit(f"{name}: expected comma-separated numbers, got {text!r}") from None
+
+
+def table_rows(results: dict) -> list:
+    """Markdown rows: file, truth, alarm, delay, storey right, false alarms, wall seconds, evaluations."""
+    rows = ["| year | damage day (storey) | first alarm after it | delay [days] | storey found | false alarm days "
+            "| max P(damage) before damage | wall [s] | particle evaluations |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        truth = r["truth"] or {}
+        damage_day = truth.get("damage_day")
+        p = np.asarray(r["p_damage"])
+        before = p[: int(damage_day)] if damage_day is not None else p
+        found = r.get("storey_at_detection", None if r["false_alarm_days"] else r["storey"])
+        delay = r["detection_delay"]
+        truth_text = "-" if damage_day is None else f"{damage_day:.0f} ({truth.get('damage_storey')})"
+        alarm_text = "-" if delay is None else f"{damage_day + delay:.0f}"
+        delay_text = "-" if delay is None else f"{delay:.0f}"
+        worst = before.max() if before.size else float("nan")
+        rows.append(f"| {name} | {truth_text} | {alarm_text} | {delay_text} | {'-' if found is None else found} "
+                    f"| {len(r['false_alarm_days'])} | {worst:.2g} | {r['wall_seconds']:.0f} "
+                    f"| {r['n_particle_evaluations']:,} |")
+    return rows
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", help="one year: CSV with the header day,temperature,f1,...,fn")
+    parser.add_argument("--dir", help="every *.csv of a directory (the simulator's files)")
+    parser.add_argument("--masses", help="floor masses [kg], bottom to top, comma-separated")
+    parser.add_argument("--stiffness", help="nominal storey stiffnesses [N/m], comma-separated")
+    parser.add_argument("--json", help="write the result (or all results) here")
+    parser.add_argument("--table", help="print the table of a --dir run's JSON and stop")
+    parser.add_argument("--particles", type=int, default=256, help="particles per model")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threshold", type=float, default=0.95)
+    parser.add_argument("--consecutive", type=int, default=2)
+    args = parser.parse_args(argv)
+    if args.table:
+        print("\n".join(table_rows(json.loads(Path(args.table).read_text()))))
+        return
+    if (args.data is None) == (args.dir is None):
+        parser.error("give one of --data FILE.csv or --dir DIR")
+    if args.data is not None and (args.masses is None or args.stiffness is None):
+        parser.error("--data needs --masses and --stiffness")
+    masses = _floats(args.masses, "--masses") if args.masses else list(MASSES)
+    stiffnesses = _floats(args.stiffness, "--stiffness") if args.stiffness else list(STIFFNESSES)
+    options = dict(n_particles=args.particles, seed=args.seed, threshold=args.threshold,
+                   consecutive=args.consecutive)
+    if args.data is not None:
+        result = run_year(args.data, masses, stiffnesses, **options)
+        print(json.dumps({k: result[k] for k in ("alarm_day", "storey", "false_alarm_days", "detection_delay",
+                                                  "wall_seconds", "n_particle_evaluations")}))
+        if args.json:
+            Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+        return
+    results = {}
+    for path in sorted(Path(args.dir).glob("*.csv")):
+        result = run_year(path, masses, stiffnesses, **options)
+        results[path.stem] = result
+        print(path.stem, {k: result[k] for k in ("alarm_day", "storey", "detection_delay", "false_alarm_days",
+                                                 "wall_seconds")}, flush=True)
+    print("\n".join(table_rows(results)))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
 
 
 def simulate_main(argv) -> None:
@@ -31,3 +181,5 @@ def simulate_main(argv) -> None:
 if __name__ == "__main__":
     if sys.argv[1:2] == ["simulate"]:
         simulate_main(sys.argv[2:])
+    else:
+        main()

@@ -36,7 +36,7 @@ import numpy as np
 from ..structural.structures import ShearBuilding
 
 __all__ = ["MASSES", "STIFFNESSES", "TemperatureModel", "YearTruth", "stiffness_factor", "simulate_temperature",
-           "simulate_year", "write_year_csv", "read_truth", "simulate_years"]
+           "simulate_year", "write_year_csv", "read_year_csv", "read_truth", "simulate_years"]
 
 MASSES = (2.0e5, 2.0e5, 2.0e5, 1.6e5)
 STIFFNESSES = (3.0e8, 2.6e8, 2.2e8, 1.8e8)
@@ -234,3 +234,18 @@ def simulate_years(out_dir, n_years: int = 20, seed: int = 0, *, damage_size: fl
         write_year_csv(out / name, table, truth)
         paths.append(out / name)
     return paths
+
+
+def read_year_csv(path) -> dict:
+    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of columns (``ValueError`` naming the file)."""
+    path = Path(path)
+    with open(path) as handle:
+        header = handle.readline().strip().split(",")
+    n_modes = len(header) - 2
+    expected = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
+    if n_modes < 1 or [h.strip() for h in header] != expected:
+        raise ValueError(f"{path}: expected the header 'day,temperature,f1,...,fn', got {','.join(header)!r}")
+    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if values.shape[1] != len(expected) or values.shape[0] == 0:
+        raise ValueError(f"{path}: expected rows of {len(expected)} values, got shape {values.shape}")
+    return {name: values[:, i] for i, name in enumerate(expected)}
