@@ -13,7 +13,7 @@ Run the workflow on one year::
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_environment.py --data FILE.csv \\
         --masses m1,m2,m3,m4 --stiffness k1,k2,k3,k4 --json OUT.json
 
-:class:`seqbayes.structural.environment.EnvironmentMonitor` at its defaults (256 particles per
+:class:`seqbayes.structural.environment.EnvironmentMonitor` at its defaults (128 particles per
 model, alarm when P(damage) > 0.95 on 2 days in a row), one update per whole day
 (``floor(day)``). ``OUT.json`` holds:
 
@@ -50,9 +50,9 @@ from seqbayes.structural.structures import ShearBuilding
 from seqbayes.studies.environment import MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_years
 
 
-def run_year(path, masses, stiffnesses, *, n_particles: int = 256, seed: int = 0, threshold: float = 0.95,
-             consecutive: int = 2) -> dict:
-    """The workflow on one CSV year; the dict written as ``OUT.json`` (see the module)."""
+def run_year(path, masses, stiffnesses, *, n_particles: int = 128, seed: int = 0, threshold: float = 0.95,
+             consecutive: int = 2, figure=None) -> dict:
+    """The workflow on one CSV year; the dict written as ``OUT.json`` (see the module); ``figure``: a PNG path."""
     table = read_year_csv(path)
     frequencies = np.column_stack([table[k] for k in table if k.startswith("f")])
     building = ShearBuilding(masses, stiffnesses)
@@ -60,12 +60,12 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 256, seed: int = 0
         raise ValueError(f"--data: {frequencies.shape[1]} frequencies per row, but {building.n_storeys} storeys")
     monitor = EnvironmentMonitor(building, n_particles=n_particles, threshold=threshold, consecutive=consecutive,
                                  rng=np.random.default_rng(seed))
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     days, records = [], []
     for day, temperature, freqs in split_days(table["day"], table["temperature"], frequencies):
         records.append(monitor.update(temperature, freqs))
         days.append(day)
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     p_damage = [r.p_damage for r in records]
     alarms = alarm_days(p_damage, threshold, consecutive)
     alarm_times = [float(days[i] + 1) for i in alarms]
@@ -79,6 +79,8 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 256, seed: int = 0
         if after:
             detection = records[alarms[alarm_times.index(after[0])]]
     first = alarms[0] if alarms.size else None
+    if figure is not None:
+        plot_year(figure, table, frequencies, days, records, alarm_times, truth, threshold, building)
     return {"alarm_day": alarm_times[0] if alarm_times else None,
             "storey": records[first].storey if first is not None else None,
             "damage_size": records[first].damage_size if first is not None else None,
@@ -91,9 +93,60 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 256, seed: int = 0
             "environment": {"alpha": float(records[-1].models[0].mean[building.n_storeys]),
                             "beta": float(records[-1].models[0].mean[building.n_storeys + 1]),
                             "sigma": float(records[-1].models[0].mean[building.n_storeys + 2])},
-            "n_particles": n_particles, "wall_seconds": wall,
+            "n_particles": n_particles, "wall_seconds": wall, "cpu_seconds": cpu,
             "n_particle_evaluations": monitor.n_particle_evaluations,
             "n_set_evaluations": monitor.n_set_evaluations}
+
+
+def plot_year(path, table, frequencies, days, records, alarm_times, truth, threshold, building) -> None:
+    """Four panels: f1 against temperature with the learned model, P(damage) and the alarm, the learned
+    temperature coefficients over the days, and every frequency relative to its mean over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from seqbayes.studies.environment import stiffness_factor
+
+    n = building.n_storeys
+    damage_day = None if truth is None else truth.damage_day
+    fig, ax = plt.subplots(2, 2, figsize=(11, 7))
+    before = np.ones(table["day"].size, bool) if damage_day is None else table["day"] < damage_day
+    ax[0, 0].plot(table["temperature"][before], frequencies[before, 0], ".", ms=1.5, alpha=0.4, label="before damage")
+    if not before.all():
+        ax[0, 0].plot(table["temperature"][~before], frequencies[~before, 0], ".", ms=1.5, color="C3", alpha=0.6,
+                      label="after damage")
+    last_healthy = records[-1] if damage_day is None else records[max(0, days.index(int(damage_day)) - 1)]
+    m0 = last_healthy.models[0].mean
+    grid = np.linspace(table["temperature"].min(), table["temperature"].max(), 200)
+    f_ref = building.modes(m0[:n])[0][0, 0]
+    ax[0, 0].plot(grid, f_ref * np.sqrt(stiffness_factor(grid, m0[n], m0[n + 1], 10.0)), "k-",
+                  label=f"learned (M0, day {last_healthy.day}): alpha={m0[n]:.2e}, beta={m0[n + 1]:.2e}")
+    ax[0, 0].set(xlabel="temperature [degC]", ylabel="f1 [Hz]", title="First frequency against temperature")
+    ax[0, 0].legend(fontsize=7, markerscale=5)
+    p = np.array([r.p_damage for r in records])
+    ax[0, 1].semilogy(np.array(days) + 1, np.maximum(p, 1e-12), "C0-", label="P(damage by the end of the day)")
+    ax[0, 1].axhline(threshold, color="k", ls=":", label=f"threshold {threshold}")
+    if damage_day is not None:
+        ax[0, 1].axvline(damage_day, color="C3", ls="--", label=f"damage (storey {truth.damage_storey})")
+    if alarm_times:
+        ax[0, 1].axvline(alarm_times[0], color="C2", label=f"alarm, day {alarm_times[0]:.0f}")
+    ax[0, 1].set(xlabel="day", ylim=(1e-12, 2), title="P(damage) and the alarm")
+    ax[0, 1].legend(fontsize=7)
+    for k, (name, color) in enumerate((("alpha", "C0"), ("beta", "C1"))):
+        mean = np.array([r.models[0].mean[n + k] for r in records])
+        sd = np.array([r.models[0].sd[n + k] for r in records])
+        ax[1, 0].plot(days, mean, color=color, label=f"{name} (M0 posterior mean +- 2 sd)")
+        ax[1, 0].fill_between(days, mean - 2 * sd, mean + 2 * sd, color=color, alpha=0.3)
+    ax[1, 0].set(xlabel="day", ylabel="[1/degC]", title="Learned temperature coefficients", ylim=(-0.03, 0.01))
+    ax[1, 0].legend(fontsize=7)
+    for r in range(n):
+        ax[1, 1].plot(table["day"], frequencies[:, r] / frequencies[:, r].mean(), lw=0.3, label=f"f{r + 1}")
+    ax[1, 1].set(xlabel="day", ylabel="f / mean(f)", title="Identified frequencies")
+    ax[1, 1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _floats(text: str, name: str) -> list:
@@ -106,8 +159,8 @@ def _floats(text: str, name: str) -> list:
 def table_rows(results: dict) -> list:
     """Markdown rows: file, truth, alarm, delay, storey right, false alarms, wall seconds, evaluations."""
     rows = ["| year | damage day (storey) | first alarm after it | delay [days] | storey found | false alarm days "
-            "| max P(damage) before damage | wall [s] | particle evaluations |",
-            "|---|---|---|---|---|---|---|---|---|"]
+            "| max P(damage) before damage | wall [s] | CPU [s] | particle evaluations |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         truth = r["truth"] or {}
         damage_day = truth.get("damage_day")
@@ -120,7 +173,7 @@ def table_rows(results: dict) -> list:
         delay_text = "-" if delay is None else f"{delay:.0f}"
         worst = before.max() if before.size else float("nan")
         rows.append(f"| {name} | {truth_text} | {alarm_text} | {delay_text} | {'-' if found is None else found} "
-                    f"| {len(r['false_alarm_days'])} | {worst:.2g} | {r['wall_seconds']:.0f} "
+                    f"| {len(r['false_alarm_days'])} | {worst:.2g} | {r['wall_seconds']:.0f} | {r.get('cpu_seconds', float('nan')):.0f} "
                     f"| {r['n_particle_evaluations']:,} |")
     return rows
 
@@ -132,8 +185,10 @@ def main(argv=None) -> None:
     parser.add_argument("--masses", help="floor masses [kg], bottom to top, comma-separated")
     parser.add_argument("--stiffness", help="nominal storey stiffnesses [N/m], comma-separated")
     parser.add_argument("--json", help="write the result (or all results) here")
+    parser.add_argument("--figure", help="with --data: write the year's figure (PNG) here")
+    parser.add_argument("--pattern", default="*.csv", help="with --dir: the files to run (glob)")
     parser.add_argument("--table", help="print the table of a --dir run's JSON and stop")
-    parser.add_argument("--particles", type=int, default=256, help="particles per model")
+    parser.add_argument("--particles", type=int, default=128, help="particles per model")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threshold", type=float, default=0.95)
     parser.add_argument("--consecutive", type=int, default=2)
@@ -150,21 +205,21 @@ def main(argv=None) -> None:
     options = dict(n_particles=args.particles, seed=args.seed, threshold=args.threshold,
                    consecutive=args.consecutive)
     if args.data is not None:
-        result = run_year(args.data, masses, stiffnesses, **options)
+        result = run_year(args.data, masses, stiffnesses, figure=args.figure, **options)
         print(json.dumps({k: result[k] for k in ("alarm_day", "storey", "false_alarm_days", "detection_delay",
                                                   "wall_seconds", "n_particle_evaluations")}))
         if args.json:
             Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
         return
     results = {}
-    for path in sorted(Path(args.dir).glob("*.csv")):
+    for path in sorted(Path(args.dir).glob(args.pattern)):
         result = run_year(path, masses, stiffnesses, **options)
         results[path.stem] = result
         print(path.stem, {k: result[k] for k in ("alarm_day", "storey", "detection_delay", "false_alarm_days",
-                                                 "wall_seconds")}, flush=True)
+                                                 "wall_seconds", "cpu_seconds")}, flush=True)
+        if args.json:  # after every year, so that a long run keeps what it has done
+            Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
     print("\n".join(table_rows(results)))
-    if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
 
 
 def simulate_main(argv) -> None:

@@ -485,7 +485,7 @@ class EnvironmentMonitor:
     """
 
     def __init__(self, building: ShearBuilding, *, prior: EnvironmentPrior = EnvironmentPrior(),
-                 n_particles: int = 256, threshold: float = 0.95, consecutive: int = 2,
+                 n_particles: int = 128, threshold: float = 0.95, consecutive: int = 2,
                  rng: np.random.Generator, n_moves: int = 5):
         if not isinstance(building, ShearBuilding):
             raise TypeError(f"building: expected a ShearBuilding, got {type(building).__name__}")
