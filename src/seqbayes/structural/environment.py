@@ -48,7 +48,7 @@ from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
 __all__ = ["EnvironmentPrior", "ModelDay", "MonitorDay", "ChangeModelSampler", "EnvironmentMonitor", "alarm_days",
-           "split_days"]
+           "split_days", "FrequencyLikelihood"]
 
 _FLOOR = -1e250  # stands in for -inf in the tempering increments, which must be finite
 
@@ -203,6 +203,72 @@ def split_days(day, temperature, frequencies) -> list:
     starts = np.flatnonzero(np.r_[True, np.diff(whole) > 0])
     ends = np.r_[starts[1:], whole.size]
     return [(int(whole[s]), temperature[order][s:e], frequencies[order][s:e]) for s, e in zip(starts, ends)]
+
+
+class FrequencyLikelihood:
+    """The no-damage model's likelihood as a run-store likelihood: ``loglike(theta (N, n + 3), data) -> (N,)``.
+
+    ``theta`` holds the stiffness ratios ``theta_1..n``, ``alpha``, ``beta`` [1/degC] and the relative
+    frequency error ``sigma``; ``data`` is one dataset of identified frequency sets with their
+    temperature covariate: the dict of columns ``temperature, f1..fn`` (the store's
+    ``format = "columns"``) or an ``(S, n + 1)`` array with those columns in that order. Exactly the
+    per-set density of :class:`ChangeModelSampler` under ``M0``. A user's module holds, for example::
+
+        from seqbayes.structural.environment import FrequencyLikelihood
+        loglike = FrequencyLikelihood([2e5, 2e5, 2e5, 1.6e5], [3e8, 2.6e8, 2.2e8, 1.8e8])
+
+    Examples
+    --------
+    >>> like = FrequencyLikelihood([1e5], [4e7])
+    >>> f = like.frequencies(np.array([[1.0, 0.0, 0.0, 0.01]]), np.array([10.0]))
+    >>> like(np.array([[1.0, 0.0, 0.0, 0.01]]), {"temperature": np.array([10.0]), "f1": f[0, :, 0]}).round(3)
+    array([3.686])
+    """
+
+    def __init__(self, masses, stiffnesses, reference_temperature: float = 10.0):
+        self.building = ShearBuilding(masses, stiffnesses)
+        if not np.isfinite(reference_temperature):
+            raise ValueError(f"reference_temperature: expected a finite value, got {reference_temperature}")
+        self.reference_temperature = float(reference_temperature)
+
+    def _columns(self, data):
+        n = self.building.n_storeys
+        if isinstance(data, dict):
+            missing = [c for c in ["temperature"] + [f"f{r + 1}" for r in range(n)] if c not in data]
+            if missing:
+                raise ValueError(f"data: expected the columns temperature, f1..f{n}; missing {missing}")
+            temperature = np.asarray(data["temperature"], float)
+            freqs = np.column_stack([np.asarray(data[f"f{r + 1}"], float) for r in range(n)])
+        else:
+            table = np.asarray(data, float)
+            if table.ndim != 2 or table.shape[1] != n + 1:
+                raise ValueError(f"data: expected an (S, {n + 1}) array of temperature, f1..f{n}, got {table.shape}")
+            temperature, freqs = table[:, 0], table[:, 1:]
+        return temperature, freqs
+
+    def frequencies(self, theta, temperature) -> np.ndarray:
+        """Model frequencies ``(N, S, n)`` [Hz] at the temperatures ``(S,)``."""
+        theta = np.atleast_2d(np.asarray(theta, float))
+        n = self.building.n_storeys
+        if theta.shape[1] != n + 3:
+            raise ValueError(f"theta: expected shape (N, {n + 3}) (theta_1..{n}, alpha, beta, sigma), got {theta.shape}")
+        temperature = np.asarray(temperature, float)
+        factor = (1.0 + theta[:, n:n + 1] * (temperature - self.reference_temperature)[None, :]
+                  + theta[:, n + 1:n + 2] * np.minimum(temperature, 0.0)[None, :])
+        base = self.building.modes(theta[:, :n])[0]  # (N, n)
+        return np.sqrt(np.clip(factor, 0.0, None))[:, :, None] * base[:, None, :]
+
+    def __call__(self, theta, data) -> np.ndarray:
+        theta = np.atleast_2d(np.asarray(theta, float))
+        temperature, freqs = self._columns(data)
+        n = self.building.n_storeys
+        model = self.frequencies(theta, temperature)  # (N, S, n)
+        sigma = theta[:, n + 2]
+        with np.errstate(divide="ignore"):
+            resid = np.log(freqs)[None, :, :] - np.log(model)
+        out = (-0.5 * resid[0].size * np.log(2 * np.pi * sigma ** 2)
+               - 0.5 * np.sum(resid ** 2, axis=(1, 2)) / sigma ** 2)
+        return np.where(np.all(np.isfinite(resid), axis=(1, 2)) & (sigma > 0), out, -np.inf)
 
 
 class _History:
