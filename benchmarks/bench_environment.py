@@ -40,12 +40,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from seqbayes.structural.environment import EnvironmentMonitor, alarm_days, split_days
+from seqbayes.structural.environment import monitor_year
 from seqbayes.structural.structures import ShearBuilding
 from seqbayes.studies.environment import MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_years
 
@@ -54,48 +53,19 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 128, seed: int = 0
              consecutive: int = 2, figure=None) -> dict:
     """The workflow on one CSV year; the dict written as ``OUT.json`` (see the module); ``figure``: a PNG path."""
     table = read_year_csv(path)
-    frequencies = np.column_stack([table[k] for k in table if k.startswith("f")])
     building = ShearBuilding(masses, stiffnesses)
-    if frequencies.shape[1] != building.n_storeys:
-        raise ValueError(f"--data: {frequencies.shape[1]} frequencies per row, but {building.n_storeys} storeys")
-    monitor = EnvironmentMonitor(building, n_particles=n_particles, threshold=threshold, consecutive=consecutive,
-                                 rng=np.random.default_rng(seed))
-    start, cpu_start = time.perf_counter(), time.process_time()
-    days, records = [], []
-    for day, temperature, freqs in split_days(table["day"], table["temperature"], frequencies):
-        records.append(monitor.update(temperature, freqs))
-        days.append(day)
-    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
-    p_damage = [r.p_damage for r in records]
-    alarms = alarm_days(p_damage, threshold, consecutive)
-    alarm_times = [float(days[i] + 1) for i in alarms]
     truth = read_truth(path)
-    false_alarms, delay, detection = [], None, None
-    if truth is not None:
-        damage_day = truth.damage_day
-        false_alarms = [t for t in alarm_times if damage_day is None or t <= damage_day]
-        after = [t for t in alarm_times if damage_day is not None and t > damage_day]
-        delay = after[0] - damage_day if after else None
-        if after:
-            detection = records[alarms[alarm_times.index(after[0])]]
-    first = alarms[0] if alarms.size else None
+    result, _, days, records = monitor_year(building, table, rng=np.random.default_rng(seed),
+                                            damage_day=None if truth is None else truth.damage_day,
+                                            truth_known=truth is not None, n_particles=n_particles,
+                                            threshold=threshold, consecutive=consecutive)
+    result["truth"] = None if truth is None else {"damage_day": truth.damage_day,
+                                                  "damage_storey": truth.damage_storey,
+                                                  "damage_size": truth.damage_size}
     if figure is not None:
-        plot_year(figure, table, frequencies, days, records, alarm_times, truth, threshold, building)
-    return {"alarm_day": alarm_times[0] if alarm_times else None,
-            "storey": records[first].storey if first is not None else None,
-            "damage_size": records[first].damage_size if first is not None else None,
-            "false_alarm_days": false_alarms, "p_damage": p_damage, "alarm_days": alarm_times,
-            "detection_delay": delay, "storey_at_detection": None if detection is None else detection.storey,
-            "damage_size_at_detection": None if detection is None else detection.damage_size,
-            "truth": None if truth is None else {"damage_day": truth.damage_day, "damage_storey": truth.damage_storey,
-                                                 "damage_size": truth.damage_size},
-            "final_model_probabilities": records[-1].model_probabilities.tolist(),
-            "environment": {"alpha": float(records[-1].models[0].mean[building.n_storeys]),
-                            "beta": float(records[-1].models[0].mean[building.n_storeys + 1]),
-                            "sigma": float(records[-1].models[0].mean[building.n_storeys + 2])},
-            "n_particles": n_particles, "wall_seconds": wall, "cpu_seconds": cpu,
-            "n_particle_evaluations": monitor.n_particle_evaluations,
-            "n_set_evaluations": monitor.n_set_evaluations}
+        frequencies = np.column_stack([table[f"f{r + 1}"] for r in range(building.n_storeys)])
+        plot_year(figure, table, frequencies, days, records, result["alarm_days"], truth, threshold, building)
+    return result
 
 
 def plot_year(path, table, frequencies, days, records, alarm_times, truth, threshold, building) -> None:

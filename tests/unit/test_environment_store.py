@@ -80,3 +80,21 @@ def test_a_few_days_through_the_command_line(tmp_path, capsys):
     for name, value in truth.items():
         assert parameters[name]["lower"] < value < parameters[name]["upper"], name
     assert parameters["sigma"]["sd"] < 0.0005
+
+
+def test_environment_command_raises_the_alarm_on_a_short_year(tmp_path, capsys):
+    table, truth = simulate_year(np.random.default_rng(5), masses=MASSES[:2], stiffnesses=STIFFNESSES[:2],
+                                 n_days=8, sets_per_day=12, damage_day=5.0, damage_storey=1, damage_size=0.1)
+    write_year_csv(tmp_path / "year.csv", table, truth)
+    masses, stiffness = ",".join(map(str, MASSES[:2])), ",".join(map(str, STIFFNESSES[:2]))
+    argv = ["environment", str(tmp_path / "year.csv"), "--masses", masses, "--stiffness", stiffness,
+            "--particles", "60", "--every", "1", "--json", str(tmp_path / "out.json")]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "ALARM" in out
+    summary = json.loads((tmp_path / "out.json").read_text())
+    assert len(summary["p_damage"]) == 8
+    assert summary["alarm_day"] == 7.0 and summary["storey"] == 1  # damage from day 5: alarm after days 5 and 6
+    assert max(summary["p_damage"][:5]) < 0.5
+    assert cli.main(["environment", str(tmp_path / "year.csv"), "--masses", "1,x", "--stiffness", stiffness]) == 2
+    assert "--masses" in capsys.readouterr().err

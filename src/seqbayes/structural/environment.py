@@ -38,7 +38,9 @@ the IBIS log-evidences and the prior model probabilities. The alarm rule
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -48,7 +50,7 @@ from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
 __all__ = ["EnvironmentPrior", "ModelDay", "MonitorDay", "ChangeModelSampler", "EnvironmentMonitor", "alarm_days",
-           "split_days", "FrequencyLikelihood"]
+           "split_days", "FrequencyLikelihood", "read_frequency_csv", "monitor_year"]
 
 _FLOOR = -1e250  # stands in for -inf in the tempering increments, which must be finite
 
@@ -603,3 +605,86 @@ class EnvironmentMonitor:
                             float(models[best + 1].mean[n + 3]), alarm, models)
         self.days.append(record)
         return record
+
+
+def read_frequency_csv(path) -> dict:
+    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of ``(S,)`` columns (``ValueError`` naming the file)."""
+    path = Path(path)
+    with open(path) as handle:
+        header = [h.strip() for h in handle.readline().strip().split(",")]
+    n_modes = len(header) - 2
+    expected = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
+    if n_modes < 1 or header != expected:
+        raise ValueError(f"{path}: expected the header 'day,temperature,f1,...,fn', got {','.join(header)!r}")
+    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if values.shape[1] != len(expected) or values.shape[0] == 0:
+        raise ValueError(f"{path}: expected rows of {len(expected)} values, got shape {values.shape}")
+    return {name: values[:, i] for i, name in enumerate(expected)}
+
+
+def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generator, damage_day: float | None = None,
+                 truth_known: bool = False, **options) -> tuple[dict, EnvironmentMonitor, list, list]:
+    """Run an :class:`EnvironmentMonitor` over a table (``day``, ``temperature``, ``f1..fn``), one update per whole day.
+
+    Parameters
+    ----------
+    building : ShearBuilding
+    table : dict
+        Columns as :func:`read_frequency_csv` returns them.
+    rng : numpy.random.Generator
+    damage_day, truth_known : float or None, bool
+        The true damage day (``None``: no damage) when the truth is known, to sort the alarms.
+    **options
+        Keywords of :class:`EnvironmentMonitor` (``n_particles``, ``threshold``, ``consecutive``, ...).
+
+    Returns
+    -------
+    summary : dict
+        ``p_damage`` (one per day), ``alarm_days`` (each the end of the day whose update raised it,
+        ``floor(day) + 1``), ``alarm_day`` and ``storey`` (the first alarm), ``false_alarm_days``
+        (with the truth known: alarm days at or before the damage day, every one if there is no
+        damage; else empty), ``detection_delay`` (first alarm after the damage day minus that day),
+        ``storey_at_detection``, ``damage_size_at_detection``, the learned ``environment`` (``M0``'s
+        posterior mean of alpha, beta, sigma at the end), ``wall_seconds``, ``cpu_seconds`` and the
+        likelihood-evaluation counts.
+    monitor : EnvironmentMonitor
+    days : list of int
+    records : list of MonitorDay
+    """
+    n = building.n_storeys
+    frequencies = np.column_stack([np.asarray(table[f"f{r + 1}"], float) for r in range(n) if f"f{r + 1}" in table])
+    if frequencies.shape[1] != n:
+        raise ValueError(f"table: expected the frequencies f1..f{n} of a {n}-storey building, got "
+                         f"{frequencies.shape[1]} columns")
+    monitor = EnvironmentMonitor(building, rng=rng, **options)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    days, records = [], []
+    for day, temperature, freqs in split_days(table["day"], table["temperature"], frequencies):
+        records.append(monitor.update(temperature, freqs))
+        days.append(day)
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    p_damage = [r.p_damage for r in records]
+    alarms = alarm_days(p_damage, monitor.threshold, monitor.consecutive)
+    alarm_times = [float(days[i] + 1) for i in alarms]
+    false_alarms, delay, detection = [], None, None
+    if truth_known:
+        false_alarms = [t for t in alarm_times if damage_day is None or t <= damage_day]
+        after = [i for i, t in zip(alarms, alarm_times) if damage_day is not None and t > damage_day]
+        if after:
+            detection = records[after[0]]
+            delay = days[after[0]] + 1 - damage_day
+    first = records[alarms[0]] if alarms.size else None
+    final = records[-1].models[0]
+    summary = {"alarm_day": alarm_times[0] if alarm_times else None,
+               "storey": None if first is None else first.storey,
+               "damage_size": None if first is None else first.damage_size,
+               "false_alarm_days": false_alarms, "p_damage": p_damage, "alarm_days": alarm_times,
+               "detection_delay": delay, "storey_at_detection": None if detection is None else detection.storey,
+               "damage_size_at_detection": None if detection is None else detection.damage_size,
+               "final_model_probabilities": records[-1].model_probabilities.tolist(),
+               "environment": {"alpha": float(final.mean[n]), "beta": float(final.mean[n + 1]),
+                               "sigma": float(final.mean[n + 2])},
+               "n_particles": monitor.samplers[0].n_particles, "wall_seconds": wall, "cpu_seconds": cpu,
+               "n_particle_evaluations": monitor.n_particle_evaluations,
+               "n_set_evaluations": monitor.n_set_evaluations}
+    return summary, monitor, days, records

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..structural.environment import read_frequency_csv
 from ..structural.structures import ShearBuilding
 
 __all__ = ["MASSES", "STIFFNESSES", "TemperatureModel", "YearTruth", "stiffness_factor", "simulate_temperature",
@@ -202,7 +203,11 @@ def read_truth(csv_path) -> YearTruth | None:
     sidecar = Path(csv_path).with_suffix(".json")
     if not sidecar.exists():
         return None
-    return YearTruth(**json.loads(sidecar.read_text()))
+    record = json.loads(sidecar.read_text())
+    if not isinstance(record, dict) or set(record) != {"damage_day", "damage_storey", "damage_size", "seed", "settings"}:
+        raise ValueError(f"{sidecar}: not a truth sidecar (expected the keys damage_day, damage_storey, damage_size, "
+                         f"seed, settings)")
+    return YearTruth(**record)
 
 
 def simulate_years(out_dir, n_years: int = 20, seed: int = 0, *, damage_size: float = 0.05,
@@ -236,16 +241,4 @@ def simulate_years(out_dir, n_years: int = 20, seed: int = 0, *, damage_size: fl
     return paths
 
 
-def read_year_csv(path) -> dict:
-    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of columns (``ValueError`` naming the file)."""
-    path = Path(path)
-    with open(path) as handle:
-        header = handle.readline().strip().split(",")
-    n_modes = len(header) - 2
-    expected = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
-    if n_modes < 1 or [h.strip() for h in header] != expected:
-        raise ValueError(f"{path}: expected the header 'day,temperature,f1,...,fn', got {','.join(header)!r}")
-    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if values.shape[1] != len(expected) or values.shape[0] == 0:
-        raise ValueError(f"{path}: expected rows of {len(expected)} values, got shape {values.shape}")
-    return {name: values[:, i] for i, name in enumerate(expected)}
+read_year_csv = read_frequency_csv  # the CSV of a year: header day,temperature,f1,...,fn
