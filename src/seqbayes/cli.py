@@ -418,13 +418,18 @@ def cmd_environment(args: argparse.Namespace) -> int:
                                              rng=np.random.default_rng(args.seed), n_particles=args.particles,
                                              threshold=args.threshold, consecutive=args.consecutive)
     print(f"{'day':>5} {'P(damage)':>10} {'storey':>6} {'loss':>7}  P(M0), P(M1), ...")
+    previous = None
     for day, record in zip(days, records):
-        if day % args.every == 0 or record.alarm or day == days[-1]:
-            storey = "-" if record.storey is None else str(record.storey)
-            print(f"{day:>5} {record.p_damage:>10.3g} {storey:>6} {record.damage_size:>7.3f}  "
+        above = record.p_damage > args.threshold
+        changed = previous is not None and (above != (previous.p_damage > args.threshold) or record.alarm != previous.alarm)
+        previous = record
+        if day % args.every == 0 or changed or day == days[-1]:  # and the days the rule's state changes
+            damaged = record.storey is not None and record.p_damage > 0.5  # storey and loss mean little below
+            storey, loss = (str(record.storey), f"{record.damage_size:.3f}") if damaged else ("-", "-")
+            print(f"{day:>5} {record.p_damage:>10.3g} {storey:>6} {loss:>7}  "
                   f"{', '.join(f'{p:.3g}' for p in record.model_probabilities)}{'  ALARM' if record.alarm else ''}")
     environment = summary["environment"]
-    print(f"alarm day: {summary['alarm_day']}, storey: {summary['storey']}; learned (no damage): "
+    print(f"alarm day: {summary['alarm_day']}, storey: {summary['storey']}; learned under M{environment['model']}: "
           f"alpha = {environment['alpha']:.3e}, beta = {environment['beta']:.3e}, sigma = {environment['sigma']:.3e}")
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=1) + "\n")
@@ -515,7 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threshold", type=float, default=0.95, help="alarm when P(damage) exceeds this ...")
     p.add_argument("--consecutive", type=int, default=2, help="... on this many days in a row")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--every", type=int, default=30, help="print every this many days (and every alarm day)")
+    p.add_argument("--every", type=int, default=30,
+                   help="print every this many days (and the days P(damage) or the alarm changes state)")
     p.add_argument("--json", help="write P(damage) per day, the alarms and the learned model here")
     p.set_defaults(func=cmd_environment)
 

@@ -644,8 +644,8 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
         ``floor(day) + 1``), ``alarm_day`` and ``storey`` (the first alarm), ``false_alarm_days``
         (with the truth known: alarm days at or before the damage day, every one if there is no
         damage; else empty), ``detection_delay`` (first alarm after the damage day minus that day),
-        ``storey_at_detection``, ``damage_size_at_detection``, the learned ``environment`` (``M0``'s
-        posterior mean of alpha, beta, sigma at the end), ``wall_seconds``, ``cpu_seconds`` and the
+        ``storey_at_detection``, ``damage_size_at_detection``, the learned ``environment`` (the
+        posterior mean of alpha, beta, sigma at the end under the most probable ``model``, 0 for ``M0``), ``wall_seconds``, ``cpu_seconds`` and the
         likelihood-evaluation counts.
     monitor : EnvironmentMonitor
     days : list of int
@@ -674,7 +674,8 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
             detection = records[after[0]]
             delay = days[after[0]] + 1 - damage_day
     first = records[alarms[0]] if alarms.size else None
-    final = records[-1].models[0]
+    best = int(np.argmax(records[-1].model_probabilities))
+    final = records[-1].models[best]
     summary = {"alarm_day": alarm_times[0] if alarm_times else None,
                "storey": None if first is None else first.storey,
                "damage_size": None if first is None else first.damage_size,
@@ -682,7 +683,7 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
                "detection_delay": delay, "storey_at_detection": None if detection is None else detection.storey,
                "damage_size_at_detection": None if detection is None else detection.damage_size,
                "final_model_probabilities": records[-1].model_probabilities.tolist(),
-               "environment": {"alpha": float(final.mean[n]), "beta": float(final.mean[n + 1]),
+               "environment": {"model": best, "alpha": float(final.mean[n]), "beta": float(final.mean[n + 1]),
                                "sigma": float(final.mean[n + 2])},
                "n_particles": monitor.samplers[0].n_particles, "wall_seconds": wall, "cpu_seconds": cpu,
                "n_particle_evaluations": monitor.n_particle_evaluations,
