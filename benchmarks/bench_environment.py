@@ -148,6 +148,28 @@ def table_rows(results: dict) -> list:
     return rows
 
 
+def acceptance_lines(results: dict) -> list:
+    """The issue's acceptance counts over the years of ``results``."""
+    damaged = {k: r for k, r in results.items() if r["truth"] and r["truth"]["damage_day"] is not None}
+    healthy = {k: r for k, r in results.items() if r["truth"] and r["truth"]["damage_day"] is None}
+    in_time = sum(r["detection_delay"] is not None and r["detection_delay"] <= 7 for r in damaged.values())
+    storey = sum(r.get("storey_at_detection", r["storey"]) == r["truth"]["damage_storey"] for r in damaged.values())
+    clean = sum(not r["false_alarm_days"] for r in healthy.values())
+    clean_damaged = sum(not r["false_alarm_days"] for r in damaged.values())
+    walls = [r["wall_seconds"] for r in results.values()]
+    cpus = [r.get("cpu_seconds", float("nan")) for r in results.values()]
+    delays = [r["detection_delay"] for r in damaged.values() if r["detection_delay"] is not None]
+    return [f"- alarm within 7 days of the damage: {in_time} of {len(damaged)} damaged years "
+            f"(delays {min(delays, default=float('nan')):.0f} to {max(delays, default=float('nan')):.0f} days)",
+            f"- storey right at the alarm: {storey} of {len(damaged)}",
+            f"- no false alarm: {clean} of {len(healthy)} healthy years "
+            f"(and {clean_damaged} of {len(damaged)} damaged years before their damage)",
+            f"- time per year: wall {min(walls):.0f} to {max(walls):.0f} s, CPU {np.nanmin(cpus):.0f} to "
+            f"{np.nanmax(cpus):.0f} s; particle likelihood evaluations "
+            f"{min(r['n_particle_evaluations'] for r in results.values()):,} to "
+            f"{max(r['n_particle_evaluations'] for r in results.values()):,}"]
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", help="one year: CSV with the header day,temperature,f1,...,fn")
@@ -157,14 +179,17 @@ def main(argv=None) -> None:
     parser.add_argument("--json", help="write the result (or all results) here")
     parser.add_argument("--figure", help="with --data: write the year's figure (PNG) here")
     parser.add_argument("--pattern", default="*.csv", help="with --dir: the files to run (glob)")
-    parser.add_argument("--table", help="print the table of a --dir run's JSON and stop")
+    parser.add_argument("--table", nargs="+", help="print the table of --dir runs' JSON files and stop")
     parser.add_argument("--particles", type=int, default=128, help="particles per model")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threshold", type=float, default=0.95)
     parser.add_argument("--consecutive", type=int, default=2)
     args = parser.parse_args(argv)
     if args.table:
-        print("\n".join(table_rows(json.loads(Path(args.table).read_text()))))
+        results = {}
+        for path in args.table:
+            results.update(json.loads(Path(path).read_text()))
+        print("\n".join(table_rows(results) + [""] + acceptance_lines(results)))
         return
     if (args.data is None) == (args.dir is None):
         parser.error("give one of --data FILE.csv or --dir DIR")
@@ -189,7 +214,7 @@ def main(argv=None) -> None:
                                                  "wall_seconds", "cpu_seconds")}, flush=True)
         if args.json:  # after every year, so that a long run keeps what it has done
             Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
-    print("\n".join(table_rows(results)))
+    print("\n".join(table_rows(results) + [""] + acceptance_lines(results)))
 
 
 def simulate_main(argv) -> None:
