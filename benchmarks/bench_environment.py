@@ -143,7 +143,8 @@ def table_rows(results: dict) -> list:
         delay_text = "-" if delay is None else f"{delay:.0f}"
         worst = before.max() if before.size else float("nan")
         rows.append(f"| {name} | {truth_text} | {alarm_text} | {delay_text} | {'-' if found is None else found} "
-                    f"| {len(r['false_alarm_days'])} | {worst:.2g} | {r['wall_seconds']:.0f} | {r.get('cpu_seconds', float('nan')):.0f} "
+                    f"| {len(r['false_alarm_days'])} | {worst:.2g} | {r['wall_seconds']:.0f} "
+                    f"| {r.get('cpu_seconds', float('nan')):.0f} "
                     f"| {r['n_particle_evaluations']:,} |")
     return rows
 

@@ -421,7 +421,8 @@ def cmd_environment(args: argparse.Namespace) -> int:
     previous = None
     for day, record in zip(days, records):
         above = record.p_damage > args.threshold
-        changed = previous is not None and (above != (previous.p_damage > args.threshold) or record.alarm != previous.alarm)
+        changed = previous is not None and (above != (previous.p_damage > args.threshold)
+                                            or record.alarm != previous.alarm)
         previous = record
         if day % args.every == 0 or changed or day == days[-1]:  # and the days the rule's state changes
             damaged = record.storey is not None and record.p_damage > 0.5  # storey and loss mean little below

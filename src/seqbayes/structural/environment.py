@@ -253,7 +253,8 @@ class FrequencyLikelihood:
         theta = np.atleast_2d(np.asarray(theta, float))
         n = self.building.n_storeys
         if theta.shape[1] != n + 3:
-            raise ValueError(f"theta: expected shape (N, {n + 3}) (theta_1..{n}, alpha, beta, sigma), got {theta.shape}")
+            raise ValueError(f"theta: expected shape (N, {n + 3}) (theta_1..{n}, alpha, beta, sigma), "
+                             f"got {theta.shape}")
         temperature = np.asarray(temperature, float)
         factor = (1.0 + theta[:, n:n + 1] * (temperature - self.reference_temperature)[None, :]
                   + theta[:, n + 1:n + 2] * np.minimum(temperature, 0.0)[None, :])
@@ -608,7 +609,10 @@ class EnvironmentMonitor:
 
 
 def read_frequency_csv(path) -> dict:
-    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of ``(S,)`` columns (``ValueError`` naming the file)."""
+    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of ``(S,)`` columns.
+
+    A wrong header or row raises ``ValueError`` naming the file.
+    """
     path = Path(path)
     with open(path) as handle:
         header = [h.strip() for h in handle.readline().strip().split(",")]
@@ -645,8 +649,8 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
         (with the truth known: alarm days at or before the damage day, every one if there is no
         damage; else empty), ``detection_delay`` (first alarm after the damage day minus that day),
         ``storey_at_detection``, ``damage_size_at_detection``, the learned ``environment`` (the
-        posterior mean of alpha, beta, sigma at the end under the most probable ``model``, 0 for ``M0``), ``wall_seconds``, ``cpu_seconds`` and the
-        likelihood-evaluation counts.
+        posterior mean of alpha, beta, sigma at the end under the most probable ``model``, 0 for
+        ``M0``), ``wall_seconds``, ``cpu_seconds`` and the likelihood-evaluation counts.
     monitor : EnvironmentMonitor
     days : list of int
     records : list of MonitorDay

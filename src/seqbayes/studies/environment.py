@@ -204,7 +204,8 @@ def read_truth(csv_path) -> YearTruth | None:
     if not sidecar.exists():
         return None
     record = json.loads(sidecar.read_text())
-    if not isinstance(record, dict) or set(record) != {"damage_day", "damage_storey", "damage_size", "seed", "settings"}:
+    keys = {"damage_day", "damage_storey", "damage_size", "seed", "settings"}
+    if not isinstance(record, dict) or set(record) != keys:
         raise ValueError(f"{sidecar}: not a truth sidecar (expected the keys damage_day, damage_storey, damage_size, "
                          f"seed, settings)")
     return YearTruth(**record)
