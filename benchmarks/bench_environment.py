@@ -224,8 +224,13 @@ def simulate_main(argv) -> None:
     parser.add_argument("--years", type=int, default=20, help="number of years (half damaged, half healthy)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--damage-size", type=float, default=0.05)
+    parser.add_argument("--alpha-spread", type=float, default=0.0,
+                        help="a law the monitor lacks: storey alphas alpha (1 + spread s_i), s from -1 to 1")
+    parser.add_argument("--thermal-lag-hours", type=float, default=0.0,
+                        help="a law the monitor lacks: the structure lags the recorded air temperature")
     args = parser.parse_args(argv)
-    for path in simulate_years(args.out, args.years, args.seed, damage_size=args.damage_size):
+    for path in simulate_years(args.out, args.years, args.seed, damage_size=args.damage_size,
+                               alpha_spread=args.alpha_spread, thermal_lag_hours=args.thermal_lag_hours):
         print(path)
 
 

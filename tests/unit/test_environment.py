@@ -201,3 +201,22 @@ def test_monitor_bad_input_names_the_argument():
         EnvironmentPrior(damage_bounds=(0.3, 0.1))
     with pytest.raises(ValueError, match="storey"):
         ChangeModelSampler(building, 3, EnvironmentPrior(), 20, np.random.default_rng(0))
+
+
+def test_mismatched_temperature_laws_are_the_eigenproblem_of_their_storeys():
+    lagged, _ = _year(alpha_spread=0.3, thermal_lag_hours=6.0, damage_day=2.0, damage_storey=1)
+    plain, _ = _year(damage_day=2.0, damage_storey=1)
+    np.testing.assert_array_equal(lagged["temperature"], plain["temperature"])  # the same draws
+    keep = np.exp(-6.0 / 6.0)  # 4 sets a day: 6 h apart, time constant 6 h
+    structure = np.empty_like(plain["temperature"])
+    structure[0] = plain["temperature"][0]
+    for k in range(1, structure.size):
+        structure[k] = keep * structure[k - 1] + (1 - keep) * plain["temperature"][k]
+    alphas = -0.0015 * np.array([0.7, 0.9, 1.1, 1.3])
+    ratios = 1 + alphas[None, :] * (structure - 10.0)[:, None] - 0.015 * np.minimum(structure, 0)[:, None]
+    ratios[plain["day"] >= 2.0, 0] *= 0.95
+    expected = ShearBuilding(MASSES, STIFFNESSES).modes(ratios)[0]
+    observed = np.column_stack([lagged[f"f{r}"] for r in range(1, 5)])
+    np.testing.assert_allclose(observed, expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="thermal_lag_hours"):
+        _year(thermal_lag_hours=-1.0)

@@ -112,7 +112,8 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
                   damage_storey: int | None = None, damage_size: float = 0.05, alpha: float = -0.0015,
                   beta: float = -0.015, reference_temperature: float = 10.0,
                   temperature: TemperatureModel = TemperatureModel(), frequency_noise: float = 0.004,
-                  sets_per_day: int = 24, n_days: int = 365, seed: int | None = None) -> tuple[dict, YearTruth]:
+                  sets_per_day: int = 24, n_days: int = 365, seed: int | None = None, alpha_spread: float = 0.0,
+                  thermal_lag_hours: float = 0.0) -> tuple[dict, YearTruth]:
     """One year of hourly identified frequencies.
 
     Parameters
@@ -136,6 +137,12 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
         Frequency sets per day (equally spaced from 00:00) and days.
     seed : int, optional
         Recorded in the truth only.
+    alpha_spread : float
+        A temperature law the monitor does not have: storey ``i`` softens with
+        ``alpha (1 + alpha_spread s_i)``, ``s`` evenly spaced from -1 (bottom) to 1 (top).
+    thermal_lag_hours : float
+        Another: the structure follows the recorded air temperature through a first-order lag with
+        this time constant (the CSV holds the air temperature).
 
     Returns
     -------
@@ -163,6 +170,30 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
     factor = stiffness_factor(temps, alpha, beta, reference_temperature)
     if np.any(factor <= 0):
         raise ValueError("alpha, beta: the temperature factor c(T) is not positive over the simulated temperatures")
+    if thermal_lag_hours < 0 or not np.isfinite(alpha_spread):
+        raise ValueError("thermal_lag_hours, alpha_spread: expected a lag >= 0 and a finite spread")
+    if alpha_spread or thermal_lag_hours:
+        frequencies = _mismatched(building, times, temps, alpha, beta, reference_temperature, alpha_spread,
+                                  thermal_lag_hours, damage_day, damage_storey, damage_size)
+    else:
+        frequencies = _matched(building, times, factor, damage_day, damage_storey, damage_size)
+    frequencies = frequencies * (1.0 + frequency_noise * rng.standard_normal(frequencies.shape))
+    table = {"day": times, "temperature": temps}
+    table.update({f"f{r + 1}": frequencies[:, r] for r in range(n)})
+    settings = {"masses": [float(m) for m in building.masses], "stiffnesses": [float(k) for k in building.stiffnesses],
+                "alpha": alpha, "beta": beta, "reference_temperature": reference_temperature,
+                "temperature": asdict(temperature), "frequency_noise": frequency_noise,
+                "sets_per_day": int(sets_per_day), "n_days": int(n_days)}
+    if alpha_spread or thermal_lag_hours:
+        settings.update(alpha_spread=alpha_spread, thermal_lag_hours=thermal_lag_hours)
+    truth = YearTruth(None if damage_day is None else float(damage_day),
+                      None if damage_storey is None else int(damage_storey), float(damage_size), seed, settings)
+    return table, truth
+
+
+def _matched(building, times, factor, damage_day, damage_storey, damage_size):
+    """Frequencies (S, n) when one factor c(T) scales every storey: sqrt(c) times the reference modes."""
+    n = building.n_storeys
     healthy = building.modes(np.ones(n))[0][0]  # (n,) Hz at c = 1
     frequencies = np.sqrt(factor)[:, None] * healthy[None, :]  # every k_i scales by c(T): f scales by sqrt(c)
     if damage_day is not None:
@@ -171,16 +202,27 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
         damaged = building.modes(ratios)[0][0]
         after = times >= damage_day
         frequencies[after] = np.sqrt(factor[after])[:, None] * damaged[None, :]
-    frequencies = frequencies * (1.0 + frequency_noise * rng.standard_normal(frequencies.shape))
-    table = {"day": times, "temperature": temps}
-    table.update({f"f{r + 1}": frequencies[:, r] for r in range(n)})
-    settings = {"masses": [float(m) for m in building.masses], "stiffnesses": [float(k) for k in building.stiffnesses],
-                "alpha": alpha, "beta": beta, "reference_temperature": reference_temperature,
-                "temperature": asdict(temperature), "frequency_noise": frequency_noise,
-                "sets_per_day": int(sets_per_day), "n_days": int(n_days)}
-    truth = YearTruth(None if damage_day is None else float(damage_day),
-                      None if damage_storey is None else int(damage_storey), float(damage_size), seed, settings)
-    return table, truth
+    return frequencies
+
+
+def _mismatched(building, times, temps, alpha, beta, reference_temperature, alpha_spread, lag_hours, damage_day,
+                damage_storey, damage_size):
+    """Frequencies (S, n) of per-storey factors at the lagged structure temperature: one eigenproblem per set."""
+    n = building.n_storeys
+    structure = temps
+    if lag_hours:
+        from scipy.signal import lfilter
+
+        keep = np.exp(-np.diff(times[:2])[0] * 24.0 / lag_hours)  # x_k = keep x_{k-1} + (1 - keep) T_k
+        structure = lfilter([1 - keep], [1, -keep], temps, zi=[keep * temps[0]])[0]
+    alphas = alpha * (1 + alpha_spread * np.linspace(-1, 1, n))
+    ratios = (1.0 + alphas[None, :] * (structure - reference_temperature)[:, None]
+              + beta * np.minimum(structure, 0.0)[:, None])
+    if np.any(ratios <= 0):
+        raise ValueError("alpha, beta, alpha_spread: a storey's temperature factor is not positive")
+    if damage_day is not None:
+        ratios[times >= damage_day, int(damage_storey) - 1] *= 1.0 - damage_size
+    return building.modes(ratios)[0]
 
 
 def write_year_csv(path, table: dict, truth: YearTruth) -> Path:
