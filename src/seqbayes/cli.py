@@ -43,6 +43,9 @@ monitoring (a run is one NetCDF file):
       [--threshold "k<0.7"]                 ... and the distribution of the time to a threshold
   seqbayes compare RUN1.nc RUN2.nc ...      model-class selection by evidence
   seqbayes report RUN.nc -o report.html     HTML page with the figures
+  seqbayes environment YEAR.csv --masses .. --stiffness ..
+                                            damage against temperature on identified frequencies:
+                                            P(damage) per day, its storey, the alarm
 
 studies:
   seqbayes example                          list the papers' studies
@@ -397,6 +400,43 @@ def _assimilated_dataset(store, path) -> tuple:
     return store.digests.index(digest), table
 
 
+def cmd_environment(args: argparse.Namespace) -> int:
+    """Damage against temperature on a year of identified frequencies (docs/environment.md)."""
+    import numpy as np
+
+    from .structural.environment import monitor_year, read_frequency_csv
+    from .structural.structures import ShearBuilding
+
+    def numbers(text, name):
+        try:
+            return [float(v) for v in text.split(",")]
+        except ValueError:
+            raise CommandError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+
+    building = ShearBuilding(numbers(args.masses, "--masses"), numbers(args.stiffness, "--stiffness"))
+    summary, _, days, records = monitor_year(building, read_frequency_csv(args.data),
+                                             rng=np.random.default_rng(args.seed), n_particles=args.particles,
+                                             threshold=args.threshold, consecutive=args.consecutive)
+    print(f"{'day':>5} {'P(damage)':>10} {'storey':>6} {'loss':>7}  P(M0), P(M1), ...")
+    previous = None
+    for day, record in zip(days, records):
+        above = record.p_damage > args.threshold
+        changed = previous is not None and (above != (previous.p_damage > args.threshold)
+                                            or record.alarm != previous.alarm)
+        previous = record
+        if day % args.every == 0 or changed or day == days[-1]:  # and the days the rule's state changes
+            damaged = record.storey is not None and record.p_damage > 0.5  # storey and loss mean little below
+            storey, loss = (str(record.storey), f"{record.damage_size:.3f}") if damaged else ("-", "-")
+            print(f"{day:>5} {record.p_damage:>10.3g} {storey:>6} {loss:>7}  "
+                  f"{', '.join(f'{p:.3g}' for p in record.model_probabilities)}{'  ALARM' if record.alarm else ''}")
+    environment = summary["environment"]
+    print(f"alarm day: {summary['alarm_day']}, storey: {summary['storey']}; learned under M{environment['model']}: "
+          f"alpha = {environment['alpha']:.3e}, beta = {environment['beta']:.3e}, sigma = {environment['sigma']:.3e}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=1) + "\n")
+    return 0
+
+
 # ----------------------------------------------------------------------- parser
 #: ``--lock-timeout`` of the commands that write a run store.
 LOCK_TIMEOUT_OPTION = dict(type=float, default=None, metavar="SECONDS",
@@ -471,6 +511,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="SG-EnMCMC runs: identified mode shapes for the MAC (one row per floor, bottom to top, one "
                         "column per mode; default: the shapes of the configured building at ratios 1)")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("environment", help="damage against temperature on a CSV of identified frequencies "
+                                            "(day,temperature,f1,...,fn)")
+    p.add_argument("data", help="CSV with the header day,temperature,f1,...,fn; one update per whole day")
+    p.add_argument("--masses", required=True, help="floor masses [kg], bottom to top, comma-separated")
+    p.add_argument("--stiffness", required=True, help="nominal storey stiffnesses [N/m], comma-separated")
+    p.add_argument("--particles", type=int, default=128, help="particles per model (default 128)")
+    p.add_argument("--threshold", type=float, default=0.95, help="alarm when P(damage) exceeds this ...")
+    p.add_argument("--consecutive", type=int, default=2, help="... on this many days in a row")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--every", type=int, default=30,
+                   help="print every this many days (and the days P(damage) or the alarm changes state)")
+    p.add_argument("--json", help="write P(damage) per day, the alarms and the learned model here")
+    p.set_defaults(func=cmd_environment)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)
     p.add_argument("name", nargs="?", help=f"one of: {', '.join(EXAMPLES)}")

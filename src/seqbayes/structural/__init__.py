@@ -17,9 +17,12 @@ Subpackages and modules, lowest layer first:
 - :mod:`~seqbayes.structural.stiffness_drop`: on-line detection of a storey stiffness drop and its
   attribution to a storey; the drop's path model and exact references in
   :mod:`~seqbayes.structural.drop_paths`.
+- :mod:`~seqbayes.structural.environment`: damage against temperature on identified natural
+  frequencies, as model selection between no damage and a loss in each storey.
 """
 
 from . import filters, sparsegrid, structures
+from .environment import EnvironmentMonitor, FrequencyLikelihood
 from .sgenmcmc import SGEnMCMC
 from .stiffness_drop import DropBlock, StiffnessDropMonitor
 from .structures import DiscreteModel, GroundMotion, Sensors, ShearBuilding, discretise, kanai_tajimi, simulate
@@ -33,5 +36,5 @@ __all__ = [
     "ShearBuilding", "BoucWenBuilding", "Sensors", "DiscreteModel", "discretise", "simulate", "GroundMotion",
     "kanai_tajimi",
     "ExactTransition", "SparseGridTransition", "SurrogateChoice", "choose_transition",
-    "SGEnMCMC", "SGEnMCMCResult", "StiffnessDropMonitor", "DropBlock",
+    "SGEnMCMC", "SGEnMCMCResult", "StiffnessDropMonitor", "DropBlock", "EnvironmentMonitor", "FrequencyLikelihood",
 ]
