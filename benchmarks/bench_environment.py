@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from seqbayes import plotting
+from seqbayes.store.environment_report import environment_figure
 from seqbayes.structural.environment import monitor_year
 from seqbayes.structural.structures import ShearBuilding
 from seqbayes.studies.environment import MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_years
@@ -55,7 +57,7 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 128, seed: int = 0
     table = read_year_csv(path)
     building = ShearBuilding(masses, stiffnesses)
     truth = read_truth(path)
-    result, _, days, records = monitor_year(building, table, rng=np.random.default_rng(seed),
+    result, monitor, days, records = monitor_year(building, table, rng=np.random.default_rng(seed),
                                             damage_day=None if truth is None else truth.damage_day,
                                             truth_known=truth is not None, n_particles=n_particles,
                                             threshold=threshold, consecutive=consecutive)
@@ -63,60 +65,10 @@ def run_year(path, masses, stiffnesses, *, n_particles: int = 128, seed: int = 0
                                                   "damage_storey": truth.damage_storey,
                                                   "damage_size": truth.damage_size}
     if figure is not None:
-        frequencies = np.column_stack([table[f"f{r + 1}"] for r in range(building.n_storeys)])
-        plot_year(figure, table, frequencies, days, records, result["alarm_days"], truth, threshold, building)
+        fig = environment_figure(monitor, table, days, records, result["alarm_days"],
+                                 *(() if truth is None else (truth.damage_day, truth.damage_storey)))
+        plotting.save(fig, figure, dpi=110)
     return result
-
-
-def plot_year(path, table, frequencies, days, records, alarm_times, truth, threshold, building) -> None:
-    """Four panels: f1 against temperature with the learned model, P(damage) and the alarm, the learned
-    temperature coefficients over the days, and every frequency relative to its mean over time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from seqbayes.studies.environment import stiffness_factor
-
-    n = building.n_storeys
-    damage_day = None if truth is None else truth.damage_day
-    fig, ax = plt.subplots(2, 2, figsize=(11, 7))
-    before = np.ones(table["day"].size, bool) if damage_day is None else table["day"] < damage_day
-    ax[0, 0].plot(table["temperature"][before], frequencies[before, 0], ".", ms=1.5, alpha=0.4, label="before damage")
-    if not before.all():
-        ax[0, 0].plot(table["temperature"][~before], frequencies[~before, 0], ".", ms=1.5, color="C3", alpha=0.6,
-                      label="after damage")
-    last_healthy = records[-1] if damage_day is None else records[max(0, days.index(int(damage_day)) - 1)]
-    m0 = last_healthy.models[0].mean
-    grid = np.linspace(table["temperature"].min(), table["temperature"].max(), 200)
-    f_ref = building.modes(m0[:n])[0][0, 0]
-    ax[0, 0].plot(grid, f_ref * np.sqrt(stiffness_factor(grid, m0[n], m0[n + 1], 10.0)), "k-",
-                  label=f"learned (M0, day {last_healthy.day}): alpha={m0[n]:.2e}, beta={m0[n + 1]:.2e}")
-    ax[0, 0].set(xlabel="temperature [degC]", ylabel="f1 [Hz]", title="First frequency against temperature")
-    ax[0, 0].legend(fontsize=7, markerscale=5)
-    p = np.array([r.p_damage for r in records])
-    ax[0, 1].semilogy(np.array(days) + 1, np.maximum(p, 1e-12), "C0-", label="P(damage by the end of the day)")
-    ax[0, 1].axhline(threshold, color="k", ls=":", label=f"threshold {threshold}")
-    if damage_day is not None:
-        ax[0, 1].axvline(damage_day, color="C3", ls="--", label=f"damage (storey {truth.damage_storey})")
-    if alarm_times:
-        ax[0, 1].axvline(alarm_times[0], color="C2", label=f"alarm, day {alarm_times[0]:.0f}")
-    ax[0, 1].set(xlabel="day", ylim=(1e-12, 2), title="P(damage) and the alarm")
-    ax[0, 1].legend(fontsize=7)
-    for k, (name, color) in enumerate((("alpha", "C0"), ("beta", "C1"))):
-        mean = np.array([r.models[0].mean[n + k] for r in records])
-        sd = np.array([r.models[0].sd[n + k] for r in records])
-        ax[1, 0].plot(days, mean, color=color, label=f"{name} (M0 posterior mean +- 2 sd)")
-        ax[1, 0].fill_between(days, mean - 2 * sd, mean + 2 * sd, color=color, alpha=0.3)
-    ax[1, 0].set(xlabel="day", ylabel="[1/degC]", title="Learned temperature coefficients", ylim=(-0.03, 0.01))
-    ax[1, 0].legend(fontsize=7)
-    for r in range(n):
-        ax[1, 1].plot(table["day"], frequencies[:, r] / frequencies[:, r].mean(), lw=0.3, label=f"f{r + 1}")
-    ax[1, 1].set(xlabel="day", ylabel="f / mean(f)", title="Identified frequencies")
-    ax[1, 1].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _floats(text: str, name: str) -> list:

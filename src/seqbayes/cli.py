@@ -414,9 +414,10 @@ def cmd_environment(args: argparse.Namespace) -> int:
             raise CommandError(f"{name}: expected comma-separated numbers, got {text!r}") from None
 
     building = ShearBuilding(numbers(args.masses, "--masses"), numbers(args.stiffness, "--stiffness"))
-    summary, _, days, records = monitor_year(building, read_frequency_csv(args.data),
-                                             rng=np.random.default_rng(args.seed), n_particles=args.particles,
-                                             threshold=args.threshold, consecutive=args.consecutive)
+    table = read_frequency_csv(args.data)
+    summary, monitor, days, records = monitor_year(building, table, rng=np.random.default_rng(args.seed),
+                                                   n_particles=args.particles, threshold=args.threshold,
+                                                   consecutive=args.consecutive)
     print(f"{'day':>5} {'P(damage)':>10} {'storey':>6} {'loss':>7}  P(M0), P(M1), ...")
     previous = None
     for day, record in zip(days, records):
@@ -434,6 +435,11 @@ def cmd_environment(args: argparse.Namespace) -> int:
           f"alpha = {environment['alpha']:.3e}, beta = {environment['beta']:.3e}, sigma = {environment['sigma']:.3e}")
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=1) + "\n")
+    if args.report:
+        from .store.environment_report import write_environment_report
+
+        out = write_environment_report(args.report, monitor, table, days, records, summary, source=args.data)
+        print(f"report: {out}")
     return 0
 
 
@@ -524,6 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--every", type=int, default=30,
                    help="print every this many days (and the days P(damage) or the alarm changes state)")
     p.add_argument("--json", help="write P(damage) per day, the alarms and the learned model here")
+    p.add_argument("--report", metavar="HTML", help="write the year's report here: frequencies against temperature "
+                                                    "with the learned law, P(damage) and the alarm, day by day")
     p.set_defaults(func=cmd_environment)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)

@@ -88,7 +88,8 @@ def test_environment_command_raises_the_alarm_on_a_short_year(tmp_path, capsys):
     write_year_csv(tmp_path / "year.csv", table, truth)
     masses, stiffness = ",".join(map(str, MASSES[:2])), ",".join(map(str, STIFFNESSES[:2]))
     argv = ["environment", str(tmp_path / "year.csv"), "--masses", masses, "--stiffness", stiffness,
-            "--particles", "60", "--every", "1", "--json", str(tmp_path / "out.json")]
+            "--particles", "60", "--every", "1", "--json", str(tmp_path / "out.json"),
+            "--report", str(tmp_path / "year <b>.html")]
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "ALARM" in out
@@ -96,5 +97,13 @@ def test_environment_command_raises_the_alarm_on_a_short_year(tmp_path, capsys):
     assert len(summary["p_damage"]) == 8
     assert summary["alarm_day"] == 7.0 and summary["storey"] == 1  # damage from day 5: alarm after days 5 and 6
     assert max(summary["p_damage"][:5]) < 0.5
+    # the report: the alarm, the learned law, the figure embedded, one row a day with P(damage) as the JSON has it
+    page = (tmp_path / "year <b>.html").read_text()
+    assert "first alarm at the end of day 6: storey 1" in page
+    assert f"alpha = {summary['environment']['alpha']:.3e}" in page
+    assert page.count("src='data:image/png;base64,") == 1
+    assert page.count("<td class=''>ALARM</td>") == len(summary["alarm_days"]) > 0
+    for p in summary["p_damage"]:
+        assert f"<td class=''>{p:.3g}</td>" in page
     assert cli.main(["environment", str(tmp_path / "year.csv"), "--masses", "1,x", "--stiffness", stiffness]) == 2
     assert "--masses" in capsys.readouterr().err
