@@ -19,7 +19,7 @@ run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled 
 	$(VENV)/bin/seqbayes example coulomb --quick --out coulomb_results
 
 test: $(STAMP) layers ## the whole test suite (every tier), in parallel over the cores
-	$(PY) -m pytest -q -n $(WORKERS)
+	$(PY) -m pytest -q -n $(WORKERS) --durations=25
 
 check: $(STAMP) layers ## the fast tier for the working loop: unit tests, under a minute
 	$(PY) -m pytest -q -n $(WORKERS) -m "not slow" tests/unit
