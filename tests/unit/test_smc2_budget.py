@@ -8,7 +8,7 @@ from seqbayes import SMC
 from seqbayes.engine.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
-from seqbayes.predictive.pmmh import MOVE_BUDGET, Rejuvenation, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import MOVE_BUDGET, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import (KalmanInnerFilter, NestedState, ParticleInnerFilter, nested_moments,
                                       nested_split, nested_state_arrays, nested_state_from_arrays,
                                       warn_rejuvenation)
@@ -46,8 +46,12 @@ def test_update_cost_stays_within_the_budget_and_the_amortised_cost_is_reported(
     infos = [sampler.update(y) for y in data]
     evals = np.array([i.n_loglike_evals for i in infos])
     steps = np.arange(1, len(data) + 1)
-    # the advance (N), the moves' budget (MOVE_BUDGET N) and at most one re-run over s datasets beyond it
-    assert np.all(evals[1:] <= (MOVE_BUDGET + 1) * n + steps[1:]), evals
+    # an update that neither tempered nor resampled: the advance (N), the moves' budget (MOVE_BUDGET N) and at most
+    # one re-run over s datasets beyond it (a tempered update completes its moves, a resampling first restores the ESS)
+    steady = np.array([i.n_stages == 1 and not i.resampled for i in infos])
+    steady[0] = False
+    assert steady.sum() > 20
+    assert np.all(evals[steady] <= (MOVE_BUDGET + 1) * n + steps[steady]), evals
     assert any(i.pending_moves for i in infos)      # late rejuvenations did spread over updates
     np.testing.assert_allclose([i.amortised_evals for i in infos], np.cumsum(evals) / steps)
     moved = [i for i in infos[1:] if i.n_proposed]
@@ -131,6 +135,45 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
                                 likelihood, rng)
     np.testing.assert_allclose(moved_components[rows, 0], last2, rtol=1e-10)
     np.testing.assert_allclose(moved_components[rows, 2], past2, rtol=1e-10)
+
+
+def test_distinct_ess_counts_copies():
+    rows = np.arange(6.0).reshape(3, 2)
+    assert distinct_ess(rows) == pytest.approx(3.0)
+    copies = rows[[0, 0, 0, 1]]                       # groups of 3 and 1: 16 / (9 + 1)
+    assert distinct_ess(copies) == pytest.approx(1.6)
+
+
+def test_restoring_the_ess_after_a_resampling_ignores_the_budget(mixed):
+    """A cloud of copies (50 values, 4 copies each) with a budget of one particle's re-run: with ``restore`` the moves
+    go on, in batches of RESTORE_BATCH N, until the copies' ESS is back at ``restore N`` (or the sweeps allowed run
+    out); without it one particle is attempted."""
+    problem, data = mixed
+    data = data[:5]
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0,
+                  inner_filter=KalmanInnerFilter(problem.observe))
+    config, inner = sampler.config, sampler.problem.inner_filter
+    split = nested_split(problem.kernel)
+    rng = np.random.default_rng(3)
+    exact = problem.exact(data)[-1]
+    mean, cov = exact.mean[split[0]], exact.cov[np.ix_(split[0], split[0])]
+    static = np.repeat(rng.multivariate_normal(mean, cov, size=50), 4, axis=0)
+    likelihood = sampler_likelihood(sampler)
+    past, last, cloud = run_inner(sampler.problem, inner, split, static, data, (None,) * len(data), likelihood, rng)
+    components = np.column_stack([last, outer_logpdf(problem.prior, split[0], static), past])
+    log_weights = np.full(200, -np.log(200))
+    assert distinct_ess(static) == pytest.approx(50.0)
+    for restore, check in ((0.0, lambda st: st.n_proposed == 1), (0.6, None)):
+        pending = Rejuvenation().restarted(config.max_moves, 200)
+        out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights,
+                         cloud, components, 1.0, 1.0, pending, len(data), likelihood, rng, restore=restore)
+        moved, stats, left = out[0], out[3], out[6]
+        if check is not None:
+            assert check(stats), stats
+        else:
+            assert distinct_ess(moved) >= 0.6 * 200 or not left.pending, distinct_ess(moved)
+            assert stats.n_proposed % 20 == 0 and stats.n_proposed >= 40       # batches of 0.1 N
+            assert left.pending                  # the rest (the stage rule's sweeps) waits for later updates
 
 
 def sampler_likelihood(sampler):
