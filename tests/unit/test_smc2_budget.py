@@ -90,15 +90,17 @@ def test_pending_moves_survive_the_state_arrays(mixed):
     np.testing.assert_array_equal(sampler.state.outer, other.state.outer)
 
 
-def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(mixed):
+@pytest.mark.parametrize("surrogate", [None, "quadratic"])
+def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(mixed, surrogate):
     """PMMH on a permutation-chosen subset of weighted particles: the static parameters' weighted mean and sd stay
     those of the exact (Kalman) posterior. Particles are drawn from a Gaussian 1.5x wider than it and weighted; the
     Kalman inner filter makes the likelihood exact. Tolerance: 5 Monte Carlo standard errors of the weighted
-    estimate (sd / sqrt(ESS))."""
+    estimate (sd / sqrt(ESS)). With ``surrogate="quadratic"`` every proposal is first screened by a quadratic fitted
+    to the particles' log targets (delayed acceptance), and only the survivors re-run their inner filters."""
     problem, data = mixed
     data = data[:12]
     sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=4000, rng=0,
-                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
+                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET, surrogate=surrogate)
     config, inner = sampler.config, sampler.problem.inner_filter
     split = nested_split(problem.kernel)
     exact = problem.exact(data)[-1]
@@ -120,7 +122,12 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
                      components, 1.0, 1.0, pending, budget, likelihood, rng)
     moved_static, _, moved_components, stats, _, _, left = out
     assert isinstance(stats, SweepStats) and left.queue.size == n - stats.n_proposed and left.sweeps_left == 0
-    assert 0.3 * n < stats.n_proposed < 0.7 * n and stats.n_accepted > 0.2 * stats.n_proposed
+    assert 0.3 * n < stats.n_evaluations <= n // 2 and stats.n_accepted > 0.2 * stats.n_proposed   # the budget
+    if surrogate is None:
+        assert stats.n_screen_evaluations == 0 and stats.n_evaluations == stats.n_proposed
+    else:   # the screen stopped some proposals before their re-run, so the budget attempted more particles
+        assert stats.n_screened_out > 0.05 * stats.n_proposed
+        assert stats.n_evaluations == stats.n_proposed - stats.n_screened_out
     w = np.exp(log_weights)
     ess = 1.0 / np.sum(w**2)
     sd = np.sqrt(np.diag(cov))

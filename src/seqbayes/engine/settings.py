@@ -199,7 +199,9 @@ class SamplerConfig:
         likelihood evaluation than the plain sweep did. A callable ``surrogate(theta (n, d), dataset) -> (n,)``:
         a cheap approximation of the log-likelihood (a coarser model), with the prior's part fitted by the
         quadratic. ``StepInfo.n_screen_evaluations`` and ``n_screened_out`` count the cheap calls and the
-        proposals they stopped. Not applied to the scaled moves, to SMC^2's PMMH or to the path-space
+        proposals they stopped. SMC^2's PMMH moves are screened by the quadratic fitted to the outer particles' log
+        targets (``"quadratic"``, and ``"auto"``, which there screens every sweep; a callable is not used there), so
+        that only the survivors re-run their inner filters over the whole history (:mod:`seqbayes.predictive.pmmh`). Not applied to the scaled moves or to the path-space
         remedy's sweeps.
     move_budget : float or None
         SMC^2 only: the PMMH evaluations one update may spend on deferrable moves, in units of ``N M`` (``M`` the

@@ -17,6 +17,11 @@ On the README's drifting model, which the data contradict (every update resample
 deferred everything left the cloud degenerate and the log-evidence 6.1 nats off the Kalman value at step 5;
 with these two rules it is as accurate as without a budget (``tests/statistical/test_smc2_conflicting_drift.py``).
 
+With ``SamplerConfig.surrogate`` ``"quadratic"`` (or ``"auto"``) every proposal first faces a quadratic fitted to the
+particles' log targets (delayed acceptance, :mod:`seqbayes.moves.delayed`): only the survivors re-run their inner
+filters, and the budget counts those re-runs alone. The screen is a function of the proposal alone, so the second
+stage's ratio keeps the pseudo-marginal target exact.
+
 Why it stays exact: each attempt is a PMMH kernel that leaves the current extended target invariant
 (the step's ``p_0(phi) p^(D^{1:s} | phi)`` at the stage's exponent; Andrieu & Roberts 2009), applied to a
 subset of particles chosen by a permutation drawn independently of their values and weights. A kernel
@@ -34,6 +39,7 @@ import numpy as np
 
 from ..engine.settings import MOVE_BUDGET
 from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..moves.delayed import QuadraticScreen
 from ..priors import inside_support
 from ..transforms import BoxTransform
 
@@ -100,6 +106,19 @@ def distinct_ess(static: np.ndarray) -> float:
     return static.shape[0] ** 2 / float(np.sum(counts.astype(float) ** 2))
 
 
+def _pmmh_screen(config, static, components, coefficients, transform):
+    """Delayed acceptance's cheap log target for PMMH (``SamplerConfig.surrogate`` ``"quadratic"`` or ``"auto"``),
+    or ``None``: a quadratic fitted to the particles' log targets in the moves' coordinates, the evaluations already
+    made. Fixed for the call, so for every attempt it is a function of the proposal alone, which keeps the
+    pseudo-marginal target exact (the inner filters' randomness enters stage 2 only)."""
+    if config.surrogate not in ("quadratic", "auto"):
+        return None
+    position = transform.forward(static) if transform is not None else static
+    jacobian = transform.log_jacobian(position) if transform is not None else 0.0
+    with np.errstate(invalid="ignore"):
+        return QuadraticScreen.fit(position, components @ coefficients + jacobian)
+
+
 def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
                step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0):
     """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
@@ -136,6 +155,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
     most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
+    screen = _pmmh_screen(config, static, components, coefficients, transform)
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
             done = most - sweeps_left
@@ -168,6 +188,15 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
             identical = np.zeros(k, dtype=bool)
         phi = transform.inverse(proposals) if transform is not None else proposals
         inside = ~identical & inside_support(phi, support)
+        cheap_old = cheap_new = np.zeros(k)
+        if screen is not None:  # delayed acceptance, stage 1: only proposals the cheap screen accepts are re-run
+            cheap_old, cheap_new = screen(position[active]), np.full(k, -np.inf)
+            cheap_new[inside] = screen(proposals[inside])
+            passed = metropolis_accept(cheap_old, cheap_new, log_hastings, rng) & inside
+            stats = stats + SweepStats(n_screen_evaluations=int(inside.sum()) + k,
+                                       n_screened_out=int((inside & ~passed).sum()))
+            # stage 2's ratio t(x') - t(x) - s(x') + s(x): the Hastings term has cancelled (Christen and Fox 2005)
+            log_hastings, inside = cheap_old - np.where(passed, cheap_new, 0.0), passed
         new_components = np.full((k, 3), -np.inf)
         jac_new, jac_old = np.zeros(k), np.zeros(k)
         if transform is not None:
