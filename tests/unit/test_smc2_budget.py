@@ -8,7 +8,7 @@ from seqbayes import SMC
 from seqbayes.engine.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
-from seqbayes.predictive.pmmh import MOVE_BUDGET, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import (KalmanInnerFilter, NestedState, ParticleInnerFilter, nested_moments,
                                       nested_split, nested_state_arrays, nested_state_from_arrays,
                                       warn_rejuvenation)
@@ -151,10 +151,10 @@ def test_distinct_ess_counts_copies():
     assert distinct_ess(copies) == pytest.approx(1.6)
 
 
-def test_restoring_the_ess_after_a_resampling_ignores_the_budget(mixed):
-    """A cloud of copies (50 values, 4 copies each) with a budget of one particle's re-run: with ``restore`` the moves
-    go on, in batches of RESTORE_BATCH N, until the copies' ESS is back at ``restore N`` (or the sweeps allowed run
-    out); without it one particle is attempted."""
+def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
+    """A cloud of copies (50 values, 4 copies each) with a budget of 20 particles' re-runs: with ``restore`` the moves
+    go on beyond the budget, in batches of RESTORE_BATCH N, until the copies' ESS is back at ``restore N`` or they
+    have spent RESTORE_LIMIT times the budget; without it they stop at the budget."""
     problem, data = mixed
     data = data[:5]
     sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0,
@@ -170,17 +170,20 @@ def test_restoring_the_ess_after_a_resampling_ignores_the_budget(mixed):
     components = np.column_stack([last, outer_logpdf(problem.prior, split[0], static), past])
     log_weights = np.full(200, -np.log(200))
     assert distinct_ess(static) == pytest.approx(50.0)
-    for restore, check in ((0.0, lambda st: st.n_proposed == 1), (0.6, None)):
+    budget = 20 * len(data)
+    for restore in (0.0, 0.6):
         pending = Rejuvenation().restarted(config.max_moves, 200)
         out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights,
-                         cloud, components, 1.0, 1.0, pending, len(data), likelihood, rng, restore=restore)
+                         cloud, components, 1.0, 1.0, pending, budget, likelihood, rng, restore=restore)
         moved, stats, left = out[0], out[3], out[6]
-        if check is not None:
-            assert check(stats), stats
+        if not restore:
+            assert stats.n_proposed == 20
         else:
-            assert distinct_ess(moved) >= 0.6 * 200 or not left.pending, distinct_ess(moved)
-            assert stats.n_proposed % 20 == 0 and stats.n_proposed >= 40       # batches of 0.1 N
-            assert left.pending                  # the rest (the stage rule's sweeps) waits for later updates
+            assert stats.n_proposed > 20 and stats.n_proposed % 20 == 0                  # batches of 0.1 N
+            assert stats.n_proposed * len(data) <= RESTORE_LIMIT * budget + 20 * len(data)   # the limit, one batch over
+            assert distinct_ess(moved) >= 0.6 * 200 or stats.n_proposed * len(data) >= RESTORE_LIMIT * budget
+            assert distinct_ess(moved) > distinct_ess(static) + 10
+        assert left.pending                  # the rest (the stage rule's sweeps) waits for later updates
 
 
 def sampler_likelihood(sampler):
