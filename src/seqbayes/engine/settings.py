@@ -207,10 +207,11 @@ class SamplerConfig:
         SMC^2 only: the PMMH evaluations one update may spend on deferrable moves, in units of ``N M`` (``M`` the
         inner particles, 1 for the Kalman inner filter; default :data:`MOVE_BUDGET` = 5). Moves beyond it wait for
         later updates (:mod:`seqbayes.predictive.pmmh`), which bounds the cost per update over a long stream.
-        Deferrable are only the moves after a resampling at the single stage of an untempered update, and only once
-        the copies the resampling left are diverse again (their ESS back above ``ess_threshold``): a tempered update
-        (a dataset the predictive does not cover) completes its moves whatever the budget, since each of its stages
-        chooses the next exponent from the particles' ESS. ``None``: every rejuvenation completes in its update.
+        Deferrable are only the moves of an untempered update, and after a resampling only once the copies it left
+        are as diverse as its weights were (which may spend up to ``pmmh.RESTORE_LIMIT`` = 4 times the budget more):
+        a tempered update (a dataset the predictive does not cover) completes its moves whatever the budget, since
+        each of its stages chooses the next exponent from the particles' ESS. ``None``: every rejuvenation completes
+        in its update.
     """
 
     move: str
