@@ -1,12 +1,14 @@
 """The Coulomb-friction study against its exact grid reference at every step (issue 10, bullet 3).
 
     python benchmarks/bench_coulomb_exact.py [--runs 10] [--n 1000] [--inner 100] [--predictive auto]
+                                             [--surrogate quadratic] [--economy]
 
 For T1 and T2, SEMC and SMC, ``--runs`` independent runs over the four datasets; per step the
 largest |mean error| over the four parameters in exact posterior sds, the largest |sd ratio - 1|
 and the cumulative log-evidence error, against ``seqbayes.models.coulomb.load_exact_reference``
 (the bundled grid filter). Prints the worst over runs (and the mean over runs of each error) and
-the time of the runs. ``--predictive transition`` measures the older Liu-West predictive.
+the time of the runs, and the likelihood calls per update (expensive, and the delayed-acceptance screen's cheap
+ones with ``--surrogate``). ``--predictive transition`` measures the older Liu-West predictive.
 """
 
 from __future__ import annotations
@@ -33,9 +35,10 @@ def run(args):
     for cls in (seqbayes.SEMC, seqbayes.SMC):
         for kernel in ("T1", "T2"):
             exact = model.load_exact_reference(kernel)
-            errs, times = [], []
+            errs, times, calls = [], [], []
             for run_index in range(args.runs):
-                settings = {"predictive": args.predictive, "n_independent": args.independent}
+                settings = {"predictive": args.predictive, "n_independent": args.independent,
+                            "surrogate": args.surrogate, "economy": args.economy}
                 if args.predictive in ("auto", "smc2"):
                     settings["inner_filter"] = ParticleInnerFilter(args.inner)
                 start = time.perf_counter()
@@ -43,6 +46,7 @@ def run(args):
                               rng=np.random.default_rng([args.seed, run_index]), **settings)
                 result = sampler.run(data)
                 times.append(time.perf_counter() - start)
+                calls.append([(rec.info.n_loglike_evals, rec.info.n_screen_evaluations) for rec in result.steps])
                 errs.append([((rec.mean() - exact.mean[s]) / exact.std[s], rec.std() / exact.std[s] - 1.0,
                               rec.info.log_evidence - exact.log_evidence[s]) for s, rec in enumerate(result.steps)])
             total_time += sum(times)
@@ -57,6 +61,10 @@ def run(args):
                       f"{ok}/{len(errs)} |", flush=True)
             print(f"<!-- {cls.__name__} {kernel}: run time {np.median(times):.2f} s median, {max(times):.2f} s max -->",
                   flush=True)
+            calls = np.array(calls)   # (runs, steps, 2): expensive and cheap calls per update
+            print(f"<!-- {cls.__name__} {kernel}: expensive calls per update (mean over runs) "
+                  f"{np.round(calls[:, :, 0].mean(axis=0)).astype(int).tolist()}, largest {calls[:, :, 0].max(axis=0).tolist()}; "
+                  f"screen calls {np.round(calls[:, :, 1].mean(axis=0)).astype(int).tolist()} -->", flush=True)
     print(f"\nsum of run times {total_time:.1f} s (one core); runs x steps outside the tolerances: {n_fail}")
 
 
@@ -68,6 +76,8 @@ def main():
     parser.add_argument("--predictive", default="auto")
     parser.add_argument("--independent", type=int, default=6, help="independence sweeps (the study's 6)")
     parser.add_argument("--seed", type=int, default=2023)
+    parser.add_argument("--surrogate", default=None, help="delayed acceptance: quadratic or auto (default: none)")
+    parser.add_argument("--economy", action="store_true", help="economy=True")
     run(parser.parse_args())
 
 

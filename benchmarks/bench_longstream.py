@@ -50,7 +50,6 @@ import numpy as np  # noqa: E402
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
 from seqbayes.models.sine_phase import SinePhase  # noqa: E402
-from seqbayes.predictive.pmmh import MOVE_BUDGET  # noqa: E402
 from seqbayes.predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter  # noqa: E402
 
 CHECKPOINTS = (10, 100, 1000)
@@ -257,17 +256,18 @@ def nonlinear(args):
     for cls in [c for c in (seqbayes.SMC, seqbayes.SEMC) if c.__name__ in args.samplers]:
         label = cls.__name__
         rows[label] = []
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             data = problem.simulate(args.steps, rng=4000 + seed)
             grid = problem.exact(data)
             log_z = np.cumsum([g.log_evidence_increment for g in grid])
-            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
-                          move_budget=MOVE_BUDGET)   # the long-stream setting (SamplerConfig.move_budget)
-            errs, evals, rejuvenations = {}, [], []
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed)  # defaults
+            errs, evals, rejuvenations, tempered = {}, [], [], []
             start = time.perf_counter()
             for s, y in enumerate(data, start=1):
                 info = sampler.update(y)
                 evals.append(info.n_loglike_evals)
+                if info.n_stages > 1 and s > 1:
+                    tempered.append(s)
                 if info.resampled and s > 1:
                     rejuvenations.append((s, info.pmmh_acceptance))
                 if s in checkpoints:
@@ -283,7 +283,8 @@ def nonlinear(args):
                               np.nanmin(acceptances) if acceptances else float("nan"), len(rejuvenations),
                               time.perf_counter() - start))
             print(f"{label} seed {seed}: {cost_rows[-1][-1]:.0f} s, {evals.sum():.3g} evals, max/median "
-                  f"{cost_rows[-1][3]:.1f}, acceptance per rejuvenation "
+                  f"{cost_rows[-1][3]:.1f} (largest at s = {int(np.argmax(evals[1:])) + 2}), tempered updates "
+                  f"{tempered}, acceptance per rejuvenation "
                   + " ".join(f"{s}:{a:.2f}" for (s, _), a in zip(rejuvenations, acceptances)) + "; "
                   + ", ".join(f"s={s}: {e[0]:.3f} sd {e[1]:.3f} {e[2]:.3f} nats" for s, e in errs.items()), flush=True)
     print(f"\n### Nonlinear static + drifting, SMC^2 defaults (M = 100), N = {args.n}, {args.seeds} seeds\n")
@@ -346,6 +347,7 @@ def main():
     parser.add_argument("--n", type=int, default=1000)
     parser.add_argument("--m", type=int, default=100, help="inner particles (particle inner filter)")
     parser.add_argument("--inner", choices=("kalman", "pf"), default="kalman")
+    parser.add_argument("--first-seed", type=int, default=0, help="nonlinear: the first seed (seeds run from it)")
     parser.add_argument("--samplers", nargs="+", default=["SMC", "SEMC"], help="nonlinear: which samplers to run")
     parser.add_argument("--particles-defaults", action="store_true",
                         help="particles: also run particles' default SMC^2 (waste-free, ~800 s a seed)")

@@ -4,9 +4,9 @@
 Here 100 datasets of the nonlinear static + drifting problem (:class:`~seqbayes.models.sine_phase.SinePhase`), the
 particle inner filter with M = 50 and N = 500, one seed per sampler. The accuracy bounds are the issue's (0.3 sd,
 20 %, 0.5 nats); the benchmark's worst errors at N = 1000 are about half of them, and halving N raises Monte Carlo
-errors by sqrt(2). The cost bounds are those of the design: an update spends at most ``MOVE_BUDGET N M``
-evaluations on moves besides the advance ``N M`` and the guide's pilot (at most 4 x 2000), and PMMH acceptance stays
-at or above 0.2 in every rejuvenation.
+errors by sqrt(2). The cost bounds are those of the design: an update that neither tempers nor resamples spends at most
+``MOVE_BUDGET N M`` evaluations on moves besides the advance ``N M`` and the guide's pilot (at most 4 x 2000), no
+update spends more than 20x the median, and PMMH acceptance stays at or above 0.2 in every rejuvenation.
 """
 
 import numpy as np
@@ -31,8 +31,7 @@ def test_a_long_stream_stays_exact_at_a_bounded_cost(cls, stream):
     problem, data, grid = stream
     n, m = 500, 50
     log_z = np.cumsum([g.log_evidence_increment for g in grid])
-    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, n_inner=m,
-                  move_budget=MOVE_BUDGET)
+    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, n_inner=m)  # the budget is the default
     infos = []
     for s, y in enumerate(data, start=1):
         info = sampler.update(y)
@@ -43,7 +42,9 @@ def test_a_long_stream_stays_exact_at_a_bounded_cost(cls, stream):
             assert np.all(np.abs(record.std() / g.std - 1) < 0.2), (s, record.std(), g.std)
             assert abs(info.log_evidence - log_z[s - 1]) < 0.5, (s, info.log_evidence, log_z[s - 1])
     evals = np.array([i.n_loglike_evals for i in infos])
-    assert np.all(evals[1:] <= (1 + MOVE_BUDGET) * n * m + 8000 + np.arange(2, 101) * m), evals
+    steady = np.array([i.n_stages == 1 and not i.resampled for i in infos])   # a resampling first restores the ESS
+    steady[0] = False
+    assert np.all(evals[steady] <= (1 + MOVE_BUDGET) * n * m + 8000 + np.arange(1, 101)[steady] * m), evals
     assert evals.max() <= 20 * np.median(evals)
     # each rejuvenation's acceptance over all its attempts: its tally at the step before the next one starts
     starts = [i.step for i in infos[1:] if i.resampled]

@@ -8,7 +8,7 @@ from seqbayes import SMC
 from seqbayes.engine.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
-from seqbayes.predictive.pmmh import MOVE_BUDGET, Rejuvenation, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import (KalmanInnerFilter, NestedState, ParticleInnerFilter, nested_moments,
                                       nested_split, nested_state_arrays, nested_state_from_arrays,
                                       warn_rejuvenation)
@@ -46,8 +46,12 @@ def test_update_cost_stays_within_the_budget_and_the_amortised_cost_is_reported(
     infos = [sampler.update(y) for y in data]
     evals = np.array([i.n_loglike_evals for i in infos])
     steps = np.arange(1, len(data) + 1)
-    # the advance (N), the moves' budget (MOVE_BUDGET N) and at most one re-run over s datasets beyond it
-    assert np.all(evals[1:] <= (MOVE_BUDGET + 1) * n + steps[1:]), evals
+    # an update that neither tempered nor resampled: the advance (N), the moves' budget (MOVE_BUDGET N) and at most
+    # one re-run over s datasets beyond it (a tempered update completes its moves, a resampling first restores the ESS)
+    steady = np.array([i.n_stages == 1 and not i.resampled for i in infos])
+    steady[0] = False
+    assert steady.sum() > 20
+    assert np.all(evals[steady] <= (MOVE_BUDGET + 1) * n + steps[steady]), evals
     assert any(i.pending_moves for i in infos)      # late rejuvenations did spread over updates
     np.testing.assert_allclose([i.amortised_evals for i in infos], np.cumsum(evals) / steps)
     moved = [i for i in infos[1:] if i.n_proposed]
@@ -86,15 +90,17 @@ def test_pending_moves_survive_the_state_arrays(mixed):
     np.testing.assert_array_equal(sampler.state.outer, other.state.outer)
 
 
-def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(mixed):
+@pytest.mark.parametrize("surrogate", [None, "quadratic"])
+def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(mixed, surrogate):
     """PMMH on a permutation-chosen subset of weighted particles: the static parameters' weighted mean and sd stay
     those of the exact (Kalman) posterior. Particles are drawn from a Gaussian 1.5x wider than it and weighted; the
     Kalman inner filter makes the likelihood exact. Tolerance: 5 Monte Carlo standard errors of the weighted
-    estimate (sd / sqrt(ESS))."""
+    estimate (sd / sqrt(ESS)). With ``surrogate="quadratic"`` every proposal is first screened by a quadratic fitted
+    to the particles' log targets (delayed acceptance), and only the survivors re-run their inner filters."""
     problem, data = mixed
     data = data[:12]
     sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=4000, rng=0,
-                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
+                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET, surrogate=surrogate)
     config, inner = sampler.config, sampler.problem.inner_filter
     split = nested_split(problem.kernel)
     exact = problem.exact(data)[-1]
@@ -116,7 +122,12 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
                      components, 1.0, 1.0, pending, budget, likelihood, rng)
     moved_static, _, moved_components, stats, _, _, left = out
     assert isinstance(stats, SweepStats) and left.queue.size == n - stats.n_proposed and left.sweeps_left == 0
-    assert 0.3 * n < stats.n_proposed < 0.7 * n and stats.n_accepted > 0.2 * stats.n_proposed
+    assert 0.3 * n < stats.n_evaluations <= n // 2 and stats.n_accepted > 0.2 * stats.n_proposed   # the budget
+    if surrogate is None:
+        assert stats.n_screen_evaluations == 0 and stats.n_evaluations == stats.n_proposed
+    else:   # the screen stopped some proposals before their re-run, so the budget attempted more particles
+        assert stats.n_screened_out > 0.05 * stats.n_proposed
+        assert stats.n_evaluations == stats.n_proposed - stats.n_screened_out
     w = np.exp(log_weights)
     ess = 1.0 / np.sum(w**2)
     sd = np.sqrt(np.diag(cov))
@@ -131,6 +142,48 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
                                 likelihood, rng)
     np.testing.assert_allclose(moved_components[rows, 0], last2, rtol=1e-10)
     np.testing.assert_allclose(moved_components[rows, 2], past2, rtol=1e-10)
+
+
+def test_distinct_ess_counts_copies():
+    rows = np.arange(6.0).reshape(3, 2)
+    assert distinct_ess(rows) == pytest.approx(3.0)
+    copies = rows[[0, 0, 0, 1]]                       # groups of 3 and 1: 16 / (9 + 1)
+    assert distinct_ess(copies) == pytest.approx(1.6)
+
+
+def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
+    """A cloud of copies (50 values, 4 copies each) with a budget of 20 particles' re-runs: with ``restore`` the moves
+    go on beyond the budget, in batches of RESTORE_BATCH N, until the copies' ESS is back at ``restore N`` or they
+    have spent RESTORE_LIMIT times the budget; without it they stop at the budget."""
+    problem, data = mixed
+    data = data[:5]
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0,
+                  inner_filter=KalmanInnerFilter(problem.observe))
+    config, inner = sampler.config, sampler.problem.inner_filter
+    split = nested_split(problem.kernel)
+    rng = np.random.default_rng(3)
+    exact = problem.exact(data)[-1]
+    mean, cov = exact.mean[split[0]], exact.cov[np.ix_(split[0], split[0])]
+    static = np.repeat(rng.multivariate_normal(mean, cov, size=50), 4, axis=0)
+    likelihood = sampler_likelihood(sampler)
+    past, last, cloud = run_inner(sampler.problem, inner, split, static, data, (None,) * len(data), likelihood, rng)
+    components = np.column_stack([last, outer_logpdf(problem.prior, split[0], static), past])
+    log_weights = np.full(200, -np.log(200))
+    assert distinct_ess(static) == pytest.approx(50.0)
+    budget = 20 * len(data)
+    for restore in (0.0, 0.6):
+        pending = Rejuvenation().restarted(config.max_moves, 200)
+        out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights,
+                         cloud, components, 1.0, 1.0, pending, budget, likelihood, rng, restore=restore)
+        moved, stats, left = out[0], out[3], out[6]
+        if not restore:
+            assert stats.n_proposed == 20
+        else:
+            assert stats.n_proposed > 20 and stats.n_proposed % 20 == 0                  # batches of 0.1 N
+            assert stats.n_proposed * len(data) <= RESTORE_LIMIT * budget + 20 * len(data)   # the limit, one batch over
+            assert distinct_ess(moved) >= 0.6 * 200 or stats.n_proposed * len(data) >= RESTORE_LIMIT * budget
+            assert distinct_ess(moved) > distinct_ess(static) + 10
+        assert left.pending                  # the rest (the stage rule's sweeps) waits for later updates
 
 
 def sampler_likelihood(sampler):

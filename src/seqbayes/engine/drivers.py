@@ -20,7 +20,7 @@ from ..tempering import blas_limit
 from .errors import InnerFilterWarning, PriorDataConflictWarning, documented
 from .forecast import forecast
 from .pipeline import assimilate
-from .settings import SamplerConfig
+from .settings import MOVE_BUDGET, SamplerConfig
 from .stages import step_conflict
 from .state import Problem, SamplerState
 
@@ -290,7 +290,7 @@ surrogate, move_budget
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = None):
+                 move_budget: float | None = MOVE_BUDGET):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
@@ -325,7 +325,7 @@ class SMC(_SequentialSampler):
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = None):
+                 move_budget: float | None = MOVE_BUDGET):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from ..resampling import SCHEMES
 
-__all__ = ["SamplerConfig", "PREDICTIVE_METHODS", "HIGH_DIMENSION"]
+__all__ = ["SamplerConfig", "PREDICTIVE_METHODS", "HIGH_DIMENSION", "MOVE_BUDGET"]
 
 #: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, ``"smc2"`` (nested
 #: filters, :mod:`seqbayes.predictive.smc2`) for one with static and drifting components, else ``"transition"``.
@@ -21,6 +21,10 @@ HIGH_DIMENSION = 10
 #: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
 JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
 
+
+#: SMC^2's PMMH budget per update, in units of ``N M`` (``SamplerConfig.move_budget``): with the advance itself an
+#: update without tempering costs at most ~6 ``N M`` (plus the guide's pilot) however long the stream.
+MOVE_BUDGET = 5
 
 #: ``economy``: the importance sweeps continue until the increment's standard error is below this.
 ECONOMY_EVIDENCE_SE = 0.02
@@ -195,16 +199,19 @@ class SamplerConfig:
         likelihood evaluation than the plain sweep did. A callable ``surrogate(theta (n, d), dataset) -> (n,)``:
         a cheap approximation of the log-likelihood (a coarser model), with the prior's part fitted by the
         quadratic. ``StepInfo.n_screen_evaluations`` and ``n_screened_out`` count the cheap calls and the
-        proposals they stopped. Not applied to the scaled moves, to SMC^2's PMMH or to the path-space
+        proposals they stopped. SMC^2's PMMH moves are screened by the quadratic fitted to the outer particles' log
+        targets (``"quadratic"``, and ``"auto"``, which there screens every sweep; a callable is not used there), so
+        that only the survivors re-run their inner filters over the whole history (:mod:`seqbayes.predictive.pmmh`). Not applied to the scaled moves or to the path-space
         remedy's sweeps.
     move_budget : float or None
-        SMC^2 only: the PMMH evaluations one update may spend, in units of ``N M`` (``M`` the inner
-        particles, 1 for the Kalman inner filter); sweeps beyond it wait for later updates
-        (:mod:`seqbayes.predictive.pmmh`), which bounds the cost per update over a long stream. ``None``
-        (default): each rejuvenation completes within its update. A budget leaves the target exact but
-        can leave the cloud degenerate for several updates after a resampling: on the README's drifting
-        model, which the data contradict, ``move_budget=5`` put the log-evidence 6 nats off the Kalman
-        value at step 5 where ``None`` is 0.6 off. Use it for long streams of an expensive model.
+        SMC^2 only: the PMMH evaluations one update may spend on deferrable moves, in units of ``N M`` (``M`` the
+        inner particles, 1 for the Kalman inner filter; default :data:`MOVE_BUDGET` = 5). Moves beyond it wait for
+        later updates (:mod:`seqbayes.predictive.pmmh`), which bounds the cost per update over a long stream.
+        Deferrable are only the moves of an untempered update, and after a resampling only once the copies it left
+        are as diverse as its weights were (which may spend up to ``pmmh.RESTORE_LIMIT`` = 4 times the budget more):
+        a tempered update (a dataset the predictive does not cover) completes its moves whatever the budget, since
+        each of its stages chooses the next exponent from the particles' ESS. ``None``: every rejuvenation completes
+        in its update.
     """
 
     move: str
@@ -242,7 +249,7 @@ class SamplerConfig:
     scaled_moves: bool | None = None
     economy: bool = False
     surrogate: object = None
-    move_budget: float | None = None
+    move_budget: float | None = MOVE_BUDGET
 
     def __post_init__(self):
         self._check_run()

@@ -3,11 +3,25 @@
 A PMMH proposal re-runs its inner filter over every dataset so far, so one sweep at step ``s`` costs
 ``N M s`` evaluations against ``N M`` for an update without moves. Done at once, a late rejuvenation is
 hundreds of times an ordinary update (issue 23: 148-186 s at s = 260 against 0.03 s). Here a rejuvenation
-is a queue: resampling schedules ``n_moves`` sweeps, each a fresh random permutation of the particles, and
-with ``SamplerConfig.move_budget`` set (e.g. :data:`MOVE_BUDGET`) every update (and every tempering stage)
-spends at most ``move_budget x N M`` evaluations on the queue's next particles; the rest waits for the next
-update. By default the whole rejuvenation runs in its update: a cloud left degenerate after a resampling
-costs accuracy until its moves are done.
+is a queue: resampling schedules sweeps, each a fresh random permutation of the particles, stopped by the stages'
+rule, and every update spends at most ``SamplerConfig.move_budget x N M`` evaluations (:data:`MOVE_BUDGET` by
+default) on the queue's next particles; the rest waits for the next update. The budget defers only what a long
+stream can wait for (:class:`~seqbayes.predictive.smc2.NestedPredictive` decides, :func:`rejuvenate` enforces):
+
+- a tempered update (more than one stage: the dataset is far from the predictive) completes its moves at every
+  stage, because each stage's exponent is chosen from the particles' ESS, which copies would overstate;
+- after a resampling, the moves first restore the copies' diversity (:func:`distinct_ess`) to the ESS the
+  weights had before it, beyond the budget (up to :data:`RESTORE_LIMIT` times it); only the sweeps beyond that,
+  which decorrelate further, are deferred.
+
+On the README's drifting model, which the data contradict (every update resamples and tempers), a budget that
+deferred everything left the cloud degenerate and the log-evidence 6.1 nats off the Kalman value at step 5;
+with these two rules it is as accurate as without a budget (``tests/statistical/test_smc2_conflicting_drift.py``).
+
+With ``SamplerConfig.surrogate`` ``"quadratic"`` (or ``"auto"``) every proposal first faces a quadratic fitted to the
+particles' log targets (delayed acceptance, :mod:`seqbayes.moves.delayed`): only the survivors re-run their inner
+filters, and the budget counts those re-runs alone. The screen is a function of the proposal alone, so the second
+stage's ratio keeps the pseudo-marginal target exact.
 
 Why it stays exact: each attempt is a PMMH kernel that leaves the current extended target invariant
 (the step's ``p_0(phi) p^(D^{1:s} | phi)`` at the stage's exponent; Andrieu & Roberts 2009), applied to a
@@ -24,16 +38,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..engine.settings import MOVE_BUDGET
 from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..moves.delayed import QuadraticScreen
 from ..priors import inside_support
 from ..transforms import BoxTransform
 
-__all__ = ["MOVE_BUDGET", "Rejuvenation", "rejuvenate", "run_inner", "outer_logpdf"]
+__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner", "outer_logpdf"]
 
 
-#: A budget for long streams (``move_budget=MOVE_BUDGET``), in units of one advance of every inner filter
-#: (``N M``): with the advance itself an update then costs at most ~6 ``N M`` (plus the guide's pilot).
-MOVE_BUDGET = 5
+
+#: While the cloud's diversity is being restored, the fraction of the particles attempted per batch: small, so that the
+#: restoring stops soon after it is reached (each batch re-runs its particles' inner filters over the whole history).
+RESTORE_BATCH = 0.1
+
+#: What restoring the ESS may spend beyond the budget, in units of the budget: an update then costs at most
+#: ``(1 + RESTORE_LIMIT x move_budget) N M`` unless it tempers. Uncapped, one 300-dataset run's largest update
+#: was 21x its median (restoring at s = 178; docs/benchmarks.md), against the issue's 20x.
+RESTORE_LIMIT = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,8 +105,28 @@ def run_inner(problem, inner, split, static, datasets, guides, likelihood, rng):
     return past, last, cloud
 
 
+def distinct_ess(static: np.ndarray) -> float:
+    """The cloud's diversity after a resampling: ``N^2 / sum_g c_g^2`` over the groups of ``c_g`` identical rows of
+    ``static (N, d)`` (the ESS of equal weights spread over the distinct values; ``N`` when all differ)."""
+    _, counts = np.unique(static, axis=0, return_counts=True)
+    return static.shape[0] ** 2 / float(np.sum(counts.astype(float) ** 2))
+
+
+def _pmmh_screen(config, static, components, coefficients, transform):
+    """Delayed acceptance's cheap log target for PMMH (``SamplerConfig.surrogate`` ``"quadratic"`` or ``"auto"``),
+    or ``None``: a quadratic fitted to the particles' log targets in the moves' coordinates, the evaluations already
+    made. Fixed for the call, so for every attempt it is a function of the proposal alone, which keeps the
+    pseudo-marginal target exact (the inner filters' randomness enters stage 2 only)."""
+    if config.surrogate not in ("quadratic", "auto"):
+        return None
+    position = transform.forward(static) if transform is not None else static
+    jacobian = transform.log_jacobian(position) if transform is not None else 0.0
+    with np.errstate(invalid="ignore"):
+        return QuadraticScreen.fit(position, components @ coefficients + jacobian)
+
+
 def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
-               step_size, pending: Rejuvenation, budget: int, likelihood, rng):
+               step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0):
     """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``; the target
@@ -97,6 +139,12 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     allowed. Only that decision looks at the particles (as a whole); which particle moves never does.
     When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
     attempted all the same, so a rejuvenation always progresses.
+
+    The budget binds only once the copies a resampling left are diverse again: while :func:`distinct_ess` is below
+    ``restore x N`` (the ESS of the weights the cloud was resampled from), particles are attempted in batches of
+    :data:`RESTORE_BATCH` x N beyond the budget, up to :data:`RESTORE_LIMIT` times it, so that a resampling does not
+    leave the cloud less diverse than its weights were (late in a long stream, where one sweep costs more than
+    that, the rest of the restoring waits with the other deferred sweeps).
 
     Returns
     -------
@@ -114,6 +162,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
     most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
+    screen = _pmmh_screen(config, static, components, coefficients, transform)
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
             done = most - sweeps_left
@@ -122,6 +171,8 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
                 break
             queue, sweeps_left = rng.permutation(n), sweeps_left - 1
         k = min(queue.size, (budget - spent) // per_particle)
+        if restore and spent < RESTORE_LIMIT * budget and distinct_ess(static) < restore * n:  # restore the ESS first
+            k = min(queue.size, max(k, int(np.ceil(RESTORE_BATCH * n))))
         if config.move == "stretch":  # the stretch move needs a complement to draw partners from
             k = min(k, n // 2)
         if k < 1:
@@ -144,6 +195,15 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
             identical = np.zeros(k, dtype=bool)
         phi = transform.inverse(proposals) if transform is not None else proposals
         inside = ~identical & inside_support(phi, support)
+        cheap_old = cheap_new = np.zeros(k)
+        if screen is not None:  # delayed acceptance, stage 1: only proposals the cheap screen accepts are re-run
+            cheap_old, cheap_new = screen(position[active]), np.full(k, -np.inf)
+            cheap_new[inside] = screen(proposals[inside])
+            passed = metropolis_accept(cheap_old, cheap_new, log_hastings, rng) & inside
+            stats = stats + SweepStats(n_screen_evaluations=int(inside.sum()) + k,
+                                       n_screened_out=int((inside & ~passed).sum()))
+            # stage 2's ratio t(x') - t(x) - s(x') + s(x): the Hastings term has cancelled (Christen and Fox 2005)
+            log_hastings, inside = cheap_old - np.where(passed, cheap_new, 0.0), passed
         new_components = np.full((k, 3), -np.inf)
         jac_new, jac_old = np.zeros(k), np.zeros(k)
         if transform is not None:

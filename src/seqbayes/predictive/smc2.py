@@ -529,14 +529,14 @@ class NestedPredictive:
 
     def temper(self, weighed, likelihood, rng) -> Tempered:
         """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls, resample
-        and schedule ``n_moves`` PMMH sweeps; at every stage, spend what is left of the update's budget
-        (``SamplerConfig.move_budget x N M`` evaluations; no limit by default) on the pending sweeps."""
+        and schedule PMMH sweeps. A tempered update completes them at every stage; an untempered one restores the
+        copies' diversity to the ESS before the resampling, then spends what is left of
+        ``SamplerConfig.move_budget x N M`` evaluations and defers the rest (:mod:`seqbayes.predictive.pmmh`)."""
         config, n = self.config, self.config.n_samples
         static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
         components, cloud, pending = weighed.cloud.components, weighed.cloud.inner, weighed.cloud.pending
         budget = (sys.maxsize if config.move_budget is None  # None: the rejuvenation completes in this update
                   else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
-        start = likelihood.n_evals
         beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
         stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
         while beta < 1.0:
@@ -554,10 +554,14 @@ class NestedPredictive:
                 pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
             if pending.pending:
                 was_pending = pending.n_proposed
+                # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
+                # copies overstate); an untempered one first brings the copies back to the ESS the weights had
+                # before the resampling, then defers what exceeds the budget
+                allowed = sys.maxsize if beta < 1.0 or len(temperatures) > 1 else budget
                 static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
                     self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
-                    log_weights, cloud, components, beta, step_size, pending,
-                    budget - (likelihood.n_evals - start), likelihood, rng)
+                    log_weights, cloud, components, beta, step_size, pending, allowed, likelihood, rng,
+                    restore=stage_ess / n if resampled else 0.0)
                 stats, n_batches = stats + sweep, n_batches + batches
                 if config.move == "stretch":
                     step_size = step_size_new
