@@ -308,6 +308,17 @@ def tables_markdown(study: CoulombStudy) -> str:
                 row += f" {m:{fmt}} +- {sd:{fmt}} | {cell} |"
             lines.append(row)
         lines.append("")
+    if {"T1", "T2"} <= set(kernels):   # runs of one index share their stream, so the factor measures steps 2-4
+        n_steps = study.tables[("log_evidence", *combos[0])].shape[1]
+        exact_factor = exact["T1"].log_evidence[n_steps - 1] - exact["T2"].log_evidence[n_steps - 1]
+        factors = []
+        for sampler in dict.fromkeys(s for s, _ in combos):
+            if (sampler, "T1") in study.results and (sampler, "T2") in study.results:
+                diff = np.array([a.steps[-1].info.log_evidence - b.steps[-1].info.log_evidence for a, b in
+                                 zip(study.results[(sampler, "T1")], study.results[(sampler, "T2")])])
+                factors.append(f"{diff.mean():.2f} +- {diff.std(ddof=1) if diff.size > 1 else 0.0:.2f} ({sampler})")
+        lines += [f"Log Bayes factor of T1 over T2 at s = {n_steps}: " + ", ".join(factors)
+                  + f"; exact {exact_factor:.3f}.", ""]
     ref = study.reference
     lines += ["Exact posterior at s = 1 (Table 3 prior, quadrature): log-evidence "
               f"{ref.log_evidence:.3f}; means " + ", ".join(
