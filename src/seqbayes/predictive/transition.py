@@ -26,6 +26,18 @@ __all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
 REMEDY_ANCESTOR_SE = 0.1
 
 
+def _deeper_steps(window):
+    """``(prior, posterior)`` of the window's steps, latest first, whose posterior rests on its mixture prior over
+    the step before (none behind a path-space step or the first step's prior)."""
+    out = []
+    for later, earlier in zip(window[:0:-1], window[-2::-1]):
+        if later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum)) or \
+                earlier.posterior.shape[0] != later.posterior.shape[0]:
+            break
+        out.append((later.prior, later.posterior))
+    return out
+
+
 class TransitionMixture(ParticlePredictive):
     """``p_{s+1}(theta) = sum_i W_i T(theta | theta_i)`` over the step's posterior (``method="transition"``,
     with Liu-West shrinkage on static dimensions), or a kernel density of the propagated posterior
@@ -59,7 +71,7 @@ class TransitionMixture(ParticlePredictive):
                 and np.array_equal(last.posterior, state.posterior)):
             # the ancestors' own mixture prior: the two-step term of the jump probability's se
             earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
-                           earlier_labels=posterior_labels(state, 1))
+                           earlier_labels=posterior_labels(state, 1), deeper=_deeper_steps(state.window[:-1]))
         return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
                                 posterior_labels(state), **earlier)
 
