@@ -2,7 +2,7 @@
 
     python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
                                                [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
-                                               [--workers 2] [--out FILE] [--reduced]
+                                               [--workers 2] [--out FILE] [--log FILE.jsonl [--table-only]]
 
 One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
 
@@ -23,7 +23,9 @@ Printed: one row per (drop, model, sampler, kernel) with the worst over steps of
 over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]) and, with 3 seeds
 or more, the calibration step by step. ``--steps`` stops every history early (``--steps 14``: the drop and one
 step after).
-``--reduced`` is the variant ``tests/statistical/test_moderate_damage.py`` runs.
+``--log`` appends each finished run as a JSON line and skips the runs it holds (a stopped matrix resumes);
+``--table-only`` prints the table of the logged runs (``--seeds``, ``--first-seed`` and ``--samplers`` select).
+``tests/statistical/test_moderate_damage.py`` runs a reduced variant.
 """
 
 from __future__ import annotations
