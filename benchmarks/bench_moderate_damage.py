@@ -2,7 +2,7 @@
 
     python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
                                                [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
-                                               [--workers 2] [--out FILE] [--reduced]
+                                               [--workers 2] [--out FILE] [--log FILE.jsonl [--table-only]]
 
 One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
 
@@ -23,7 +23,9 @@ Printed: one row per (drop, model, sampler, kernel) with the worst over steps of
 over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]) and, with 3 seeds
 or more, the calibration step by step. ``--steps`` stops every history early (``--steps 14``: the drop and one
 step after).
-``--reduced`` is the variant ``tests/statistical/test_moderate_damage.py`` runs.
+``--log`` appends each finished run as a JSON line and skips the runs it holds (a stopped matrix resumes);
+``--table-only`` prints the table of the logged runs (``--seeds``, ``--first-seed`` and ``--samplers`` select).
+``tests/statistical/test_moderate_damage.py`` runs a reduced variant.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import json
 import os
 import sys
 import warnings
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -119,7 +121,8 @@ def run(args) -> dict:
             "log_evidence": [i.log_evidence for i in infos],
             "jump_probability": [i.jump_probability for i in infos],
             "jump_probability_se": [getattr(i, "jump_probability_se", float("nan")) for i in infos],
-            "path_steps": [int(i.path_steps) for i in infos]}
+            "path_steps": [int(i.path_steps) for i in infos],
+            "n_loglike_evals": [int(i.n_loglike_evals) for i in infos]}
 
 
 def errors(runs: list, refs: dict) -> dict:
@@ -227,23 +230,42 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--steps", type=int, default=N_STEPS, help="assimilate only the first STEPS datasets")
     parser.add_argument("--out", help="write every run's and reference's numbers as JSON here")
+    parser.add_argument("--log", help="append each finished run to this JSON-lines file, and skip the runs it "
+                                      "already holds (a long matrix can be stopped and resumed)")
+    parser.add_argument("--table-only", action="store_true", help="print the table of the runs in --log, run nothing")
     args = parser.parse_args(argv)
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
     refs = {(d, m, k): exact(d, m, k) for d in drops for m in models for k in kernel_names}
-    tasks = [(d, m, k, s, seed, args.samples, args.steps) for d in drops for m in models for s in samplers
-             for k in kernel_names for seed in range(args.first_seed, args.first_seed + args.seeds)]
-    if args.workers > 1:
-        with ProcessPoolExecutor(args.workers) as pool:
-            runs = list(pool.map(run, tasks))
-    else:
-        runs = [run(t) for t in tasks]
+    # seed outermost: a matrix cut short holds whole seeds of every combination
+    tasks = [(d, m, k, s, seed, args.samples, args.steps) for seed in range(args.first_seed, args.first_seed + args.seeds)
+             for d in drops for m in models for s in samplers for k in kernel_names]
+    done = []
+    if args.log and os.path.exists(args.log):
+        with open(args.log) as fh:
+            done = [r for r in map(json.loads, fh) if tuple(r["key"][:3]) in refs]
+    keys = {tuple(r["key"]) for r in done}
+    runs = done + ([] if args.table_only else _run_all([t for t in tasks if tuple(t[:5]) not in keys], args))
+    runs = [r for r in runs if r["key"][3] in samplers and args.first_seed <= r["key"][4] < args.first_seed + args.seeds]
     print(table(runs, refs))
     print("\n".join(se_lines(runs, refs)))
     if args.out:
         with open(args.out, "w") as fh:
             json.dump({"runs": runs, "refs": [[list(k), v] for k, v in refs.items()]}, fh)
     return runs, refs
+
+
+def _run_all(tasks, args) -> list:
+    """The runs of ``tasks``, each appended to ``args.log`` as it finishes."""
+    def finished(result):
+        if args.log:
+            with open(args.log, "a") as fh:
+                fh.write(json.dumps(result) + "\n")
+        return result
+    if args.workers > 1:
+        with ProcessPoolExecutor(args.workers) as pool:
+            return [finished(f.result()) for f in as_completed([pool.submit(run, t) for t in tasks])]
+    return [finished(run(t)) for t in tasks]
 
 
 if __name__ == "__main__":

@@ -109,3 +109,76 @@ def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
            .run(data).steps[3].info for seed in range(2)]
     assert all(i.path_steps == 0 for i in off)
     assert any(10 <= i.ancestor_ess < floor for i in off), [i.ancestor_ess for i in off]
+
+
+def _responsibilities(prior, points):
+    """``R (m, N)``: the exact responsibilities of a MixtureSum's ancestors for ``points``, by explicit sums."""
+    mixtures, log_v = prior.mixtures, prior.log_weights
+    r = np.zeros((points.shape[0], mixtures[0].centres.shape[0]))
+    for lv, m in zip(log_v, mixtures):
+        r += np.exp(lv + m.log_weights[None, :]) * stats.norm.pdf(points[:, :1], m.centres[None, :, 0], m.bandwidth[0])
+    return r / r.sum(axis=1, keepdims=True)
+
+
+def test_backward_masses_and_the_lagged_variance_are_their_formulas():
+    """backward_masses is weights @ R; lagged_ancestor_variance sums (a^t - b^t)^2 back through the window, and the
+    jump probability's se carries its influence back through every step of ``deeper``."""
+    from types import SimpleNamespace
+
+    from seqbayes.predictive.ancestry import AncestorSpread
+    from seqbayes.predictive.lineage import lagged_ancestor_variance
+    from seqbayes.predictive.mixture import backward_masses
+    from seqbayes.predictive.transition import _deeper_steps
+
+    rng = np.random.default_rng(1)
+    kernel = MarkovKernel([JUMP])
+    clouds = [1.0 + 0.006 * rng.standard_normal((7, 1)) for _ in range(4)]       # posteriors of steps 1-4
+    logws = [rng.normal(size=7) for _ in range(4)]
+    priors = [None] + [predictive_density(c, w, kernel, rng)[0] for c, w in zip(clouds[:-1], logws[:-1])]
+    weights = rng.random((2, 7))
+    # the mixtures cache their centres in single precision (GaussianMixture._scaled_centres): ~1e-7 relative
+    np.testing.assert_allclose(backward_masses(priors[2], clouds[2], weights),
+                               weights @ _responsibilities(priors[2], clouds[2]), rtol=1e-6)
+    window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_space=False)
+                   for p, c, w in zip(priors, clouds, logws))
+    state = SimpleNamespace(window=window, posterior_log_weights=window[-1].log_weights)
+    assert lagged_ancestor_variance(state, AncestorSpread(1.0, 0.25, mass=None), 0.0) == 0.25   # no mass: lag 1 alone
+    mass = rng.dirichlet(np.ones(7))
+    total = lagged_ancestor_variance(state, AncestorSpread(1.0, float(np.sum((mass - np.exp(logws[3] - np.log(
+        np.exp(logws[3]).sum()))) ** 2)), mass=mass), 0.0)
+    a, b = mass, np.exp(window[-1].log_weights)
+    expected = np.sum((a - b) ** 2)
+    for t in (3, 2, 1):                                    # back through the priors of steps 4, 3, 2
+        r = _responsibilities(priors[t], clouds[t])
+        a, b = a @ r, b @ r
+        expected += np.sum((a - b) ** 2)
+    assert total == pytest.approx(expected, rel=1e-5)
+    # a path-space step stops the sum behind it
+    window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_space": True}),) + window[3:]
+    cut = lagged_ancestor_variance(SimpleNamespace(window=window, posterior_log_weights=state.posterior_log_weights),
+                                   AncestorSpread(1.0, float(np.sum((mass - np.exp(window[-1].log_weights)) ** 2)),
+                                                  mass=mass), 0.0)
+    r = _responsibilities(priors[3], clouds[3])
+    a, b = mass @ r, np.exp(window[-1].log_weights) @ r
+    assert cut == pytest.approx(np.sum((mass - np.exp(window[-1].log_weights)) ** 2) + np.sum((a - b) ** 2), rel=1e-5)
+    assert [p for p, _ in _deeper_steps(window)] == [priors[3]]
+    # the jump probability's se: the influence u carried back through deeper (distinct labels)
+    theta, logw = 0.975 + 0.015 * rng.standard_normal((9, 1)), rng.normal(size=9)
+    prior = predictive_density(clouds[3], logws[3], kernel, rng)[0]
+    base = jump_probability_se(kernel, prior, theta, logw, ancestors=clouds[3], earlier_prior=priors[3])
+    deep = jump_probability_se(kernel, prior, theta, logw, ancestors=clouds[3], earlier_prior=priors[3],
+                               deeper=[(priors[2], clouds[2]), (priors[1], clouds[1])])
+    v = np.exp(logw) / np.exp(logw).sum()
+    resp = np.zeros((9, 2, 7))
+    for c, (lv, m) in enumerate(zip(prior.log_weights, prior.mixtures)):
+        resp[:, c] = np.exp(lv + m.log_weights[None, :]) * stats.norm.pdf(theta, m.centres[None, :, 0], m.bandwidth[0])
+    resp /= resp.sum(axis=(1, 2), keepdims=True)
+    p = v @ resp[:, 1].sum(axis=1)
+    u = (v @ resp[:, 1] - p * v @ resp.sum(axis=1)) @ _responsibilities(priors[3], clouds[3])
+    terms = []
+    for t in (2, 1):
+        u = u @ _responsibilities(priors[t], clouds[t])
+        terms.append(u @ u)
+    # the first deeper step adds less than 1 % of the variance here, so the sum stops after it (compared on its own)
+    assert terms[0] < 0.01 * base**2
+    assert deep**2 - base**2 == pytest.approx(terms[0], rel=1e-2)

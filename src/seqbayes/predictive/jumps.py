@@ -10,7 +10,7 @@ from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import normalise
 from .ancestry import grouped_sums, label_groups
-from .mixture import MixtureSum
+from .mixture import MixtureSum, backward_masses
 
 __all__ = ["jump_probability_se", "jump_step_fields"]
 
@@ -38,7 +38,7 @@ def _branch_responsibilities(prior, theta: np.ndarray):
 def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.ndarray, log_weights: np.ndarray,
                         labels: np.ndarray | None = None, ancestor_labels: np.ndarray | None = None,
                         ancestors: np.ndarray | None = None, earlier_prior=None,
-                        earlier_labels: np.ndarray | None = None) -> float:
+                        earlier_labels: np.ndarray | None = None, deeper=()) -> float:
     """Monte Carlo standard error of the Rao-Blackwellised jump probability ``P = sum_k v_k s_k``.
 
     ``s_k = sum_{c jumped} sum_i r_kci`` is the exact probability that particle ``k`` came through a jump
@@ -55,7 +55,12 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
       of ``prior``, and the mixture prior they were drawn under): the ancestors' own prior's, ``u = f R`` with
       ``R`` that mixture's responsibilities for the ancestors, summed over ``earlier_labels`` (the two-step
       term of the evidence's se, :meth:`GaussianMixture.backward_spread`: the ancestors are not independent
-      draws of the exact previous posterior but of a mixture of N earlier particles).
+      draws of the exact previous posterior but of a mixture of N earlier particles);
+    - with ``deeper``, the same for every earlier step the mixtures rest on: ``u`` carried back one step per
+      ``(prior, points)`` pair (:func:`~seqbayes.predictive.mixture.backward_masses`, each particle its own
+      group), until a step adds less than 1 % of the variance. A drift that carries the jump's evidence over
+      several steps tilts those posteriors too (as the remedy's trigger,
+      :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`).
 
     Parameters
     ----------
@@ -72,6 +77,9 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
     ancestors : (N, d) array, optional
     earlier_prior : GaussianMixture or MixtureSum, optional
     earlier_labels : (M,) int array, optional
+    deeper : sequence of (prior, points)
+        Going back from ``earlier_prior``'s components: ``points (M, d)`` are those components (a posterior's
+        particles) and ``prior`` the mixture they were drawn under (only with ``earlier_prior``).
 
     Returns
     -------
@@ -98,8 +106,14 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
         u = np.zeros(m)
         for rows, r in _branch_responsibilities(earlier_prior, ancestors):
             u += influence[rows] @ r.sum(axis=1)
-        u = grouped_sums(u, label_groups(earlier_labels, m))
-        variance += u @ u
+        grouped = grouped_sums(u, label_groups(earlier_labels, m))
+        variance += grouped @ grouped
+        for earlier_prior, points in deeper:
+            u = backward_masses(earlier_prior, points, u)[0]
+            term = float(u @ u)
+            variance += term
+            if term < 0.01 * variance:
+                break
     return float(np.sqrt(variance))
 
 

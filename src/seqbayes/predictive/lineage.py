@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 from .ancestry import AncestorSpread, grouped_ancestor_variance
-from .mixture import GaussianMixture
+from .mixture import GaussianMixture, MixtureSum, backward_masses
 
-__all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "lineage_after", "posterior_labels"]
+__all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "lineage_after", "posterior_labels",
+           "lagged_ancestor_variance"]
 
 
 def lineage_after(state, labels) -> np.ndarray:
@@ -48,6 +49,49 @@ def ancestor_terms(state, spread):
                                                                     spread, posterior_labels(state, 1))
         variance += backward
     return variance, covariance
+
+
+def lagged_ancestor_variance(state, spread, floor: float) -> float:
+    """How uncertain the step's increment is from every earlier posterior the mixtures rest on (relative
+    variance): ``sum_t sum_j (a^t_j - b^t_j)^2`` over the window's steps ``t = s - 1, s - 2, ...``.
+
+    ``a^t`` is the mass the step's posterior gives to the particles of step ``t`` (the exact responsibilities
+    of each step's mixture prior, backwards from ``spread.mass`` on step ``s - 1``'s), ``b^t`` the same from
+    step ``s - 1``'s posterior (``b^{s-1} = W``). The increment's estimate depends on step ``t``'s N particles
+    through ``sum_j W_j h_j / sum_j W_j g_j`` (``h``, ``g``: the evidence of steps ``t+1..s`` and ``t+1..s-1``
+    through particle ``j``), whose relative variance for independent particles is that term: the tilt the new
+    data give step ``t`` times that step's sampling error. Lag 1 is ``spread.variance`` (grouped by the
+    particles' labels), lag 2 :meth:`GaussianMixture.backward_spread`'s variance; a drift that carries a change
+    over several steps tilts the earlier posteriors as well (docs/jump_kernels.md, moderate damage). The sum
+    stops behind a path-space step (its posterior does not rest on the mixture before it), at the window's
+    first step, once a lag adds less than ``floor``, or after lag 1 when ``spread`` has no mass (large N).
+
+    Parameters
+    ----------
+    state : SamplerState
+        The state before the step (its window ends with step ``s - 1``).
+    spread : AncestorSpread
+        The step's posterior over step ``s - 1``'s particles.
+    floor : float
+
+    Returns
+    -------
+    float
+    """
+    total = spread.variance
+    if spread.mass is None or not state.window:
+        return float(total)
+    mass = np.stack([spread.mass, np.exp(state.posterior_log_weights)])
+    for later, earlier in zip(state.window[:0:-1], state.window[-2::-1]):
+        if (later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum))
+                or earlier.posterior.shape[0] != mass.shape[1] or later.posterior.shape[0] != mass.shape[1]):
+            break
+        mass = backward_masses(later.prior, later.posterior, mass)
+        term = float(np.sum((mass[0] - mass[1]) ** 2))
+        total += term
+        if term < floor:
+            break
+    return float(total)
 
 
 #: Most (query, ancestor) pairs of the transition density evaluated at once.

@@ -44,7 +44,8 @@ from ..priors import as_samples
 from ..weights import logsumexp, normalise
 from .ancestry import AncestorSpread, grouped_sums, label_groups
 
-__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection"]
+__all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection",
+           "backward_masses"]
 
 
 #: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
@@ -642,6 +643,40 @@ class MixtureSum:
         widths = np.stack([m.bandwidth for m in self.mixtures])           # (C, d)
         rows = np.arange(branch.size)
         return centres[branch, rows] + rng.standard_normal(centres.shape[1:]) * widths[branch]
+
+
+def backward_masses(prior, points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The masses that weightings of ``points`` give to the components of ``prior``, through their exact
+    responsibilities: ``weights (k, m) @ R``, ``R_ij = sum_c V_c W_j N_c(points_i; c_j) / p(points_i)``.
+
+    ``prior`` is a :class:`GaussianMixture` or a :class:`MixtureSum` (its branches summed per ancestor);
+    every row of ``R`` is formed, in blocks of ``O(block x N)`` (never ``N x N x d``).
+
+    Parameters
+    ----------
+    prior : GaussianMixture or MixtureSum
+    points : (m, d) array
+    weights : (k, m) array
+
+    Returns
+    -------
+    (k, N) array
+    """
+    mixtures, log_v = (prior.mixtures, prior.log_weights) if isinstance(prior, MixtureSum) else ((prior,), (0.0,))
+    points = as_samples(points, mixtures[0].dim)
+    weights = np.atleast_2d(np.asarray(weights, dtype=float))
+    out = np.zeros((weights.shape[0], mixtures[0].centres.shape[0]))
+    blocks = [m._scaled_terms((points - m._shift) / m.bandwidth, np.float64) for m in mixtures]
+    for parts in zip(*blocks):   # the same row blocks in every branch (one size per N)
+        rows = parts[0][0]
+        # branch c's row factor: V_c exp(peak - |x|^2 / 2) / prod(h_c), relative to the largest branch's
+        level = np.stack([lv + m._const + peak[:, 0] - 0.5 * np.einsum("ij,ij->i", xb, xb)
+                          for lv, m, (_, xb, _, peak) in zip(log_v, mixtures, parts)])
+        level = np.exp(level - level.max(axis=0))
+        r = sum(f[:, None] * scaled for f, (_, _, scaled, _) in zip(level, parts))
+        r /= r.sum(axis=1, keepdims=True)
+        out += weights[:, rows] @ r
+    return out
 
 
 def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: MarkovKernel,

@@ -10,7 +10,7 @@ from ..engine.protocol import ParticlePredictive
 from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
-from .lineage import ancestor_mass, mass_spread, posterior_labels
+from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
 from .jumps import jump_step_fields
 from .mixture import GaussianMixture, MixtureSum, predictive_density
 from .paths import PathSpace, remedy_applies
@@ -18,12 +18,24 @@ from .pseudo_marginal import SubsampledPrior
 
 __all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
 
-#: A conflict costs accuracy when the mixture's finite ancestors alone would make the step's log-evidence
-#: uncertain by more than this (sd, nats; ``sqrt(1 / ancestor_ess - 1 / N)`` for independent ancestors): the
-#: step's error is then the tilt onto the previous posterior's tail times that posterior's own error, several
-#: times this iid term, and it carries into every later step (docs/jump_kernels.md, moderate damage). At
-#: N = 1000 it is an ancestor ESS of 91.
+#: A conflict costs accuracy when the earlier posteriors' finite samples alone would make the step's log-evidence
+#: uncertain by more than this (sd, nats): the tilt the new data give each earlier posterior the mixtures rest on,
+#: times that posterior's sampling error, summed over the lags (:func:`~seqbayes.predictive.lineage.
+#: lagged_ancestor_variance`; ``sqrt(1 / ancestor_ess - 1 / N)`` at lag 1 alone). The posterior inherits the same
+#: error and carries it into every later step (docs/jump_kernels.md, moderate damage).
 REMEDY_ANCESTOR_SE = 0.1
+
+
+def _deeper_steps(window):
+    """``(prior, posterior)`` of the window's steps, latest first, whose posterior rests on its mixture prior over
+    the step before (none behind a path-space step or the first step's prior)."""
+    out = []
+    for later, earlier in zip(window[:0:-1], window[-2::-1]):
+        if later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum)) or \
+                earlier.posterior.shape[0] != later.posterior.shape[0]:
+            break
+        out.append((later.prior, later.posterior))
+    return out
 
 
 class TransitionMixture(ParticlePredictive):
@@ -59,9 +71,13 @@ class TransitionMixture(ParticlePredictive):
                 and np.array_equal(last.posterior, state.posterior)):
             # the ancestors' own mixture prior: the two-step term of the jump probability's se
             earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
-                           earlier_labels=posterior_labels(state, 1))
+                           earlier_labels=posterior_labels(state, 1), deeper=_deeper_steps(state.window[:-1]))
         return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
                                 posterior_labels(state), **earlier)
+
+    #: The step's :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`, set by :meth:`remedy_fields` (a
+    #: predictive serves one step) for :meth:`remedy`.
+    lagged_variance = float("nan")
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
@@ -80,6 +96,9 @@ class TransitionMixture(ParticlePredictive):
             ancestors = spread.ess
             if state.paths is not None:
                 paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
+        if spread is not None and self.config.remedy_ess > 0:
+            # lags that add less than 1 % of the trigger's variance cannot change its decision
+            self.lagged_variance = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
         window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
                                            float(log_increment), False, variance_before(state)),))[-keep:]
         return ancestors, spread, window, paths
@@ -89,7 +108,8 @@ class TransitionMixture(ParticlePredictive):
         predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
         conflict) or so few that they alone make the increment's log-evidence uncertain by more than
-        :data:`REMEDY_ANCESTOR_SE` nats, its mean shifted by more than ``conflict_threshold`` prior sds, or its
+        :data:`REMEDY_ANCESTOR_SE` nats (at lag 1 or summed over the earlier posteriors the mixtures rest on,
+        :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`), its mean shifted by more than ``conflict_threshold`` prior sds, or its
         restart found fewer than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
         grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
         None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
@@ -103,6 +123,8 @@ class TransitionMixture(ParticlePredictive):
         if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
             threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
         starved = weighed.n_found < STARVED_RESTART * config.n_samples
-        if (info.ancestor_ess < threshold or info.prior_data_conflict > config.conflict_threshold or starved):
+        lagged = config.remedy_ess > 0 and self.lagged_variance > REMEDY_ANCESTOR_SE**2
+        if (info.ancestor_ess < threshold or lagged or info.prior_data_conflict > config.conflict_threshold
+                or starved):
             return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
         return None
