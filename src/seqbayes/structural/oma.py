@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rng import as_generator
-from .structures.shear_building import ShearBuilding, add_measurement_noise, discretise, simulate
+from .structures.shear_building import ShearBuilding, add_measurement_noise, check_dt, discretise, simulate
 
 __all__ = ["Modes", "Poles", "output_covariances", "ssi_poles", "stabilisation_diagram", "ssi_cov",
            "record_row", "ambient_record"]
@@ -96,17 +96,7 @@ def _check_record(y, dt) -> tuple[np.ndarray, float]:
         raise ValueError(f"y: expected a record of shape (T, p) with T >= 2, got {np.shape(y)}")
     if not np.all(np.isfinite(y)):
         raise ValueError("y: contains NaN or inf")
-    return y, _check_dt(dt)
-
-
-def _check_dt(dt) -> float:
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise TypeError(f"dt: expected a number, got {type(dt).__name__}") from None
-    if not np.isfinite(dt) or dt <= 0:
-        raise ValueError(f"dt: must be positive and finite, got {dt}")
-    return dt
+    return y, check_dt(dt)
 
 
 def output_covariances(y: ArrayLike, max_lag: int) -> np.ndarray:
@@ -197,7 +187,7 @@ def ssi_poles(covariances: ArrayLike, dt: float, order: int, block_rows: int) ->
     order = int(order)
     if order < 1 or order > block_rows * p - p:
         raise ValueError(f"order: expected 1 <= order <= (block_rows - 1) * p = {(block_rows - 1) * p}, got {order}")
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     U, S, _ = np.linalg.svd(_toeplitz(covariances, block_rows))
     return _poles_from_svd(U, S, p, order, dt)
 
@@ -390,7 +380,7 @@ def ambient_record(building: ShearBuilding, theta: ArrayLike, duration: float, d
     (T, n) array, ``T = round(duration / dt)``.
     """
     rng = as_generator(rng)
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     if not np.isfinite(duration) or duration < 10 * dt:
         raise ValueError(f"duration: expected at least 10 sampling steps ({10 * dt} s), got {duration}")
     theta = np.asarray(theta, dtype=float).reshape(1, -1)
