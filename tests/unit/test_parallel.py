@@ -199,6 +199,7 @@ def test_process_workers_get_the_likelihood_and_each_dataset_once(serial, tmp_pa
     assert len(worker_pids) == 2
 
 
+@pytest.mark.slow
 def test_dask_workers_get_the_likelihood_and_each_dataset_once(client, serial, tmp_path):
     result = counted_run(client, tmp_path)
     assert_identical(serial["SEMC"], result)

@@ -127,6 +127,7 @@ def test_pseudo_marginal_moves_leave_the_exact_posterior_invariant():
     assert stats.kstest(theta[:, 0], cdf).pvalue > 1e-4
 
 
+@pytest.mark.slow
 def test_start_chooses_the_subsample_in_the_bulk_and_exact_under_conflict():
     g = mixture(n=8000, d=2, width=0.3, seed=7, zero_weights=False)
     rng = np.random.default_rng(8)

@@ -141,6 +141,7 @@ def test_snapshot_does_not_alias_the_run(case):
     assert all(np.array_equal(snap[k], v, equal_nan=v.dtype.kind == "f") for k, v in before.items())
 
 
+@pytest.mark.slow
 def test_restore_refuses_other_settings(case, uninterrupted):
     snap = uninterrupted[1][4]
     b, _, _, std, sw = case
