@@ -50,7 +50,7 @@ from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
 __all__ = ["EnvironmentPrior", "ModelDay", "MonitorDay", "ChangeModelSampler", "EnvironmentMonitor", "alarm_days",
-           "split_days", "FrequencyLikelihood", "read_frequency_csv", "monitor_year"]
+           "split_days", "FrequencyLikelihood", "read_frequency_csv", "monitor_year", "held_for"]
 
 _FLOOR = -1e250  # stands in for -inf in the tempering increments, which must be finite
 
@@ -177,11 +177,25 @@ def alarm_days(p_damage, threshold: float = 0.95, consecutive: int = 2) -> np.nd
         raise ValueError(f"threshold: expected a value in (0, 1), got {threshold}")
     if int(consecutive) != consecutive or consecutive < 1:
         raise ValueError(f"consecutive: expected a positive integer, got {consecutive}")
-    above = (p > threshold).astype(int)
-    run = np.zeros(p.size, int)
+    return np.flatnonzero(held_for(p > threshold, int(consecutive)))
+
+
+def held_for(above, consecutive: int) -> np.ndarray:
+    """``(D,)`` bool: whether ``above (D,)`` has held on the day and the ``consecutive - 1`` days before it.
+
+    The alarm rule's run length, shared by the monitor and the baselines
+    (:mod:`seqbayes.studies.environment_baselines`).
+
+    Examples
+    --------
+    >>> held_for(np.array([False, True, True, False, True, True, True]), 2).tolist()
+    [False, False, True, False, False, True, True]
+    """
+    above = np.asarray(above, bool)
+    run = np.zeros(above.size, int)
     for i, a in enumerate(above):  # run length of exceedances ending at day i (a loop over days)
-        run[i] = (run[i - 1] + 1) * a if i else a
-    return np.flatnonzero(run >= consecutive)
+        run[i] = (run[i - 1] + 1) * a if i else int(a)
+    return run >= consecutive
 
 
 def split_days(day, temperature, frequencies) -> list:

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..structural.environment import held_for
 from ..structural.structures import ShearBuilding
 
 __all__ = ["BaselineResult", "novelty_detection", "ekf_tracking", "frequency_sensitivities", "localise",
@@ -124,11 +125,8 @@ def alarm_days(days: np.ndarray, statistic: np.ndarray, threshold: float, consec
     consecutive = int(consecutive)
     if consecutive < 1:
         raise ValueError(f"consecutive: expected a positive integer, got {consecutive}")
-    above = np.nan_to_num(statistic, nan=-np.inf) > threshold
-    run = np.zeros(days.size, dtype=int)
-    for i, flag in enumerate(above):  # length of the current run of exceedances
-        run[i] = run[i - 1] + 1 if flag and i else int(flag)
-    return [float(d) for d, r in zip(days, run) if r >= consecutive and d >= first_day]
+    held = held_for(np.nan_to_num(statistic, nan=-np.inf) > threshold, consecutive)
+    return [float(d) for d, h in zip(days, held) if h and d >= first_day]
 
 
 def frequency_sensitivities(building: ShearBuilding, theta: ArrayLike | None = None) -> np.ndarray:
