@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seqbayes.structural.environment import read_frequency_csv
 from seqbayes.structural.structures import ShearBuilding
 from seqbayes.studies.environment_baselines import ekf_tracking, novelty_detection
 
@@ -49,14 +50,14 @@ WITHIN_DAYS = 7
 
 
 def read_year(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``day``, ``temperature`` and ``frequencies (R, n)`` of a ``day,temperature,f1,..,fn`` file."""
-    with open(path) as handle:
-        header = [h.strip() for h in handle.readline().strip().split(",")]
-    expected = ["day", "temperature"] + [f"f{i + 1}" for i in range(len(header) - 2)]
-    if len(header) < 3 or header != expected:
-        raise SystemExit(f"--data: {path} needs the header day,temperature,f1,...,fn, got {','.join(header)!r}")
-    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    return values[:, 0], values[:, 1], values[:, 2:]
+    """``day``, ``temperature`` and ``frequencies (R, n)`` of a ``day,temperature,f1,..,fn`` file, read as the
+    monitor reads it (:func:`seqbayes.structural.environment.read_frequency_csv`)."""
+    try:
+        table = read_frequency_csv(path)
+    except ValueError as error:
+        raise SystemExit(f"--data: {error}") from None
+    frequencies = np.column_stack([table[name] for name in table if name.startswith("f")])
+    return table["day"], table["temperature"], frequencies
 
 
 def read_truth(path: Path) -> dict | None:
