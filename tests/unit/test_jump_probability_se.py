@@ -128,7 +128,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     from seqbayes.predictive.ancestry import AncestorSpread
     from seqbayes.predictive.lineage import lagged_ancestor_variance
     from seqbayes.predictive.mixture import backward_masses
-    from seqbayes.predictive.transition import _deeper_steps
+    from seqbayes.predictive.lineage import mixture_chain
 
     rng = np.random.default_rng(1)
     kernel = MarkovKernel([JUMP])
@@ -161,7 +161,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     r = _responsibilities(priors[3], clouds[3])
     a, b = mass @ r, np.exp(window[-1].log_weights) @ r
     assert cut == pytest.approx(np.sum((mass - np.exp(window[-1].log_weights)) ** 2) + np.sum((a - b) ** 2), rel=1e-5)
-    assert [p for p, _ in _deeper_steps(window)] == [priors[3]]
+    assert [p for p, _ in mixture_chain(window)] == [priors[3]]
     # the jump probability's se: the influence u carried back through deeper (distinct labels)
     theta, logw = 0.975 + 0.015 * rng.standard_normal((9, 1)), rng.normal(size=9)
     prior = predictive_density(clouds[3], logws[3], kernel, rng)[0]

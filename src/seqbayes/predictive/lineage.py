@@ -10,7 +10,7 @@ from .ancestry import AncestorSpread, grouped_ancestor_variance
 from .mixture import GaussianMixture, MixtureSum, backward_masses
 
 __all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "lineage_after", "posterior_labels",
-           "lagged_ancestor_variance"]
+           "lagged_ancestor_variance", "mixture_chain"]
 
 
 def lineage_after(state, labels) -> np.ndarray:
@@ -82,16 +82,28 @@ def lagged_ancestor_variance(state, spread, floor: float) -> float:
     if spread.mass is None or not state.window:
         return float(total)
     mass = np.stack([spread.mass, np.exp(state.posterior_log_weights)])
-    for later, earlier in zip(state.window[:0:-1], state.window[-2::-1]):
-        if (later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum))
-                or earlier.posterior.shape[0] != mass.shape[1] or later.posterior.shape[0] != mass.shape[1]):
+    for prior, posterior in mixture_chain(state.window):
+        if posterior.shape[0] != mass.shape[1]:
             break
-        mass = backward_masses(later.prior, later.posterior, mass)
+        mass = backward_masses(prior, posterior, mass)
         term = float(np.sum((mass[0] - mass[1]) ** 2))
         total += term
         if term < floor:
             break
     return float(total)
+
+
+def mixture_chain(window) -> list:
+    """``(prior, posterior)`` of the window's steps, latest first, while each step's posterior rests on its
+    mixture prior over the step before with as many particles: the chain ends behind a path-space step, a
+    prior that is not a mixture (the first step's) or a change of N."""
+    out = []
+    for later, earlier in zip(window[:0:-1], window[-2::-1]):
+        if (later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum))
+                or earlier.posterior.shape[0] != later.posterior.shape[0]):
+            break
+        out.append((later.prior, later.posterior))
+    return out
 
 
 #: Most (query, ancestor) pairs of the transition density evaluated at once.

@@ -10,7 +10,7 @@ from ..engine.protocol import ParticlePredictive
 from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
-from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
+from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, mixture_chain, posterior_labels
 from .jumps import jump_step_fields
 from .mixture import GaussianMixture, MixtureSum, predictive_density
 from .paths import PathSpace, remedy_applies
@@ -24,18 +24,6 @@ __all__ = ["TransitionMixture", "REMEDY_ANCESTOR_SE"]
 #: lagged_ancestor_variance`; ``sqrt(1 / ancestor_ess - 1 / N)`` at lag 1 alone). The posterior inherits the same
 #: error and carries it into every later step (docs/jump_kernels.md, moderate damage).
 REMEDY_ANCESTOR_SE = 0.1
-
-
-def _deeper_steps(window):
-    """``(prior, posterior)`` of the window's steps, latest first, whose posterior rests on its mixture prior over
-    the step before (none behind a path-space step or the first step's prior)."""
-    out = []
-    for later, earlier in zip(window[:0:-1], window[-2::-1]):
-        if later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum)) or \
-                earlier.posterior.shape[0] != later.posterior.shape[0]:
-            break
-        out.append((later.prior, later.posterior))
-    return out
 
 
 class TransitionMixture(ParticlePredictive):
@@ -71,7 +59,7 @@ class TransitionMixture(ParticlePredictive):
                 and np.array_equal(last.posterior, state.posterior)):
             # the ancestors' own mixture prior: the two-step term of the jump probability's se
             earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
-                           earlier_labels=posterior_labels(state, 1), deeper=_deeper_steps(state.window[:-1]))
+                           earlier_labels=posterior_labels(state, 1), deeper=mixture_chain(state.window[:-1]))
         return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
                                 posterior_labels(state), **earlier)
 
