@@ -7,7 +7,7 @@ LOCK   := requirements.lock
 # pytest workers: the machine's cores (2 here); WORKERS=0 runs in one process
 WORKERS ?= auto
 
-.PHONY: run test check layers bench docs docs-regen check-install lock clean
+.PHONY: run test check layers bench docs docs-regen docs-check check-install lock clean
 
 $(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,9 @@ docs: $(STAMP)        ## the documentation site (API reference from docstrings),
 
 docs-regen: $(STAMP)  ## rewrite the guide's outputs and the docs' generated tables and figures from a rerun
 	OPENBLAS_NUM_THREADS=1 $(PY) tools/docgen.py --write
+
+docs-check: $(STAMP)  ## rerun the full studies behind the docs' generated tables (about 10 CPU minutes); fails if one differs
+	OPENBLAS_NUM_THREADS=1 $(PY) tools/docgen.py sections
 
 check-install:       ## a clean venv with only the built wheel (no extras) runs examples and a run-store cycle
 	bash .ci/clean_install
