@@ -56,7 +56,7 @@ BOUNDED_COST = {"inner_filter": ParticleInnerFilter(8, n_pilot=500), "surrogate"
 #: lie within 0.15 posterior sd of the exact ones in 20 of 20 runs (worst 0.203 with three; median
 #: error 0.050 against 0.125); SMC^2 uses them only at s = 1, so they cost 3 N likelihood calls a run.
 #:
-#: SMC's SMC^2 updates (steps 2-4) run at a bounded cost (:data:`BOUNDED_COST`): at most 40,750 expensive calls per
+#: SMC's SMC^2 updates (steps 2-4) run at a bounded cost (:data:`BOUNDED_COST`): at most 40,749 expensive calls per
 #: update over 20 runs and both kernels, against 135,000-470,000 with 30 inner particles, every step of every run
 #: within 0.2 sd and 15 % of the exact grid (docs/benchmarks.md, "Coulomb at 50,000 calls"). SEMC keeps 30 inner
 #: particles and complete moves: under the same cap its mean errors at steps 2-4 grow to 0.06-0.09 sd rms (0.04-0.06
