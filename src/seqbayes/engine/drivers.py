@@ -257,7 +257,7 @@ class SEMC(_SequentialSampler):
 predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
 move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
 conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, scaled_moves, economy, \
-surrogate, move_budget
+surrogate, move_budget, strict_budget
         The fields of :class:`SamplerConfig` of the same names, with its defaults and
         validation (see there for what each does).
 
@@ -290,7 +290,7 @@ surrogate, move_budget
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET):
+                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))
@@ -325,7 +325,7 @@ class SMC(_SequentialSampler):
                  conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
                  remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
                  scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET):
+                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
         super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
                          history=history, inner_filter=inner_filter, blas_threads=blas_threads,
                          **_settings(locals()))

@@ -212,6 +212,15 @@ class SamplerConfig:
         a tempered update (a dataset the predictive does not cover) completes its moves whatever the budget, since
         each of its stages chooses the next exponent from the particles' ESS. ``None``: every rejuvenation completes
         in its update.
+    strict_budget : bool
+        SMC^2 only: ``True`` makes ``move_budget`` a hard cap on every update's PMMH moves (about one batch of re-runs
+        beyond it at most): a tempered update's stages share one budget instead of completing their moves, and
+        restoring the copies' diversity after a resampling spends from it instead of up to ``pmmh.RESTORE_LIMIT``
+        budgets more; the rest is deferred to later updates. An update then costs at most about
+        ``(1 + move_budget) N M`` plus the guide's pilot, however far the data lie from the predictive. Exact as the
+        default's deferral is, but a stream that the kernel contradicts (every update tempered far) loses accuracy
+        with it (``docs/benchmarks.md``, "Coulomb at 50,000 calls"). ``False`` (default): tempered updates complete
+        their moves.
     """
 
     move: str
@@ -250,6 +259,7 @@ class SamplerConfig:
     economy: bool = False
     surrogate: object = None
     move_budget: float | None = MOVE_BUDGET
+    strict_budget: bool = False
 
     def __post_init__(self):
         self._check_run()
@@ -283,6 +293,8 @@ class SamplerConfig:
                                                  and not isinstance(self.move_budget, bool) and self.move_budget > 0
                                                  and math.isfinite(self.move_budget)):
             raise ValueError(f"move_budget: expected None or a finite number > 0, got {self.move_budget!r}")
+        if self.strict_budget not in (True, False):
+            raise ValueError(f"strict_budget: expected True or False, got {self.strict_budget!r}")
 
     def _check_tempering(self):
         if not 0.0 < self.tempering_threshold <= self.tempering_ess:

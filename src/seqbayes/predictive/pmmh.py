@@ -126,7 +126,8 @@ def _pmmh_screen(config, static, components, coefficients, transform):
 
 
 def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
-               step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0):
+               step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0, spent: int = 0,
+               restore_limit: float = RESTORE_LIMIT):
     """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``; the target
@@ -146,6 +147,10 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     leave the cloud less diverse than its weights were (late in a long stream, where one sweep costs more than
     that, the rest of the restoring waits with the other deferred sweeps).
 
+    ``spent`` is what the update's earlier stages have spent on moves and ``restore_limit`` the restoring allowance in
+    budgets (``SamplerConfig.strict_budget`` passes the former and 1: the update's stages share one budget, restoring
+    included).
+
     Returns
     -------
     static, cloud, components, SweepStats, step_size, n_batches, Rejuvenation
@@ -156,7 +161,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     support = problem.support[columns]
     transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
     coefficients = np.array([beta, 1.0, 1.0])
-    stats, n_batches, spent = SweepStats(), 0, 0
+    stats, n_batches = SweepStats(), 0
     queue, sweeps_left = pending.queue, pending.sweeps_left
     n_proposed, n_accepted = pending.n_proposed, pending.n_accepted
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
@@ -171,7 +176,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
                 break
             queue, sweeps_left = rng.permutation(n), sweeps_left - 1
         k = min(queue.size, (budget - spent) // per_particle)
-        if restore and spent < RESTORE_LIMIT * budget and distinct_ess(static) < restore * n:  # restore the ESS first
+        if restore and spent < restore_limit * budget and distinct_ess(static) < restore * n:  # restore the ESS first
             k = min(queue.size, max(k, int(np.ceil(RESTORE_BATCH * n))))
         if config.move == "stretch":  # the stretch move needs a complement to draw partners from
             k = min(k, n // 2)

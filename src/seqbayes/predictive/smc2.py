@@ -539,6 +539,7 @@ class NestedPredictive:
                   else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
         beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
         stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
+        moves_spent, per_particle = 0, max(1, int(getattr(self.inner, "n_inner", 1)) * len(weighed.datasets))
         while beta < 1.0:
             beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
                 log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
@@ -557,11 +558,15 @@ class NestedPredictive:
                 # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
                 # copies overstate); an untempered one first brings the copies back to the ESS the weights had
                 # before the resampling, then defers what exceeds the budget
-                allowed = sys.maxsize if beta < 1.0 or len(temperatures) > 1 else budget
+                # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
+                tempered = beta < 1.0 or len(temperatures) > 1
+                allowed = sys.maxsize if tempered and not config.strict_budget else budget
                 static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
                     self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
                     log_weights, cloud, components, beta, step_size, pending, allowed, likelihood, rng,
-                    restore=stage_ess / n if resampled else 0.0)
+                    restore=stage_ess / n if resampled else 0.0,
+                    **({"spent": moves_spent, "restore_limit": 1.0} if config.strict_budget else {}))
+                moves_spent += sweep.n_evaluations * per_particle   # the budget's units: M s per re-run
                 stats, n_batches = stats + sweep, n_batches + batches
                 if config.move == "stretch":
                     step_size = step_size_new
