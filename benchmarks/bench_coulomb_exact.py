@@ -4,6 +4,9 @@
                                              [--surrogate quadratic] [--economy] [--pilot 2000]
                                              [--budget 5] [--strict-budget] [--samplers SEMC,SMC] [--seed 2023]
     python benchmarks/bench_coulomb_exact.py --inner-sd [--seed 7]
+    python benchmarks/bench_coulomb_exact.py --pmmh-jumps --runs 3 --inner 8 --pilot 500
+    python benchmarks/bench_coulomb_exact.py --first-step-bias --runs 40 --inner 8 --pilot 500 --seed 31337 \
+        [--independent 6] [--samplers SEMC,SMC] [--virtual-tolerance 0.1]
 
 For T1 and T2, SEMC and SMC, ``--runs`` independent runs over the four datasets; per step the
 largest |mean error| over the four parameters in exact posterior sds, the largest |sd ratio - 1|
@@ -17,6 +20,10 @@ step and inner filter size M: after each update of one run (30 inner particles, 
 drawn with the weights each re-run their inner filter 20 times at M = 5, 8, 10, 15 and 30 over the datasets so far;
 the rms over particles of the 20 estimates' sd (and its 90th percentile). The cost-optimal M puts it near 1
 (Pitt et al. 2012; Doucet et al. 2015).
+
+``--pmmh-jumps`` and ``--first-step-bias`` (issue 23, the study's bounded settings): what SEMC's and SMC's PMMH
+moves buy per expensive call at each SMC^2 update (:func:`pmmh_jumps`), and the first update's average errors over
+many seeds (:func:`first_step_bias`).
 """
 
 from __future__ import annotations
@@ -111,6 +118,87 @@ def inner_sd(args):
                 cells.append(f"{np.sqrt(np.mean(sd**2)):.2f} ({np.quantile(sd, 0.9):.2f})")
             print(f"| {name} | {kernel} | {step} | " + " | ".join(cells) + " |", flush=True)
 
+def _bounded(inner: int, pilot: int, independent: int) -> dict:
+    return {"n_independent": independent, "inner_filter": ParticleInnerFilter(inner, n_pilot=pilot),
+            "surrogate": "quadratic", "move_budget": 5, "strict_budget": True}
+
+
+def pmmh_jumps(args):
+    """Per SMC^2 update, what the PMMH moves buy per expensive call under the study's bounded settings: acceptance per
+    proposal, the fraction the screen stopped, acceptances per re-run, and the squared jump of the moved particles
+    whitened by the weighted covariance before the moves (in the moves' coordinates), per accepted move and per 1,000
+    expensive calls. SEMC with the stretch move (its PMMH without ``strict_budget``, the budget still strict), with
+    differential evolution (the library's choice under ``strict_budget``) and with SMC's Gaussian random walk; SMC."""
+    import dataclasses
+
+    from seqbayes.predictive import smc2
+    from seqbayes.transforms import BoxTransform
+
+    data = model.load_experiment()
+    original = smc2.rejuvenate
+    print("| PMMH move | kernel | step | acceptance per proposal | screened out | accepted per re-run | "
+          "whitened sq. jump per accepted move | per 1,000 expensive calls |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, name, override in (("stretch (SEMC)", "SEMC", {"strict_budget": False}),
+                                  ("differential evolution (SEMC)", "SEMC", {}),
+                                  ("Gaussian random walk (SEMC)", "SEMC", {"move": "gaussian"}),
+                                  ("Gaussian random walk (SMC)", "SMC", {})):
+        for kernel in ("T1", "T2"):
+            tally = {}
+
+            def measured(problem, config, inner, split, datasets, *rest, **kw):
+                static, log_weights = rest[1], rest[2]
+                columns = inner.outer_columns(split, problem.kernel.dim)
+                transform = BoxTransform(problem.support[columns])
+                before = transform.forward(static)
+                w = np.exp(log_weights - log_weights.max())
+                w /= w.sum()
+                centred = before - w @ before
+                factor = np.linalg.cholesky(centred.T @ (centred * w[:, None]))
+                out = original(problem, dataclasses.replace(config, **override), inner, split, datasets, *rest, **kw)
+                jumps = np.linalg.solve(factor, (transform.forward(out[0]) - before).T)
+                stats, row = out[3], tally.setdefault(len(datasets), np.zeros(6))
+                row += (stats.n_proposed, stats.n_screened_out, stats.n_evaluations, stats.n_accepted,
+                        stats.n_evaluations * inner.n_inner * len(datasets), float(np.sum(jumps**2)))
+                return out
+
+            smc2.rejuvenate = measured
+            try:
+                for run_index in range(args.runs):
+                    getattr(seqbayes, name)(model.prior(), model.kernel(kernel), model.loglike, n_samples=args.n,
+                                            rng=np.random.default_rng([args.seed, run_index]),
+                                            **_bounded(args.inner, args.pilot, args.independent)).run(data)
+            finally:
+                smc2.rejuvenate = original
+            for step, (proposed, out, reruns, accepted, calls, jump) in sorted(tally.items()):
+                print(f"| {label} | {kernel} | {step} | {accepted / proposed:.2f} | {out / proposed:.2f} | "
+                      f"{accepted / reruns:.2f} | {jump / accepted:.2f} | {1000 * jump / calls:.0f} |", flush=True)
+
+
+def first_step_bias(args):
+    """The first (all-static) update's errors against the exact grid over ``--runs`` seeds (``[args.seed, i]``), the
+    study's bounded settings with ``--independent`` sweeps (and SEMC's ``--virtual-tolerance``): per parameter the mean over seeds of the mean error in
+    exact sds and of the sd ratio - 1, with the standard error of that mean."""
+    data = model.load_experiment()
+    exact = model.load_exact_reference("T2")
+    for name in args.samplers.split(","):
+        errors, settings = [], _bounded(args.inner, args.pilot, args.independent)
+        if args.virtual_tolerance is not None:
+            settings["virtual_tolerance"] = args.virtual_tolerance
+        for run_index in range(args.runs):
+            sampler = getattr(seqbayes, name)(model.prior(), model.kernel("T2"), model.loglike, n_samples=args.n,
+                                              rng=np.random.default_rng([args.seed, run_index]), **settings)
+            sampler.update(data[0])
+            record = sampler.result.steps[0]
+            errors.append(np.concatenate([(record.mean() - exact.mean[0]) / exact.std[0],
+                                          record.std() / exact.std[0] - 1.0]))
+        errors = np.array(errors)
+        mean, se = errors.mean(axis=0), errors.std(axis=0, ddof=1) / np.sqrt(len(errors))
+        cells = [f"{m:+.3f} +- {e:.3f}" for m, e in zip(mean, se)]
+        p = len(model.PARAMETER_NAMES)
+        print(f"| {name} | {args.independent} | {len(errors)} | " + " | ".join(cells[:p]) + " | "
+              + " | ".join(cells[p:]) + " |", flush=True)
+
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -128,8 +216,21 @@ def main():
     parser.add_argument("--budget", type=float, default=None, help="move_budget (default: the library's)")
     parser.add_argument("--inner-sd", action="store_true",
                         help="print the inner log-likelihood estimate's sd per step and inner filter size instead")
+    parser.add_argument("--pmmh-jumps", action="store_true",
+                        help="print the PMMH moves' acceptance and jumps per expensive call per update instead")
+    parser.add_argument("--first-step-bias", action="store_true",
+                        help="print the first update's mean errors over --runs seeds instead")
+    parser.add_argument("--virtual-tolerance", type=float, default=None,
+                        help="SEMC's virtual_tolerance (--first-step-bias only; default: the library's)")
     args = parser.parse_args()
-    inner_sd(args) if args.inner_sd else run(args)
+    if args.inner_sd:
+        inner_sd(args)
+    elif args.pmmh_jumps:
+        pmmh_jumps(args)
+    elif args.first_step_bias:
+        first_step_bias(args)
+    else:
+        run(args)
 
 
 if __name__ == "__main__":

@@ -219,8 +219,9 @@ class SamplerConfig:
         budgets more; the rest is deferred to later updates. An update then costs at most about
         ``(1 + move_budget) N M`` plus the guide's pilot, however far the data lie from the predictive. Exact as the
         default's deferral is, but a stream that the kernel contradicts (every update tempered far) loses accuracy
-        with it (``docs/benchmarks.md``, "Coulomb at 50,000 calls"). ``False`` (default): tempered updates complete
-        their moves.
+        with it (``docs/benchmarks.md``, "Coulomb at 50,000 calls"). SEMC's PMMH then proposes by differential
+        evolution instead of the stretch move, which travels further per inner-filter re-run
+        (:mod:`seqbayes.predictive.pmmh`). ``False`` (default): tempered updates complete their moves.
     """
 
     move: str

@@ -23,6 +23,15 @@ particles' log targets (delayed acceptance, :mod:`seqbayes.moves.delayed`): only
 filters, and the budget counts those re-runs alone. The screen is a function of the proposal alone, so the second
 stage's ratio keeps the pseudo-marginal target exact.
 
+SEMC's moves are ensemble moves: a proposal for a particle of the batch is built from particles outside it. By default
+that is the stretch move with the step size adapted by Eq. (9), as in the paper's stages. With
+``SamplerConfig.strict_budget`` it is the differential-evolution move instead (ter Braak 2006,
+:class:`~seqbayes.moves.scaled.DifferentialMove`: ``x + 2.38 / sqrt(2 d) (x_j - x_k)``, still affine invariant): when
+the expensive re-runs are the budget, what counts is how far the particles travel per re-run, and at the same
+acceptance the stretch move's accepted jumps are much shorter (its proposals mix long stretches, mostly rejected, with
+short ones). The outer moves of SMC^2 are a PMMH kernel, not the paper's SEMC stage move, so any kernel that keeps the
+target serves; ``docs/benchmarks.md`` ("Coulomb at 50,000 calls") has the measured jumps per re-run.
+
 Why it stays exact: each attempt is a PMMH kernel that leaves the current extended target invariant
 (the step's ``p_0(phi) p^(D^{1:s} | phi)`` at the stage's exponent; Andrieu & Roberts 2009), applied to a
 subset of particles chosen by a permutation drawn independently of their values and weights. A kernel
@@ -41,6 +50,7 @@ import numpy as np
 from ..engine.settings import MOVE_BUDGET
 from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
 from ..moves.delayed import QuadraticScreen
+from ..moves.scaled import DifferentialMove
 from ..priors import inside_support
 from ..transforms import BoxTransform
 
@@ -134,7 +144,8 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     is ``beta c_0 + c_1 + c_2``. A proposal re-runs its inner filter over ``datasets`` (fresh randomness), which is
     what makes the noisy likelihood estimate an exact PMMH target. Particles are attempted in batches (one
     vectorised re-run each): SMC's Gaussian random walk with the weighted particles' covariance, or SEMC's stretch
-    move against the particles outside the batch with its step size adapted by Eq. (9) after each batch. Sweeps
+    move against the particles outside the batch with its step size adapted by Eq. (9) after each batch
+    (the differential-evolution move, at its fixed scale, with ``config.strict_budget``). Sweeps
     stop as the stages' schedule says (:func:`~seqbayes.moves.schedule.stage_done`'s rule): after at least
     ``n_moves`` once ``moved_fraction`` of the particles have moved since the resampling, or at the last sweep
     allowed. Only that decision looks at the particles (as a whole); which particle moves never does.
@@ -167,6 +178,9 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
     most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
+    ensemble = config.move == "stretch"
+    # under a strict budget SEMC's PMMH proposes by differential evolution, not the stretch move (see the module doc)
+    differential = ensemble and config.strict_budget
     screen = _pmmh_screen(config, static, components, coefficients, transform)
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
@@ -178,7 +192,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         k = min(queue.size, (budget - spent) // per_particle)
         if restore and spent < restore_limit * budget and distinct_ess(static) < restore * n:  # restore the ESS first
             k = min(queue.size, max(k, int(np.ceil(RESTORE_BATCH * n))))
-        if config.move == "stretch":  # the stretch move needs a complement to draw partners from
+        if ensemble:  # the ensemble moves need a complement to draw partners from
             k = min(k, n // 2)
         if k < 1:
             if spent or budget <= 0:
@@ -190,10 +204,11 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
             copied = True
         active, queue = queue[:k], queue[k:]
         position = transform.forward(static) if transform is not None else static
-        if config.move == "stretch":
+        if ensemble:
             rest = np.ones(n, dtype=bool)
             rest[active] = False
-            proposals, log_hastings, identical = StretchMove(step_size).propose(position[active], position[rest], rng)
+            move = DifferentialMove() if differential else StretchMove(step_size)
+            proposals, log_hastings, identical = move.propose(position[active], position[rest], rng)
         else:
             move = GaussianMove(weighted_covariance(position, log_weights), config.proposal_scale)
             proposals, log_hastings = move.propose(position[active], rng)
@@ -237,7 +252,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         n_batches += 1
         n_proposed, n_accepted = n_proposed + k, n_accepted + int(accept.sum())
         stats = stats + SweepStats(k, int(accept.sum()), int(identical.sum()), int(inside.sum()))
-        if config.move == "stretch":
+        if ensemble and not differential:
             step_size = next_step_size(step_size, float(accept.mean()), config.target_acceptance)  # Eq. (9)
     return (static, cloud, components, stats, step_size, n_batches,
             Rejuvenation(queue, sweeps_left, n_proposed, n_accepted, moved_since))
