@@ -3,6 +3,7 @@
     python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
                                                [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
                                                [--workers 2] [--out FILE] [--log FILE.jsonl [--table-only]]
+                                               [--also MORE.jsonl ...] [--first-seed 0] [--steps 20]
 
 One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
 
@@ -152,48 +153,69 @@ def errors(runs: list, refs: dict) -> dict:
     return out
 
 
-def se_calibration(runs: list, refs: dict, drop, model, sampler) -> float:
-    """Worst ratio (RMS reported se) / (sd over seeds of P(jump)) over the steps whose exact P(jump) is in
-    [0.02, 0.98], returned as the factor furthest from 1 (>= 1 means the se over-states), NaN if no such step."""
-    group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
-    if len(group) < 3:
-        return float("nan")
-    p = np.array([r["jump_probability"] for r in group])
-    se = np.array([r["jump_probability_se"] for r in group])
+def ratio_band(n_seeds: int, level: float = 0.95) -> tuple[float, float]:
+    """Where (RMS se) / (sd over ``n_seeds`` seeds) of a perfectly calibrated se falls with probability ``level``:
+    ``(n - 1) s^2 / sigma^2`` is chi-square with ``n - 1`` dof (10 seeds: 0.69-1.83, 40: 0.82-1.28)."""
+    dof, tail = n_seeds - 1, (1.0 - level) / 2.0
+    return float(np.sqrt(dof / stats.chi2.ppf(1.0 - tail, dof))), float(np.sqrt(dof / stats.chi2.ppf(tail, dof)))
+
+
+def _jump_group(runs, drop, model, sampler):
+    """``(P (n, S), se (n, S))`` of the jump runs of one (drop, model, sampler), one row per seed."""
+    group = list({r["key"][4]: r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]}.values())
+    return (np.array([r["jump_probability"] for r in group]), np.array([r["jump_probability_se"] for r in group]))
+
+
+def se_calibration(runs: list, refs: dict, drop, model, sampler) -> tuple[float, int]:
+    """``(ratio, n_seeds)``: the worst ratio (RMS reported se) / (sd over seeds of P(jump)) over the steps whose
+    exact P(jump) is in [0.02, 0.98], as the factor furthest from 1 (>= 1: the se over-states; NaN if no such step
+    or fewer than 3 seeds). Compare it with :func:`ratio_band` of ``n_seeds``, not with 1: over 10 seeds the sd is
+    itself uncertain by about 24 %."""
+    p, se = _jump_group(runs, drop, model, sampler)
+    if p.shape[0] < 3:
+        return float("nan"), p.shape[0]
     exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
     worst = 1.0
     for s in np.flatnonzero((exact_p > 0.02) & (exact_p < 0.98)):
         ratio = np.sqrt(np.mean(se[:, s] ** 2)) / max(p[:, s].std(ddof=1), 1e-12)
         if abs(np.log(ratio)) > abs(np.log(worst)):
             worst = ratio
-    return float(worst) if worst != 1.0 else float("nan")
+    return (float(worst) if worst != 1.0 else float("nan")), p.shape[0]
 
 
 def se_lines(runs: list, refs: dict) -> list[str]:
-    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se
-    and their ratio."""
+    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se,
+    their ratio (with its chi-square band for the number of seeds), the bias in units of its own se and the
+    mean of ``z^2 = ((P - exact) / se)^2`` (about 1 for a calibrated, unbiased se)."""
     out = []
     for drop, model, _, sampler in sorted({tuple(r["key"][:4]) for r in runs if r["key"][2] == "jump"}):
-        group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
-        if len(group) < 3:
+        p, se = _jump_group(runs, drop, model, sampler)
+        n = p.shape[0]
+        if n < 3:
             continue
-        p = np.array([r["jump_probability"] for r in group])
-        se = np.array([r["jump_probability_se"] for r in group])
-        exact_p = refs[(drop, model, "jump")]["jump_probability"]
-        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({len(group)} seeds): step exact mean sd rms-se ratio")
+        exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
+        low, high = ratio_band(n)
+        z2_low, z2_high = stats.chi2.ppf(0.025, n) / n, stats.chi2.ppf(0.975, n) / n
+        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({n} seeds; ratio band {low:.2f}-{high:.2f}, "
+                   f"mean z^2 band {z2_low:.2f}-{z2_high:.2f}): step exact mean sd rms-se ratio bias-t mean-z^2")
         for s in range(1, p.shape[1]):
             spread, rms = p[:, s].std(ddof=1), np.sqrt(np.mean(se[:, s] ** 2))
-            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} {rms / spread:.2f}")
+            z2 = np.mean(((p[:, s] - exact_p[s]) / se[:, s]) ** 2)
+            bias_t = (p[:, s].mean() - exact_p[s]) / max(spread / np.sqrt(n), 1e-300)
+            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} "
+                       f"{rms / max(spread, 1e-300):.2f} {bias_t:5.2f} {z2:.2f}")
     return out
 
 
 def table(runs: list, refs: dict) -> str:
     """Markdown: per (drop, model, sampler, kernel) the worst step of the 9th-best seed's error (acceptance:
-    >= 9 of 10 seeds within the bar), seeds meeting every bar, path-space steps and the P(jump) se ratio."""
+    >= 9 of 10 seeds within the bar), seeds meeting every bar, path-space steps and the P(jump) se ratio with the
+    number of seeds it used and where a calibrated se's ratio would fall (:func:`ratio_band`)."""
     errs = errors(runs, refs)
     groups = sorted({k[:4] for k in errs}, key=lambda k: (k[0], k[1], k[3], k[2]))
     lines = ["| drop | likelihood | sampler | kernel | seeds | mean err [sd] | sd err | log Z err [nats] | "
-             "P(jump) err | log BF err [nats] | seeds meeting all bars | path-space steps | P(jump) se / spread |",
+             "P(jump) err | log BF err [nats] | seeds meeting all bars | path-space steps | "
+             "P(jump) se / spread (seeds: 95 % band) |",
              "|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for drop, model, kernel, sampler in groups:
         members = [e for k, e in errs.items() if k[:4] == (drop, model, kernel, sampler)]
@@ -210,11 +232,12 @@ def table(runs: list, refs: dict) -> str:
                 good = good and np.all(e["p_ok"]) and ("bf" not in e or np.all(e["bf"] <= 0.5))
             ok += bool(good)
         paths = sum(int(e["path"].sum()) for e in members)
-        ratio = se_calibration(runs, refs, drop, model, sampler) if kernel == "jump" else float("nan")
+        ratio, n_cal = se_calibration(runs, refs, drop, model, sampler) if kernel == "jump" else (float("nan"), 0)
         fmt = lambda x: "-" if not np.isfinite(x) else f"{x:.3f}"   # noqa: E731
+        calibration = "-" if not np.isfinite(ratio) else f"{ratio:.2f} ({n_cal}: {ratio_band(n_cal)[0]:.2f}-{ratio_band(n_cal)[1]:.2f})"
         lines.append(f"| {drop:g} % | {model} | {sampler} | {kernel} | {n} | {fmt(kth('mean'))} | {fmt(kth('sd'))} | "
                      f"{fmt(kth('logz'))} | {fmt(kth('p'))} | {fmt(kth('bf'))} | {ok} of {n} | {paths} | "
-                     f"{fmt(ratio)} |")
+                     f"{calibration} |")
     return "\n".join(lines)
 
 
@@ -233,6 +256,8 @@ def main(argv=None):
     parser.add_argument("--log", help="append each finished run to this JSON-lines file, and skip the runs it "
                                       "already holds (a long matrix can be stopped and resumed)")
     parser.add_argument("--table-only", action="store_true", help="print the table of the runs in --log, run nothing")
+    parser.add_argument("--also", action="append", default=[], metavar="FILE.jsonl",
+                        help="read this log too, never written (e.g. extra seeds of a few rows; repeatable)")
     args = parser.parse_args(argv)
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
@@ -241,9 +266,10 @@ def main(argv=None):
     tasks = [(d, m, k, s, seed, args.samples, args.steps) for seed in range(args.first_seed, args.first_seed + args.seeds)
              for d in drops for m in models for s in samplers for k in kernel_names]
     done = []
-    if args.log and os.path.exists(args.log):
-        with open(args.log) as fh:
-            done = [r for r in map(json.loads, fh) if tuple(r["key"][:3]) in refs]
+    for name in ([args.log] if args.log else []) + args.also:
+        if os.path.exists(name):
+            with open(name) as fh:
+                done += [r for r in map(json.loads, fh) if tuple(r["key"][:3]) in refs]
     keys = {tuple(r["key"]) for r in done}
     runs = done + ([] if args.table_only else _run_all([t for t in tasks if tuple(t[:5]) not in keys], args))
     runs = [r for r in runs if r["key"][3] in samplers and args.first_seed <= r["key"][4] < args.first_seed + args.seeds]

@@ -77,3 +77,15 @@ def test_a_moderate_drop_at_every_step(references, sampler, drop, kernels):
         if key[2] == "jump":
             assert np.all(e["p_ok"]), (key, e["p"])
             assert np.all(e["bf"] <= 0.5), (key, e["bf"])
+
+
+def test_the_calibration_band_is_where_a_calibrated_se_falls():
+    # (RMS se) / (sd over n seeds) for an se equal to the true sd: the band holds 95 % of it (chi-square, n - 1
+    # dof); 20,000 sets give the coverage to +- 0.0015 (binomial sd), so 0.006 is 4 of those
+    rng = np.random.default_rng(7)
+    for n in (10, 40):
+        low, high = bench.ratio_band(n)
+        ratio = 1.0 / rng.standard_normal((20_000, n)).std(axis=1, ddof=1)
+        assert abs(np.mean((ratio >= low) & (ratio <= high)) - 0.95) < 0.006, n
+    assert bench.ratio_band(10) == pytest.approx((0.69, 1.83), abs=0.005)
+    assert bench.ratio_band(40) == pytest.approx((0.82, 1.28), abs=0.005)
