@@ -241,6 +241,66 @@ def table(runs: list, refs: dict) -> str:
     return "\n".join(lines)
 
 
+def kalman(drop_percent: float) -> list[tuple[float, float]]:
+    """``[(mean, variance)]`` of the exact posterior at each step: linear likelihood, random walk (Kalman filter)."""
+    _, datasets = simulate(drop_percent, "linear")
+    mean, var, out = 1.0, 0.1**2, []
+    for s, y in enumerate(datasets):
+        var += 0.0 if s == 0 else WANDER**2
+        gain = var / (var + NOISE["linear"] ** 2 / y.size)
+        mean, var = mean + gain * (y.mean() - mean), (1.0 - gain) * var
+        out.append((mean, var))
+    return out
+
+
+def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps: int = N_STEPS,
+             n_iid: int = 400) -> list[dict]:
+    """Random walk, linear likelihood: why a step's increment is off, step by step (docs/jump_kernels.md).
+
+    Per step ``t``: the increment's error against the Kalman filter, the remedy trigger's summed sd
+    (``sqrt(TransitionMixture.lagged_variance)``, recorded as the step runs) and whether the path-space step ran;
+    the posterior cloud's mean error [exact sd] and weight beyond 2 exact sds on each side (exact 0.0228 each); and
+    the error of step ``t + 1``'s increment that the cloud alone makes, ``log sum_i W_i N(ybar_{t+1}; theta_i, q^2 +
+    sigma^2 / m) - log N(ybar_{t+1}; m_t, P_t + q^2 + sigma^2 / m)`` (closed form: Gaussian ``T`` and ``L``), beside
+    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior."""
+    from seqbayes.predictive import transition
+
+    _, datasets = simulate(drop_percent, "linear")
+    exact_post = kalman(drop_percent)
+    zinc = np.diff(np.r_[0.0, exact(drop_percent, "linear", "walk")["log_evidence"]])
+    lagged = {}
+    original = transition.TransitionMixture.remedy
+
+    def remedy(self, state, *args):            # the trigger's value, read where the step decides on the remedy
+        lagged[state.step + 1] = float(np.sqrt(self.lagged_variance))
+        return original(self, state, *args)
+    transition.TransitionMixture.remedy = remedy
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = SAMPLERS[sampler](prior(), kernels()["walk"], log_likelihood("linear"), n_samples=n,
+                                       rng=np.random.default_rng(seed)).run(datasets[:steps])
+    finally:
+        transition.TransitionMixture.remedy = original
+    iid_rng, rows = np.random.default_rng(99), []
+    for t, step in enumerate(result.steps):
+        theta, w = step.posterior[:, 0], np.exp(step.log_weights - np.logaddexp.reduce(step.log_weights))
+        mean, var = exact_post[t]
+        z = (theta - mean) / np.sqrt(var)
+        row = dict(step=t + 1, increment_error=float(step.info.log_evidence_increment - zinc[t]),
+                   trigger_sd=lagged.get(t + 1, float("nan")), path_space=bool(step.info.path_steps),
+                   mean_error=float(w @ z), below_2sd=float(w[z < -2].sum()), above_2sd=float(w[z > 2].sum()))
+        if t + 1 < len(result.steps):
+            ybar, width = datasets[t + 1].mean(), np.sqrt(WANDER**2 + NOISE["linear"] ** 2 / datasets[t + 1].size)
+            truth = stats.norm.logpdf(ybar, mean, np.sqrt(var + width**2))
+            row["next_from_cloud"] = float(np.logaddexp.reduce(np.log(w) + stats.norm.logpdf(ybar, theta, width)) - truth)
+            iid = stats.norm.logpdf(ybar, iid_rng.normal(mean, np.sqrt(var), (n_iid, n)), width)
+            iid = np.logaddexp.reduce(iid, axis=1) - np.log(n) - truth
+            row["next_from_iid"] = (float(iid.mean()), float(iid.std()))
+        rows.append(row)
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--drops", default="2,4,6,10")
@@ -258,7 +318,18 @@ def main(argv=None):
     parser.add_argument("--table-only", action="store_true", help="print the table of the runs in --log, run nothing")
     parser.add_argument("--also", action="append", default=[], metavar="FILE.jsonl",
                         help="read this log too, never written (e.g. extra seeds of a few rows; repeatable)")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="random walk, linear likelihood: per step the trigger, the cloud's tails and the next "
+                             "increment's error from the cloud against independent exact draws (one line per "
+                             "--drops x --samplers x seed), then stop")
     args = parser.parse_args(argv)
+    if args.diagnose:
+        for drop in [float(x) for x in args.drops.split(",")]:
+            for sampler in args.samplers.split(","):
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
+                    rows = diagnose(drop, sampler, seed, args.samples, args.steps)
+                    print(json.dumps({"key": [drop, "linear", "walk", sampler, seed], "rows": rows}), flush=True)
+        return None
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
     refs = {(d, m, k): exact(d, m, k) for d in drops for m in models for k in kernel_names}
