@@ -161,9 +161,12 @@ def ratio_band(n_seeds: int, level: float = 0.95) -> tuple[float, float]:
 
 
 def _jump_group(runs, drop, model, sampler):
-    """``(P (n, S), se (n, S))`` of the jump runs of one (drop, model, sampler), one row per seed."""
+    """``(P (n, S), se (n, S))`` of the jump runs of one (drop, model, sampler), one row per seed, over the steps
+    every run has (runs stopped early by ``--steps`` may join full ones)."""
     group = list({r["key"][4]: r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]}.values())
-    return (np.array([r["jump_probability"] for r in group]), np.array([r["jump_probability_se"] for r in group]))
+    steps = min((len(r["jump_probability"]) for r in group), default=0)
+    return (np.array([r["jump_probability"][:steps] for r in group]),
+            np.array([r["jump_probability_se"][:steps] for r in group]))
 
 
 def se_calibration(runs: list, refs: dict, drop, model, sampler) -> tuple[float, int]:
@@ -200,10 +203,13 @@ def se_lines(runs: list, refs: dict) -> list[str]:
                    f"mean z^2 band {z2_low:.2f}-{z2_high:.2f}): step exact mean sd rms-se ratio bias-t mean-z^2")
         for s in range(1, p.shape[1]):
             spread, rms = p[:, s].std(ddof=1), np.sqrt(np.mean(se[:, s] ** 2))
+            if spread < 1e-12 or np.any(se[:, s] < 1e-12):     # P(jump) = 1 to rounding: nothing to compare
+                out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} - - -")
+                continue
             z2 = np.mean(((p[:, s] - exact_p[s]) / se[:, s]) ** 2)
-            bias_t = (p[:, s].mean() - exact_p[s]) / max(spread / np.sqrt(n), 1e-300)
+            bias_t = (p[:, s].mean() - exact_p[s]) / (spread / np.sqrt(n))
             out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} "
-                       f"{rms / max(spread, 1e-300):.2f} {bias_t:5.2f} {z2:.2f}")
+                       f"{rms / spread:.2f} {bias_t:5.2f} {z2:.2f}")
     return out
 
 
@@ -301,6 +307,27 @@ def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps:
     return rows
 
 
+def diagnosis_lines(runs: list, title: str) -> list[str]:
+    """Per step over the seeds of :func:`diagnose`: the increment's error (mean, sd), the trigger's sd (RMS), the
+    remedied runs, the cloud's mean error and tails (means), and the next increment's error from the cloud (mean,
+    sd) beside that from independent exact draws."""
+    out = [f"{title} ({len(runs)} seeds): step | increment error mean sd | trigger sd | path-space | cloud mean err, "
+           "P(z<-2) P(z>2) (exact 0.0228) | next increment's error from the cloud: mean sd | from iid draws: mean sd"]
+    for t in range(len(runs[0])):
+        rows = [r[t] for r in runs]
+        inc = np.array([r["increment_error"] for r in rows])
+        line = (f"  {t + 1:2d} | {inc.mean():6.3f} {inc.std(ddof=1):5.3f} | "
+                f"{np.sqrt(np.nanmean([r['trigger_sd'] ** 2 for r in rows])):5.3f} | "
+                f"{sum(r['path_space'] for r in rows):2d} | {np.mean([r['mean_error'] for r in rows]):5.2f} "
+                f"{np.mean([r['below_2sd'] for r in rows]):.4f} {np.mean([r['above_2sd'] for r in rows]):.4f}")
+        if "next_from_cloud" in rows[0]:
+            nxt = np.array([r["next_from_cloud"] for r in rows])
+            line += (f" | {nxt.mean():6.3f} {nxt.std(ddof=1):5.3f} | {rows[0]['next_from_iid'][0]:6.3f} "
+                     f"{rows[0]['next_from_iid'][1]:5.3f}")
+        out.append(line)
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--drops", default="2,4,6,10")
@@ -326,9 +353,11 @@ def main(argv=None):
     if args.diagnose:
         for drop in [float(x) for x in args.drops.split(",")]:
             for sampler in args.samplers.split(","):
-                for seed in range(args.first_seed, args.first_seed + args.seeds):
-                    rows = diagnose(drop, sampler, seed, args.samples, args.steps)
-                    print(json.dumps({"key": [drop, "linear", "walk", sampler, seed], "rows": rows}), flush=True)
+                runs = [diagnose(drop, sampler, seed, args.samples, args.steps)
+                        for seed in range(args.first_seed, args.first_seed + args.seeds)]
+                for seed, rows in enumerate(runs, args.first_seed):
+                    print(json.dumps({"key": [drop, "linear", "walk", sampler, seed], "rows": rows}))
+                print("\n".join(diagnosis_lines(runs, f"{drop:g} % linear walk {sampler}")), flush=True)
         return None
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
