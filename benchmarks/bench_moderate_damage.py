@@ -260,20 +260,23 @@ def kalman(drop_percent: float) -> list[tuple[float, float]]:
 
 
 def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps: int = N_STEPS,
-             n_iid: int = 400) -> list[dict]:
-    """Random walk, linear likelihood: why a step's increment is off, step by step (docs/jump_kernels.md).
+             n_iid: int = 400, kernel: str = "walk") -> list[dict]:
+    """Linear likelihood: why a step's increment is off, step by step (docs/jump_kernels.md).
 
     Per step ``t``: the increment's error against the Kalman filter, the remedy trigger's summed sd
     (``sqrt(TransitionMixture.lagged_variance)``, recorded as the step runs) and whether the path-space step ran;
     the posterior cloud's mean error [exact sd] and weight beyond 2 exact sds on each side (exact 0.0228 each); and
     the error of step ``t + 1``'s increment that the cloud alone makes, ``log sum_i W_i N(ybar_{t+1}; theta_i, q^2 +
     sigma^2 / m) - log N(ybar_{t+1}; m_t, P_t + q^2 + sigma^2 / m)`` (closed form: Gaussian ``T`` and ``L``), beside
-    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior."""
+    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior. With ``kernel="jump"``
+    only the increment's error (against the grid filter), the trigger and the mean error (the posterior is not
+    Gaussian: no tails, no closed form)."""
     from seqbayes.predictive import transition
 
     _, datasets = simulate(drop_percent, "linear")
     exact_post = kalman(drop_percent)
-    zinc = np.diff(np.r_[0.0, exact(drop_percent, "linear", "walk")["log_evidence"]])
+    reference = exact(drop_percent, "linear", kernel)
+    zinc = np.diff(np.r_[0.0, reference["log_evidence"]])
     lagged = {}
     original = transition.TransitionMixture.remedy
 
@@ -284,19 +287,19 @@ def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = SAMPLERS[sampler](prior(), kernels()["walk"], log_likelihood("linear"), n_samples=n,
+            result = SAMPLERS[sampler](prior(), kernels()[kernel], log_likelihood("linear"), n_samples=n,
                                        rng=np.random.default_rng(seed)).run(datasets[:steps])
     finally:
         transition.TransitionMixture.remedy = original
     iid_rng, rows = np.random.default_rng(99), []
     for t, step in enumerate(result.steps):
         theta, w = step.posterior[:, 0], np.exp(step.log_weights - np.logaddexp.reduce(step.log_weights))
-        mean, var = exact_post[t]
+        mean, var = exact_post[t] if kernel == "walk" else (reference["mean"][t], reference["sd"][t] ** 2)
         z = (theta - mean) / np.sqrt(var)
         row = dict(step=t + 1, increment_error=float(step.info.log_evidence_increment - zinc[t]),
                    trigger_sd=lagged.get(t + 1, float("nan")), path_space=bool(step.info.path_steps),
                    mean_error=float(w @ z), below_2sd=float(w[z < -2].sum()), above_2sd=float(w[z > 2].sum()))
-        if t + 1 < len(result.steps):
+        if kernel == "walk" and t + 1 < len(result.steps):
             ybar, width = datasets[t + 1].mean(), np.sqrt(WANDER**2 + NOISE["linear"] ** 2 / datasets[t + 1].size)
             truth = stats.norm.logpdf(ybar, mean, np.sqrt(var + width**2))
             row["next_from_cloud"] = float(np.logaddexp.reduce(np.log(w) + stats.norm.logpdf(ybar, theta, width)) - truth)
@@ -317,7 +320,7 @@ def diagnosis_lines(runs: list, title: str) -> list[str]:
         rows = [r[t] for r in runs]
         inc = np.array([r["increment_error"] for r in rows])
         line = (f"  {t + 1:2d} | {inc.mean():6.3f} {inc.std(ddof=1):5.3f} | "
-                f"{np.sqrt(np.nanmean([r['trigger_sd'] ** 2 for r in rows])):5.3f} | "
+                f"{np.sqrt(np.mean([r['trigger_sd'] ** 2 for r in rows])):5.3f} | "
                 f"{sum(r['path_space'] for r in rows):2d} | {np.mean([r['mean_error'] for r in rows]):5.2f} "
                 f"{np.mean([r['below_2sd'] for r in rows]):.4f} {np.mean([r['above_2sd'] for r in rows]):.4f}")
         if "next_from_cloud" in rows[0]:
@@ -346,18 +349,20 @@ def main(argv=None):
     parser.add_argument("--also", action="append", default=[], metavar="FILE.jsonl",
                         help="read this log too, never written (e.g. extra seeds of a few rows; repeatable)")
     parser.add_argument("--diagnose", action="store_true",
-                        help="random walk, linear likelihood: per step the trigger, the cloud's tails and the next "
+                        help="linear likelihood: per step the trigger, the cloud's tails and the next "
                              "increment's error from the cloud against independent exact draws (one line per "
-                             "--drops x --samplers x seed), then stop")
+                             "--drops x --samplers x --kernels x seed, the cloud's for the walk only), then stop")
     args = parser.parse_args(argv)
     if args.diagnose:
+        kernel_names = args.kernels.split(",")
         for drop in [float(x) for x in args.drops.split(",")]:
             for sampler in args.samplers.split(","):
-                runs = [diagnose(drop, sampler, seed, args.samples, args.steps)
-                        for seed in range(args.first_seed, args.first_seed + args.seeds)]
-                for seed, rows in enumerate(runs, args.first_seed):
-                    print(json.dumps({"key": [drop, "linear", "walk", sampler, seed], "rows": rows}))
-                print("\n".join(diagnosis_lines(runs, f"{drop:g} % linear walk {sampler}")), flush=True)
+                for kernel in kernel_names:
+                    runs = [diagnose(drop, sampler, seed, args.samples, args.steps, kernel=kernel)
+                            for seed in range(args.first_seed, args.first_seed + args.seeds)]
+                    for seed, rows in enumerate(runs, args.first_seed):
+                        print(json.dumps({"key": [drop, "linear", kernel, sampler, seed], "rows": rows}))
+                    print("\n".join(diagnosis_lines(runs, f"{drop:g} % linear {kernel} {sampler}")), flush=True)
         return None
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
