@@ -3,7 +3,7 @@
     python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
                                                [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
                                                [--workers 2] [--out FILE] [--log FILE.jsonl [--table-only]]
-                                               [--also MORE.jsonl ...] [--first-seed 0] [--steps 20]
+                                               [--also MORE.jsonl ...] [--first-seed 0] [--steps 20] [--diagnose]
 
 One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
 
