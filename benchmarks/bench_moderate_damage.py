@@ -3,6 +3,7 @@
     python benchmarks/bench_moderate_damage.py [--drops 2,4,6,10] [--models frequency,linear]
                                                [--samplers SEMC,SMC] [--seeds 10] [--samples 1000]
                                                [--workers 2] [--out FILE] [--log FILE.jsonl [--table-only]]
+                                               [--also MORE.jsonl ...] [--first-seed 0] [--steps 20] [--diagnose]
 
 One normalised stiffness ``k`` (prior ``N(1, 0.1^2)``) is observed 5 times per step, 20 steps, through
 
@@ -152,48 +153,75 @@ def errors(runs: list, refs: dict) -> dict:
     return out
 
 
-def se_calibration(runs: list, refs: dict, drop, model, sampler) -> float:
-    """Worst ratio (RMS reported se) / (sd over seeds of P(jump)) over the steps whose exact P(jump) is in
-    [0.02, 0.98], returned as the factor furthest from 1 (>= 1 means the se over-states), NaN if no such step."""
-    group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
-    if len(group) < 3:
-        return float("nan")
-    p = np.array([r["jump_probability"] for r in group])
-    se = np.array([r["jump_probability_se"] for r in group])
+def ratio_band(n_seeds: int, level: float = 0.95) -> tuple[float, float]:
+    """Where (RMS se) / (sd over ``n_seeds`` seeds) of a perfectly calibrated se falls with probability ``level``:
+    ``(n - 1) s^2 / sigma^2`` is chi-square with ``n - 1`` dof (10 seeds: 0.69-1.83, 40: 0.82-1.28)."""
+    dof, tail = n_seeds - 1, (1.0 - level) / 2.0
+    return float(np.sqrt(dof / stats.chi2.ppf(1.0 - tail, dof))), float(np.sqrt(dof / stats.chi2.ppf(tail, dof)))
+
+
+def _jump_group(runs, drop, model, sampler):
+    """``(P (n, S), se (n, S))`` of the jump runs of one (drop, model, sampler), one row per seed, over the steps
+    every run has (runs stopped early by ``--steps`` may join full ones)."""
+    group = list({r["key"][4]: r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]}.values())
+    steps = min((len(r["jump_probability"]) for r in group), default=0)
+    return (np.array([r["jump_probability"][:steps] for r in group]),
+            np.array([r["jump_probability_se"][:steps] for r in group]))
+
+
+def se_calibration(runs: list, refs: dict, drop, model, sampler) -> tuple[float, int]:
+    """``(ratio, n_seeds)``: the worst ratio (RMS reported se) / (sd over seeds of P(jump)) over the steps whose
+    exact P(jump) is in [0.02, 0.98], as the factor furthest from 1 (>= 1: the se over-states; NaN if no such step
+    or fewer than 3 seeds). Compare it with :func:`ratio_band` of ``n_seeds``, not with 1: over 10 seeds the sd is
+    itself uncertain by about 24 %."""
+    p, se = _jump_group(runs, drop, model, sampler)
+    if p.shape[0] < 3:
+        return float("nan"), p.shape[0]
     exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
     worst = 1.0
     for s in np.flatnonzero((exact_p > 0.02) & (exact_p < 0.98)):
         ratio = np.sqrt(np.mean(se[:, s] ** 2)) / max(p[:, s].std(ddof=1), 1e-12)
         if abs(np.log(ratio)) > abs(np.log(worst)):
             worst = ratio
-    return float(worst) if worst != 1.0 else float("nan")
+    return (float(worst) if worst != 1.0 else float("nan")), p.shape[0]
 
 
 def se_lines(runs: list, refs: dict) -> list[str]:
-    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se
-    and their ratio."""
+    """Per (drop, likelihood, sampler) and step: exact P(jump), the mean and sd over seeds, the RMS reported se,
+    their ratio (with its chi-square band for the number of seeds), the bias in units of its own se and the
+    mean of ``z^2 = ((P - exact) / se)^2`` (about 1 for a calibrated, unbiased se)."""
     out = []
     for drop, model, _, sampler in sorted({tuple(r["key"][:4]) for r in runs if r["key"][2] == "jump"}):
-        group = [r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]]
-        if len(group) < 3:
+        p, se = _jump_group(runs, drop, model, sampler)
+        n = p.shape[0]
+        if n < 3:
             continue
-        p = np.array([r["jump_probability"] for r in group])
-        se = np.array([r["jump_probability_se"] for r in group])
-        exact_p = refs[(drop, model, "jump")]["jump_probability"]
-        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({len(group)} seeds): step exact mean sd rms-se ratio")
+        exact_p = np.array(refs[(drop, model, "jump")]["jump_probability"])[:p.shape[1]]
+        low, high = ratio_band(n)
+        z2_low, z2_high = stats.chi2.ppf(0.025, n) / n, stats.chi2.ppf(0.975, n) / n
+        out.append(f"P(jump) se, {drop:g} % {model} {sampler} ({n} seeds; ratio band {low:.2f}-{high:.2f}, "
+                   f"mean z^2 band {z2_low:.2f}-{z2_high:.2f}): step exact mean sd rms-se ratio bias-t mean-z^2")
         for s in range(1, p.shape[1]):
             spread, rms = p[:, s].std(ddof=1), np.sqrt(np.mean(se[:, s] ** 2))
-            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} {rms / spread:.2f}")
+            if spread < 1e-12 or np.any(se[:, s] < 1e-12):     # P(jump) = 1 to rounding: nothing to compare
+                out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} - - -")
+                continue
+            z2 = np.mean(((p[:, s] - exact_p[s]) / se[:, s]) ** 2)
+            bias_t = (p[:, s].mean() - exact_p[s]) / (spread / np.sqrt(n))
+            out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} "
+                       f"{rms / spread:.2f} {bias_t:5.2f} {z2:.2f}")
     return out
 
 
 def table(runs: list, refs: dict) -> str:
     """Markdown: per (drop, model, sampler, kernel) the worst step of the 9th-best seed's error (acceptance:
-    >= 9 of 10 seeds within the bar), seeds meeting every bar, path-space steps and the P(jump) se ratio."""
+    >= 9 of 10 seeds within the bar), seeds meeting every bar, path-space steps and the P(jump) se ratio with the
+    number of seeds it used and where a calibrated se's ratio would fall (:func:`ratio_band`)."""
     errs = errors(runs, refs)
     groups = sorted({k[:4] for k in errs}, key=lambda k: (k[0], k[1], k[3], k[2]))
     lines = ["| drop | likelihood | sampler | kernel | seeds | mean err [sd] | sd err | log Z err [nats] | "
-             "P(jump) err | log BF err [nats] | seeds meeting all bars | path-space steps | P(jump) se / spread |",
+             "P(jump) err | log BF err [nats] | seeds meeting all bars | path-space steps | "
+             "P(jump) se / spread (seeds: 95 % band) |",
              "|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for drop, model, kernel, sampler in groups:
         members = [e for k, e in errs.items() if k[:4] == (drop, model, kernel, sampler)]
@@ -210,12 +238,97 @@ def table(runs: list, refs: dict) -> str:
                 good = good and np.all(e["p_ok"]) and ("bf" not in e or np.all(e["bf"] <= 0.5))
             ok += bool(good)
         paths = sum(int(e["path"].sum()) for e in members)
-        ratio = se_calibration(runs, refs, drop, model, sampler) if kernel == "jump" else float("nan")
+        ratio, n_cal = se_calibration(runs, refs, drop, model, sampler) if kernel == "jump" else (float("nan"), 0)
         fmt = lambda x: "-" if not np.isfinite(x) else f"{x:.3f}"   # noqa: E731
+        calibration = "-" if not np.isfinite(ratio) else f"{ratio:.2f} ({n_cal}: {ratio_band(n_cal)[0]:.2f}-{ratio_band(n_cal)[1]:.2f})"
         lines.append(f"| {drop:g} % | {model} | {sampler} | {kernel} | {n} | {fmt(kth('mean'))} | {fmt(kth('sd'))} | "
                      f"{fmt(kth('logz'))} | {fmt(kth('p'))} | {fmt(kth('bf'))} | {ok} of {n} | {paths} | "
-                     f"{fmt(ratio)} |")
+                     f"{calibration} |")
     return "\n".join(lines)
+
+
+def kalman(drop_percent: float) -> list[tuple[float, float]]:
+    """``[(mean, variance)]`` of the exact posterior at each step: linear likelihood, random walk (Kalman filter)."""
+    _, datasets = simulate(drop_percent, "linear")
+    mean, var, out = 1.0, 0.1**2, []
+    for s, y in enumerate(datasets):
+        var += 0.0 if s == 0 else WANDER**2
+        gain = var / (var + NOISE["linear"] ** 2 / y.size)
+        mean, var = mean + gain * (y.mean() - mean), (1.0 - gain) * var
+        out.append((mean, var))
+    return out
+
+
+def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps: int = N_STEPS,
+             n_iid: int = 400, kernel: str = "walk") -> list[dict]:
+    """Linear likelihood: why a step's increment is off, step by step (docs/jump_kernels.md).
+
+    Per step ``t``: the increment's error against the Kalman filter, the remedy trigger's summed sd
+    (``sqrt(TransitionMixture.lagged_variance)``, recorded as the step runs) and whether the path-space step ran;
+    the posterior cloud's mean error [exact sd] and weight beyond 2 exact sds on each side (exact 0.0228 each); and
+    the error of step ``t + 1``'s increment that the cloud alone makes, ``log sum_i W_i N(ybar_{t+1}; theta_i, q^2 +
+    sigma^2 / m) - log N(ybar_{t+1}; m_t, P_t + q^2 + sigma^2 / m)`` (closed form: Gaussian ``T`` and ``L``), beside
+    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior. With ``kernel="jump"``
+    only the increment's error (against the grid filter), the trigger and the mean error (the posterior is not
+    Gaussian: no tails, no closed form)."""
+    from seqbayes.predictive import transition
+
+    _, datasets = simulate(drop_percent, "linear")
+    exact_post = kalman(drop_percent)
+    reference = exact(drop_percent, "linear", kernel)
+    zinc = np.diff(np.r_[0.0, reference["log_evidence"]])
+    lagged = {}
+    original = transition.TransitionMixture.remedy
+
+    def remedy(self, state, *args):            # the trigger's value, read where the step decides on the remedy
+        lagged[state.step + 1] = float(np.sqrt(self.lagged_variance))
+        return original(self, state, *args)
+    transition.TransitionMixture.remedy = remedy
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = SAMPLERS[sampler](prior(), kernels()[kernel], log_likelihood("linear"), n_samples=n,
+                                       rng=np.random.default_rng(seed)).run(datasets[:steps])
+    finally:
+        transition.TransitionMixture.remedy = original
+    iid_rng, rows = np.random.default_rng(99), []
+    for t, step in enumerate(result.steps):
+        theta, w = step.posterior[:, 0], np.exp(step.log_weights - np.logaddexp.reduce(step.log_weights))
+        mean, var = exact_post[t] if kernel == "walk" else (reference["mean"][t], reference["sd"][t] ** 2)
+        z = (theta - mean) / np.sqrt(var)
+        row = dict(step=t + 1, increment_error=float(step.info.log_evidence_increment - zinc[t]),
+                   trigger_sd=lagged.get(t + 1, float("nan")), path_space=bool(step.info.path_steps),
+                   mean_error=float(w @ z), below_2sd=float(w[z < -2].sum()), above_2sd=float(w[z > 2].sum()))
+        if kernel == "walk" and t + 1 < len(result.steps):
+            ybar, width = datasets[t + 1].mean(), np.sqrt(WANDER**2 + NOISE["linear"] ** 2 / datasets[t + 1].size)
+            truth = stats.norm.logpdf(ybar, mean, np.sqrt(var + width**2))
+            row["next_from_cloud"] = float(np.logaddexp.reduce(np.log(w) + stats.norm.logpdf(ybar, theta, width)) - truth)
+            iid = stats.norm.logpdf(ybar, iid_rng.normal(mean, np.sqrt(var), (n_iid, n)), width)
+            iid = np.logaddexp.reduce(iid, axis=1) - np.log(n) - truth
+            row["next_from_iid"] = (float(iid.mean()), float(iid.std()))
+        rows.append(row)
+    return rows
+
+
+def diagnosis_lines(runs: list, title: str) -> list[str]:
+    """Per step over the seeds of :func:`diagnose`: the increment's error (mean, sd), the trigger's sd (RMS), the
+    remedied runs, the cloud's mean error and tails (means), and the next increment's error from the cloud (mean,
+    sd) beside that from independent exact draws."""
+    out = [f"{title} ({len(runs)} seeds): step | increment error mean sd | trigger sd | path-space | cloud mean err, "
+           "P(z<-2) P(z>2) (exact 0.0228) | next increment's error from the cloud: mean sd | from iid draws: mean sd"]
+    for t in range(len(runs[0])):
+        rows = [r[t] for r in runs]
+        inc = np.array([r["increment_error"] for r in rows])
+        line = (f"  {t + 1:2d} | {inc.mean():6.3f} {inc.std(ddof=1):5.3f} | "
+                f"{np.sqrt(np.mean([r['trigger_sd'] ** 2 for r in rows])):5.3f} | "
+                f"{sum(r['path_space'] for r in rows):2d} | {np.mean([r['mean_error'] for r in rows]):5.2f} "
+                f"{np.mean([r['below_2sd'] for r in rows]):.4f} {np.mean([r['above_2sd'] for r in rows]):.4f}")
+        if "next_from_cloud" in rows[0]:
+            nxt = np.array([r["next_from_cloud"] for r in rows])
+            line += (f" | {nxt.mean():6.3f} {nxt.std(ddof=1):5.3f} | {rows[0]['next_from_iid'][0]:6.3f} "
+                     f"{rows[0]['next_from_iid'][1]:5.3f}")
+        out.append(line)
+    return out
 
 
 def main(argv=None):
@@ -233,7 +346,24 @@ def main(argv=None):
     parser.add_argument("--log", help="append each finished run to this JSON-lines file, and skip the runs it "
                                       "already holds (a long matrix can be stopped and resumed)")
     parser.add_argument("--table-only", action="store_true", help="print the table of the runs in --log, run nothing")
+    parser.add_argument("--also", action="append", default=[], metavar="FILE.jsonl",
+                        help="read this log too, never written (e.g. extra seeds of a few rows; repeatable)")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="linear likelihood: per step the trigger, the cloud's tails and the next "
+                             "increment's error from the cloud against independent exact draws (one line per "
+                             "--drops x --samplers x --kernels x seed, the cloud's for the walk only), then stop")
     args = parser.parse_args(argv)
+    if args.diagnose:
+        kernel_names = args.kernels.split(",")
+        for drop in [float(x) for x in args.drops.split(",")]:
+            for sampler in args.samplers.split(","):
+                for kernel in kernel_names:
+                    runs = [diagnose(drop, sampler, seed, args.samples, args.steps, kernel=kernel)
+                            for seed in range(args.first_seed, args.first_seed + args.seeds)]
+                    for seed, rows in enumerate(runs, args.first_seed):
+                        print(json.dumps({"key": [drop, "linear", kernel, sampler, seed], "rows": rows}))
+                    print("\n".join(diagnosis_lines(runs, f"{drop:g} % linear {kernel} {sampler}")), flush=True)
+        return None
     drops = [float(x) for x in args.drops.split(",")]
     models, samplers, kernel_names = args.models.split(","), args.samplers.split(","), args.kernels.split(",")
     refs = {(d, m, k): exact(d, m, k) for d in drops for m in models for k in kernel_names}
@@ -241,9 +371,10 @@ def main(argv=None):
     tasks = [(d, m, k, s, seed, args.samples, args.steps) for seed in range(args.first_seed, args.first_seed + args.seeds)
              for d in drops for m in models for s in samplers for k in kernel_names]
     done = []
-    if args.log and os.path.exists(args.log):
-        with open(args.log) as fh:
-            done = [r for r in map(json.loads, fh) if tuple(r["key"][:3]) in refs]
+    for name in ([args.log] if args.log else []) + args.also:
+        if os.path.exists(name):
+            with open(name) as fh:
+                done += [r for r in map(json.loads, fh) if tuple(r["key"][:3]) in refs]
     keys = {tuple(r["key"]) for r in done}
     runs = done + ([] if args.table_only else _run_all([t for t in tasks if tuple(t[:5]) not in keys], args))
     runs = [r for r in runs if r["key"][3] in samplers and args.first_seed <= r["key"][4] < args.first_seed + args.seeds]

@@ -16,7 +16,6 @@ from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..weights import logsumexp
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
-from .jumps import jump_step_fields
 from .mixture import GaussianMixture
 
 __all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
@@ -256,7 +255,10 @@ class PathSpace:
                                  previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
-                      log_evidence_se=evidence_se, **jump_step_fields(kernel, state.prior, posterior, cloud.log_weights))
+                      log_evidence_se=evidence_se,
+                      # the mixture step's jump fields: its se groups copies and carries the ancestors' terms
+                      **self.mixture.jump_fields(state, Cloud(posterior, cloud.log_weights, cloud.components,
+                                                              cloud.labels)))
         step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
         return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
 
