@@ -1,7 +1,7 @@
 """The OpenSees frame example through the command line, against its exact grid reference (issue 23, item 4).
 
     python benchmarks/bench_opensees.py reference [--workers 2] [--out examples/opensees/frame_reference.csv]
-    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER]
+    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER] [--seed S] [--move-budget B]
     python benchmarks/bench_opensees.py compare RUN.nc [RUN.nc ...]
 
 ``reference`` computes the exact filtering posterior of the example's 20 campaigns on a tensor grid
@@ -16,7 +16,10 @@ status`` and ``seqbayes report``. It prints per update the likelihood calls and 
 counts stored bit-identical posteriors, and each campaign's posterior against the reference:
 mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error. ``compare`` does the
 last for stores kept with ``--keep`` and checks that they hold the same posteriors and calls over
-their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1).
+their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1). ``--seed`` replaces
+the TOML's sampler seed (the campaigns stay those of seed 2026, which the reference is for) and
+``--move-budget`` sets ``[sampler] move_budget`` (SMC^2's PMMH evaluations per update in units of
+``N M``; a huge value such as 1e9 lets every rejuvenation complete in its update, as before the budget).
 """
 
 from __future__ import annotations
@@ -84,6 +87,9 @@ def cli(args) -> None:
             paths = frame.write_campaigns(folder, args.campaigns, seed=2026)
             toml = (EXAMPLE / "frame.toml").read_text()
             toml = re.sub(r"workers = \d+", f"workers = {workers}", toml)
+            toml = re.sub(r"seed = \d+", f"seed = {args.seed}", toml)
+            if args.move_budget is not None:
+                toml = toml.replace("[parallel]", f"move_budget = {args.move_budget!r}\n\n[parallel]")
             (folder / "frame.toml").write_text(toml)
             _seqbayes("init", "frame.toml", "run.nc", cwd=folder)
             rows = []
@@ -101,7 +107,9 @@ def cli(args) -> None:
             result = store.result
             runs[workers] = (rows, result, status)
             if args.keep:  # the run store, for another comparison later
-                shutil.copy(folder / "run.nc", Path(args.keep) / f"opensees_run_w{workers}.nc")
+                tag = (f"_seed{args.seed}" if args.seed != 2026 else "") + (
+                    f"_budget{args.move_budget:g}" if args.move_budget is not None else "")
+                shutil.copy(folder / "run.nc", Path(args.keep) / f"opensees_run_w{workers}{tag}.nc")
         finally:
             shutil.rmtree(folder, ignore_errors=True)
     load = os.getloadavg()
@@ -159,6 +167,8 @@ def main() -> None:
     p.add_argument("--campaigns", type=int, default=20)
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
     p.add_argument("--keep", metavar="FOLDER", help="copy each run store there")
+    p.add_argument("--seed", type=int, default=2026, help="the sampler's seed (the campaigns stay seed 2026's)")
+    p.add_argument("--move-budget", type=float, help="[sampler] move_budget (default: the TOML's, i.e. the library's)")
     p = sub.add_parser("compare", help="kept run stores: identical to each other, and the first against the reference")
     p.add_argument("runs", nargs="+")
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
