@@ -15,8 +15,8 @@ status`` and ``seqbayes report``. It prints per update the likelihood calls and 
 (of the ``update`` process, start-up included), the totals, whether the runs with different worker
 counts stored bit-identical posteriors, and each campaign's posterior against the reference:
 mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error. ``compare`` does the
-last for stores kept with ``--keep`` and checks that they hold the same posteriors and calls over
-their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1). ``--seed`` replaces
+last for stores kept with ``--keep``, with where each update's calls went (stages, PMMH proposals,
+moves pending), and checks that they hold the same posteriors and calls over their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1). ``--seed`` replaces
 the TOML's sampler seed (the campaigns stay those of seed 2026, which the reference is for) and
 ``--move-budget`` sets ``[sampler] move_budget`` (SMC^2's PMMH evaluations per update in units of
 ``N M``; a huge value such as 1e9 lets every rejuvenation complete in its update, as before the budget).
@@ -187,7 +187,20 @@ def main() -> None:
                         for r in results[1:] for s in range(common))
         print(f"posteriors and likelihood calls identical over their {common} common steps: "
               f"{'yes' if identical else 'NO'}")
+        costs(results[0])
         compare(results[0], args.reference, len(results[0].steps))
+
+
+def costs(result) -> None:
+    """Where each update's likelihood calls went, from the store's ``StepInfo``: tempering stages, the PMMH
+    proposals of SMC^2's rejuvenation (each re-runs one outer particle's inner filter over every campaign so far)
+    and the moves left pending for later updates by the move budget."""
+    print("\n| update | calls | stages | PMMH proposals (accepted) | moves pending after | amortised calls |")
+    print("|---|---|---|---|---|---|")
+    for s, rec in enumerate(result.steps):
+        info = rec.info
+        print(f"| {s + 1} | {info.n_loglike_evals:,} | {info.n_stages} | {info.n_proposed} ({info.n_accepted}) | "
+              f"{info.pending_moves} | {info.amortised_evals:,.0f} |")
 
 
 if __name__ == "__main__":
