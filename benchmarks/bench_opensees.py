@@ -192,15 +192,16 @@ def main() -> None:
 
 
 def costs(result) -> None:
-    """Where each update's likelihood calls went, from the store's ``StepInfo``: tempering stages, the PMMH
-    proposals of SMC^2's rejuvenation (each re-runs one outer particle's inner filter over every campaign so far)
-    and the moves left pending for later updates by the move budget."""
-    print("\n| update | calls | stages | PMMH proposals (accepted) | moves pending after | amortised calls |")
-    print("|---|---|---|---|---|---|")
+    """Where each update's likelihood calls went, from the store's ``StepInfo``: tempering stages, the moves
+    proposed (from update 2 on SMC^2's PMMH moves, each re-running one outer particle's inner filter over every
+    campaign so far), the PMMH acceptance since the last resampling (below 0.2 at the end of a rejuvenation, the
+    update warns: ``InnerFilterWarning``) and the moves the budget left pending for later updates."""
+    print("\n| update | calls | stages | moves proposed (accepted) | PMMH acceptance | moves pending after | amortised calls |")
+    print("|---|---|---|---|---|---|---|")
     for s, rec in enumerate(result.steps):
         info = rec.info
         print(f"| {s + 1} | {info.n_loglike_evals:,} | {info.n_stages} | {info.n_proposed} ({info.n_accepted}) | "
-              f"{info.pending_moves} | {info.amortised_evals:,.0f} |")
+              f"{info.pmmh_acceptance:.2f} | {info.pending_moves} | {info.amortised_evals:,.0f} |")
 
 
 if __name__ == "__main__":
