@@ -3,6 +3,7 @@
     python benchmarks/bench_opensees.py reference [--workers 2] [--out examples/opensees/frame_reference.csv]
     python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER] [--seed S] [--move-budget B]
     python benchmarks/bench_opensees.py compare RUN.nc [RUN.nc ...]
+    python benchmarks/bench_opensees.py summary RUN.nc [RUN.nc ...]
 
 ``reference`` computes the exact filtering posterior of the example's 20 campaigns on a tensor grid
 (:func:`seqbayes.models.opensees_frame.grid_reference`; one OpenSees solve per (kappa, zeta) grid
@@ -18,7 +19,8 @@ mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error. ``c
 last for stores kept with ``--keep``, with where each update's calls went (stages, PMMH proposals,
 moves pending), and checks that they hold the same posteriors and calls over their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1). ``--seed`` replaces
 the TOML's sampler seed (the campaigns stay those of seed 2026, which the reference is for) and
-``--move-budget`` sets ``[sampler] move_budget`` (SMC^2's PMMH evaluations per update in units of
+``summary`` prints one row per kept store (e.g. of different seeds and budgets): its calls, median and
+largest update and its worst and RMS errors against the reference. ``--move-budget`` sets ``[sampler] move_budget`` (SMC^2's PMMH evaluations per update in units of
 ``N M``; a huge value such as 1e9 lets every rejuvenation complete in its update, as before the budget).
 """
 
@@ -154,6 +156,29 @@ def compare(result, reference_file, campaigns) -> None:
           f"{np.abs(errors['std_ratio']).max():.2f}, worst |log Z err| {np.abs(errors['log_evidence']).max():.2f} nats")
 
 
+def summary(paths, reference_file) -> None:
+    """One row per run store: seed, budget, calls, median and largest update, errors against the reference."""
+    from seqbayes.engine.settings import MOVE_BUDGET
+    from seqbayes.store import open_run
+
+    ref = next(iter(read_reference_table(Path(reference_file).read_text(), ["grid"], frame.PARAMETER_NAMES).values()))
+    print("| seed | move_budget | calls | median update | largest update (campaign, stages) | worst mean err / sd "
+          "(parameter, campaign) | RMS mean err / sd | worst sd ratio - 1 | worst log Z err |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for path in paths:
+        store = open_run(path)
+        result = store.result
+        errors = ref.errors(result.means(), result.stds(), [rec.info.log_evidence for rec in result.steps])
+        calls = np.array([rec.info.n_loglike_evals for rec in result.steps])
+        big = int(calls.argmax())
+        mean_sd = errors["mean_sd"]
+        s, p = np.unravel_index(np.abs(mean_sd).argmax(), mean_sd.shape)
+        print(f"| {store.config.seed} | {store.config.settings.get('move_budget', MOVE_BUDGET):g} | {calls.sum():,} | "
+              f"{int(np.median(calls)):,} | {calls[big]:,} ({big + 1}, {result.steps[big].info.n_stages}) | "
+              f"{mean_sd[s, p]:+.2f} ({frame.PARAMETER_NAMES[p]}, {s + 1}) | {np.sqrt(np.mean(mean_sd ** 2)):.2f} | "
+              f"{np.abs(errors['std_ratio']).max():.2f} | {np.abs(errors['log_evidence']).max():.2f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -172,11 +197,16 @@ def main() -> None:
     p = sub.add_parser("compare", help="kept run stores: identical to each other, and the first against the reference")
     p.add_argument("runs", nargs="+")
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
+    p = sub.add_parser("summary", help="kept run stores (seeds, budgets): calls and errors against the reference")
+    p.add_argument("runs", nargs="+")
+    p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
     args = parser.parse_args()
     if args.what == "reference":
         reference(args)
     elif args.what == "cli":
         cli(args)
+    elif args.what == "summary":
+        summary(args.runs, args.reference)
     else:
         from seqbayes.store import open_run
 
