@@ -1,8 +1,9 @@
 """The OpenSees frame example through the command line, against its exact grid reference (issue 23, item 4).
 
     python benchmarks/bench_opensees.py reference [--workers 2] [--out examples/opensees/frame_reference.csv]
-    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER]
+    python benchmarks/bench_opensees.py cli [--workers 1 2] [--campaigns 20] [--keep FOLDER] [--seed S] [--move-budget B]
     python benchmarks/bench_opensees.py compare RUN.nc [RUN.nc ...]
+    python benchmarks/bench_opensees.py summary RUN.nc [RUN.nc ...]
 
 ``reference`` computes the exact filtering posterior of the example's 20 campaigns on a tensor grid
 (:func:`seqbayes.models.opensees_frame.grid_reference`; one OpenSees solve per (kappa, zeta) grid
@@ -15,8 +16,12 @@ status`` and ``seqbayes report``. It prints per update the likelihood calls and 
 (of the ``update`` process, start-up included), the totals, whether the runs with different worker
 counts stored bit-identical posteriors, and each campaign's posterior against the reference:
 mean error in exact sds, sd ratio - 1 and the cumulative log-evidence error. ``compare`` does the
-last for stores kept with ``--keep`` and checks that they hold the same posteriors and calls over
-their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1).
+last for stores kept with ``--keep``, with where each update's calls went (stages, PMMH proposals,
+moves pending), and checks that they hold the same posteriors and calls over their common steps (e.g. a 20-campaign run on 2 workers and a 5-campaign run on 1). ``--seed`` replaces
+the TOML's sampler seed (the campaigns stay those of seed 2026, which the reference is for) and
+``summary`` prints one row per kept store (e.g. of different seeds and budgets): its calls, median and
+largest update and its worst and RMS errors against the reference. ``--move-budget`` sets ``[sampler] move_budget`` (SMC^2's PMMH evaluations per update in units of
+``N M``; a huge value such as 1e9 lets every rejuvenation complete in its update, as before the budget).
 """
 
 from __future__ import annotations
@@ -84,6 +89,9 @@ def cli(args) -> None:
             paths = frame.write_campaigns(folder, args.campaigns, seed=2026)
             toml = (EXAMPLE / "frame.toml").read_text()
             toml = re.sub(r"workers = \d+", f"workers = {workers}", toml)
+            toml = re.sub(r"seed = \d+", f"seed = {args.seed}", toml)
+            if args.move_budget is not None:
+                toml = toml.replace("[parallel]", f"move_budget = {args.move_budget!r}\n\n[parallel]")
             (folder / "frame.toml").write_text(toml)
             _seqbayes("init", "frame.toml", "run.nc", cwd=folder)
             rows = []
@@ -101,7 +109,9 @@ def cli(args) -> None:
             result = store.result
             runs[workers] = (rows, result, status)
             if args.keep:  # the run store, for another comparison later
-                shutil.copy(folder / "run.nc", Path(args.keep) / f"opensees_run_w{workers}.nc")
+                tag = (f"_seed{args.seed}" if args.seed != 2026 else "") + (
+                    f"_budget{args.move_budget:g}" if args.move_budget is not None else "")
+                shutil.copy(folder / "run.nc", Path(args.keep) / f"opensees_run_w{workers}{tag}.nc")
         finally:
             shutil.rmtree(folder, ignore_errors=True)
     load = os.getloadavg()
@@ -146,6 +156,29 @@ def compare(result, reference_file, campaigns) -> None:
           f"{np.abs(errors['std_ratio']).max():.2f}, worst |log Z err| {np.abs(errors['log_evidence']).max():.2f} nats")
 
 
+def summary(paths, reference_file) -> None:
+    """One row per run store: seed, budget, calls, median and largest update, errors against the reference."""
+    from seqbayes.engine.settings import MOVE_BUDGET
+    from seqbayes.store import open_run
+
+    ref = next(iter(read_reference_table(Path(reference_file).read_text(), ["grid"], frame.PARAMETER_NAMES).values()))
+    print("| seed | move_budget | calls | median update | largest update (campaign, stages) | worst mean err / sd "
+          "(parameter, campaign) | RMS mean err / sd | worst sd ratio - 1 | worst log Z err |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for path in paths:
+        store = open_run(path)
+        result = store.result
+        errors = ref.errors(result.means(), result.stds(), [rec.info.log_evidence for rec in result.steps])
+        calls = np.array([rec.info.n_loglike_evals for rec in result.steps])
+        big = int(calls.argmax())
+        mean_sd = errors["mean_sd"]
+        s, p = np.unravel_index(np.abs(mean_sd).argmax(), mean_sd.shape)
+        print(f"| {store.config.seed} | {store.config.settings.get('move_budget', MOVE_BUDGET):g} | {calls.sum():,} | "
+              f"{int(np.median(calls)):,} | {calls[big]:,} ({big + 1}, {result.steps[big].info.n_stages}) | "
+              f"{mean_sd[s, p]:+.2f} ({frame.PARAMETER_NAMES[p]}, {s + 1}) | {np.sqrt(np.mean(mean_sd ** 2)):.2f} | "
+              f"{np.abs(errors['std_ratio']).max():.2f} | {np.abs(errors['log_evidence']).max():.2f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -159,7 +192,12 @@ def main() -> None:
     p.add_argument("--campaigns", type=int, default=20)
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
     p.add_argument("--keep", metavar="FOLDER", help="copy each run store there")
+    p.add_argument("--seed", type=int, default=2026, help="the sampler's seed (the campaigns stay seed 2026's)")
+    p.add_argument("--move-budget", type=float, help="[sampler] move_budget (default: the TOML's, i.e. the library's)")
     p = sub.add_parser("compare", help="kept run stores: identical to each other, and the first against the reference")
+    p.add_argument("runs", nargs="+")
+    p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
+    p = sub.add_parser("summary", help="kept run stores (seeds, budgets): calls and errors against the reference")
     p.add_argument("runs", nargs="+")
     p.add_argument("--reference", default=str(EXAMPLE / "frame_reference.csv"))
     args = parser.parse_args()
@@ -167,6 +205,8 @@ def main() -> None:
         reference(args)
     elif args.what == "cli":
         cli(args)
+    elif args.what == "summary":
+        summary(args.runs, args.reference)
     else:
         from seqbayes.store import open_run
 
@@ -177,7 +217,21 @@ def main() -> None:
                         for r in results[1:] for s in range(common))
         print(f"posteriors and likelihood calls identical over their {common} common steps: "
               f"{'yes' if identical else 'NO'}")
+        costs(results[0])
         compare(results[0], args.reference, len(results[0].steps))
+
+
+def costs(result) -> None:
+    """Where each update's likelihood calls went, from the store's ``StepInfo``: tempering stages, the moves
+    proposed (from update 2 on SMC^2's PMMH moves, each re-running one outer particle's inner filter over every
+    campaign so far), the PMMH acceptance since the last resampling (below 0.2 at the end of a rejuvenation, the
+    update warns: ``InnerFilterWarning``) and the moves the budget left pending for later updates."""
+    print("\n| update | calls | stages | moves proposed (accepted) | PMMH acceptance | moves pending after | amortised calls |")
+    print("|---|---|---|---|---|---|---|")
+    for s, rec in enumerate(result.steps):
+        info = rec.info
+        print(f"| {s + 1} | {info.n_loglike_evals:,} | {info.n_stages} | {info.n_proposed} ({info.n_accepted}) | "
+              f"{info.pmmh_acceptance:.2f} | {info.pending_moves} | {info.amortised_evals:,.0f} |")
 
 
 if __name__ == "__main__":

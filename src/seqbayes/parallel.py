@@ -158,14 +158,14 @@ class ProcessWorkers:
 
     def evaluate(self, key, payload: bytes, chunks) -> list:
         """Chunk ``i`` on worker ``i``; the payload is sent to the workers only the first time ``key`` is seen."""
+        # first in, first out like the workers' _STORED (a use refreshes neither): the keys here are exactly those
+        # every worker keeps, whichever workers the chunks reached
         if key not in self._sent:
             for f in [e.submit(_store, key, payload) for e in self._executors]:
                 f.result()
             self._sent[key] = True
             while len(self._sent) > _KEPT_PAYLOADS:
                 self._sent.popitem(last=False)
-        else:
-            self._sent.move_to_end(key)
         futures = [self._executors[i % self.n_workers].submit(_call_stored, key, chunk) for i, chunk in enumerate(chunks)]
         return [f.result() for f in futures]
 
@@ -191,8 +191,8 @@ class _Plan:
         self.sent: OrderedDict = OrderedDict()
 
     def remember(self, key) -> None:
+        """``key`` was sent to every actor: kept first in, first out, as the actors keep it."""
         self.sent[key] = True
-        self.sent.move_to_end(key)
         while len(self.sent) > _KEPT_PAYLOADS:
             self.sent.popitem(last=False)
 

@@ -1,7 +1,7 @@
 """The OpenSees frame example (seqbayes.models.opensees_frame) and its run through the command line.
 
-Needs OpenSees (``pip install opensees``, the ``seqbayes[opensees]`` extra); without it every test
-here but the first is skipped with that reason. The 20-campaign run, its wall time and its check
+Needs OpenSees (``pip install opensees``, the ``seqbayes[opensees]`` extra; the ``test`` extra, which
+``make test`` installs, includes it); without it every test here but the first is skipped with that reason. The 20-campaign run, its wall time and its check
 against the exact grid reference are in benchmarks/bench_opensees.py (docs/benchmarks.md).
 """
 

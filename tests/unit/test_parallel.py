@@ -199,6 +199,27 @@ def test_process_workers_get_the_likelihood_and_each_dataset_once(serial, tmp_pa
     assert len(worker_pids) == 2
 
 
+@pytest.mark.parametrize("kind", ["processes", pytest.param("dask", marks=pytest.mark.slow)])
+def test_workers_find_every_payload_when_a_kept_dataset_is_used_again(kind, request):
+    """More datasets than a pool keeps, the first used again in between (SMC^2's pattern: the current dataset
+    between re-runs over the history), each call on one chunk (one worker) or two: every call finds its payload
+    and gives the serial numbers. When this process refreshed a used key and the workers did not, the last call
+    raised KeyError in the worker (the OpenSees example's update at campaign 19, 1 worker)."""
+    kept = parallel._KEPT_PAYLOADS
+    x = np.linspace(-1, 1, 12)
+    data = [(x, 0.1 * i + 1.2 * x, None) for i in range(kept + 1)]
+    theta = np.array([[0.5, 1.2], [0.2, -1.0], [0.0, 0.3]])
+    order = [0, *range(1, kept), 0, kept, 0]   # 0 is used again when it is the oldest kept, then pushed out
+    pool = ProcessWorkers(2) if kind == "processes" else request.getfixturevalue("client")
+    try:
+        for call, i in enumerate(order):
+            got = parallel.evaluate_loglike(loglike, theta, data[i], executor=pool, n_chunks=1 + call % 2)
+            np.testing.assert_array_equal(got, loglike(theta, data[i]))
+    finally:
+        if kind == "processes":
+            pool.shutdown()
+
+
 @pytest.mark.slow
 def test_dask_workers_get_the_likelihood_and_each_dataset_once(client, serial, tmp_path):
     result = counted_run(client, tmp_path)
