@@ -152,9 +152,9 @@ class PathSpace:
     sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
     (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
-    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
-    by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
-    the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
+    the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
+    as the independence proposal), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
     :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
     the window. The record has ``StepInfo.path_steps = L``.
 
