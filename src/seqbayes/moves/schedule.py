@@ -62,13 +62,15 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
     return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
 
 
-def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike):
+def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
+               kernel_density: bool = False):
     """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
     (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
-    Returns a :class:`StageMoves`.
+    ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
+    (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -96,7 +98,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
                                        support if transform is None else None), config.surrogate == "auto")
     if config.uses_scaled_moves(walkers.shape[1]):
         position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
-                                                               coefficients, support, rng)
+                                                               coefficients, support, rng, kernel_density)
         step_size = state_step_size if config.move == "stretch" else float("nan")
     elif config.move == "gaussian":
         stats = SweepStats()
@@ -165,12 +167,14 @@ def stage_screen(setting, position, components, coefficients, beta, loglike, to_
     return ModelScreen(setting, dataset, float(beta), rest, to_theta, support)
 
 
-def scaled_rounds(config, position, components, component_fn, coefficients, support, rng):
+def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
+                  kernel_density: bool = False):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
     Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
     stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it), then a local sweep: SMC's random walk with
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it or with ``kernel_density``), then a local
+    sweep: SMC's random walk with
     ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
     factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
     the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
@@ -194,7 +198,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     n, d = position.shape
     fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
     # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel
-    globally = fitted if d > HIGH_DIMENSION else DefensiveProposal(position, np.zeros(n))
+    globally = fitted if d > HIGH_DIMENSION and not kernel_density else DefensiveProposal(position, np.zeros(n))
     target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
     min_rounds = 1 if config.economy else config.n_moves
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual

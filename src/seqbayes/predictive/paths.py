@@ -151,9 +151,9 @@ class PathSpace:
     sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
     (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
-    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved
-    by the sampler's own MCMC move on the whole path, which carries the earlier states into the tails
-    the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
+    the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
+    as the independence proposal), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
     :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
     the window. The record has ``StepInfo.path_steps = L``.
 
@@ -179,15 +179,15 @@ class PathSpace:
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
         self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
-        # L + 1 times as many dimensions: the random walk's scale goes as 1 / sqrt(dim) (Roberts, Gelman & Gilks
-        # 1997) and a path decorrelates in O(dim) moves; the stretch move and the bridge's first stages need twice
-        # as many as SMC's random walk on stored paths (docs/prior_data_conflict.md, "Moves on the path space")
-        per_state = 4 if config.move == "stretch" or bridge else 2
-        # the moves' kind follows the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
+        # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
         self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
-        self.path_config = replace(self.config, proposal_scale=config.proposal_scale / np.sqrt(length + 1),
-                                   n_moves=max(config.n_moves, min(config.max_moves, config.max_virtual,
-                                                                   per_state * (length + 1))))
+        # the path's moves are the scaled rounds (an independence sweep from the kernel density fitted to the stage's
+        # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
+        # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
+        # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md,
+        # "Oscillator at 300,000 evaluations")
+        rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
+        self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds)
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         return None
@@ -299,7 +299,7 @@ class PathSpace:
         config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
         cloud = tempered.cloud
         last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
         normaliser = sum(past.log_evidence_increment for past in self.window)
@@ -337,5 +337,5 @@ class PathSpace:
     def _stored_temper(self, weighed, rng) -> Tempered:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
         tempered = temper_resample_move(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng)
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
