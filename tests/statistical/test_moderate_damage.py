@@ -2,12 +2,15 @@
 
 The reduced variant of ``benchmarks/bench_moderate_damage.py`` (its scenario, imported from the script): the
 4 % drop with the frequency likelihood under the jump and random-walk kernels, and the 6 % drop under the
-random walk (which lost 2.0 nats under SEMC before the remedy's trigger summed the lags), one sampler seed,
-SMC and SEMC, checked at every one of the 20 steps with the issue's bars (means within 0.3 exact sds, sds
-within 20 %, cumulative log-evidence within 0.5 nats, P(jump) within 0.05 or 3 reported se, log Bayes factor
-of jump against random walk within 0.5 nats). In the benchmark's matrix (docs/jump_kernels.md; seeds 0-2 so
-far) all three seeds of these combinations meet every bar but SMC's random walk at 6 % at seed 1 (0.56 nats,
-the remedy's own window evidence at step 20); seed 0 is not a chosen one (the first). At 6 % the
+random walk (which lost 2.0 nats under SEMC before the remedy's trigger summed the lags), SMC and SEMC, checked
+at every one of the 20 steps with the issue's bars (means within 0.3 exact sds, sds within 20 %, cumulative
+log-evidence within 0.5 nats, P(jump) within 0.05 or 3 reported se, log Bayes factor of jump against random
+walk within 0.5 nats). The issue asks for the bars in at least 9 of 10 seeds, not in every run: a run's
+20-step log-evidence error is heavy-tailed (SMC's random walk at 6 %, seeds 0-3: 0.21, 0.56, 0.28, 0.21 nats
+before the path-space stages' stopping rule, 0.50, 0.15, 0.15, 0.20 after), so one seed against the bar fails
+on about one code change in ten that reshuffles the random numbers. The test asks what the issue asks, at a
+test's cost: at least 2 of the sampler seeds 0, 1, 2 meet every bar (it stops at two passes or two misses).
+If each seed meets the bars with probability 0.9 it fails with probability 0.028; at 0.5, with 0.5. At 6 % the
 log Bayes factor missed at seed 0 under SEMC (0.52 nats, the jump kernel's evidence), so it is not asserted
 there.
 
@@ -64,19 +67,34 @@ def references():
     return {(drop, kernel): bench.exact(drop, "frequency", kernel) for drop in (4.0, 6.0) for kernel in bench.KERNEL_NAMES}
 
 
+def _misses(runs, refs) -> list:
+    """The issue's bars that a seed's runs miss, as ``(key, bar, worst)``."""
+    out = []
+    for key, e in bench.errors(runs, refs).items():
+        bars = {"mean": (e["mean"], 0.3), "sd": (e["sd"], 0.2), "logz": (e["logz"], 0.5)}
+        if "bf" in e:
+            bars["bf"] = (e["bf"], 0.5)
+        if "p_ok" in e and not np.all(e["p_ok"]):
+            out.append((key, "p", float(np.max(e["p"]))))
+        out += [(key, bar, float(np.max(v))) for bar, (v, limit) in bars.items() if np.any(v > limit)]
+    return out
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("drop, kernels", [(4.0, bench.KERNEL_NAMES), (6.0, ("walk",))])
 @pytest.mark.parametrize("sampler", ["SMC", "SEMC"])
 def test_a_moderate_drop_at_every_step(references, sampler, drop, kernels):
-    runs = [bench.run((drop, "frequency", kernel, sampler, 0, 1000)) for kernel in kernels]
     refs = {(drop, "frequency", kernel): references[(drop, kernel)] for kernel in kernels}
-    for key, e in bench.errors(runs, refs).items():
-        assert np.all(e["mean"] <= 0.3), (key, e["mean"])
-        assert np.all(e["sd"] <= 0.2), (key, e["sd"])
-        assert np.all(e["logz"] <= 0.5), (key, e["logz"])
-        if key[2] == "jump":
-            assert np.all(e["p_ok"]), (key, e["p"])
-            assert np.all(e["bf"] <= 0.5), (key, e["bf"])
+    passed, missed = 0, {}
+    for seed in range(3):
+        misses = _misses([bench.run((drop, "frequency", kernel, sampler, seed, 1000)) for kernel in kernels], refs)
+        if misses:
+            missed[seed] = misses
+        else:
+            passed += 1
+        if passed == 2 or len(missed) == 2:
+            break
+    assert passed == 2, missed
 
 
 def test_the_calibration_band_is_where_a_calibrated_se_falls():
