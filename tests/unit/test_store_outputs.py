@@ -52,11 +52,22 @@ def linear_run(folder: Path, n: int = 100):
 
 
 @pytest.mark.slow   # 7 SEMC steps of N = 100 through the path-space remedy: about 6 s of CPU
-def test_datasets_out_of_order_store_an_unknown_variance_that_reopens_and_resumes(tmp_path):
+def test_datasets_out_of_order_store_an_unknown_variance_that_reopens_and_resumes(tmp_path, monkeypatch):
     """The issue's reproduction: steps 51, 1, 2, 52, 3, 53 of the stream, each through a store opened afresh.
-    Step 53 follows step 3 (a jump of a and b), its importance estimate is unreliable and the multi-stage
-    path's increment has no variance estimate: the cumulative variance is unknown (NaN). The store used to
-    refuse itself from there on ("state_log_evidence_variance holds 1 NaN/inf value(s)")."""
+    Step 53 follows step 3 (a jump of a and b) and is assimilated on the path space. When such a step's
+    importance estimate is unreliable, its increment has no variance estimate and the cumulative variance is
+    unknown (NaN); the store used to refuse itself from there on ("state_log_evidence_variance holds 1 NaN/inf
+    value(s)"). Since the path-space stages stop on the distance travelled, this stream's step 53 has a reliable
+    estimate, so the unknown variance is put there by the path step's own standard errors (the value they
+    return for an unreliable estimate), and everything after is the store's and the engine's as they are."""
+    from seqbayes.predictive import paths
+
+    original, calls = paths._bridged_standard_errors, []
+
+    def unknown_at_step_53(*args):
+        calls.append(args[0].step)
+        return (float("nan"),) * 3 if len(calls) == 5 else original(*args)
+    monkeypatch.setattr(paths, "_bridged_standard_errors", unknown_at_step_53)
     cfg = linear_run(tmp_path)
     tables = linear_stream(8)
     RunStore.create(tmp_path / "run.nc", cfg)
@@ -64,6 +75,7 @@ def test_datasets_out_of_order_store_an_unknown_variance_that_reopens_and_resume
         warnings.simplefilter("ignore")     # the conflict and unreliable-evidence warnings of these steps
         for step in (51, 1, 2, 52, 3, 53):
             RunStore.open(tmp_path / "run.nc").assimilate(tables[step], f"d{step}")
+        assert calls == [1, 2, 3, 4, 5]      # steps 1, 2, 52, 3 and 53 took the path space; 53 the NaN
         store = RunStore.open(tmp_path / "run.nc")
         variances = [float(arrays["state_log_evidence_variance"]) for arrays in store.states]
         assert np.isfinite(variances[:5]).all() and np.isnan(variances[5]), variances
