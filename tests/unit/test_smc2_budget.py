@@ -197,6 +197,9 @@ def test_a_low_acceptance_warns_and_says_what_to_change():
         warn_rejuvenation(200, 0.12, 0.5, 180, 100)
     with pytest.warns(InnerFilterWarning, match="KalmanInnerFilter"):
         warn_rejuvenation(200, 0.12, 0.05, 180, 100)
+    with pytest.warns(InnerFilterWarning, match=r"accepted 12 % of proposals so far in the rejuvenation that the move "
+                                                r"budget spreads over updates"):
+        warn_rejuvenation(200, 0.12, 0.5, 180, 100, running=True)
     import warnings
 
     with warnings.catch_warnings():
@@ -229,3 +232,30 @@ def test_the_store_keeps_the_moments_and_status_reports_the_cost(tmp_path):
     text = loaded.status()
     assert f"likelihood evaluations: last update {evals[-1]:,}, amortised {sum(evals) / 3:,.0f} per update" in text
     assert loaded.result.steps[-1].info.amortised_evals == pytest.approx(sum(evals) / 3)
+
+
+@pytest.mark.slow   # 25 SMC^2 updates at N = 200: about 5 s of CPU
+def test_a_running_rejuvenation_with_a_low_acceptance_warns_before_it_concludes():
+    # Two inner particles make the likelihood estimates so noisy that PMMH acceptance falls towards 0 as s grows,
+    # and a budget of one N M per update spreads each rejuvenation over updates, so none concludes: the warning
+    # comes from the running acceptance, at steps whose recorded acceptance is below the threshold
+    import warnings
+
+    import seqbayes
+    from seqbayes.models.linear_gaussian import LinearGaussianProblem
+    from seqbayes.predictive.smc2 import LOW_ACCEPTANCE, ParticleInnerFilter
+
+    problem = LinearGaussianProblem()
+    datasets, _ = problem.simulate(20, rng=3)
+    kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=0.05), seqbayes.Static()])
+    sampler = seqbayes.SMC(problem.prior, kernel, problem.loglike, n_samples=200, rng=1,
+                           inner_filter=ParticleInnerFilter(2, n_pilot=200), move_budget=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        infos = [sampler.update(d) for d in datasets]
+    warned = [int(str(w.message).split(":")[0].split()[1]) for w in caught
+              if issubclass(w.category, InnerFilterWarning) and "so far in the rejuvenation" in str(w.message)]
+    assert warned, [round(i.pmmh_acceptance, 3) for i in infos]
+    for step in warned:
+        info = infos[step - 1]
+        assert info.pmmh_acceptance < LOW_ACCEPTANCE and info.pending_moves > 0, (step, info.pmmh_acceptance)

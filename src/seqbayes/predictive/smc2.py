@@ -601,8 +601,11 @@ class NestedPredictive:
         new_state = NestedState(step, static, cloud, log_weights, components[:, 1],
                                 components[:, 2] + components[:, 0], weighed.datasets, log_evidence, float(step_size),
                                 posterior, predictive, weighed.guides, pending, n_evals_total, moments)
-        warn_rejuvenation(step, outer.concluded, weighed.inner_ess, len(weighed.datasets),
-                          int(getattr(self.inner, "n_inner", 0)))
+        # a rejuvenation the budget spreads over many updates concludes rarely: judge it by its running acceptance
+        # once it has proposed enough to tell 0.2 from well above it (50: binomial se 0.06), while it still runs
+        running = not np.isfinite(outer.concluded) and pending.n_proposed >= MIN_RUNNING_PROPOSALS
+        warn_rejuvenation(step, pending.acceptance if running else outer.concluded, weighed.inner_ess,
+                          len(weighed.datasets), int(getattr(self.inner, "n_inner", 0)), running)
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       inner_ess=weighed.inner_ess, amortised_evals=n_evals_total / step,
                       pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
@@ -614,10 +617,14 @@ class NestedPredictive:
 #: A rejuvenation whose PMMH acceptance ends below this draws a warning: the inner likelihood estimates are too
 #: noisy for the moves to keep the outer particles diverse at a bounded cost.
 LOW_ACCEPTANCE = 0.2
+#: Proposals a running (not yet concluded) rejuvenation needs before its acceptance draws that warning.
+MIN_RUNNING_PROPOSALS = 50
 
 
-def warn_rejuvenation(step: int, acceptance: float, inner_ess: float, n_datasets: int, n_inner: int) -> None:
-    """One line when a rejuvenation ended with a PMMH acceptance below :data:`LOW_ACCEPTANCE`, saying what to change."""
+def warn_rejuvenation(step: int, acceptance: float, inner_ess: float, n_datasets: int, n_inner: int,
+                      running: bool = False) -> None:
+    """One line when a rejuvenation ended with a PMMH acceptance below :data:`LOW_ACCEPTANCE`, or (``running``) one
+    that the move budget carries over updates is below it so far, saying what to change."""
     if not acceptance < LOW_ACCEPTANCE:
         return
     advice = (f"raise n_inner (now {n_inner}; the variance of the inner filters' log-likelihood estimates grows "
@@ -627,8 +634,10 @@ def warn_rejuvenation(step: int, acceptance: float, inner_ess: float, n_datasets
         advice += (f"; the inner filters keep only {100 * inner_ess:.0f} % of their particles per step, so a kernel "
                    f"noise closer to the drift the data show, or a KalmanInnerFilter if the model is linear-Gaussian "
                    f"in the drifting parameters, pays more than n_inner")
-    warnings.warn(f"step {step}: SMC^2's PMMH moves accepted {100 * acceptance:.0f} % of proposals over the last "
-                  f"rejuvenation (at s = {n_datasets}); each accepted move costs ~{1 / max(acceptance, 1e-3):.0f} "
+    which = ("so far in the rejuvenation that the move budget spreads over updates" if running
+             else "over the last rejuvenation")
+    warnings.warn(f"step {step}: SMC^2's PMMH moves accepted {100 * acceptance:.0f} % of proposals {which} (at s = "
+                  f"{n_datasets}); each accepted move costs ~{1 / max(acceptance, 1e-3):.0f} "
                   f"re-runs of an inner filter over the whole history: {advice}", InnerFilterWarning, stacklevel=2)
 
 
