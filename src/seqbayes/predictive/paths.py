@@ -257,8 +257,7 @@ class PathSpace:
                       ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
                       log_evidence_se=evidence_se,
                       # the mixture step's jump fields: its se groups copies and carries the ancestors' terms
-                      **self.mixture.jump_fields(state, Cloud(posterior, cloud.log_weights, cloud.components,
-                                                              cloud.labels)))
+                      **self.mixture.jump_fields(state, replace(cloud, particles=posterior)))
         step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
         return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
 

@@ -54,7 +54,8 @@ from ..moves.scaled import DifferentialMove
 from ..priors import inside_support
 from ..transforms import BoxTransform
 
-__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner", "outer_logpdf"]
+__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner",
+           "outer_logpdf", "rerun_cost"]
 
 
 
@@ -66,6 +67,11 @@ RESTORE_BATCH = 0.1
 #: ``(1 + RESTORE_LIMIT x move_budget) N M`` unless it tempers. Uncapped, one 300-dataset run's largest update
 #: was 21x its median (restoring at s = 178; docs/benchmarks.md), against the issue's 20x.
 RESTORE_LIMIT = 4
+
+
+def rerun_cost(inner, datasets) -> int:
+    """Evaluations of one particle's re-run (its inner filter over ``datasets``), the budget's unit: ``M s``."""
+    return max(1, int(getattr(inner, "n_inner", 1)) * len(datasets))
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,7 +173,7 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     static, cloud, components, SweepStats, step_size, n_batches, Rejuvenation
     """
     n = static.shape[0]
-    per_particle = max(1, int(getattr(inner, "n_inner", 1)) * len(datasets))
+    per_particle = rerun_cost(inner, datasets)
     columns = inner.outer_columns(split, problem.kernel.dim)
     support = problem.support[columns]
     transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None

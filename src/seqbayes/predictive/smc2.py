@@ -55,7 +55,7 @@ from ..priors import JointPrior, inside_support
 from ..resampling import resample
 from ..results import prior_data_conflict
 from ..tempering import next_increment
-from .pmmh import Rejuvenation, outer_logpdf, rejuvenate
+from .pmmh import RESTORE_LIMIT, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
@@ -539,7 +539,7 @@ class NestedPredictive:
                   else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
         beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
         stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
-        moves_spent, per_particle = 0, max(1, int(getattr(self.inner, "n_inner", 1)) * len(weighed.datasets))
+        moves_spent, per_particle = 0, rerun_cost(self.inner, weighed.datasets)
         while beta < 1.0:
             beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
                 log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
@@ -564,8 +564,8 @@ class NestedPredictive:
                 static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
                     self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
                     log_weights, cloud, components, beta, step_size, pending, allowed, likelihood, rng,
-                    restore=stage_ess / n if resampled else 0.0,
-                    **({"spent": moves_spent, "restore_limit": 1.0} if config.strict_budget else {}))
+                    restore=stage_ess / n if resampled else 0.0, spent=moves_spent if config.strict_budget else 0,
+                    restore_limit=1.0 if config.strict_budget else RESTORE_LIMIT)
                 moves_spent += sweep.n_evaluations * per_particle   # the budget's units: M s per re-run
                 stats, n_batches = stats + sweep, n_batches + batches
                 if config.move == "stretch":

@@ -575,7 +575,7 @@ def correctness_report(ds, summary: StudySummary | None = None) -> str:
                  f"{summary.smc_acceptance_range[1]:.3f}]")
     # the cost as counts (machine-independent; issue 23's bar is on the mean over runs, samplers and kernels)
     evals = ds["n_loglike_evals"].sum("step").mean(("run", "sampler")).values      # (K,)
-    lines.append("- likelihood evaluations per run of 6 steps, mean over runs and samplers: "
+    lines.append(f"- likelihood evaluations per run of {ds.sizes['step']} steps, mean over runs and samplers: "
                  + ", ".join(f"{k} {v:,.0f}" for k, v in zip(ds["kernel"].values, evals))
                  + f"; over every kernel {evals.mean():,.0f}")
     return "\n".join(lines)
