@@ -119,8 +119,10 @@ def inner_sd(args):
             print(f"| {name} | {kernel} | {step} | " + " | ".join(cells) + " |", flush=True)
 
 def _bounded(inner: int, pilot: int, independent: int) -> dict:
-    return {"n_independent": independent, "inner_filter": ParticleInnerFilter(inner, n_pilot=pilot),
-            "surrogate": "quadratic", "move_budget": 5, "strict_budget": True}
+    """The study's bounded-cost settings (``coulomb.BOUNDED_COST``) with the given inner filter and sweeps."""
+    from seqbayes.studies.coulomb import BOUNDED_COST
+
+    return {**BOUNDED_COST, "n_independent": independent, "inner_filter": ParticleInnerFilter(inner, n_pilot=pilot)}
 
 
 def pmmh_jumps(args):
@@ -132,6 +134,7 @@ def pmmh_jumps(args):
     import dataclasses
 
     from seqbayes.predictive import smc2
+    from seqbayes.predictive.pmmh import rerun_cost
     from seqbayes.transforms import BoxTransform
 
     data = model.load_experiment()
@@ -159,7 +162,7 @@ def pmmh_jumps(args):
                 jumps = np.linalg.solve(factor, (transform.forward(out[0]) - before).T)
                 stats, row = out[3], tally.setdefault(len(datasets), np.zeros(6))
                 row += (stats.n_proposed, stats.n_screened_out, stats.n_evaluations, stats.n_accepted,
-                        stats.n_evaluations * inner.n_inner * len(datasets), float(np.sum(jumps**2)))
+                        stats.n_evaluations * rerun_cost(inner, datasets), float(np.sum(jumps**2)))
                 return out
 
             smc2.rejuvenate = measured
