@@ -33,6 +33,13 @@ def test_the_steps_prior_is_the_predictive_restricted_to_the_parameter_space():
     outside = prior - [0.0, 10.0]
     np.testing.assert_allclose(step_conflict(outside, np.zeros(4), posterior, np.zeros(1), support),
                                prior_data_conflict(outside, np.zeros(4), posterior, np.zeros(1)), atol=1e-12)
+    # one draw inside has no spread: the unrestricted moments too, not a shift over an sd of 0 (~1e150)
+    one_inside = outside.copy()
+    one_inside[3] = [3.0, 3.0]
+    conflict = step_conflict(one_inside, np.zeros(4), posterior, np.zeros(1), support)
+    np.testing.assert_allclose(conflict, prior_data_conflict(one_inside, np.zeros(4), posterior, np.zeros(1)),
+                               atol=1e-12)
+    assert np.all(conflict < 10.0)
 
 
 def drifting_problem():

@@ -71,12 +71,13 @@ def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, su
 
     The step's prior is the predictive restricted to the parameter space (the likelihood is zero
     outside, so that mass is lost, as in the samplers' steps and the exact grid references): its
-    moments are those of the prior draws inside ``support`` (all of them when none is inside). A
-    predictive that spills over a bound (a drift taking a damping below 0) thus does not count as a
-    conflict with the data (the unrestricted moments raise false alarms: docs/prior_data_conflict.md).
+    moments are those of the prior draws inside ``support`` (all of them when fewer than two are inside:
+    one draw has no spread, and its sd of 0 would report a conflict of ~1e150). A predictive that spills
+    over a bound (a drift taking a damping below 0) thus does not count as a conflict with the data (the
+    unrestricted moments raise false alarms: docs/prior_data_conflict.md).
     """
     inside = inside_space(prior, support)
-    if inside.any() and not inside.all():
+    if np.count_nonzero(inside) > 1 and not inside.all():
         prior, prior_log_weights = prior[inside], prior_log_weights[inside]
     return prior_data_conflict(prior, prior_log_weights, posterior, posterior_log_weights)
 
