@@ -22,7 +22,7 @@ se, and the log Bayes factor of jump against random walk (the same sampler seed 
 Printed: one row per (drop, model, sampler, kernel) with the worst over steps of the median and the
 9th-of-10 (the acceptance's ">= 9 of 10 seeds") errors, and the P(jump) se calibration (RMS reported se
 over the sd of P(jump) across seeds at the steps whose exact P(jump) lies in [0.02, 0.98]) and, with 3 seeds
-or more, the calibration step by step. ``--steps`` stops every history early (``--steps 14``: the drop and one
+or more, the calibration step by step (and for the runs that took a step on the path space, where 3 or more did). ``--steps`` stops every history early (``--steps 14``: the drop and one
 step after).
 ``--log`` appends each finished run as a JSON line and skips the runs it holds (a stopped matrix resumes);
 ``--table-only`` prints the table of the logged runs (``--seeds``, ``--first-seed`` and ``--samplers`` select).
@@ -160,13 +160,13 @@ def ratio_band(n_seeds: int, level: float = 0.95) -> tuple[float, float]:
     return float(np.sqrt(dof / stats.chi2.ppf(1.0 - tail, dof))), float(np.sqrt(dof / stats.chi2.ppf(tail, dof)))
 
 
-def _jump_group(runs, drop, model, sampler):
+def _jump_group(runs, drop, model, sampler, field="jump_probability_se"):
     """``(P (n, S), se (n, S))`` of the jump runs of one (drop, model, sampler), one row per seed, over the steps
-    every run has (runs stopped early by ``--steps`` may join full ones)."""
+    every run has (runs stopped early by ``--steps`` may join full ones); ``field`` in place of the se."""
     group = list({r["key"][4]: r for r in runs if r["key"][:4] == [drop, model, "jump", sampler]}.values())
     steps = min((len(r["jump_probability"]) for r in group), default=0)
     return (np.array([r["jump_probability"][:steps] for r in group]),
-            np.array([r["jump_probability_se"][:steps] for r in group]))
+            np.array([r[field][:steps] for r in group]))
 
 
 def se_calibration(runs: list, refs: dict, drop, model, sampler) -> tuple[float, int]:
@@ -193,6 +193,7 @@ def se_lines(runs: list, refs: dict) -> list[str]:
     out = []
     for drop, model, _, sampler in sorted({tuple(r["key"][:4]) for r in runs if r["key"][2] == "jump"}):
         p, se = _jump_group(runs, drop, model, sampler)
+        path = _jump_group(runs, drop, model, sampler, "path_steps")[1] > 0
         n = p.shape[0]
         if n < 3:
             continue
@@ -210,7 +211,22 @@ def se_lines(runs: list, refs: dict) -> list[str]:
             bias_t = (p[:, s].mean() - exact_p[s]) / (spread / np.sqrt(n))
             out.append(f"  {s + 1:2d} {exact_p[s]:.4f} {p[:, s].mean():.4f} {spread:.4f} {rms:.4f} "
                        f"{rms / spread:.2f} {bias_t:5.2f} {z2:.2f}")
+            out += _path_space_line(p[:, s], se[:, s], path[:, s], exact_p[s])
     return out
+
+
+def _path_space_line(p, se, path, exact_p) -> list[str]:
+    """At a step that 3 or more of the runs took on the path space: those runs alone (count, mean, sd, RMS se,
+    ratio, bias in units of its se, mean z^2 about their own mean) and the mean of the rest (docs/jump_kernels.md)."""
+    k = int(path.sum())
+    if k < 3:
+        return []
+    q, e = p[path], se[path]
+    spread, rms = q.std(ddof=1), np.sqrt(np.mean(e ** 2))
+    rest = f"{p[~path].mean():.4f}" if k < p.size else "-"
+    return [f"     path-space runs {k}: mean {q.mean():.4f} sd {spread:.4f} rms-se {rms:.4f} ratio {rms / spread:.2f} "
+            f"bias-t {(q.mean() - exact_p) / (spread / np.sqrt(k)):.2f} z^2 about their mean "
+            f"{np.mean(((q - q.mean()) / e) ** 2):.2f}; the other runs' mean {rest}"]
 
 
 def table(runs: list, refs: dict) -> str:

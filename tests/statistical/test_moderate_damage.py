@@ -113,7 +113,7 @@ def test_the_calibration_band_is_where_a_calibrated_se_falls():
 def test_a_path_space_step_reports_the_mixture_steps_jump_se(monkeypatch):
     # 2 % drop, frequency, SEMC seed 1: the path-space step runs at the drop step (13) and reports P(jump) through
     # the mixture step's own fields: its se groups the path cloud's copies and carries the ancestors' terms (it had
-    # neither, and was half the spread over seeds there; docs/jump_kernels.md)
+    # neither, and was half the spread over seeds there; docs/jump_kernels.md), their influence on the exact target
     from seqbayes.predictive import jumps, paths
 
     calls = []
@@ -137,6 +137,7 @@ def test_a_path_space_step_reports_the_mixture_steps_jump_se(monkeypatch):
     labels = args[4]
     assert labels is not None and np.unique(labels).size < labels.size      # copies grouped
     assert kwargs.get("earlier_prior") is not None and kwargs.get("ancestors") is not None
+    assert kwargs.get("mixture_target") is False                             # the exact target's ancestor influence
     assert r["jump_probability_se"][12] == value
     plain = original(*args[:4])                                              # every particle its own, no earlier terms
     assert value > plain

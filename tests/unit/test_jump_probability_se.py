@@ -86,6 +86,17 @@ def test_jump_probability_se_is_its_formula():
     # distinct labels: the plain sums of squares
     plain = jump_probability_se(kernel, prior, theta, logw)
     assert plain == pytest.approx(math.sqrt(np.sum((v * (s - p)) ** 2) + np.sum((b - p * a) ** 2)), rel=1e-10)
+    # a target that does not rest on the ancestors (the path-space step's): f_i = sum_k v_k (r_kJi - s_k r_ki)
+    f = np.array([sum(v[k] * (r[k, 1, i] - s[k] * r[k, :, i].sum()) for k in range(9)) for i in range(6)])
+    exact_target = jump_probability_se(kernel, prior, theta, logw, mixture_target=False)
+    assert exact_target == pytest.approx(math.sqrt(np.sum((v * (s - p)) ** 2) + f @ f), rel=1e-10)
+    assert abs(f.sum()) < 1e-12     # each s_k's influences sum to zero: adding a copy of every ancestor changes nothing
+    u_exact = f @ resp
+    u_exact = np.array([u_exact[0] + u_exact[1], u_exact[2], u_exact[3]])
+    full_exact = jump_probability_se(kernel, prior, theta, logw, labels, anc_labels, ancestors=ancestors,
+                                     earlier_prior=earlier, earlier_labels=np.array([0, 0, 1, 2]), mixture_target=False)
+    anc_exact = np.array([sum(f[i] for i in range(6) if anc_labels[i] == g) for g in range(4)])
+    assert full_exact == pytest.approx(math.sqrt(post @ post + anc_exact @ anc_exact + u_exact @ u_exact), rel=1e-10)
 
 
 @pytest.mark.slow

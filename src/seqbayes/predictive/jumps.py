@@ -10,9 +10,10 @@ from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import normalise
 from .ancestry import grouped_sums, label_groups
-from .mixture import MixtureSum, backward_masses
+from .lineage import mixture_chain, posterior_labels
+from .mixture import GaussianMixture, MixtureSum, backward_masses
 
-__all__ = ["jump_probability_se", "jump_step_fields"]
+__all__ = ["jump_probability_se", "jump_step_fields", "jump_fields"]
 
 #: Largest (points x branches x components) block of responsibilities held at once, in floats.
 _BLOCK_FLOATS = 8_000_000
@@ -38,7 +39,7 @@ def _branch_responsibilities(prior, theta: np.ndarray):
 def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.ndarray, log_weights: np.ndarray,
                         labels: np.ndarray | None = None, ancestor_labels: np.ndarray | None = None,
                         ancestors: np.ndarray | None = None, earlier_prior=None,
-                        earlier_labels: np.ndarray | None = None, deeper=()) -> float:
+                        earlier_labels: np.ndarray | None = None, deeper=(), mixture_target: bool = True) -> float:
     """Monte Carlo standard error of the Rao-Blackwellised jump probability ``P = sum_k v_k s_k``.
 
     ``s_k = sum_{c jumped} sum_i r_kci`` is the exact probability that particle ``k`` came through a jump
@@ -50,7 +51,9 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
     - the ancestors', ``sum_g (sum_{i in g} f_i)^2`` over ``ancestor_labels``, ``f_i = b_i - P a_i``, with
       ``a_i = sum_k v_k sum_c r_kci`` the posterior's mass on ancestor ``i`` and ``b_i`` its part through a
       jump branch: ``P`` is the ratio ``sum_i b_i / sum_i a_i`` of two sums over the N ancestors, whose
-      first-order (delta-method) variance this is;
+      first-order (delta-method) variance this is. Without ``mixture_target`` (a path-space step: the posterior
+      was drawn from the exact target, which does not rest on the ancestors) only each ``s_k`` moves with them,
+      ``f_i = b_i - sum_k v_k s_k sum_c r_kci``, the influence of ancestor ``i`` on ``s_k``'s ratio, averaged;
     - with ``ancestors`` and ``earlier_prior`` (the previous step's posterior particles, i.e. the components
       of ``prior``, and the mixture prior they were drawn under): the ancestors' own prior's, ``u = f R`` with
       ``R`` that mixture's responsibilities for the ancestors, summed over ``earlier_labels`` (the two-step
@@ -80,6 +83,9 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
     deeper : sequence of (prior, points)
         Going back from ``earlier_prior``'s components: ``points (M, d)`` are those components (a posterior's
         particles) and ``prior`` the mixture they were drawn under (only with ``earlier_prior``).
+    mixture_target : bool
+        Whether the posterior sample's target is ``prior``'s posterior (a mixture step), whose weights move with the
+        ancestors, or one that does not rest on them (the path-space step's exact target).
 
     Returns
     -------
@@ -93,11 +99,12 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
     a, b = np.zeros(n), np.zeros(n)
     for rows, r in _branch_responsibilities(prior, posterior):
         s[rows] = r[:, jumped].sum(axis=(1, 2))
-        a += v[rows] @ r.sum(axis=1)
+        # the mixture's posterior moves its mass a_i with the ancestors; the exact target leaves each s_k to them
+        a += (v[rows] if mixture_target else v[rows] * s[rows]) @ r.sum(axis=1)
         b += v[rows] @ r[:, jumped].sum(axis=1)
     p = float(v @ s)
     post = grouped_sums(v * (s - p), label_groups(labels, v.size))
-    influence = b - p * a
+    influence = b - (p * a if mixture_target else a)
     anc = grouped_sums(influence, label_groups(ancestor_labels, n))
     variance = post @ post + anc @ anc
     if ancestors is not None and earlier_prior is not None:
@@ -118,18 +125,35 @@ def jump_probability_se(kernel: MarkovKernel, prior: MixtureSum, posterior: np.n
 
 
 def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights, labels: np.ndarray | None = None,
-                     ancestor_labels: np.ndarray | None = None, **earlier: Any) -> dict:
+                     ancestor_labels: np.ndarray | None = None, mixture_target: bool = True, **earlier: Any) -> dict:
     """The :class:`~seqbayes.results.StepInfo` fields of :func:`~seqbayes.kernels.jump_posterior` (``jump_probability``,
     ``jump_parameter``, ``jump_size``, ``jump_size_sd``) and the jump probability's standard error
-    (:func:`jump_probability_se`, ``jump_probability_se``; ``earlier``: its ``ancestors``, ``earlier_prior`` and
-    ``earlier_labels``) when ``prior`` is the step's :class:`MixtureSum` of a
+    (:func:`jump_probability_se`, ``jump_probability_se``; ``mixture_target`` and ``earlier``: its ``ancestors``,
+    ``earlier_prior``, ``earlier_labels`` and ``deeper``) when ``prior`` is the step's :class:`MixtureSum` of a
     jump kernel; ``{}`` otherwise (step 1, no jumps)."""
     if not (kernel.has_jumps and isinstance(prior, MixtureSum)):
         return {}
     fields = jump_posterior(kernel, prior, posterior, log_weights).step_fields()
     fields["jump_probability_se"] = jump_probability_se(kernel, prior, posterior, log_weights, labels, ancestor_labels,
-                                                        **earlier)
+                                                        mixture_target=mixture_target, **earlier)
     return fields
+
+
+def jump_fields(kernel: MarkovKernel, state, cloud, mixture_target: bool = True) -> dict:
+    """:func:`jump_step_fields` of a step from ``state`` (its predictive prior ``state.prior``) whose posterior is
+    ``cloud`` (a :class:`~seqbayes.engine.state.Cloud` in the model's parameters), with every term of the se the state
+    knows: the ancestors' labels and, where the ancestors are the last stored step's posterior drawn under its
+    mixture prior (not a path-space step's), that prior and the window's chain of mixtures before it.
+    ``mixture_target=False`` for a path-space step (:func:`jump_probability_se`)."""
+    earlier = {}
+    last = state.window[-1] if state.window else None
+    # a path-space posterior rests on its window's start, not on its mixture prior (negligible: docs/jump_kernels.md)
+    if (last is not None and not last.path_space and isinstance(last.prior, (GaussianMixture, MixtureSum))
+            and state.posterior is not None and np.array_equal(last.posterior, state.posterior)):
+        earlier = dict(ancestors=state.posterior, earlier_prior=last.prior, earlier_labels=posterior_labels(state, 1),
+                       deeper=mixture_chain(state.window[:-1]))
+    return jump_step_fields(kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
+                            posterior_labels(state), mixture_target=mixture_target, **earlier)
 
 
 import typing as _typing  # noqa: E402

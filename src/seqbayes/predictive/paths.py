@@ -15,6 +15,7 @@ from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Probl
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..weights import logsumexp
+from .jumps import jump_fields
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
 from .mixture import GaussianMixture
 
@@ -256,8 +257,8 @@ class PathSpace:
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
                       log_evidence_se=evidence_se,
-                      # the mixture step's jump fields: its se groups copies and carries the ancestors' terms
-                      **self.mixture.jump_fields(state, replace(cloud, particles=posterior)))
+                      # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
+                      **jump_fields(kernel, state, replace(cloud, particles=posterior), mixture_target=False))
         step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
         return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
 
