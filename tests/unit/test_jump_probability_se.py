@@ -193,3 +193,38 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     # the first deeper step adds less than 1 % of the variance here, so the sum stops after it (compared on its own)
     assert terms[0] < 0.01 * base**2
     assert deep**2 - base**2 == pytest.approx(terms[0], rel=1e-2)
+
+
+def test_a_mixture_step_after_a_path_space_step_has_no_two_step_term():
+    """The two-step term of P(jump)'s se carries the influence back through the ancestors' own mixture prior, so it
+    applies only where the ancestors were drawn under it: not behind a path-space step, whose posterior rests on its
+    window's start (the mixture step and the path-space step report through the same jumps.jump_fields)."""
+    from types import SimpleNamespace
+
+    from seqbayes.engine.state import Cloud
+    from seqbayes.predictive.jumps import jump_fields
+    from seqbayes.predictive.transition import TransitionMixture
+
+    rng = np.random.default_rng(3)
+    kernel = MarkovKernel([JUMP])
+    ancestors, logw = 1.0 + 0.006 * rng.standard_normal((7, 1)), rng.normal(size=7)
+    earlier_cloud, earlier_logw = 1.0 + 0.006 * rng.standard_normal((7, 1)), rng.normal(size=7)
+    earlier_prior = predictive_density(earlier_cloud, earlier_logw, kernel, rng)[0]
+    prior = predictive_density(ancestors, logw, kernel, rng)[0]
+    theta, post_logw = 0.975 + 0.015 * rng.standard_normal((9, 1)), rng.normal(size=9)
+    cloud = Cloud(theta, post_logw - np.log(np.exp(post_logw).sum()), np.zeros((9, 2)), np.arange(9))
+
+    def state(path_space):
+        last = SimpleNamespace(prior=earlier_prior, posterior=ancestors, path_space=path_space)
+        return SimpleNamespace(window=(last,), prior=prior, posterior=ancestors, lineage=None)
+
+    mixture = TransitionMixture.__new__(TransitionMixture)
+    mixture.problem = SimpleNamespace(kernel=kernel)
+    with_term = mixture.jump_fields(state(False), cloud)["jump_probability_se"]
+    without = mixture.jump_fields(state(True), cloud)["jump_probability_se"]
+    assert with_term == jump_fields(kernel, state(False), cloud)["jump_probability_se"]
+    assert with_term == pytest.approx(jump_probability_se(kernel, prior, cloud.particles, cloud.log_weights,
+                                                          cloud.labels, ancestors=ancestors, earlier_prior=earlier_prior))
+    assert without == pytest.approx(jump_probability_se(kernel, prior, cloud.particles, cloud.log_weights,
+                                                        cloud.labels))
+    assert with_term > without

@@ -10,9 +10,9 @@ from ..engine.protocol import ParticlePredictive
 from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, variance_before
-from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, mixture_chain, posterior_labels
-from .jumps import jump_step_fields
-from .mixture import GaussianMixture, MixtureSum, predictive_density
+from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
+from .jumps import jump_fields
+from .mixture import GaussianMixture, predictive_density
 from .paths import PathSpace, remedy_applies
 from .pseudo_marginal import SubsampledPrior
 
@@ -53,15 +53,7 @@ class TransitionMixture(ParticlePredictive):
         return state.prior if isinstance(state.prior, GaussianMixture) else None
 
     def jump_fields(self, state, cloud) -> dict:
-        earlier = {}
-        last = state.window[-1] if state.window else None
-        if (last is not None and isinstance(last.prior, (GaussianMixture, MixtureSum)) and state.posterior is not None
-                and np.array_equal(last.posterior, state.posterior)):
-            # the ancestors' own mixture prior: the two-step term of the jump probability's se
-            earlier = dict(ancestors=state.posterior, earlier_prior=last.prior,
-                           earlier_labels=posterior_labels(state, 1), deeper=mixture_chain(state.window[:-1]))
-        return jump_step_fields(self.problem.kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
-                                posterior_labels(state), **earlier)
+        return jump_fields(self.problem.kernel, state, cloud)
 
     #: The step's :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`, set by :meth:`remedy_fields` (a
     #: predictive serves one step) for :meth:`remedy`.
