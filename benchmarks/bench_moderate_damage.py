@@ -328,7 +328,11 @@ def _target_increment(previous, dataset, exact_post) -> float:
     mean, var = exact_post
     grid = np.linspace(mean - 10.0 * np.sqrt(var), mean + 10.0 * np.sqrt(var), 4001)
     theta, log_w = previous.posterior[:, 0], previous.log_weights - np.logaddexp.reduce(previous.log_weights)
-    log_prior = np.logaddexp.reduce(log_w[None, :] + stats.norm.logpdf(grid[:, None], theta[None, :], WANDER), axis=1)
+    log_prior = np.full(grid.size, -np.inf)
+    for start in range(0, theta.size, 1000):         # blocks of the cloud: memory O(grid x 1000)
+        block = slice(start, start + 1000)
+        log_prior = np.logaddexp(log_prior, np.logaddexp.reduce(
+            log_w[None, block] + stats.norm.logpdf(grid[:, None], theta[None, block], WANDER), axis=1))
     return float(np.logaddexp.reduce(log_likelihood("linear")(grid[:, None], dataset) + log_prior)
                  + np.log(grid[1] - grid[0]))
 
