@@ -284,9 +284,14 @@ def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps:
     the posterior cloud's mean error [exact sd] and weight beyond 2 exact sds on each side (exact 0.0228 each); and
     the error of step ``t + 1``'s increment that the cloud alone makes, ``log sum_i W_i N(ybar_{t+1}; theta_i, q^2 +
     sigma^2 / m) - log N(ybar_{t+1}; m_t, P_t + q^2 + sigma^2 / m)`` (closed form: Gaussian ``T`` and ``L``), beside
-    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior. With ``kernel="jump"``
-    only the increment's error (against the grid filter), the trigger and the mean error (the posterior is not
-    Gaussian: no tails, no closed form)."""
+    its mean and sd over ``n_iid`` clouds of ``n`` independent draws of the exact posterior. Whether a step's sampler
+    or its target was off (walk): ``target_error``, the increment of the step's own target (the mixture over the
+    previous cloud times ``L_t``, on a grid of 4001 points over +-10 exact sds) against the exact one, beside the
+    sampler's ``increment_error``; and ``two_step_from_cloud``, the error of step ``t + 2``'s increment that the
+    cloud of step ``t`` carries through an exactly sampled step ``t + 1``, ``log sum_i W_i p(ybar_{t+1}, ybar_{t+2}
+    | theta_i) - log sum_i W_i p(ybar_{t+1} | theta_i)`` minus the exact increment, beside the same from the
+    independent clouds. With ``kernel="jump"`` only the increment's error (against the grid filter), the trigger
+    and the mean error (the posterior is not Gaussian: no tails, no closed form)."""
     from seqbayes.predictive import transition
 
     _, datasets = simulate(drop_percent, "linear")
@@ -315,23 +320,66 @@ def diagnose(drop_percent: float, sampler: str, seed: int, n: int = 1000, steps:
         row = dict(step=t + 1, increment_error=float(step.info.log_evidence_increment - zinc[t]),
                    trigger_sd=lagged.get(t + 1, float("nan")), path_space=bool(step.info.path_steps),
                    mean_error=float(w @ z), below_2sd=float(w[z < -2].sum()), above_2sd=float(w[z > 2].sum()))
+        if kernel == "walk" and t > 0:
+            row["target_error"] = _target_increment(result.steps[t - 1], datasets[t], exact_post[t]) - zinc[t]
         if kernel == "walk" and t + 1 < len(result.steps):
             ybar, width = datasets[t + 1].mean(), np.sqrt(WANDER**2 + NOISE["linear"] ** 2 / datasets[t + 1].size)
             truth = stats.norm.logpdf(ybar, mean, np.sqrt(var + width**2))
             row["next_from_cloud"] = float(np.logaddexp.reduce(np.log(w) + stats.norm.logpdf(ybar, theta, width)) - truth)
-            iid = stats.norm.logpdf(ybar, iid_rng.normal(mean, np.sqrt(var), (n_iid, n)), width)
-            iid = np.logaddexp.reduce(iid, axis=1) - np.log(n) - truth
+            draws = iid_rng.normal(mean, np.sqrt(var), (n_iid, n))
+            iid = np.logaddexp.reduce(stats.norm.logpdf(ybar, draws, width), axis=1) - np.log(n) - truth
             row["next_from_iid"] = (float(iid.mean()), float(iid.std()))
+            if t + 2 < len(result.steps):
+                two = _two_step_error(datasets[t + 1].mean(), datasets[t + 2].mean(), mean, var)
+                row["two_step_from_cloud"] = float(two(theta[None, :], np.log(w)[None, :])[0])
+                iid = two(draws, np.full(n, -np.log(n)))
+                row["two_step_from_iid"] = (float(iid.mean()), float(iid.std()))
         rows.append(row)
     return rows
+
+
+def _target_increment(previous, dataset, exact_post) -> float:
+    """``log Z`` of a step's own target: the mixture over the ``previous`` step's cloud (random walk) times the
+    step's likelihood, integrated on a grid of 4001 points over +-10 exact sds (linear likelihood)."""
+    mean, var = exact_post
+    grid = np.linspace(mean - 10.0 * np.sqrt(var), mean + 10.0 * np.sqrt(var), 4001)
+    theta, log_w = previous.posterior[:, 0], previous.log_weights - np.logaddexp.reduce(previous.log_weights)
+    log_prior = np.full(grid.size, -np.inf)
+    for start in range(0, theta.size, 1000):         # blocks of the cloud: memory O(grid x 1000)
+        block = slice(start, start + 1000)
+        log_prior = np.logaddexp(log_prior, np.logaddexp.reduce(
+            log_w[None, block] + stats.norm.logpdf(grid[:, None], theta[None, block], WANDER), axis=1))
+    return float(np.logaddexp.reduce(log_likelihood("linear")(grid[:, None], dataset) + log_prior)
+                 + np.log(grid[1] - grid[0]))
+
+
+def _two_step_error(y1, y2, mean, var):
+    """``errors(theta (R, n), log_w (n,) or (R, n)) -> (R,)``: step ``t + 2``'s increment through clouds of step
+    ``t`` (random walk, linear: ``ybar_{t+1}, ybar_{t+2}`` given ``theta_t`` are Gaussian with covariance
+    ``q^2 min(i, j) + sigma^2 / m``), minus the exact one (the same with the exact posterior's variance added)."""
+    r = NOISE["linear"] ** 2 / N_OBS
+    cov = WANDER**2 * np.array([[1.0, 1.0], [1.0, 2.0]]) + r * np.eye(2)
+    y = np.array([y1, y2])
+    exact = (stats.multivariate_normal(np.full(2, mean), cov + var).logpdf(y)
+             - stats.norm.logpdf(y1, mean, np.sqrt(cov[0, 0] + var)))
+
+    def errors(theta, log_w):
+        both = stats.multivariate_normal(np.zeros(2), cov).logpdf(np.stack([y1 - theta, y2 - theta], axis=-1))
+        one = stats.norm.logpdf(y1, theta, np.sqrt(cov[0, 0]))
+        return (np.logaddexp.reduce(log_w + both, axis=-1) - np.logaddexp.reduce(log_w + one, axis=-1) - exact)
+    return errors
 
 
 def diagnosis_lines(runs: list, title: str) -> list[str]:
     """Per step over the seeds of :func:`diagnose`: the increment's error (mean, sd), the trigger's sd (RMS), the
     remedied runs, the cloud's mean error and tails (means), and the next increment's error from the cloud (mean,
-    sd) beside that from independent exact draws."""
+    sd) beside that from independent exact draws; the step's own target's increment error (mean, sd) and the largest
+    gap between the sampler's increment and its target's, over the runs whose step was a mixture step; the error of
+    the step after next that the cloud carries (mean, sd), beside that from independent exact draws."""
     out = [f"{title} ({len(runs)} seeds): step | increment error mean sd | trigger sd | path-space | cloud mean err, "
-           "P(z<-2) P(z>2) (exact 0.0228) | next increment's error from the cloud: mean sd | from iid draws: mean sd"]
+           "P(z<-2) P(z>2) (exact 0.0228) | next increment's error from the cloud: mean sd | from iid draws: mean sd | "
+           "the step's own target's increment error: mean sd, largest |sampler - target| (mixture-step runs) | "
+           "the step after next's error from the cloud: mean sd, iid mean sd"]
     for t in range(len(runs[0])):
         rows = [r[t] for r in runs]
         inc = np.array([r["increment_error"] for r in rows])
@@ -343,6 +391,16 @@ def diagnosis_lines(runs: list, title: str) -> list[str]:
             nxt = np.array([r["next_from_cloud"] for r in rows])
             line += (f" | {nxt.mean():6.3f} {nxt.std(ddof=1):5.3f} | {rows[0]['next_from_iid'][0]:6.3f} "
                      f"{rows[0]['next_from_iid'][1]:5.3f}")
+        if "target_error" in rows[0]:
+            # the sampler against its own target, over the runs whose step was not remedied (a mixture step)
+            own = [r["increment_error"] - r["target_error"] for r in rows if not r["path_space"]]
+            target = np.array([r["target_error"] for r in rows if not r["path_space"]])
+            line += (f" | target {target.mean():6.3f} {target.std(ddof=1):5.3f}, |sampler - target| max "
+                     f"{np.max(np.abs(own)):5.3f} ({len(own)})" if len(own) > 1 else " | target -")
+        if "two_step_from_cloud" in rows[0]:
+            two = np.array([r["two_step_from_cloud"] for r in rows])
+            line += (f" | two steps on: {two.mean():6.3f} {two.std(ddof=1):5.3f}, iid {rows[0]['two_step_from_iid'][0]:6.3f}"
+                     f" {rows[0]['two_step_from_iid'][1]:5.3f}")
         out.append(line)
     return out
 

@@ -143,3 +143,29 @@ def test_a_path_space_step_reports_the_mixture_steps_jump_se(monkeypatch):
     assert value > plain
     exact = bench.exact(2.0, "frequency", "jump")["jump_probability"][12]
     assert abs(r["jump_probability"][12] - exact) <= 3.0 * value
+
+
+
+@pytest.mark.slow
+def test_the_diagnosis_instruments_are_exact_on_exact_draws():
+    # --diagnose's own-target increment (a grid) and the error two steps on (closed form) of the 6 % linear random
+    # walk, from independent draws of the exact (Kalman) posterior, are near 0: a cloud of n such draws gives them with
+    # the 1000-draw sd (measured by --diagnose: 0.034 for step 5's increment, 0.044 and 0.078 two steps on from steps
+    # 4 and 14) times sqrt(1000 / n); each bound is 5 of that
+    from types import SimpleNamespace
+
+    _, datasets = bench.simulate(6.0, "linear")
+    posteriors = bench.kalman(6.0)
+    increments = np.diff(np.r_[0.0, bench.exact(6.0, "linear", "walk")["log_evidence"]])
+    rng = np.random.default_rng(3)
+    mean, var = posteriors[3]
+    draws = rng.normal(mean, math.sqrt(var), 10_000)                  # step 4's posterior: step 5's target
+    cloud = SimpleNamespace(posterior=draws[:, None], log_weights=np.zeros(draws.size))
+    error = bench._target_increment(cloud, datasets[4], posteriors[4]) - increments[4]
+    assert abs(error) < 5 * 0.034 * math.sqrt(0.1), error
+    for t, sd in ((4, 0.044), (14, 0.078)):              # through step t's cloud, two steps on
+        mean, var = posteriors[t - 1]
+        draws = rng.normal(mean, math.sqrt(var), 200_000)
+        error = bench._two_step_error(datasets[t].mean(), datasets[t + 1].mean(), mean, var)(
+            draws[None, :], np.zeros(draws.size))[0]
+        assert abs(error) < 5 * sd * math.sqrt(1000 / 200_000), (t, error)
