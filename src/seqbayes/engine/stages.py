@@ -218,7 +218,7 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 
 
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
-                         kernel_density=False):
+                         kernel_density=False, prior_moves=None):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move
     (``kernel_density``: as :func:`~seqbayes.moves.schedule.move_stage`).
 
@@ -242,7 +242,7 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
             moved = move_stage(problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng,
-                               likelihood.loglike, kernel_density)
+                               likelihood.loglike, kernel_density, prior_moves)
             particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
     return Tempered(Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled,
                     stage_ess)

@@ -13,13 +13,15 @@ import numpy as np
 
 from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
 from ..priors import inside_space
-from .base import SweepStats, combine
+from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
 from .proposals import DefensiveProposal
 from .scaled import DifferentialMove, FittedGaussian, differential_sweep, independence_sweep, whitened_jumps
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
+
+PRIOR_SHARE = 0.5
 
 __all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves"]
 
@@ -63,7 +65,7 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False):
+               kernel_density: bool = False, prior_moves=None):
     """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
@@ -97,8 +99,9 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
                                        None if transform is None else transform.inverse,
                                        support if transform is None else None), config.surrogate == "auto")
     if config.uses_scaled_moves(walkers.shape[1]):
+        resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
         position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
-                                                               coefficients, support, rng, kernel_density)
+                                                               coefficients, support, rng, kernel_density, resimulate)
         step_size = state_step_size if config.move == "stretch" else float("nan")
     elif config.move == "gaussian":
         stats = SweepStats()
@@ -167,8 +170,66 @@ def stage_screen(setting, position, components, coefficients, beta, loglike, to_
     return ModelScreen(setting, dataset, float(beta), rest, to_theta, support)
 
 
+def _resimulation_fn(prior_moves, transform, box):
+    """``resimulate(position, rng) -> (n, D)`` proposals of ``prior_moves.resimulate`` in the moves' coordinates:
+    the coordinates it kept are the walkers' own, bit for bit; NaN rows where a proposal leaves the parameter
+    space ``box`` under the transform (a proposal the target rejects)."""
+    def resimulate(position, rng):
+        theta = position if transform is None else transform.inverse(position)
+        proposals, changed = prior_moves.resimulate(theta, rng)
+        if transform is None:
+            return np.where(changed, proposals, position)
+        inside = inside_space(proposals, box)
+        out = np.full(position.shape, np.nan)
+        out[inside] = np.where(changed[inside], transform.forward(proposals[inside]), position[inside])
+        return out
+    return resimulate
+
+
+def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng, support):
+    """Every walker proposes to redraw part of itself from the target's prior given the rest (``resimulate``:
+    the path prior's states from a random one on, forward through the kernel); accept with
+    ``min(1, (L* / L)^beta)``, as the prior's factors and the proposal's cancel (and the transform's Jacobian
+    with them, coordinate by coordinate). Where ``beta`` is small the prior is the target's dominant factor
+    and a kernel density of the stage's particles is not: the path prior is a thin chain of transitions.
+    Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`."""
+    n = walkers.shape[0]
+    proposals = resimulate(walkers, rng)
+    valid = np.isfinite(proposals).all(axis=1)
+    proposal_components = np.full(components.shape, -np.inf)
+    proposal_components[valid], n_eval = evaluate_inside(component_fn, proposals[valid], support, components.shape[1])
+    alive = np.isfinite(combine(proposal_components, coefficients))
+    accept = metropolis_accept(coefficients[0] * components[:, 0],
+                               np.where(alive, coefficients[0] * proposal_components[:, 0], -np.inf), 0.0, rng)
+    walkers = np.where(accept[:, None], proposals, walkers)
+    components = np.where(accept[:, None], proposal_components, components)
+    return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
+
+
+def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
+    """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
+    scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
+    keeps the target, so their mixture does). Returns the new ``share``: the prior's part of the acceptances
+    (within [0.1, 0.9])."""
+    if resimulate is None:
+        return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
+                share, 0.0)
+    chosen = rng.random(position.shape[0]) < share
+    position, components = position.copy(), components.copy()
+    stats, rates = SweepStats(), []
+    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, independence_sweep, proposal)):
+        if not mask.any():
+            rates.append(0.0)
+            continue
+        position[mask], components[mask], sweep = sweep_fn(position[mask], components[mask], component_fn,
+                                                           coefficients, how, rng, support)
+        stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
+    total = rates[0] + rates[1]
+    return position, components, stats, float(np.clip(rates[0] / total if total > 0 else share, 0.1, 0.9)), rates[0]
+
+
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
-                  kernel_density: bool = False):
+                  kernel_density: bool = False, resimulate=None):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
     Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
@@ -203,20 +264,26 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     min_rounds = 1 if config.economy else config.n_moves
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
     moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
-    scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
+    scale, stats, travelled, n_rounds, share = 1.0, SweepStats(), np.zeros(n), 0, PRIOR_SHARE
+    local_rate = 1.0
     while n_rounds < max_rounds:
         before = position
-        position, components, sweep = independence_sweep(position, components, component_fn, coefficients,
-                                                         globally, rng, support)
+        position, components, sweep, share, prior_rate = _global_sweep(
+            position, components, component_fn, coefficients, globally, resimulate, share, rng, support)
         stats = stats + sweep
-        if config.move == "gaussian":
+        if resimulate is not None and n_rounds and prior_rate > local_rate:
+            # the prior's redraws move more walkers than the local move did last: they take its sweep
+            position, components, sweep = prior_sweep(position, components, component_fn, coefficients, resimulate,
+                                                      rng, support)
+        elif config.move == "gaussian":
             local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
             position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
                                                          rng, support)
+            local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         else:
             position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
                                                              DifferentialMove(scale), rng, support)
-        scale = float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))  # Eq. (9)
+            local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         stats = stats + sweep
         travelled += whitened_jumps(before, position, fitted)
         n_rounds += 1

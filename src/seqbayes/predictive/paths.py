@@ -106,6 +106,24 @@ class PathPrior:
             states.append(self.kernel.propagate(states[-1], rng))
         return np.concatenate(states, axis=1)
 
+    def resimulate(self, walkers, rng):
+        """Proposals that redraw each path ``walkers (M, (L + 1) d)`` from a state chosen uniformly on (``theta_w`` from
+        ``first``, each later state through the kernel from the one before), and ``(M, (L + 1) d)`` bool: the
+        coordinates redrawn. The prior's factors cancel against the proposal's in the Metropolis-Hastings ratio
+        (:func:`~seqbayes.moves.schedule.prior_sweep`)."""
+        m = walkers.shape[0]
+        states = walkers.reshape(m, self.n_states, self.dim).copy()
+        start = rng.integers(self.n_states, size=m)
+        fresh = start == 0
+        if fresh.any():
+            states[fresh, 0] = as_samples(self.first.sample(int(fresh.sum()), rng), self.dim, "prior.sample(n, rng)")
+        for t in range(1, self.n_states):
+            redraw = start <= t
+            if redraw.any():
+                states[redraw, t] = self.kernel.propagate(states[redraw, t - 1], rng)
+        changed = np.repeat(np.arange(self.n_states)[None, :] >= start[:, None], self.dim, axis=1)
+        return states.reshape(m, -1), changed
+
     def logpdf(self, walkers):
         states = walkers.reshape(walkers.shape[0], self.n_states, self.dim)  # explicit: no draw may be inside
         return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
@@ -298,7 +316,9 @@ class PathSpace:
         config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
+                                        prior_moves=PathPrior(self.window[0].prior, self.problem.kernel,
+                                                              len(self.window) + 1, d))
         cloud = tempered.cloud
         last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
         normaliser = sum(past.log_evidence_increment for past in self.window)
