@@ -220,7 +220,7 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
                          kernel_density=False, prior_moves=None):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move
-    (``kernel_density``: as :func:`~seqbayes.moves.schedule.move_stage`).
+    (``kernel_density``, ``prior_moves``: as :func:`~seqbayes.moves.schedule.move_stage`).
 
     Returns a :class:`~seqbayes.engine.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
     any restricted mass (the caller's)."""

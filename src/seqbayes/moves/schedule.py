@@ -21,9 +21,10 @@ from .scaled import DifferentialMove, FittedGaussian, differential_sweep, indepe
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-PRIOR_SHARE = 0.5
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep"]
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves"]
+#: The prior's redraws' share of the first round's global sweep (:func:`scaled_rounds` with ``resimulate``).
+PRIOR_SHARE = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +73,10 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
     ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
-    (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
+    (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
+    rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
+    :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
+    scaled rounds then mix in :func:`prior_sweep`. Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -209,8 +213,8 @@ def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng
 def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
     """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
     scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
-    keeps the target, so their mixture does). Returns the new ``share``: the prior's part of the acceptances
-    (within [0.1, 0.9])."""
+    keeps the target, so their mixture does). Returns the sweep's ``position, components, stats``, the next
+    ``share`` (the prior's part of the two acceptance rates, within [0.1, 0.9]) and the prior's acceptance rate."""
     if resimulate is None:
         return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
                 share, 0.0)
@@ -248,6 +252,9 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     position : (N, d) array
         The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
         ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
+    resimulate : callable, optional
+        ``resimulate(position, rng) -> (N, d)`` proposals redrawing part of each walker from the prior given the
+        rest, in the move's coordinates (NaN rows: outside the parameter space); see :func:`prior_sweep`.
 
     Returns
     -------

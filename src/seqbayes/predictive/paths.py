@@ -171,7 +171,8 @@ class PathSpace:
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
     the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
-    as the independence proposal), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    as the independence proposal and, in the bridge, redraws of path suffixes from the path prior:
+    :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
     :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
     the window. The record has ``StepInfo.path_steps = L``.
 
@@ -315,6 +316,8 @@ class PathSpace:
         # gathered in a narrow minor mode of an early stage finish there
         config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
+        # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
                                         prior_moves=PathPrior(self.window[0].prior, self.problem.kernel,
