@@ -27,7 +27,7 @@ def rounds(kernel_density, component_fn, seed=0, cap=12):
 def test_rounds_stop_once_the_particles_have_travelled_an_independent_draw():
     # exact draws of a 12-dimensional Gaussian: the kernel density's independence sweeps accept about half the
     # proposals, so a few rounds carry every particle an independent draw's whitened distance (2 d) on average
-    walkers, (position, _, stats_, n_rounds) = rounds(True, gaussian_components)
+    walkers, (position, _, stats_, n_rounds, _) = rounds(True, gaussian_components)
     assert 1 <= n_rounds <= 4
     assert np.mean(np.any(position != walkers, axis=1)) >= 0.9
     # the moves leave the target invariant: moments of 1000 draws within 5 standard errors
@@ -42,7 +42,7 @@ def test_rounds_run_to_their_cap_when_nothing_moves():
         calls.append(points.shape[0])
         return gaussian_components(points) if len(calls) == 1 else np.full((points.shape[0], 1), -np.inf)
 
-    walkers, (position, _, stats_, n_rounds) = rounds(True, nowhere, cap=5)
+    walkers, (position, _, stats_, n_rounds, _) = rounds(True, nowhere, cap=5)
     assert n_rounds == 5 and stats_.n_accepted == 0
     np.testing.assert_array_equal(position, walkers)
 

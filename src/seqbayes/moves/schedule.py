@@ -23,20 +23,23 @@ from .tuning import next_step_size
 
 __all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep"]
 
-#: The prior's redraws' share of the first round's global sweep (:func:`scaled_rounds` with ``resimulate``).
-PRIOR_SHARE = 0.5
+#: The prior's redraws' share of the global sweep in a tempering's first round (:func:`scaled_rounds` with
+#: ``resimulate``), and the bounds it adapts within.
+PRIOR_SHARE, SHARE_BOUNDS = 0.5, (0.02, 0.9)
 
 
 @dataclass(frozen=True, eq=False)
 class StageMoves:
     """What the moves of one stage did: the particles ``walkers (N, d)`` and their ``components (N, 2)``
-    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC) and the sweeps (rounds) made."""
+    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC), the sweeps (rounds) made and the
+    prior's redraws' share of the global sweep after them (:func:`scaled_rounds`; the next stage starts from it)."""
 
     walkers: np.ndarray
     components: np.ndarray
     stats: SweepStats
     step_size: float
     n_virtual: int
+    prior_share: float = float("nan")
 
 
 def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
@@ -66,7 +69,7 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False, prior_moves=None):
+               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE):
     """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
@@ -76,7 +79,8 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
     rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
     :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
-    scaled rounds then mix in :func:`prior_sweep`. Returns a :class:`StageMoves`.
+    scaled rounds then mix in :func:`prior_sweep`, from ``prior_share`` (the last stage's
+    :attr:`StageMoves.prior_share`). Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -104,8 +108,9 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
                                        support if transform is None else None), config.surrogate == "auto")
     if config.uses_scaled_moves(walkers.shape[1]):
         resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
-        position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
-                                                               coefficients, support, rng, kernel_density, resimulate)
+        position, components, stats, n_virtual, prior_share = scaled_rounds(
+            config, position, components, component_fn, coefficients, support, rng, kernel_density, resimulate,
+            prior_share)
         step_size = state_step_size if config.move == "stretch" else float("nan")
     elif config.move == "gaussian":
         stats = SweepStats()
@@ -152,7 +157,8 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         components = components[:, :2]
     else:
         walkers = position
-    return StageMoves(walkers, components, stats, step_size, n_virtual)
+    return StageMoves(walkers, components, stats, step_size, n_virtual,
+                      prior_share if prior_moves is not None else float("nan"))
 
 
 def stage_screen(setting, position, components, coefficients, beta, loglike, to_theta, support):
@@ -214,7 +220,8 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
     """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
     scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
     keeps the target, so their mixture does). Returns the sweep's ``position, components, stats``, the next
-    ``share`` (the prior's part of the two acceptance rates, within [0.1, 0.9]) and the prior's acceptance rate."""
+    ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the prior's acceptance
+    rate."""
     if resimulate is None:
         return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
                 share, 0.0)
@@ -229,11 +236,12 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
                                                            coefficients, how, rng, support)
         stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
     total = rates[0] + rates[1]
-    return position, components, stats, float(np.clip(rates[0] / total if total > 0 else share, 0.1, 0.9)), rates[0]
+    share = float(np.clip(rates[0] / total if total > 0 else share, *SHARE_BOUNDS))
+    return position, components, stats, share, rates[0]
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
-                  kernel_density: bool = False, resimulate=None):
+                  kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
     Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
@@ -247,6 +255,13 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     (``ECONOMY_MOVED_FRACTION`` at most, with ``economy``), after at least ``n_moves`` rounds (1 with
     ``economy``) and at most ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
 
+    With ``resimulate`` (the path-space bridge: its early stages' targets are thin ridges of the path prior, where
+    the kernel density and the local move accept almost nothing) each walker's global move is, at random, the
+    prior's redraw (:func:`prior_sweep`, with probability ``share`` in the first round, then the prior's part of the
+    last round's acceptances, within ``SHARE_BOUNDS``) or the independence sweep; and after the first round the
+    local sweep gives way to a second :func:`prior_sweep` while the prior's redraws are accepted more often than
+    the local move was. Each is an exact Metropolis-Hastings kernel of the stage's target.
+
     Parameters
     ----------
     position : (N, d) array
@@ -255,6 +270,8 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     resimulate : callable, optional
         ``resimulate(position, rng) -> (N, d)`` proposals redrawing part of each walker from the prior given the
         rest, in the move's coordinates (NaN rows: outside the parameter space); see :func:`prior_sweep`.
+    share : float
+        The redraws' share of the first round's global sweep (with ``resimulate``).
 
     Returns
     -------
@@ -262,6 +279,8 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     stats : SweepStats
         Of every sweep (independence and local).
     n_rounds : int
+    share : float
+        The redraws' share after the last round (``share`` itself without ``resimulate``).
     """
     n, d = position.shape
     fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
@@ -271,7 +290,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     min_rounds = 1 if config.economy else config.n_moves
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
     moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
-    scale, stats, travelled, n_rounds, share = 1.0, SweepStats(), np.zeros(n), 0, PRIOR_SHARE
+    scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
     local_rate = 1.0
     while n_rounds < max_rounds:
         before = position
@@ -296,4 +315,4 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
         n_rounds += 1
         if n_rounds >= min_rounds and travelled.mean() >= target and np.mean(travelled > 0) >= moved_fraction:
             break
-    return position, components, stats, n_rounds
+    return position, components, stats, n_rounds, share
