@@ -305,10 +305,12 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
             local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
             position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
                                                          rng, support)
+            # Eq. (9)
             local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         else:
             position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
                                                              DifferentialMove(scale), rng, support)
+            # Eq. (9)
             local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         stats = stats + sweep
         travelled += whitened_jumps(before, position, fitted)
