@@ -220,12 +220,11 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
     """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
     scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
     keeps the target, so their mixture does). Returns the sweep's ``position, components, stats``, the next
-    ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the two acceptance
-    rates (the prior's 0 without ``resimulate``)."""
+    ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the prior's acceptance
+    rate."""
     if resimulate is None:
-        position, components, stats = independence_sweep(position, components, component_fn, coefficients, proposal,
-                                                          rng, support)
-        return position, components, stats, share, 0.0, stats.acceptance_rate
+        return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
+                share, 0.0)
     chosen = rng.random(position.shape[0]) < share
     position, components = position.copy(), components.copy()
     stats, rates = SweepStats(), []
@@ -238,7 +237,7 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
         stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
     total = rates[0] + rates[1]
     share = float(np.clip(rates[0] / total if total > 0 else share, *SHARE_BOUNDS))
-    return position, components, stats, share, rates[0], rates[1]
+    return position, components, stats, share, rates[0]
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
@@ -295,15 +294,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     local_rate = 1.0
     while n_rounds < max_rounds:
         before = position
-        position, components, sweep, share, prior_rate, density_rate = _global_sweep(
+        position, components, sweep, share, prior_rate = _global_sweep(
             position, components, component_fn, coefficients, globally, resimulate, share, rng, support)
         stats = stats + sweep
-        if kernel_density and n_rounds and density_rate > max(local_rate, prior_rate):
-            # on the path space the kernel density's draws move more walkers than the local move did last: a second
-            # independence sweep takes its place
-            position, components, sweep = independence_sweep(position, components, component_fn, coefficients,
-                                                             globally, rng, support)
-        elif resimulate is not None and n_rounds and prior_rate > local_rate:
+        if resimulate is not None and n_rounds and prior_rate > local_rate:
             # the prior's redraws move more walkers than the local move did last: they take its sweep
             position, components, sweep = prior_sweep(position, components, component_fn, coefficients, resimulate,
                                                       rng, support)
