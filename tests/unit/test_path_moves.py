@@ -27,7 +27,7 @@ def rounds(kernel_density, component_fn, seed=0, cap=12):
 def test_rounds_stop_once_the_particles_have_travelled_an_independent_draw():
     # exact draws of a 12-dimensional Gaussian: the kernel density's independence sweeps accept about half the
     # proposals, so a few rounds carry every particle an independent draw's whitened distance (2 d) on average
-    walkers, (position, _, stats_, n_rounds) = rounds(True, gaussian_components)
+    walkers, (position, _, stats_, n_rounds, _) = rounds(True, gaussian_components)
     assert 1 <= n_rounds <= 4
     assert np.mean(np.any(position != walkers, axis=1)) >= 0.9
     # the moves leave the target invariant: moments of 1000 draws within 5 standard errors
@@ -42,7 +42,7 @@ def test_rounds_run_to_their_cap_when_nothing_moves():
         calls.append(points.shape[0])
         return gaussian_components(points) if len(calls) == 1 else np.full((points.shape[0], 1), -np.inf)
 
-    walkers, (position, _, stats_, n_rounds) = rounds(True, nowhere, cap=5)
+    walkers, (position, _, stats_, n_rounds, _) = rounds(True, nowhere, cap=5)
     assert n_rounds == 5 and stats_.n_accepted == 0
     np.testing.assert_array_equal(position, walkers)
 
@@ -59,3 +59,84 @@ def test_the_independence_proposal_above_high_dimension(monkeypatch, kernel_dens
     monkeypatch.setattr(schedule, "independence_sweep", recording)
     rounds(kernel_density, gaussian_components, cap=1)
     assert seen == [proposal]
+
+
+def _chain_target(beta, q=0.5, r=0.5, y=(1.5, 2.0, 2.5)):
+    """A three-state random walk ``x_0 ~ N(0, 1)``, ``x_t ~ N(x_{t-1}, q^2)`` (the path prior) times
+    ``prod_t N(y_t; x_t, r^2)^beta``: the path prior, the log-likelihood and the exact tempered mean and covariance."""
+    import seqbayes
+    from seqbayes.predictive.paths import PathPrior
+
+    prior = seqbayes.JointPrior({"a": stats.norm(0.0, 1.0)})
+    path_prior = PathPrior(prior, seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=q)]), 3, 1)
+    y = np.asarray(y)
+    innovations = np.array([[1.0, 0.0, 0.0], [-1.0, 1.0, 0.0], [0.0, -1.0, 1.0]])
+    precision = innovations.T @ np.diag([1.0, q**-2, q**-2]) @ innovations + beta / r**2 * np.eye(3)
+    cov = np.linalg.inv(precision)
+
+    def loglike(x):
+        return stats.norm.logpdf(y[None, :], x, r).sum(axis=1)
+
+    return path_prior, loglike, cov @ (beta / r**2 * y), cov
+
+
+def _assert_moments(walkers, mean, cov):
+    n = walkers.shape[0]  # 5 standard errors of each mean and variance (the walkers' chains are independent)
+    sd = np.sqrt(np.diag(cov))
+    assert np.all(np.abs(walkers.mean(axis=0) - mean) < 5 * sd / np.sqrt(n))
+    assert np.all(np.abs(walkers.var(axis=0) / sd**2 - 1.0) < 5 * np.sqrt(2 / n))
+
+
+SWEEPS = 200
+
+
+def test_the_prior_sweep_redraws_path_suffixes_and_keeps_the_tempered_target():
+    # exact MH: a suffix redrawn through the kernel is accepted with (L* / L)^beta alone. From the path prior's
+    # draws 30 sweeps alone reach the tempered target's exact Gaussian moments; the kept prefixes are bit for bit
+    path_prior, loglike, mean, cov = _chain_target(beta=0.3)
+    rng = np.random.default_rng(1)
+    walkers = path_prior.sample(4000, rng)
+    proposals, changed = path_prior.resimulate(walkers, rng)
+    np.testing.assert_array_equal(proposals[~changed], walkers[~changed])
+    assert changed[:, -1].all() and 0.2 < changed[:, 0].mean() < 0.47  # every suffix ends at the last state
+
+    def resimulate(position, generator):
+        drawn, redrawn = path_prior.resimulate(position, generator)
+        return np.where(redrawn, drawn, position)
+
+    def component_fn(x):
+        return np.column_stack([loglike(x), path_prior.logpdf(x)])
+
+    coefficients = np.array([0.3, 1.0])
+    components, rates = component_fn(walkers), []
+    for _ in range(SWEEPS):
+        walkers, components, sweep = schedule.prior_sweep(walkers, components, component_fn, coefficients,
+                                                          resimulate, rng, None)
+        rates.append(sweep.acceptance_rate)
+    np.testing.assert_array_equal(components, component_fn(walkers))
+    assert 0.2 < np.mean(rates) < 0.9
+    _assert_moments(walkers, mean, cov)
+
+
+def test_path_stages_with_the_prior_redraws_keep_the_tempered_target_in_the_box_coordinates():
+    # move_stage with prior_moves: the rounds mix the prior's redraws, the kernel density's independence sweeps and
+    # the random walk, in the box's logit coordinates (the prior's and the proposal's Jacobians cancel coordinate by
+    # coordinate). The box [-30, 30]^3 holds the target's mass but for ~1e-100: its moments are the Gaussian's
+    from seqbayes.engine.state import Problem
+
+    beta = 0.3
+    path_prior, loglike, mean, cov = _chain_target(beta)
+    problem = Problem(None, path_prior.kernel, None, np.tile([-30.0, 30.0], (3, 1)))
+    config = SamplerConfig(move="gaussian", scaled_moves=True, n_moves=1, max_moves=1)
+    rng = np.random.default_rng(2)
+    walkers = path_prior.sample(4000, rng)
+    components = np.column_stack([loglike(walkers), path_prior.logpdf(walkers)])
+    accepted = 0
+    for _ in range(15):
+        moved = schedule.move_stage(problem, config, 1.0, walkers, components, beta, path_prior.logpdf, rng, loglike,
+                                    kernel_density=True, prior_moves=path_prior)
+        walkers, components, accepted = moved.walkers, moved.components, accepted + moved.stats.n_accepted
+    np.testing.assert_allclose(components, np.column_stack([loglike(walkers), path_prior.logpdf(walkers)]),
+                               rtol=1e-10, atol=1e-10)
+    assert accepted > 15 * 4000 * 0.3
+    _assert_moments(walkers, mean, cov)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..moves.schedule import move_stage
+from ..moves.schedule import PRIOR_SHARE, move_stage
 from ..priors import inside_space
 from ..resampling import resample
 from ..results import prior_data_conflict
@@ -219,15 +219,15 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 
 
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
-                         kernel_density=False):
+                         kernel_density=False, prior_moves=None):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move
-    (``kernel_density``: as :func:`~seqbayes.moves.schedule.move_stage`).
+    (``kernel_density``, ``prior_moves``: as :func:`~seqbayes.moves.schedule.move_stage`).
 
     Returns a :class:`~seqbayes.engine.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
     any restricted mass (the caller's)."""
     n, step = config.n_samples, likelihood.step
     particles, log_weights, components, labels = cloud.particles, cloud.log_weights, cloud.components, cloud.labels
-    beta, log_z, temperatures = 0.0, 0.0, []
+    beta, log_z, temperatures, prior_share = 0.0, 0.0, [], PRIOR_SHARE
     while beta < 1.0:
         beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(log_weights, components[:, 0], beta,
                                                                             len(temperatures), config, step)
@@ -243,7 +243,8 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
             moved = move_stage(problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng,
-                               likelihood.loglike, kernel_density)
+                               likelihood.loglike, kernel_density, prior_moves, prior_share)
             particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
+            prior_share = moved.prior_share  # the prior's redraws only lose ground as beta grows
     return Tempered(Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled,
                     stage_ess)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
 from ..priors import inside_space
-from .base import SweepStats, combine
+from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
 from .proposals import DefensiveProposal
@@ -21,19 +21,25 @@ from .scaled import DifferentialMove, FittedGaussian, differential_sweep, indepe
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves"]
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep"]
+
+#: The prior's redraws' share of the global sweep in a tempering's first round (:func:`scaled_rounds` with
+#: ``resimulate``), and the bounds it adapts within.
+PRIOR_SHARE, SHARE_BOUNDS = 0.5, (0.02, 0.9)
 
 
 @dataclass(frozen=True, eq=False)
 class StageMoves:
     """What the moves of one stage did: the particles ``walkers (N, d)`` and their ``components (N, 2)``
-    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC) and the sweeps (rounds) made."""
+    after them, the sweeps' counts, SEMC's step size after them (NaN for SMC), the sweeps (rounds) made and the
+    prior's redraws' share of the global sweep after them (:func:`scaled_rounds`; the next stage starts from it)."""
 
     walkers: np.ndarray
     components: np.ndarray
     stats: SweepStats
     step_size: float
     n_virtual: int
+    prior_share: float = float("nan")
 
 
 def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
@@ -63,14 +69,18 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False):
+               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE):
     """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
     (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
     ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
-    (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
+    (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
+    rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
+    :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
+    scaled rounds then mix in :func:`prior_sweep`, from ``prior_share`` (the last stage's
+    :attr:`StageMoves.prior_share`). Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -97,8 +107,10 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
                                        None if transform is None else transform.inverse,
                                        support if transform is None else None), config.surrogate == "auto")
     if config.uses_scaled_moves(walkers.shape[1]):
-        position, components, stats, n_virtual = scaled_rounds(config, position, components, component_fn,
-                                                               coefficients, support, rng, kernel_density)
+        resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
+        position, components, stats, n_virtual, prior_share = scaled_rounds(
+            config, position, components, component_fn, coefficients, support, rng, kernel_density, resimulate,
+            prior_share)
         step_size = state_step_size if config.move == "stretch" else float("nan")
     elif config.move == "gaussian":
         stats = SweepStats()
@@ -145,7 +157,8 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         components = components[:, :2]
     else:
         walkers = position
-    return StageMoves(walkers, components, stats, step_size, n_virtual)
+    return StageMoves(walkers, components, stats, step_size, n_virtual,
+                      prior_share if prior_moves is not None else float("nan"))
 
 
 def stage_screen(setting, position, components, coefficients, beta, loglike, to_theta, support):
@@ -167,8 +180,68 @@ def stage_screen(setting, position, components, coefficients, beta, loglike, to_
     return ModelScreen(setting, dataset, float(beta), rest, to_theta, support)
 
 
+def _resimulation_fn(prior_moves, transform, box):
+    """``resimulate(position, rng) -> (n, D)`` proposals of ``prior_moves.resimulate`` in the moves' coordinates:
+    the coordinates it kept are the walkers' own, bit for bit; NaN rows where a proposal leaves the parameter
+    space ``box`` under the transform (a proposal the target rejects)."""
+    def resimulate(position, rng):
+        theta = position if transform is None else transform.inverse(position)
+        proposals, changed = prior_moves.resimulate(theta, rng)
+        if transform is None:
+            return np.where(changed, proposals, position)
+        inside = inside_space(proposals, box)
+        out = np.full(position.shape, np.nan)
+        out[inside] = np.where(changed[inside], transform.forward(proposals[inside]), position[inside])
+        return out
+    return resimulate
+
+
+def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng, support):
+    """Every walker proposes to redraw part of itself from the target's prior given the rest (``resimulate``:
+    the path prior's states from a random one on, forward through the kernel); accept with
+    ``min(1, (L* / L)^beta)``, as the prior's factors and the proposal's cancel (and the transform's Jacobian
+    with them, coordinate by coordinate). Where ``beta`` is small the prior is the target's dominant factor
+    and a kernel density of the stage's particles is not: the path prior is a thin chain of transitions.
+    Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`."""
+    n = walkers.shape[0]
+    proposals = resimulate(walkers, rng)
+    valid = np.isfinite(proposals).all(axis=1)
+    proposal_components = np.full(components.shape, -np.inf)
+    proposal_components[valid], n_eval = evaluate_inside(component_fn, proposals[valid], support, components.shape[1])
+    alive = np.isfinite(combine(proposal_components, coefficients))
+    accept = metropolis_accept(coefficients[0] * components[:, 0],
+                               np.where(alive, coefficients[0] * proposal_components[:, 0], -np.inf), 0.0, rng)
+    walkers = np.where(accept[:, None], proposals, walkers)
+    components = np.where(accept[:, None], proposal_components, components)
+    return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
+
+
+def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
+    """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
+    scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
+    keeps the target, so their mixture does). Returns the sweep's ``position, components, stats``, the next
+    ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the prior's acceptance
+    rate."""
+    if resimulate is None:
+        return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
+                share, 0.0)
+    chosen = rng.random(position.shape[0]) < share
+    position, components = position.copy(), components.copy()
+    stats, rates = SweepStats(), []
+    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, independence_sweep, proposal)):
+        if not mask.any():
+            rates.append(0.0)
+            continue
+        position[mask], components[mask], sweep = sweep_fn(position[mask], components[mask], component_fn,
+                                                           coefficients, how, rng, support)
+        stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
+    total = rates[0] + rates[1]
+    share = float(np.clip(rates[0] / total if total > 0 else share, *SHARE_BOUNDS))
+    return position, components, stats, share, rates[0]
+
+
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
-                  kernel_density: bool = False):
+                  kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
     Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
@@ -182,11 +255,23 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     (``ECONOMY_MOVED_FRACTION`` at most, with ``economy``), after at least ``n_moves`` rounds (1 with
     ``economy``) and at most ``max_moves`` (SMC) or ``max_virtual`` (SEMC).
 
+    With ``resimulate`` (the path-space bridge: its early stages' targets are thin ridges of the path prior, where
+    the kernel density and the local move accept almost nothing) each walker's global move is, at random, the
+    prior's redraw (:func:`prior_sweep`, with probability ``share`` in the first round, then the prior's part of the
+    last round's acceptances, within ``SHARE_BOUNDS``) or the independence sweep; and after the first round the
+    local sweep gives way to a second :func:`prior_sweep` while the prior's redraws are accepted more often than
+    the local move was. Each is an exact Metropolis-Hastings kernel of the stage's target.
+
     Parameters
     ----------
     position : (N, d) array
         The particles (in the move's coordinates); ``components (N, k)`` their log-target components,
         ``component_fn``, ``coefficients`` and ``support`` as in :func:`~seqbayes.moves.stretch_sweep`.
+    resimulate : callable, optional
+        ``resimulate(position, rng) -> (N, d)`` proposals redrawing part of each walker from the prior given the
+        rest, in the move's coordinates (NaN rows: outside the parameter space); see :func:`prior_sweep`.
+    share : float
+        The redraws' share of the first round's global sweep (with ``resimulate``).
 
     Returns
     -------
@@ -194,6 +279,8 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     stats : SweepStats
         Of every sweep (independence and local).
     n_rounds : int
+    share : float
+        The redraws' share after the last round (``share`` itself without ``resimulate``).
     """
     n, d = position.shape
     fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
@@ -204,22 +291,30 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
     moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
     scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
+    local_rate = 1.0
     while n_rounds < max_rounds:
         before = position
-        position, components, sweep = independence_sweep(position, components, component_fn, coefficients,
-                                                         globally, rng, support)
+        position, components, sweep, share, prior_rate = _global_sweep(
+            position, components, component_fn, coefficients, globally, resimulate, share, rng, support)
         stats = stats + sweep
-        if config.move == "gaussian":
+        if resimulate is not None and n_rounds and prior_rate > local_rate:
+            # the prior's redraws move more walkers than the local move did last: they take its sweep
+            position, components, sweep = prior_sweep(position, components, component_fn, coefficients, resimulate,
+                                                      rng, support)
+        elif config.move == "gaussian":
             local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
             position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
                                                          rng, support)
+            # Eq. (9)
+            local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         else:
             position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
                                                              DifferentialMove(scale), rng, support)
-        scale = float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))  # Eq. (9)
+            # Eq. (9)
+            local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         stats = stats + sweep
         travelled += whitened_jumps(before, position, fitted)
         n_rounds += 1
         if n_rounds >= min_rounds and travelled.mean() >= target and np.mean(travelled > 0) >= moved_fraction:
             break
-    return position, components, stats, n_rounds
+    return position, components, stats, n_rounds, share

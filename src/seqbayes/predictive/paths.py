@@ -107,6 +107,24 @@ class PathPrior:
             states.append(self.kernel.propagate(states[-1], rng))
         return np.concatenate(states, axis=1)
 
+    def resimulate(self, walkers, rng):
+        """Proposals that redraw each path ``walkers (M, (L + 1) d)`` from a state chosen uniformly on (``theta_w`` from
+        ``first``, each later state through the kernel from the one before), and ``(M, (L + 1) d)`` bool: the
+        coordinates redrawn. The prior's factors cancel against the proposal's in the Metropolis-Hastings ratio
+        (:func:`~seqbayes.moves.schedule.prior_sweep`)."""
+        m = walkers.shape[0]
+        states = walkers.reshape(m, self.n_states, self.dim).copy()
+        start = rng.integers(self.n_states, size=m)
+        fresh = start == 0
+        if fresh.any():
+            states[fresh, 0] = as_samples(self.first.sample(int(fresh.sum()), rng), self.dim, "prior.sample(n, rng)")
+        for t in range(1, self.n_states):
+            redraw = start <= t
+            if redraw.any():
+                states[redraw, t] = self.kernel.propagate(states[redraw, t - 1], rng)
+        changed = np.repeat(np.arange(self.n_states)[None, :] >= start[:, None], self.dim, axis=1)
+        return states.reshape(m, -1), changed
+
     def logpdf(self, walkers):
         states = walkers.reshape(walkers.shape[0], self.n_states, self.dim)  # explicit: no draw may be inside
         return _add_transitions(np.asarray(self.first.logpdf(states[:, 0]), dtype=float).copy(), states, self.kernel)
@@ -154,7 +172,8 @@ class PathSpace:
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
     the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
-    as the independence proposal), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
+    as the independence proposal and, in the bridge, redraws of path suffixes from the path prior:
+    :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
     :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
     the window. The record has ``StepInfo.path_steps = L``.
 
@@ -298,8 +317,12 @@ class PathSpace:
         # gathered in a narrow minor mode of an early stage finish there
         config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
+        # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
+                                        prior_moves=PathPrior(self.window[0].prior, self.problem.kernel,
+                                                              len(self.window) + 1, d))
         cloud = tempered.cloud
         last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
         normaliser = sum(past.log_evidence_increment for past in self.window)
