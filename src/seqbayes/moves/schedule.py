@@ -171,10 +171,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
                   kernel_density: bool = False):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
-    Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
-    stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it or with ``kernel_density``), then a local
-    sweep: SMC's random walk with
+    Each round is an independence-MH sweep from ``N(mean, cov)`` fitted to ``position`` once, before the
+    stage's moves, above ``HIGH_DIMENSION``, or, up to it or with ``kernel_density``, from the evidence's
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half of the particles
+    (:func:`_complement_sweep`), then a local sweep: SMC's random walk with
     ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
     factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
     the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
