@@ -47,7 +47,8 @@ def test_rounds_run_to_their_cap_when_nothing_moves():
     np.testing.assert_array_equal(position, walkers)
 
 
-@pytest.mark.parametrize("kernel_density, proposal", [(True, "DefensiveProposal"), (False, "FittedGaussian")])
+# the kernel density sweeps each half of the particles with the density fitted to the other half: two sweeps a round
+@pytest.mark.parametrize("kernel_density, proposal", [(True, ["DefensiveProposal"] * 2), (False, ["FittedGaussian"])])
 def test_the_independence_proposal_above_high_dimension(monkeypatch, kernel_density, proposal):
     seen = []
     sweep = schedule.independence_sweep
@@ -58,7 +59,7 @@ def test_the_independence_proposal_above_high_dimension(monkeypatch, kernel_dens
 
     monkeypatch.setattr(schedule, "independence_sweep", recording)
     rounds(kernel_density, gaussian_components, cap=1)
-    assert seen == [proposal]
+    assert seen == proposal
 
 
 def _chain_target(beta, q=0.5, r=0.5, y=(1.5, 2.0, 2.5)):
@@ -140,3 +141,23 @@ def test_path_stages_with_the_prior_redraws_keep_the_tempered_target_in_the_box_
                                rtol=1e-10, atol=1e-10)
     assert accepted > 15 * 4000 * 0.3
     _assert_moments(walkers, mean, cov)
+
+
+@pytest.mark.parametrize("move", ["stretch", "gaussian"])
+def test_the_kernel_density_sweeps_leave_the_target_invariant_stage_after_stage(move):
+    # exact draws of a 12-dimensional Gaussian moved by 20 stages of one round each, as a tempering's stages at
+    # beta = 1: a kernel density fitted to the very particles it moves inflated its q at each of them and the
+    # cloud drifted from the target (E|x|^2 / d 1.30 +- 0.03, 2.9 % beyond the 1 % quantiles, stretch, 4 seeds;
+    # the path cloud's light tail, docs/jump_kernels.md). Tolerances: 5 Monte Carlo sds of 12,000 iid draws
+    # (sqrt(2 / 12000) = 0.013 and sqrt(0.01 * 0.99 / 12000) = 0.0009); over 4 seeds the fixed sweeps gave
+    # 0.990 +- 0.012 and 0.0098 +- 0.0006
+    rng = np.random.default_rng(1)
+    position = rng.standard_normal((1000, D))
+    components = gaussian_components(position)
+    config = SamplerConfig(move=move, scaled_moves=True, n_moves=1, max_moves=1, max_virtual=1)
+    for _ in range(20):
+        position, components, _, _, _ = schedule.scaled_rounds(config, position, components, gaussian_components,
+                                                            np.ones(1), None, rng, True)
+    np.testing.assert_allclose(components[:, 0], gaussian_components(position)[:, 0])
+    assert abs(np.mean(np.sum(position**2, axis=1)) / D - 1.0) < 5 * np.sqrt(2 / 12000)
+    assert abs(np.mean(np.abs(position) > stats.norm.ppf(0.995)) - 0.01) < 5 * np.sqrt(0.01 * 0.99 / 12000)

@@ -216,6 +216,14 @@ def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng
     return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
 
 
+def _independence(position, components, component_fn, coefficients, proposal, rng, support):
+    """:func:`~seqbayes.moves.scaled.independence_sweep` from ``proposal``, or with ``proposal`` None from the kernel
+    density of the other half (:func:`_complement_sweep`)."""
+    if proposal is None:
+        return _complement_sweep(position, components, component_fn, coefficients, rng, support)
+    return independence_sweep(position, components, component_fn, coefficients, proposal, rng, support)
+
+
 def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
     """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
     scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
@@ -223,12 +231,12 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
     ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the prior's acceptance
     rate."""
     if resimulate is None:
-        return (*independence_sweep(position, components, component_fn, coefficients, proposal, rng, support),
+        return (*_independence(position, components, component_fn, coefficients, proposal, rng, support),
                 share, 0.0)
     chosen = rng.random(position.shape[0]) < share
     position, components = position.copy(), components.copy()
     stats, rates = SweepStats(), []
-    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, independence_sweep, proposal)):
+    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, _independence, proposal)):
         if not mask.any():
             rates.append(0.0)
             continue
@@ -244,10 +252,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
                   kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
-    Each round is an independence-MH sweep from a density fitted to ``position`` once, before the
-    stage's moves (``N(mean, cov)`` above ``HIGH_DIMENSION``, the evidence's
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` up to it or with ``kernel_density``), then a local
-    sweep: SMC's random walk with
+    Each round is an independence-MH sweep from ``N(mean, cov)`` fitted to ``position`` once, before the
+    stage's moves, above ``HIGH_DIMENSION``, or, up to it or with ``kernel_density``, from the evidence's
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half of the particles
+    (:func:`_complement_sweep`), then a local sweep: SMC's random walk with
     ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
     factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
     the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
@@ -284,8 +292,9 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     """
     n, d = position.shape
     fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
-    # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel
-    globally = fitted if d > HIGH_DIMENSION and not kernel_density else DefensiveProposal(position, np.zeros(n))
+    # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel; it is
+    # fitted afresh to the other half of the particles at each sweep (:func:`_complement_sweep`)
+    globally = fitted if d > HIGH_DIMENSION and not kernel_density else None
     target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
     min_rounds = 1 if config.economy else config.n_moves
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
@@ -318,3 +327,30 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
         if n_rounds >= min_rounds and travelled.mean() >= target and np.mean(travelled > 0) >= moved_fraction:
             break
     return position, components, stats, n_rounds, share
+
+
+def _complement_sweep(position, components, component_fn, coefficients, rng, support):
+    """One independence sweep from the kernel density: each half of the particles proposes from the
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half, the halves contiguous in the
+    particles' order, cut at a random place.
+
+    A kernel density fitted to the particles it moves has a kernel on each of them: the particle's own ``q`` is
+    inflated, its ``pi / q`` deflated, most where the particles are sparse (a tail, a minor mode), so they leave
+    it too readily and the sweep no longer leaves ``pi`` invariant (in d = 10 the inflation is many-fold). Fitted
+    to the other half, ``q`` does not depend on the walkers it moves, and the sweep leaves ``pi^N`` invariant, as
+    the stretch move's halves do. Contiguous halves keep a resampled particle's copies, and their descendants,
+    together (the samplers' resampling returns sorted indices): a copy or a near copy in the other half would
+    put the kernel back on the particle, and a random split measurably did (docs/jump_kernels.md, "Why the path
+    cloud's tail is light"). Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`.
+    """
+    n = position.shape[0]
+    order = np.roll(np.arange(n), -int(rng.integers(n)))
+    halves = (order[: n // 2], order[n // 2:])
+    position, components, stats = position.copy(), components.copy(), SweepStats()
+    for active, passive in (halves, halves[::-1]):
+        proposal = DefensiveProposal(position[passive], np.zeros(passive.size))
+        moved, moved_components, sweep = independence_sweep(position[active], components[active], component_fn,
+                                                            coefficients, proposal, rng, support)
+        position[active], components[active] = moved, moved_components
+        stats = stats + sweep
+    return position, components, stats
