@@ -236,12 +236,16 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
     chosen = rng.random(position.shape[0]) < share
     position, components = position.copy(), components.copy()
     stats, rates = SweepStats(), []
-    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, _independence, proposal)):
+    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, independence_sweep, proposal)):
         if not mask.any():
             rates.append(0.0)
             continue
-        position[mask], components[mask], sweep = sweep_fn(position[mask], components[mask], component_fn,
-                                                           coefficients, how, rng, support)
+        if how is None:  # the kernel density: fitted to the other half of all the walkers, not of this subset
+            position, components, sweep = _complement_sweep(position, components, component_fn, coefficients, rng,
+                                                            support, movable=mask)
+        else:
+            position[mask], components[mask], sweep = sweep_fn(position[mask], components[mask], component_fn,
+                                                               coefficients, how, rng, support)
         stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
     total = rates[0] + rates[1]
     share = float(np.clip(rates[0] / total if total > 0 else share, *SHARE_BOUNDS))
@@ -329,7 +333,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     return position, components, stats, n_rounds, share
 
 
-def _complement_sweep(position, components, component_fn, coefficients, rng, support):
+def _complement_sweep(position, components, component_fn, coefficients, rng, support, movable=None):
     """One independence sweep from the kernel density: each half of the particles proposes from the
     :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half, the halves contiguous in the
     particles' order, cut at a random place.
@@ -341,13 +345,18 @@ def _complement_sweep(position, components, component_fn, coefficients, rng, sup
     the stretch move's halves do. Contiguous halves keep a resampled particle's copies, and their descendants,
     together (the samplers' resampling returns sorted indices): a copy or a near copy in the other half would
     put the kernel back on the particle, and a random split measurably did (docs/jump_kernels.md, "Why the path
-    cloud's tail is light"). Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`.
+    cloud's tail is light"). Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`;
+    ``movable`` (``(N,)`` bool): only those walkers move (the others still make up the densities).
     """
     n = position.shape[0]
     order = np.roll(np.arange(n), -int(rng.integers(n)))
     halves = (order[: n // 2], order[n // 2:])
     position, components, stats = position.copy(), components.copy(), SweepStats()
     for active, passive in (halves, halves[::-1]):
+        if movable is not None:
+            active = active[movable[active]]
+        if active.size == 0 or passive.size == 0:
+            continue
         proposal = DefensiveProposal(position[passive], np.zeros(passive.size))
         moved, moved_components, sweep = independence_sweep(position[active], components[active], component_fn,
                                                             coefficients, proposal, rng, support)
