@@ -216,12 +216,18 @@ def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng
     return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
 
 
-def _independence(position, components, component_fn, coefficients, proposal, rng, support):
+def _independence(position, components, component_fn, coefficients, proposal, rng, support, movable=None):
     """:func:`~seqbayes.moves.scaled.independence_sweep` from ``proposal``, or with ``proposal`` None from the kernel
-    density of the other half (:func:`_complement_sweep`)."""
+    density of the other half of all the walkers (:func:`_complement_sweep`); ``movable`` (``(N,)`` bool): only
+    those walkers move."""
     if proposal is None:
-        return _complement_sweep(position, components, component_fn, coefficients, rng, support)
-    return independence_sweep(position, components, component_fn, coefficients, proposal, rng, support)
+        return _complement_sweep(position, components, component_fn, coefficients, rng, support, movable)
+    if movable is None:
+        return independence_sweep(position, components, component_fn, coefficients, proposal, rng, support)
+    position, components = position.copy(), components.copy()
+    position[movable], components[movable], sweep = independence_sweep(
+        position[movable], components[movable], component_fn, coefficients, proposal, rng, support)
+    return position, components, sweep
 
 
 def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
@@ -235,21 +241,18 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
                 share, 0.0)
     chosen = rng.random(position.shape[0]) < share
     position, components = position.copy(), components.copy()
-    stats, rates = SweepStats(), []
-    for mask, sweep_fn, how in ((chosen, prior_sweep, resimulate), (~chosen, independence_sweep, proposal)):
-        if not mask.any():
-            rates.append(0.0)
-            continue
-        if how is None:  # the kernel density: fitted to the other half of all the walkers, not of this subset
-            position, components, sweep = _complement_sweep(position, components, component_fn, coefficients, rng,
-                                                            support, movable=mask)
-        else:
-            position[mask], components[mask], sweep = sweep_fn(position[mask], components[mask], component_fn,
-                                                               coefficients, how, rng, support)
-        stats, rates = stats + sweep, rates + [sweep.acceptance_rate]
-    total = rates[0] + rates[1]
-    share = float(np.clip(rates[0] / total if total > 0 else share, *SHARE_BOUNDS))
-    return position, components, stats, share, rates[0]
+    stats, prior_rate, other_rate = SweepStats(), 0.0, 0.0
+    if chosen.any():
+        position[chosen], components[chosen], sweep = prior_sweep(position[chosen], components[chosen], component_fn,
+                                                                  coefficients, resimulate, rng, support)
+        stats, prior_rate = stats + sweep, sweep.acceptance_rate
+    if not chosen.all():
+        position, components, sweep = _independence(position, components, component_fn, coefficients, proposal, rng,
+                                                    support, movable=~chosen)
+        stats, other_rate = stats + sweep, sweep.acceptance_rate
+    total = prior_rate + other_rate
+    share = float(np.clip(prior_rate / total if total > 0 else share, *SHARE_BOUNDS))
+    return position, components, stats, share, prior_rate
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
@@ -314,15 +317,14 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
             # the prior's redraws move more walkers than the local move did last: they take its sweep
             position, components, sweep = prior_sweep(position, components, component_fn, coefficients, resimulate,
                                                       rng, support)
-        elif config.move == "gaussian":
-            local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
-            position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
-                                                         rng, support)
-            # Eq. (9)
-            local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         else:
-            position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
-                                                             DifferentialMove(scale), rng, support)
+            if config.move == "gaussian":
+                local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
+                position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
+                                                             rng, support)
+            else:
+                position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
+                                                                 DifferentialMove(scale), rng, support)
             # Eq. (9)
             local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         stats = stats + sweep
