@@ -199,6 +199,7 @@ class PathSpace:
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
         self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
+        self.path_prior = PathPrior(self.window[0].prior, kernel, length + 1, d)  # the bridge's start and redraws
         # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
         self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
         # the path's moves are the scaled rounds (an independence sweep from the kernel density fitted to the stage's
@@ -296,8 +297,8 @@ class PathSpace:
         from the previous steps' particles, so a mode of ``pi`` whose earlier states the earlier data had ruled
         out given the stored paths is reached.
         """
-        kernel, d, n = self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
-        path_prior = PathPrior(self.window[0].prior, kernel, len(self.window) + 1, d)
+        d, n = self.problem.kernel.dim, self.config.n_samples
+        path_prior = self.path_prior
         window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
         walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
             path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood)
@@ -321,8 +322,7 @@ class PathSpace:
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        prior_moves=PathPrior(self.window[0].prior, self.problem.kernel,
-                                                              len(self.window) + 1, d))
+                                        prior_moves=self.path_prior)
         cloud = tempered.cloud
         last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
         normaliser = sum(past.log_evidence_increment for past in self.window)
