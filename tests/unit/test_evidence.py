@@ -81,6 +81,35 @@ def test_importance_standard_error_matches_the_spread_over_replications():
     assert 0.8 < ratio < 1.25
 
 
+@pytest.mark.parametrize("gaussian", [False, True])
+def test_the_importance_sweeps_leave_the_target_invariant_sweep_after_sweep(gaussian):
+    # exact draws of a 10-dimensional N(0, I) moved by 20 importance steps of one sweep each: a proposal fitted to
+    # the very particles it moves put a kernel on each of them and the cloud drifted from the target (E|x|^2 / d
+    # 1.224 +- 0.015, 2.5 % beyond the 1 % quantiles, kernel density, 4 seeds). Tolerances: 5 Monte Carlo sds of
+    # 10,000 iid draws (sqrt(2 / 10000) = 0.014, sqrt(0.01 * 0.99 / 10000) = 0.001); over 4 seeds the fixed sweeps
+    # gave 0.991 +- 0.003 and 0.0098 +- 0.0004 (kernel density), 0.995 +- 0.003 and 0.0101 +- 0.0004 (Gaussian)
+    d, n = 10, 1000
+    rng = np.random.default_rng(1)
+    prior = stats.multivariate_normal(np.zeros(d), np.eye(d))
+
+    def loglike(theta):
+        return np.zeros(theta.shape[0])
+
+    position = rng.standard_normal((n, d))
+    components = np.column_stack([loglike(position), prior.logpdf(position)])
+    support = np.array([[-50.0, 50.0]] * d)
+    log_zs = []
+    for _ in range(20):
+        log_z, _, position, components, _ = importance_step(position, np.full(n, -np.log(n)), components,
+                                                            prior.logpdf, loglike, support, rng, gaussian=gaussian)
+        log_zs.append(log_z)
+    np.testing.assert_allclose(components[:, 1], prior.logpdf(position))
+    assert abs(np.mean(np.sum(position**2, axis=1)) / d - 1.0) < 5 * np.sqrt(2 / (n * d))
+    assert abs(np.mean(np.abs(position) > stats.norm.ppf(0.995)) - 0.01) < 5 * np.sqrt(0.01 * 0.99 / (n * d))
+    # every step's estimate of Z = 1 (sd 0.03 per step): their mean within 5 of its sds
+    assert abs(np.mean(log_zs)) < 5 * 0.035 / np.sqrt(20)
+
+
 def test_weights_increment_variance_is_the_delta_method():
     # the carried-weights increment log sum_i W_i l_i: variance sum_i (W'_i - W_i)^2, W' = W l / sum W l;
     # with the history prior the cumulative one moves by 1/ESS' - 1/ESS and resets at an importance step

@@ -19,11 +19,13 @@ finite variance). The effective sample size of the importance weights is
 returned as a diagnostic.
 
 The same draws then serve as proposals of an independence Metropolis-Hastings
-sweep over the particles (further sweeps draw afresh from the same ``q``) (particle ``i`` proposes draw ``i``; accept with
-``min(1, w(new) / w(old))``, ``w = pi / q``). The draws are independent of the
-particles, so the sweep leaves the posterior invariant; it costs no extra
-likelihood evaluation and moves particles across a funnel that the local moves
-cross slowly. Why by hand: no library offers defensive importance sampling
+sweep over the particles (accept with ``min(1, w(new) / w(old))``, ``w = pi / q``).
+For the sweep to leave the posterior invariant ``q`` must not depend on the
+particles it moves: each half of the particles proposes from the ``q`` fitted to
+the other half (:func:`~seqbayes.moves.proposals.complement_halves`), and the
+evidence pools the two halves' draws, each term an unbiased estimate of ``Z``.
+The sweep costs no extra likelihood evaluation and moves particles across a
+funnel that the local moves cross slowly. Why by hand: no library offers defensive importance sampling
 against an arbitrary vectorised prior density.
 
 Two clouds of the same posterior (the conflict remedy's bridge and stored-path
@@ -40,7 +42,7 @@ import warnings
 import numpy as np
 
 from ..moves import metropolis_accept
-from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts
+from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts, complement_halves
 from ..priors import inside_support
 from ..resampling import resample
 from ..transforms import BoxTransform
@@ -148,7 +150,8 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
         Parameter space; the likelihood is zero outside.
     rng : numpy.random.Generator
     n_sweeps : int
-        Independence sweeps, each with N fresh draws; the first sweep's draws give the evidence.
+        Independence sweeps, each with N fresh draws, half from the proposal fitted to each half of the
+        particles (:func:`~seqbayes.moves.proposals.complement_halves`); the first sweep's draws give the evidence.
     gaussian : bool
         The proposal's first half is the fitted Gaussian instead of the kernel density (:func:`_proposal`).
     se_target : float, optional
@@ -175,26 +178,40 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     n = posterior.shape[0]
     transform = BoxTransform(support)
     u = transform.forward(posterior)
-    if other is None:
-        q = DefensiveProposal(u, log_weights, gaussian=gaussian)
-    else:
-        q = PooledProposal(*clustered_parts([(u, log_weights), (transform.forward(other[0]), other[1])], rng,
-                                            gaussian)[:2])
-    log_q = q.logpdf
+    other_u = None if other is None else (transform.forward(other[0]), other[1])
+
+    def fitted(part):
+        # the proposal of the other half's particles (complement_halves: one fitted to the particles it moves is
+        # not an exact kernel); `other` is fixed during the sweeps, so its part of q may stay
+        weights = log_weights[part] if np.isfinite(logsumexp(log_weights[part])) else np.zeros(part.size)
+        if other_u is None:
+            return DefensiveProposal(u[part], weights, gaussian=gaussian)
+        return PooledProposal(*clustered_parts([(u[part], weights), other_u], rng, gaussian)[:2])
 
     posterior, components = posterior.copy(), components.copy()
-    current = components.sum(axis=1) + transform.log_jacobian(u) - log_q(u)  # log(target / q) at the particles
+    log_target = components.sum(axis=1) + transform.log_jacobian(u)  # in u, at the particles
     log_evidence, ess, n_accepted = -np.inf, 0.0, 0
     pooled = []
     sweep = 0
     while sweep < n_sweeps or (se_target is not None and sweep < max(max_sweeps or 0, n_sweeps)
                                and ess >= min_fraction * n * sweep  # a poor fit: refit rather than pool
                                and np.sqrt(max(1.0 / max(ess, 1e-300) - 1.0 / (n * sweep), 0.0)) > se_target):
-        draws = q.sample(n, rng)
-        theta, inside, new_components, log_target = _target_at(draws, transform, support, loglike, prior_logpdf)
-        log_terms = log_target - log_q(draws)
+        terms = []
+        for active, passive in complement_halves(n, rng):
+            q = fitted(passive)
+            draws = q.sample(active.size, rng)
+            theta, inside, new_components, new_target = _target_at(draws, transform, support, loglike, prior_logpdf)
+            log_terms = new_target - q.logpdf(draws)  # log(target / q): each an unbiased estimate of Z
+            terms.append(log_terms)
+            # independence Metropolis-Hastings with w = target / q (q is independent of the active half)
+            accept = metropolis_accept(log_target[active] - q.logpdf(u[active]), log_terms, np.zeros(active.size),
+                                       rng) & inside
+            moved = active[accept]
+            posterior[moved], components[moved] = theta[accept], new_components[accept]
+            u[moved], log_target[moved] = draws[accept], new_target[accept]
+            n_accepted += int(accept.sum())
         if sweep == 0 or se_target is not None:
-            pooled.append(log_terms)
+            pooled.extend(terms)
             every = np.concatenate(pooled)
             total = logsumexp(every)
             if not np.isfinite(total):
@@ -203,12 +220,6 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
             else:
                 ess = float(np.exp(2.0 * total - logsumexp(2.0 * every)))  # of M = every.size draws
                 log_evidence = float(total - np.log(every.size))
-        # independence Metropolis-Hastings with w = target / q (the draws are independent of the particles)
-        accept = metropolis_accept(current, log_terms, np.zeros(n), rng) & inside
-        posterior[accept] = theta[accept]
-        components[accept] = new_components[accept]
-        current[accept] = log_terms[accept]
-        n_accepted += int(accept.sum())
         sweep += 1
     if se_target is not None and ess > 0:
         # the ESS that N draws would need for the pooled estimate's variance 1 / ESS - 1 / M: the caller's

@@ -15,8 +15,8 @@ from ..predictive.mixture import GaussianMixture, silverman_bandwidth
 from ..weights import logsumexp, normalise
 from .scaled import FittedGaussian
 
-__all__ = ["DefensiveProposal", "PooledProposal", "clustered_parts", "defensive_parts", "thinned_components",
-           "MAX_PROPOSAL_COMPONENTS"]
+__all__ = ["DefensiveProposal", "PooledProposal", "clustered_parts", "complement_halves", "defensive_parts",
+           "thinned_components", "MAX_PROPOSAL_COMPONENTS"]
 
 
 _T_DOF = 4.0
@@ -28,6 +28,23 @@ _KMEANS_RNG = "rng" if "rng" in inspect.signature(kmeans2).parameters else "seed
 
 #: Most kernel-density components of the proposal (see docs/core.md, "Cost per update").
 MAX_PROPOSAL_COMPONENTS = 1000
+
+
+def complement_halves(n: int, rng: np.random.Generator):
+    """Two halves of ``n`` particles for sweeps whose proposal is fitted to the other half: contiguous in the
+    particles' order, cut at a random place, as ``((active, passive), (passive, active))`` index pairs.
+
+    A proposal fitted to the particles it moves has a kernel (or an O(1/N) share of its moments) on each of them:
+    the particle's own ``q`` is inflated, its ``pi / q`` deflated, most where the particles are sparse, and the
+    sweep no longer leaves ``pi`` invariant (in d = 10 a kernel density's inflation is many-fold). Fitted to the
+    other half, ``q`` does not depend on the particles it moves and each half's sweep leaves ``pi^N`` invariant, as
+    the stretch move's halves do. Contiguous halves keep a resampled particle's copies, and their descendants,
+    together (the samplers' resampling returns sorted indices): a copy in the other half would put the kernel back
+    on the particle.
+    """
+    order = np.roll(np.arange(n), -int(rng.integers(n)))
+    first, second = order[: n // 2], order[n // 2:]
+    return (first, second), (second, first)
 
 
 def thinned_components(points, log_weights, n_components):

@@ -16,7 +16,7 @@ from ..priors import inside_space
 from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
-from .proposals import DefensiveProposal
+from .proposals import DefensiveProposal, complement_halves
 from .scaled import DifferentialMove, FittedGaussian, differential_sweep, independence_sweep, whitened_jumps
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
@@ -337,24 +337,13 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
 
 def _complement_sweep(position, components, component_fn, coefficients, rng, support, movable=None):
     """One independence sweep from the kernel density: each half of the particles proposes from the
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half, the halves contiguous in the
-    particles' order, cut at a random place.
-
-    A kernel density fitted to the particles it moves has a kernel on each of them: the particle's own ``q`` is
-    inflated, its ``pi / q`` deflated, most where the particles are sparse (a tail, a minor mode), so they leave
-    it too readily and the sweep no longer leaves ``pi`` invariant (in d = 10 the inflation is many-fold). Fitted
-    to the other half, ``q`` does not depend on the walkers it moves, and the sweep leaves ``pi^N`` invariant, as
-    the stretch move's halves do. Contiguous halves keep a resampled particle's copies, and their descendants,
-    together (the samplers' resampling returns sorted indices): a copy or a near copy in the other half would
-    put the kernel back on the particle, and a random split measurably did (docs/jump_kernels.md, "Why the path
-    cloud's tail is light"). Arguments and returns as :func:`~seqbayes.moves.scaled.independence_sweep`;
-    ``movable`` (``(N,)`` bool): only those walkers move (the others still make up the densities).
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half
+    (:func:`~seqbayes.moves.proposals.complement_halves`, which says why). Arguments and returns as
+    :func:`~seqbayes.moves.scaled.independence_sweep`; ``movable`` (``(N,)`` bool): only those walkers move (the
+    others still make up the densities).
     """
-    n = position.shape[0]
-    order = np.roll(np.arange(n), -int(rng.integers(n)))
-    halves = (order[: n // 2], order[n // 2:])
     position, components, stats = position.copy(), components.copy(), SweepStats()
-    for active, passive in (halves, halves[::-1]):
+    for active, passive in complement_halves(position.shape[0], rng):
         if movable is not None:
             active = active[movable[active]]
         if active.size == 0 or passive.size == 0:
