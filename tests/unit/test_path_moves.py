@@ -47,8 +47,8 @@ def test_rounds_run_to_their_cap_when_nothing_moves():
     np.testing.assert_array_equal(position, walkers)
 
 
-# the kernel density sweeps each half of the particles with the density fitted to the other half: two sweeps a round
-@pytest.mark.parametrize("kernel_density, proposal", [(True, ["DefensiveProposal"] * 2), (False, ["FittedGaussian"])])
+# each half of the particles is swept with the density fitted to the other half: two sweeps a round
+@pytest.mark.parametrize("kernel_density, proposal", [(True, ["DefensiveProposal"] * 2), (False, ["FittedGaussian"] * 2)])
 def test_the_independence_proposal_above_high_dimension(monkeypatch, kernel_density, proposal):
     seen = []
     sweep = schedule.independence_sweep

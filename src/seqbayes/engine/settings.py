@@ -170,8 +170,8 @@ class SamplerConfig:
     scaled_moves : bool or None
         Moves that keep working as the dimension grows (:mod:`seqbayes.moves.scaled`). Each
         round at a stage is an independence-MH sweep (every particle proposes a fresh draw of a density
-        fitted to the particles: the Gaussian of their mean and covariance above d = 10, before the stage's
-        moves, the evidence's kernel density + Student t of the other half up to d = 10), then a local sweep (SMC: the
+        fitted to the other half of the particles: the Gaussian of their mean and covariance above d = 10,
+        the evidence's kernel density + Student t up to d = 10), then a local sweep (SMC: the
         random walk with ``2.38 / sqrt(d)`` times the particles' covariance factor; SEMC: the
         differential-evolution move, half against half; both scaled by a factor that Eq. 9 adapts towards
         acceptance 0.234). Rounds stop when the particles have travelled on average ``2 d`` squared

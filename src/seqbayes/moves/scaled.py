@@ -8,9 +8,12 @@ scale is ``2.38 / sqrt(d)``, Roberts et al. 1997); the stretch move's acceptance
 high dimension because its proposals leave the typical set along one line (Huijser et al.
 2015). Here:
 
-* :class:`FittedGaussian` proposes every walker afresh from ``N(mean, cov)`` of the particles
-  (independence Metropolis-Hastings, as PyMC's SMC does): an accepted proposal is an
-  independent draw, whatever the dimension, when the tempered target is near Gaussian;
+* :class:`FittedGaussian` proposes every walker afresh from ``N(mean, cov)`` of the other half of
+  the particles (independence Metropolis-Hastings, as PyMC's SMC does, but fitted to the other half:
+  fitted to the walkers it moves, the Gaussian shrinks each one's Mahalanobis distance by ~ r^4 / N
+  and the sweeps contract the cloud, by 9 % in variance at d = 50 and N = 1000;
+  :func:`seqbayes.moves.proposals.complement_halves`): an accepted proposal is an independent
+  draw, whatever the dimension, when the tempered target is near Gaussian;
 * SMC's local move is the random walk with ``2.38 / sqrt(d)`` times the covariance's factor;
 * SEMC's local move is the differential-evolution move of ter Braak (2006) run half against
   half as the stretch move is, ``x* = x + g (x_j - x_k)`` with ``x_j, x_k`` two walkers of the

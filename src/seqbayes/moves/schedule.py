@@ -216,28 +216,15 @@ def prior_sweep(walkers, components, component_fn, coefficients, resimulate, rng
     return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
 
 
-def _independence(position, components, component_fn, coefficients, proposal, rng, support, movable=None):
-    """:func:`~seqbayes.moves.scaled.independence_sweep` from ``proposal``, or with ``proposal`` None from the kernel
-    density of the other half of all the walkers (:func:`_complement_sweep`); ``movable`` (``(N,)`` bool): only
-    those walkers move."""
-    if proposal is None:
-        return _complement_sweep(position, components, component_fn, coefficients, rng, support, movable)
-    if movable is None:
-        return independence_sweep(position, components, component_fn, coefficients, proposal, rng, support)
-    position, components = position.copy(), components.copy()
-    position[movable], components[movable], sweep = independence_sweep(
-        position[movable], components[movable], component_fn, coefficients, proposal, rng, support)
-    return position, components, sweep
-
-
-def _global_sweep(position, components, component_fn, coefficients, proposal, resimulate, share, rng, support):
-    """The round's global sweep: the independence sweep from ``proposal``, or with ``resimulate`` a random
+def _global_sweep(position, components, component_fn, coefficients, gaussian, resimulate, share, rng, support):
+    """The round's global sweep: the independence sweep of :func:`_complement_sweep` (``gaussian``: from the
+    fitted Gaussian, else the kernel density), or with ``resimulate`` a random
     scan of it and :func:`prior_sweep` (each walker takes the prior's with probability ``share``; each kernel
     keeps the target, so their mixture does). Returns the sweep's ``position, components, stats``, the next
     ``share`` (the prior's part of the two acceptance rates, within ``SHARE_BOUNDS``) and the prior's acceptance
     rate."""
     if resimulate is None:
-        return (*_independence(position, components, component_fn, coefficients, proposal, rng, support),
+        return (*_complement_sweep(position, components, component_fn, coefficients, rng, support, gaussian=gaussian),
                 share, 0.0)
     chosen = rng.random(position.shape[0]) < share
     position, components = position.copy(), components.copy()
@@ -247,8 +234,8 @@ def _global_sweep(position, components, component_fn, coefficients, proposal, re
                                                                   coefficients, resimulate, rng, support)
         stats, prior_rate = stats + sweep, sweep.acceptance_rate
     if not chosen.all():
-        position, components, sweep = _independence(position, components, component_fn, coefficients, proposal, rng,
-                                                    support, movable=~chosen)
+        position, components, sweep = _complement_sweep(position, components, component_fn, coefficients, rng,
+                                                        support, movable=~chosen, gaussian=gaussian)
         stats, other_rate = stats + sweep, sweep.acceptance_rate
     total = prior_rate + other_rate
     share = float(np.clip(prior_rate / total if total > 0 else share, *SHARE_BOUNDS))
@@ -259,10 +246,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
                   kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
-    Each round is an independence-MH sweep from ``N(mean, cov)`` fitted to ``position`` once, before the
-    stage's moves, above ``HIGH_DIMENSION``, or, up to it or with ``kernel_density``, from the evidence's
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half of the particles
-    (:func:`_complement_sweep`), then a local sweep: SMC's random walk with
+    Each round is an independence-MH sweep in which each half of the particles proposes from a density fitted to
+    the other half (:func:`_complement_sweep`): ``N(mean, cov)`` above ``HIGH_DIMENSION``, or, up to it or with
+    ``kernel_density``, the evidence's :class:`~seqbayes.moves.proposals.DefensiveProposal`; then a local sweep:
+    SMC's random walk with
     ``2.38 / sqrt(d)`` times the covariance factor, or SEMC's differential-evolution move, each with a
     factor that follows Eq. (9) towards ``LOCAL_ACCEPTANCE`` from 1 at the stage's start. Rounds stop once
     the mean over particles of their accumulated squared whitened travel reaches ``JUMP_TARGET * 2 d``
@@ -299,9 +286,9 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     """
     n, d = position.shape
     fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
-    # the global proposal: up to d = 10 the importance density (kernel density + t), which follows a funnel; it is
-    # fitted afresh to the other half of the particles at each sweep (:func:`_complement_sweep`)
-    globally = fitted if d > HIGH_DIMENSION and not kernel_density else None
+    # the global proposal, fitted afresh to the other half of the particles at each sweep (_complement_sweep): up to
+    # d = 10 the importance density (kernel density + t), which follows a funnel, above it a Gaussian
+    gaussian = d > HIGH_DIMENSION and not kernel_density
     target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
     min_rounds = 1 if config.economy else config.n_moves
     max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
@@ -311,7 +298,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     while n_rounds < max_rounds:
         before = position
         position, components, sweep, share, prior_rate = _global_sweep(
-            position, components, component_fn, coefficients, globally, resimulate, share, rng, support)
+            position, components, component_fn, coefficients, gaussian, resimulate, share, rng, support)
         stats = stats + sweep
         if resimulate is not None and n_rounds and prior_rate > local_rate:
             # the prior's redraws move more walkers than the local move did last: they take its sweep
@@ -335,10 +322,12 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     return position, components, stats, n_rounds, share
 
 
-def _complement_sweep(position, components, component_fn, coefficients, rng, support, movable=None):
-    """One independence sweep from the kernel density: each half of the particles proposes from the
-    :class:`~seqbayes.moves.proposals.DefensiveProposal` fitted to the other half
-    (:func:`~seqbayes.moves.proposals.complement_halves`, which says why). Arguments and returns as
+def _complement_sweep(position, components, component_fn, coefficients, rng, support, movable=None,
+                      gaussian: bool = False):
+    """One independence sweep: each half of the particles proposes from the density fitted to the other half
+    (:func:`~seqbayes.moves.proposals.complement_halves`, which says why), the
+    :class:`~seqbayes.moves.proposals.DefensiveProposal` or, with ``gaussian``, the
+    :class:`~seqbayes.moves.scaled.FittedGaussian` (above ``HIGH_DIMENSION``). Arguments and returns as
     :func:`~seqbayes.moves.scaled.independence_sweep`; ``movable`` (``(N,)`` bool): only those walkers move (the
     others still make up the densities).
     """
@@ -348,7 +337,11 @@ def _complement_sweep(position, components, component_fn, coefficients, rng, sup
             active = active[movable[active]]
         if active.size == 0 or passive.size == 0:
             continue
-        proposal = DefensiveProposal(position[passive], np.zeros(passive.size))
+        if gaussian:
+            proposal = FittedGaussian(np.full(passive.size, 1.0 / passive.size) @ position[passive],
+                                      weighted_covariance(position[passive]))
+        else:
+            proposal = DefensiveProposal(position[passive], np.zeros(passive.size))
         moved, moved_components, sweep = independence_sweep(position[active], components[active], component_fn,
                                                             coefficients, proposal, rng, support)
         position[active], components[active] = moved, moved_components
