@@ -55,7 +55,7 @@ def main():
     if args.moves != "auto":
         settings["scaled_moves"] = args.moves == "scaled"
     print(f"N = {args.n}, {args.seeds} seeds, settings {settings}")
-    print("| d | sampler | within 0.5 nats and 0.2 sd | mean log Z error | sd | worst |log Z error| "
+    print("| d | sampler | within 0.5 nats and 0.2 sd | mean log Z error | sd | worst abs log Z error "
           "| worst mean error (sd) | mean reported se | mean calls | calls / d | time (s) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for dim in args.dims:

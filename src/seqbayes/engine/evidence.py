@@ -198,6 +198,8 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
                                and np.sqrt(max(1.0 / max(ess, 1e-300) - 1.0 / (n * sweep), 0.0)) > se_target):
         terms = []
         for active, passive in complement_halves(n, rng):
+            if active.size == 0 or passive.size == 0:  # one particle: no other half (the caller falls back to the path)
+                continue
             q = fitted(passive)
             draws = q.sample(active.size, rng)
             theta, inside, new_components, new_target = _target_at(draws, transform, support, loglike, prior_logpdf)
@@ -212,7 +214,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
             n_accepted += int(accept.sum())
         if sweep == 0 or se_target is not None:
             pooled.extend(terms)
-            every = np.concatenate(pooled)
+            every = np.concatenate(pooled) if pooled else np.full(1, -np.inf)
             total = logsumexp(every)
             if not np.isfinite(total):
                 if sweep == 0:
