@@ -285,7 +285,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
         The redraws' share after the last round (``share`` itself without ``resimulate``).
     """
     n, d = position.shape
-    fitted = FittedGaussian(np.full(n, 1.0 / n) @ position, weighted_covariance(position))
+    fitted = _fitted_gaussian(position)
     # the global proposal, fitted afresh to the other half of the particles at each sweep (_complement_sweep): up to
     # d = 10 the importance density (kernel density + t), which follows a funnel, above it a Gaussian
     gaussian = d > HIGH_DIMENSION and not kernel_density
@@ -322,6 +322,13 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     return position, components, stats, n_rounds, share
 
 
+def _fitted_gaussian(points) -> FittedGaussian:
+    """``N(mean, cov)`` of the equally weighted ``points (n, d)`` (the mean as a matrix-vector product, as
+    :func:`~seqbayes.moves.gaussian.weighted_covariance` takes it)."""
+    n = points.shape[0]
+    return FittedGaussian(np.full(n, 1.0 / n) @ points, weighted_covariance(points))
+
+
 def _complement_sweep(position, components, component_fn, coefficients, rng, support, movable=None,
                       gaussian: bool = False):
     """One independence sweep: each half of the particles proposes from the density fitted to the other half
@@ -338,8 +345,7 @@ def _complement_sweep(position, components, component_fn, coefficients, rng, sup
         if active.size == 0 or passive.size == 0:
             continue
         if gaussian:
-            proposal = FittedGaussian(np.full(passive.size, 1.0 / passive.size) @ position[passive],
-                                      weighted_covariance(position[passive]))
+            proposal = _fitted_gaussian(position[passive])
         else:
             proposal = DefensiveProposal(position[passive], np.zeros(passive.size))
         moved, moved_components, sweep = independence_sweep(position[active], components[active], component_fn,
