@@ -16,7 +16,7 @@ import seqbayes
 from seqbayes import SEMC, SMC
 from seqbayes.engine.settings import SamplerConfig
 from seqbayes.engine.likelihood import ValidatedLikelihood
-from seqbayes.engine.state import PastStep, Problem
+from seqbayes.engine.state import PastStep, Problem, remedy_window
 from seqbayes.predictive.lineage import ancestor_draws
 from seqbayes.predictive.paths import PathPrior, path_prior_logpdf
 
@@ -156,13 +156,41 @@ def test_the_remedy_leaves_a_healthy_run_unchanged():
         assert a.info.log_evidence == b.info.log_evidence
 
 
+def _past(path_states):
+    return PastStep(None, None, np.zeros((1, 1)), np.zeros(1), 0.0, path_states > 0, 0.0, path_states)
+
+
+def _same(kept, expected):
+    return len(kept) == len(expected) and all(a is b for a, b in zip(kept, expected))
+
+
+def test_the_window_reaches_back_to_the_last_path_space_steps_first_step_within_twice_the_lag():
+    lag = 4
+    mixture_steps = tuple(_past(0) for _ in range(8))
+    assert _same(remedy_window(mixture_steps, lag), mixture_steps[-3:])
+    # a path-space step 2 entries back whose window held 4 states: its first step is 5 entries back
+    window = mixture_steps[:4] + (_past(4),) + mixture_steps[:2]
+    assert _same(remedy_window(window, lag), window[-6:])
+    assert _same(remedy_window(window[-6:], lag), window[-6:])  # the trimmed window keeps its anchor
+    # the anchored path (7 states) may not exceed 2 * lag = 8 states: one entry more slides the window
+    longer = window + (_past(0),)
+    assert _same(remedy_window(longer, lag), longer[-7:])
+    longest = longer + (_past(0),)
+    assert _same(remedy_window(longest, lag), longest[-3:])
+    # an anchor no longer stored (the window slid past it) is not reached
+    assert _same(remedy_window(window[-4:], lag), window[-3:])
+
+
 @pytest.mark.slow
 def test_a_remedied_run_is_reproducible_and_keeps_a_bounded_window():
     ys = datasets()
     sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3)
     first = sampler.run(ys)
-    assert len(sampler.state.window) == 2 and sampler.state.paths.shape == (300, 2, 1)
-    assert max(r.info.path_steps for r in first.steps) == 3
+    path_steps = [r.info.path_steps for r in first.steps]
+    # steps 4-6 ran on the path space; steps 5 and 6 reached back to step 4's first state (step 2), which the
+    # window kept, within 2 remedy_lag = 6 states
+    assert path_steps == [0, 0, 0, 3, 4, 5]
+    assert 2 <= len(sampler.state.window) <= 5 and sampler.state.paths.shape == (300, len(sampler.state.window), 1)
     again = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3).run(ys)
     for a, b in zip(first.steps, again.steps):
         np.testing.assert_array_equal(a.posterior, b.posterior)

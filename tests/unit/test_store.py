@@ -111,6 +111,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
         np.testing.assert_array_equal(mine.dataset, theirs.dataset)
         np.testing.assert_array_equal(mine.posterior, theirs.posterior)
         assert mine.path_space == theirs.path_space
+        assert mine.path_states == theirs.path_states
         assert mine.log_evidence_increment == theirs.log_evidence_increment
     assert state.log_evidence_variance == expected.log_evidence_variance
     np.testing.assert_array_equal(store.predict(2), reference.predict(2))

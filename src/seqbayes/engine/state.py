@@ -243,6 +243,9 @@ class PastStep:
     log_evidence_variance : float
         The cumulative log-evidence's variance before the step (``SamplerState.log_evidence_variance``);
         a bridged step (:class:`~seqbayes.predictive.paths.PathSpace`) estimates the window's evidence afresh from it.
+    path_states : int
+        A path-space step's number of states (``StepInfo.path_steps``; its window's first step is ``path_states - 1``
+        steps back), 0 for a mixture step.
     """
 
     dataset: object
@@ -252,6 +255,28 @@ class PastStep:
     log_evidence_increment: float
     path_space: bool = False
     log_evidence_variance: float = 0.0
+    path_states: int = 0
+
+
+def remedy_window(window: tuple, remedy_lag: int) -> tuple:
+    """The past steps that the next path-space step's window takes: the last ``remedy_lag - 1``, or back to
+    the first step of the last path-space step's window, while that is stored and the path at most
+    ``2 remedy_lag`` states long.
+
+    A path-space step replaces the cumulative evidence from its window's first step on by its own estimate,
+    ``log Z_hat_{1:w-1} + log Z_hat_{w:s}``. A later window that starts inside it rests instead on the
+    mixture prior over a filtered cloud that the new data tilt (and on the increments the earlier step
+    superseded), whose error it brings back; consecutive remedies therefore share the earlier step's
+    first prior (docs/jump_kernels.md, "The window's first prior").
+    """
+    keep = remedy_lag - 1
+    for back, past in enumerate(reversed(window)):
+        if past.path_states:
+            anchored = back + past.path_states  # entries from that step's window start to the last one
+            if keep < anchored <= len(window) and anchored <= 2 * remedy_lag - 1:
+                keep = anchored
+            break
+    return window[-keep:]
 
 
 def variance_before(state) -> float:

@@ -11,7 +11,7 @@ from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
 from ..engine.evidence import estimate_increment, step_standard_errors
 from ..engine.stages import ExactPrior, restricted_draws, step_conflict, temper_resample_move
 from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
-                            kept_copy, variance_before)
+                            kept_copy, remedy_window, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..weights import logsumexp
@@ -193,8 +193,8 @@ class PathSpace:
         problem, config = mixture.problem, mixture.config
         self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
         kernel, d = problem.kernel, problem.kernel.dim
-        self.length = length = min(len(state.window), config.remedy_lag - 1)
-        self.window = state.window[-length:]
+        self.window = remedy_window(state.window, config.remedy_lag)
+        self.length = length = len(self.window)
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
@@ -264,14 +264,14 @@ class PathSpace:
                 ancestor_variance, self.mixture.method, covariance)
         moves = estimate.moves
         past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True,
-                        variance_before(state))
-        keep = config.remedy_lag - 1
+                        variance_before(state), self.length + 1)
+        window = remedy_window(state.window + (past,), config.remedy_lag)
         new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
                                  prior=density, log_evidence=log_evidence,
                                  step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                                  posterior=posterior, posterior_log_weights=cloud.log_weights,
-                                 window=(state.window + (past,))[-keep:],
-                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -keep:],
+                                 window=window,
+                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
                                  log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
                                  previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),

@@ -9,7 +9,7 @@ import numpy as np
 from ..engine.protocol import ParticlePredictive
 from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
-from ..engine.state import PastStep, kept_copy, variance_before
+from ..engine.state import PastStep, kept_copy, remedy_window, variance_before
 from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
 from .jumps import jump_fields
 from .mixture import GaussianMixture, predictive_density
@@ -63,7 +63,7 @@ class TransitionMixture(ParticlePredictive):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
         if not remedy_applies(self.config, self.method, self.problem.kernel):
             return float("nan"), None, (), None
-        keep, spread, ancestors, paths = self.config.remedy_lag - 1, None, float("nan"), None
+        spread, ancestors, paths = None, float("nan"), None
         if state.window and state.paths is None and isinstance(state.prior, GaussianMixture):
             # the mixture's own components' responsibilities: one matrix product, not the pairwise transition density
             spread = state.prior.ancestor_spread(cloud.particles, cloud.log_weights, posterior_labels(state))
@@ -75,13 +75,14 @@ class TransitionMixture(ParticlePredictive):
             spread = mass_spread(state, mass)
             ancestors = spread.ess
             if state.paths is not None:
-                paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)[:, -keep:]
+                paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)
         if spread is not None and self.config.remedy_ess > 0:
             # lags that add less than 1 % of the trigger's variance cannot change its decision
             self.lagged_variance = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
-        window = (state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles, cloud.log_weights,
-                                           float(log_increment), False, variance_before(state)),))[-keep:]
-        return ancestors, spread, window, paths
+        window = remedy_window(state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles,
+                                                        cloud.log_weights, float(log_increment), False,
+                                                        variance_before(state)),), self.config.remedy_lag)
+        return ancestors, spread, window, None if paths is None else paths[:, -len(window):]
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
