@@ -167,13 +167,14 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
         a, b = a @ r, b @ r
         expected += np.sum((a - b) ** 2)
     assert total == pytest.approx(expected, rel=1e-5)
-    # a path-space step stops the sum behind it
+    # a path-space step stops the sum behind it, and its particles' term is that of steps 4 and 5 together:
+    # against their own weights, not step 4's posterior masses
     window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_space": True}),) + window[3:]
     cut = lagged_ancestor_variance(SimpleNamespace(window=window, posterior_log_weights=state.posterior_log_weights),
                                    AncestorSpread(1.0, float(np.sum((mass - np.exp(window[-1].log_weights)) ** 2)),
                                                   mass=mass), 0.0)
     r = _responsibilities(priors[3], clouds[3])
-    a, b = mass @ r, np.exp(window[-1].log_weights) @ r
+    a, b = mass @ r, np.exp(window[2].log_weights)
     assert cut == pytest.approx(np.sum((mass - np.exp(window[-1].log_weights)) ** 2) + np.sum((a - b) ** 2), rel=1e-5)
     assert [p for p, _ in mixture_chain(window)] == [priors[3]]
     # the jump probability's se: the influence u carried back through deeper (distinct labels)

@@ -62,9 +62,15 @@ def lagged_ancestor_variance(state, spread, floor: float) -> float:
     through particle ``j``), whose relative variance for independent particles is that term: the tilt the new
     data give step ``t`` times that step's sampling error. Lag 1 is ``spread.variance`` (grouped by the
     particles' labels), lag 2 :meth:`GaussianMixture.backward_spread`'s variance; a drift that carries a change
-    over several steps tilts the earlier posteriors as well (docs/jump_kernels.md, moderate damage). The sum
-    stops behind a path-space step (its posterior does not rest on the mixture before it), at the window's
-    first step, once a lag adds less than ``floor``, or after lag 1 when ``spread`` has no mass (large N).
+    over several steps tilts the earlier posteriors as well (docs/jump_kernels.md, moderate damage).
+
+    Behind a path-space step (the chain of mixtures ends at its posterior) ``b^t`` is step ``t``'s own weights
+    ``W^t``: the term is then the variance of the increments of steps ``t+1..s`` together, all of which rest on
+    step ``t``'s particles. After a conflict the data keep pulling the posterior the same way, onto the same
+    tail of those particles, so the errors of these steps share a sign (their covariances) and add up, and a
+    path-space step now estimates them afresh (its bridge replaces the window's stored increments); counted one
+    increment at a time, each stayed just under the threshold while their sum did not. The sum stops at the
+    window's first step, once a lag adds less than ``floor``, or after lag 1 when ``spread`` has no mass (large N).
 
     Parameters
     ----------
@@ -82,10 +88,14 @@ def lagged_ancestor_variance(state, spread, floor: float) -> float:
     if spread.mass is None or not state.window:
         return float(total)
     mass = np.stack([spread.mass, np.exp(state.posterior_log_weights)])
-    for prior, posterior in mixture_chain(state.window):
+    chain = mixture_chain(state.window)
+    since_path_step = state.window[-1 - len(chain)].path_space
+    for lag, (prior, posterior) in enumerate(chain, 2):
         if posterior.shape[0] != mass.shape[1]:
             break
         mass = backward_masses(prior, posterior, mass)
+        if since_path_step:
+            mass[1] = np.exp(state.window[-lag].log_weights)
         term = float(np.sum((mass[0] - mass[1]) ** 2))
         total += term
         if term < floor:
