@@ -133,7 +133,9 @@ class SamplerConfig:
         right after a path-space step).
     remedy_lag : int
         Steps kept for the path-space target (10): exact when the run has at most that many steps,
-        else the window's first state takes the (mixture) prior that step used.
+        else the window's first state takes the (mixture) prior that step used. After a path-space
+        step the next ones reach back to its window's first step, up to ``2 remedy_lag`` states
+        (:func:`~seqbayes.engine.state.remedy_window`).
     remedy_bridge : bool
         How the path-space step reaches its target. ``True`` (default): from the window's path prior
         (the window's first prior, then the kernel), tempering every likelihood of the window jointly, so
