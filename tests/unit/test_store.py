@@ -79,14 +79,16 @@ predictive = "transition"
 
 
 @pytest.mark.slow
-def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_path):
+@pytest.mark.parametrize("remedy_lag", [None, 3])
+def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_path, remedy_lag):
     """The conflict remedy keeps a window of past steps and, after a path-space step, the particle
     paths; a store reopened before every step rebuilds both (seqbayes.store.snapshot) and gives the
     uninterrupted run bit for bit. A random walk (sd 0.05 per step) observed through 25 points of
     noise 0.5 jumps by 0.6 (12 kernel sds) at step 4, which runs on the path space (as in
-    test_conflict_remedy)."""
+    test_conflict_remedy). With ``remedy_lag = 3`` steps 5 and 6 reach back to step 4's first state (anchored
+    windows of 4 and 5 states, seqbayes.engine.state.remedy_window) and step 7's window slides back to 2."""
     (tmp_path / "remedymodel.py").write_text(REMEDY_MODEL)
-    (tmp_path / "run.toml").write_text(REMEDY_CONFIG)
+    (tmp_path / "run.toml").write_text(REMEDY_CONFIG + ("" if remedy_lag is None else f"remedy_lag = {remedy_lag}\n"))
     cfg = load_config(tmp_path / "run.toml")
     rng = np.random.default_rng(123)
     theta = np.cumsum(0.05 * rng.standard_normal(7))
@@ -97,6 +99,8 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
         reference.update(d)
     path_steps = [r.info.path_steps for r in reference.result.steps]
     assert path_steps[3] > 0 and not any(path_steps[:3]), path_steps   # the remedy ran at the jump
+    if remedy_lag is not None:
+        assert path_steps[3:6] == [3, 4, 5], path_steps
     assert reference.snapshot()[0].paths is not None                  # and its paths were carried on
     RunStore.create(tmp_path / "run.nc", cfg)
     for i, d in enumerate(data):
