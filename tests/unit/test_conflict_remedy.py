@@ -157,7 +157,7 @@ def test_the_remedy_leaves_a_healthy_run_unchanged():
 
 
 def _past(path_states):
-    return PastStep(None, None, np.zeros((1, 1)), np.zeros(1), 0.0, path_states > 0, 0.0, path_states)
+    return PastStep(None, None, np.zeros((1, 1)), np.zeros(1), 0.0, 0.0, path_states)
 
 
 def _same(kept, expected):

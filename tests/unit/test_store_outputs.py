@@ -151,7 +151,7 @@ def test_the_path_prior_density_of_no_walker_is_empty():
 
     prior = SimpleNamespace(logpdf=lambda theta: np.zeros(len(theta)))
     likelihood = SimpleNamespace(add_along_paths=lambda out, states, datasets: out)
-    window = (PastStep(np.zeros((3, 2)), prior, np.zeros((5, 2)), np.zeros(5), 0.0, False, 0.0),)
+    window = (PastStep(np.zeros((3, 2)), prior, np.zeros((5, 2)), np.zeros(5), 0.0, 0.0),)
     kernel = MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])
     logpdf = path_prior_logpdf(window, kernel, likelihood, 2)
     assert logpdf(np.zeros((0, 4))).shape == (0,)

@@ -197,9 +197,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
                                and ess >= min_fraction * n * sweep  # a poor fit: refit rather than pool
                                and np.sqrt(max(1.0 / max(ess, 1e-300) - 1.0 / (n * sweep), 0.0)) > se_target):
         terms = []
-        for active, passive in complement_halves(n, rng):
-            if active.size == 0 or passive.size == 0:  # one particle: no other half (the caller falls back to the path)
-                continue
+        for active, passive in complement_halves(n, rng):  # none for one particle (the caller falls back to the path)
             q = fitted(passive)
             draws = q.sample(active.size, rng)
             theta, inside, new_components, new_target = _target_at(draws, transform, support, loglike, prior_logpdf)

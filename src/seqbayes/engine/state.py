@@ -238,8 +238,6 @@ class PastStep:
         The step's posterior particles and their normalised log-weights.
     log_evidence_increment : float
         ``log p(D^s | D^{1:s-1})`` as estimated at the step.
-    path_space : bool
-        Whether the step was assimilated on the path space.
     log_evidence_variance : float
         The cumulative log-evidence's variance before the step (``SamplerState.log_evidence_variance``);
         a bridged step (:class:`~seqbayes.predictive.paths.PathSpace`) estimates the window's evidence afresh from it.
@@ -253,9 +251,13 @@ class PastStep:
     posterior: np.ndarray
     log_weights: np.ndarray
     log_evidence_increment: float
-    path_space: bool = False
     log_evidence_variance: float = 0.0
     path_states: int = 0
+
+    @property
+    def path_space(self) -> bool:
+        """Whether the step was assimilated on the path space."""
+        return self.path_states > 0
 
 
 def remedy_window(window: tuple, remedy_lag: int) -> tuple:

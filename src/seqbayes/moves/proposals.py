@@ -32,7 +32,8 @@ MAX_PROPOSAL_COMPONENTS = 1000
 
 def complement_halves(n: int, rng: np.random.Generator):
     """Two halves of ``n`` particles for sweeps whose proposal is fitted to the other half: contiguous in the
-    particles' order, cut at a random place, as ``((active, passive), (passive, active))`` index pairs.
+    particles' order, cut at a random place, as ``((active, passive), (passive, active))`` index pairs (none for
+    ``n < 2``).
 
     A proposal fitted to the particles it moves has a kernel (or an O(1/N) share of its moments) on each of them:
     the particle's own ``q`` is inflated, its ``pi / q`` deflated, most where the particles are sparse, and the
@@ -43,6 +44,8 @@ def complement_halves(n: int, rng: np.random.Generator):
     on the particle.
     """
     order = np.roll(np.arange(n), -int(rng.integers(n)))
+    if n < 2:  # one particle has no other half to fit a proposal to: no sweep (the caller keeps it as it is)
+        return ()
     first, second = order[: n // 2], order[n // 2:]
     return (first, second), (second, first)
 

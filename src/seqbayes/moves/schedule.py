@@ -342,7 +342,7 @@ def _complement_sweep(position, components, component_fn, coefficients, rng, sup
     for active, passive in complement_halves(position.shape[0], rng):
         if movable is not None:
             active = active[movable[active]]
-        if active.size == 0 or passive.size == 0:
+        if active.size == 0:
             continue
         if gaussian:
             proposal = _fitted_gaussian(position[passive])

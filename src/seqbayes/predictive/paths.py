@@ -263,7 +263,7 @@ class PathSpace:
                 np.exp(weighed.cloud.log_weights), cloud.log_weights, len(tempered.temperatures), tempered.resampled,
                 ancestor_variance, self.mixture.method, covariance)
         moves = estimate.moves
-        past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment), True,
+        past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment),
                         variance_before(state), self.length + 1)
         window = remedy_window(state.window + (past,), config.remedy_lag)
         new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,

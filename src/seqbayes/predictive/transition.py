@@ -80,7 +80,7 @@ class TransitionMixture(ParticlePredictive):
             # lags that add less than 1 % of the trigger's variance cannot change its decision
             self.lagged_variance = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
         window = remedy_window(state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles,
-                                                        cloud.log_weights, float(log_increment), False,
+                                                        cloud.log_weights, float(log_increment),
                                                         variance_before(state)),), self.config.remedy_lag)
         return ancestors, spread, window, None if paths is None else paths[:, -len(window):]
 

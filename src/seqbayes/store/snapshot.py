@@ -300,7 +300,7 @@ def state_from_arrays(arrays_by_step, records, step_size: float, initial_prior, 
     # (sequential.assimilate keeps exactly these); a path-space step has a nonzero path_steps
     # (the cumulative variance before each: the step before's reported se, squared)
     window = tuple(PastStep(datasets[k - 1], prior_of(k - 1)[0], records[k - 1].posterior, records[k - 1].log_weights,
-                            records[k - 1].info.log_evidence_increment, records[k - 1].info.path_steps > 0,
+                            records[k - 1].info.log_evidence_increment,
                             float(records[k - 2].info.log_evidence_se) ** 2 if k >= 2 else 0.0,
                             int(records[k - 1].info.path_steps))
                    for k in range(step - int(window_length) + 1, step + 1))
