@@ -132,7 +132,7 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
 
 def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_sweeps: int = 1,
                     gaussian: bool = False, se_target: float | None = None, max_sweeps: int | None = None,
-                    min_fraction: float = 0.0, other=None):
+                    min_fraction: float = 0.0, other=None, pool_sweeps: bool = False):
     """Evidence by defensive importance sampling, then independence-MH sweeps with the same proposal.
 
     Parameters
@@ -163,6 +163,10 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     other : tuple of (M, d) array and (M,) array, optional
         Another cloud of the same posterior (points, log-weights), which may hold a mode ``posterior``
         lacks: the proposal is then the :class:`PooledProposal` of both (:func:`clustered_parts`).
+    pool_sweeps : bool
+        Every sweep's draws enter the evidence, as with ``se_target`` but without sweeps beyond ``n_sweeps``
+        (each sweep's terms are unbiased given its proposal, which is fitted before its draws), and the ESS is
+        reported as with ``se_target``.
 
     Returns
     -------
@@ -191,6 +195,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     posterior, components = posterior.copy(), components.copy()
     log_target = components.sum(axis=1) + transform.log_jacobian(u)  # in u, at the particles
     log_evidence, ess, n_accepted = -np.inf, 0.0, 0
+    pool_sweeps = pool_sweeps or se_target is not None
     pooled = []
     sweep = 0
     while sweep < n_sweeps or (se_target is not None and sweep < max(max_sweeps or 0, n_sweeps)
@@ -210,7 +215,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
             posterior[moved], components[moved] = theta[accept], new_components[accept]
             u[moved], log_target[moved] = draws[accept], new_target[accept]
             n_accepted += int(accept.sum())
-        if sweep == 0 or se_target is not None:
+        if sweep == 0 or pool_sweeps:
             pooled.extend(terms)
             every = np.concatenate(pooled) if pooled else np.full(1, -np.inf)
             total = logsumexp(every)
@@ -221,7 +226,7 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
                 ess = float(np.exp(2.0 * total - logsumexp(2.0 * every)))  # of M = every.size draws
                 log_evidence = float(total - np.log(every.size))
         sweep += 1
-    if se_target is not None and ess > 0:
+    if pool_sweeps and ess > 0:
         # the ESS that N draws would need for the pooled estimate's variance 1 / ESS - 1 / M: the caller's
         # refit rule and standard error (1 / ESS - 1 / N, step_standard_errors) then stay valid
         ess = 1.0 / (1.0 / ess - 1.0 / (n * sweep) + 1.0 / n)
@@ -342,13 +347,14 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
 
 
 def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
-              other=None):
+              other=None, pool_sweeps: bool = False):
     """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
     (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
 
     ``other``: another :class:`Cloud` of the same target. The particles then start from the union of the two,
     each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`), and every
     proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
+    ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
 
     When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
     (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
@@ -384,7 +390,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
         # them and estimate again (each q is independent of its own draws, so every estimate is valid)
         log_increment, evidence_ess, particles, components, accepted = importance_step(
             particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
-            config.n_independent, other=also_fit,
+            config.n_independent, other=also_fit, pool_sweeps=pool_sweeps,
             **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
         n_independent += accepted
         if attempt >= warm_up:

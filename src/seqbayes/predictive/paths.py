@@ -206,9 +206,12 @@ class PathSpace:
         # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
         # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
         # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md,
-        # "Oscillator at 300,000 evaluations")
+        # "Oscillator at 300,000 evaluations"). They stop as economy's do (half the travel, 70 % moved): the stages
+        # only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1) exact independence sweeps
+        # from the pooled fit decorrelate it and give the evidence
         rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
-        self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds)
+        self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds,
+                                   economy=True)
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         return None
@@ -232,12 +235,13 @@ class PathSpace:
                 second = self._bridge_temper(self._bridge_weigh(likelihood, moves, rng), likelihood, rng)
             other, moves = second.cloud, second.moves
         # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
-        # path's earlier states
+        # path's earlier states; every sweep's draws enter the estimate, whose fit on the path space has an ESS
+        # below the refit threshold per sweep where all of them together are well above it
         config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)))
         importance = self.config.evidence == "importance"
         cloud, log_increment, evidence_ess, n_independent = estimate_increment(
             tempered.cloud, tempered.log_z, weighed.n_found, self.path_problem, config, self.path_likelihood,
-            self.prior_logpdf, importance, rng, other)
+            self.prior_logpdf, importance, rng, other, pool_sweeps=True)
         return Estimate(cloud, log_increment, evidence_ess, n_independent,
                         importance and log_increment != tempered.log_z, moves)
 
