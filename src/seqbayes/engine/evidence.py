@@ -151,7 +151,8 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     rng : numpy.random.Generator
     n_sweeps : int
         Independence sweeps, each with N fresh draws, half from the proposal fitted to each half of the
-        particles (:func:`~seqbayes.moves.proposals.complement_halves`); the first sweep's draws give the evidence.
+        particles (:func:`~seqbayes.moves.proposals.complement_halves`); the first sweep's draws give the evidence
+        (every sweep's with ``pool_sweeps`` or ``se_target``).
     gaussian : bool
         The proposal's first half is the fitted Gaussian instead of the kernel density (:func:`_proposal`).
     se_target : float, optional
