@@ -182,10 +182,11 @@ def test_the_window_reaches_back_to_the_last_path_space_steps_first_step_within_
 
 
 # Chained path-space steps with a window of two states (remedy_lag=2): each later one reaches back to the first
-# one's first state (remedy_window). Seeds 0-5: worst log-evidence error over the 6 steps 0.06-0.73 nats (median of
-# seeds 0-3: 0.11 SMC, 0.26 SEMC), worst mean error 0.04-0.25 exact sd; with windows that slid (each started
+# one's first state (remedy_window). Seeds 0-5: worst log-evidence error over the 6 steps 0.06-0.72 nats (median of
+# seeds 0-3: 0.11 SMC, 0.31 SEMC), worst mean error 0.04-0.24 exact sd; with windows that slid (each started
 # one step back, on the mixture over the filtered cloud the earlier step had superseded) 0.46-4.27 nats (median of
-# seeds 0-3: 1.8 SMC, 1.3 SEMC) and 0.44-0.76 sd.
+# seeds 0-3: 1.8 SMC, 1.3 SEMC) and 0.44-0.76 sd. Step 6's trigger sits near its threshold (ancestor ESS 190-268
+# against 250 over these runs): SEMC seed 0 assimilates it as an ordinary step.
 @pytest.mark.slow
 @pytest.mark.parametrize("cls", [SEMC, SMC])
 def test_chained_remedies_keep_the_evidence_of_the_first_ones_window(cls):
@@ -194,7 +195,8 @@ def test_chained_remedies_keep_the_evidence_of_the_first_ones_window(cls):
     worst_log_z, worst_mean = [], []
     for seed in range(4):
         result, mean, log_evidence = run(cls, ys, seed, remedy_lag=2)
-        assert [r.info.path_steps for r in result.steps][3:] == [2, 3, 4]
+        path_steps = [r.info.path_steps for r in result.steps]
+        assert path_steps[3:5] == [2, 3] and path_steps[5] in (0, 4)  # a remedy at step 6 reaches back to step 3
         worst_log_z.append(np.abs(log_evidence - exact[:, 2]).max())
         worst_mean.append((np.abs(mean - exact[:, 0]) / exact[:, 1]).max())
     assert np.median(worst_log_z) < 0.5 and max(worst_mean) < 0.35, (worst_log_z, worst_mean)
