@@ -206,12 +206,12 @@ class PathSpace:
         # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
         # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
         # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md,
-        # "Oscillator at 300,000 evaluations"). They stop as economy's do (half the travel, 70 % moved): the stages
-        # only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1) exact independence sweeps
-        # from the pooled fit decorrelate it and give the evidence
+        # "Oscillator at 300,000 evaluations"). With the importance evidence they stop as economy's do (half the
+        # travel, 70 % moved): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
+        # exact independence sweeps from the pooled fit decorrelate it; the path's evidence has no such sweeps
         rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
         self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds,
-                                   economy=True)
+                                   economy=config.economy or config.evidence == "importance")
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         return None
