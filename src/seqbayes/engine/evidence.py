@@ -76,8 +76,8 @@ def _target_at(draws, transform, support, loglike, prior_logpdf):
 FIRST_CLOUD_PREFERENCE = 30.0
 
 
-def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = False):
-    """One cloud of N particles from several clouds of the same posterior, each cluster of each given its share
+def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = False, n: int | None = None):
+    """One cloud of ``n`` particles from several clouds of the same posterior, each cluster of each given its share
     of the mass.
 
     Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
@@ -97,18 +97,20 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
     Parameters
     ----------
     clouds : sequence of (points (M_i, d), log_weights (M_i,))
-        The clouds; N is the first one's size.
+        The clouds.
     prior_logpdf, loglike, support, rng, gaussian
         As :func:`importance_step`.
+    n : int, optional
+        The particles returned (and the importance draws that weigh the parts); the first cloud's size by default.
 
     Returns
     -------
-    index : (N,) array of int
+    index : (n,) array of int
         Indices into the clouds' concatenation.
     shares : (K,) array
         The parts' estimated shares (each part its cloud's weight when no draw has a finite target).
     """
-    n = clouds[0][0].shape[0]
+    n = clouds[0][0].shape[0] if n is None else int(n)
     transform = BoxTransform(support)
     parts, part_log_weights, members = clustered_parts(
         [(transform.forward(points), log_weights) for points, log_weights in clouds], rng, gaussian)
@@ -352,9 +354,9 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
     """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
     (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
 
-    ``other``: another :class:`Cloud` of the same target. The particles then start from the union of the two,
-    each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`), and every
-    proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
+    ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
+    sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`),
+    and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
     ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
 
     When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
@@ -375,7 +377,7 @@ def estimate_increment(cloud, log_increment_path, n_found, problem, config, like
     # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
     if other is not None:
         index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
-                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False))
+                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False), n)
         labels = None
         if cloud.labels is not None and other.labels is not None:
             labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]

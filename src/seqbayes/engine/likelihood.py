@@ -17,7 +17,20 @@ import numpy as np
 
 from ..parallel import evaluate_loglike, read_only
 
-__all__ = ["ValidatedLikelihood", "check_dataset", "frozen"]
+__all__ = ["ValidatedLikelihood", "check_dataset", "frozen", "row_hashes"]
+
+#: Odd 64-bit multipliers of the row hash in :func:`row_hashes`.
+_HASH_MULTIPLIERS = np.random.default_rng(20231).integers(0, 2**63, size=64, dtype=np.uint64) * 2 + 1
+
+
+def row_hashes(samples) -> np.ndarray | None:
+    """``(N,)`` uint64 hashes of the bit patterns of the rows of ``samples (N, d)`` (None above d = 64): rows that
+    differ in one coordinate never collide (odd multipliers), others with probability ~``2^-64`` a pair."""
+    d = samples.shape[1]
+    if d > _HASH_MULTIPLIERS.size:
+        return None
+    bits = np.ascontiguousarray(samples + 0.0).view(np.uint64)  # + 0.0 maps -0.0 to 0.0
+    return bits @ _HASH_MULTIPLIERS[:d]  # wraps modulo 2^64, silently for integer arrays
 
 #: What a likelihood must be, for the errors of one that is not vectorised.
 _VECTORISED = ("the likelihood is called once for all samples: theta has shape {shape} = (N, d), one row per "
@@ -140,9 +153,10 @@ class ValidatedLikelihood:
         """This likelihood on flattened paths ``(M, T d)``, read at their last state."""
         return LastStateLikelihood(self, dim)
 
-    def over_window(self, datasets, dim: int) -> "WindowLikelihood":
-        """``sum_t log L_t(theta_t)`` over ``datasets`` on flattened paths ``(M, T d)``, one state per dataset."""
-        return WindowLikelihood(self, tuple(datasets), dim)
+    def over_window(self, datasets, dim: int, memo: bool = False) -> "WindowLikelihood":
+        """``sum_t log L_t(theta_t)`` over ``datasets`` on flattened paths ``(M, T d)``, one state per dataset;
+        ``memo``: a state evaluated once against its dataset is not evaluated again (:class:`StateMemo`)."""
+        return WindowLikelihood(self, tuple(datasets), dim, memo)
 
     def _checked(self, values, theta, name):
         """``values (N,)`` of the user's function ``name`` at ``theta``, counted; +inf is an error, NaN -inf."""
@@ -174,15 +188,63 @@ class LastStateLikelihood:
         return self.base.loglike(walkers[:, -self.dim:])
 
 
-class WindowLikelihood:
-    """A :class:`ValidatedLikelihood` summed over a window of datasets, state ``t`` of a path against dataset ``t``."""
+class StateMemo:
+    """The log-likelihoods of one dataset at the states already evaluated, found again by their exact bits.
 
-    def __init__(self, base: ValidatedLikelihood, datasets: tuple, dim: int):
+    A proposal that redraws only a path's suffix (:meth:`seqbayes.predictive.paths.PathPrior.resimulate`) keeps
+    the earlier states bit for bit; their likelihoods are read here, not recomputed (an expensive model's call
+    saved, the sum unchanged). A sorted table of :func:`row_hashes`, so that a lookup is vectorised over the
+    rows (a dict would loop over them in Python); a hit also compares the rows themselves."""
+
+    def __init__(self, dim: int):
+        self.keys, self.rows, self.values = np.empty(0, dtype=np.uint64), np.empty((0, dim)), np.empty(0)
+
+    def lookup(self, rows) -> tuple[np.ndarray, np.ndarray]:
+        """``(found (M,) bool, values (M,))`` for ``rows (M, d)``: the stored log-likelihoods where found."""
+        found, values = np.zeros(rows.shape[0], dtype=bool), np.full(rows.shape[0], np.nan)
+        keys = row_hashes(rows)
+        if keys is None or self.keys.size == 0:
+            return found, values
+        index = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
+        found = (self.keys[index] == keys) & (self.rows[index] == rows).all(axis=1)
+        values[found] = self.values[index[found]]
+        return found, values
+
+    def add(self, rows, values) -> None:
+        keys = row_hashes(rows)
+        if keys is None:
+            return
+        keys = np.concatenate([self.keys, keys])
+        order = np.argsort(keys, kind="stable")
+        self.keys = keys[order]
+        self.rows, self.values = np.concatenate([self.rows, rows])[order], np.concatenate([self.values, values])[order]
+
+
+class WindowLikelihood:
+    """A :class:`ValidatedLikelihood` summed over a window of datasets, state ``t`` of a path against dataset ``t``
+    (with ``memo``, each dataset's :class:`StateMemo`)."""
+
+    def __init__(self, base: ValidatedLikelihood, datasets: tuple, dim: int, memo: bool = False):
         self.base, self.datasets, self.dim, self.step = base, datasets, dim, base.step
+        self.memos = tuple(StateMemo(dim) for _ in datasets) if memo else None
 
     n_evals = property(lambda self: self.base.n_evals, doc="Rows evaluated by the base likelihood.")
     n_nan = property(lambda self: self.base.n_nan, doc="NaN values it returned.")
 
     def loglike(self, walkers) -> np.ndarray:
         states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
-        return self.base.add_along_paths(np.zeros(walkers.shape[0]), states, self.datasets)
+        out = np.zeros(walkers.shape[0])
+        if self.memos is None:
+            return self.base.add_along_paths(out, states, self.datasets)
+        # as add_along_paths (a path with one zero likelihood stops there), the same values added in the same order
+        for t, (dataset, memo) in enumerate(zip(self.datasets, self.memos)):
+            alive = np.isfinite(out)
+            if not alive.any():
+                break
+            rows = states[alive, t]
+            found, values = memo.lookup(rows)
+            if not found.all():
+                values[~found] = self.base.loglike_on(rows[~found], dataset)
+                memo.add(rows[~found], values[~found])
+            out[alive] += values
+        return out

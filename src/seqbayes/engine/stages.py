@@ -12,6 +12,7 @@ from ..results import prior_data_conflict
 from ..tempering import next_increment
 from ..weights import ess, logsumexp
 from .errors import TemperingLimitError, ZeroLikelihoodError, zero_likelihood_message
+from .likelihood import row_hashes
 from .state import Cloud, Tempered
 
 __all__ = ["ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "reweight_stage", "temper_resample_move",
@@ -40,8 +41,6 @@ class ExactPrior:
         return components
 
 
-#: Odd 64-bit multipliers of the row hash in :func:`count_distinct`.
-_HASH_MULTIPLIERS = np.random.default_rng(20231).integers(0, 2**63, size=64, dtype=np.uint64) * 2 + 1
 
 
 def count_distinct(samples) -> int:
@@ -51,11 +50,9 @@ def count_distinct(samples) -> int:
     collide (odd multipliers), others with probability ~``N^2 / 2^65``.
     """
     samples = np.asarray(samples, dtype=float)
-    d = samples.shape[1]
-    if d > _HASH_MULTIPLIERS.size:
+    hashes = row_hashes(samples)
+    if hashes is None:
         return int(np.unique(samples, axis=0).shape[0])
-    bits = np.ascontiguousarray(samples + 0.0).view(np.uint64)  # + 0.0 maps -0.0 to 0.0
-    hashes = bits @ _HASH_MULTIPLIERS[:d]  # wraps modulo 2^64, silently for integer arrays
     hashes.sort()
     return 1 + int(np.count_nonzero(hashes[1:] != hashes[:-1]))
 

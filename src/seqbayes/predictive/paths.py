@@ -14,6 +14,7 @@ from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Probl
                             kept_copy, remedy_window, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
+from ..resampling import resample
 from ..weights import logsumexp
 from .jumps import jump_fields
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
@@ -165,9 +166,9 @@ class PathSpace:
     the window reaches step 1). With ``bridge`` (``SamplerConfig.remedy_bridge``, the default) the
     particles are drawn from the path prior ``p_w prod T`` and every likelihood of the window is
     tempered jointly (:meth:`_bridge_weigh`), so that every mode of the path posterior is weighed afresh;
-    the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, and the two
-    clouds are pooled, each cluster given its importance-sampling share of the mass, before the importance
-    sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
+    the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, each with half
+    of the N particles, and the two clouds are pooled into N, each cluster given its importance-sampling share
+    of the mass, before the importance sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
     (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
@@ -198,6 +199,10 @@ class PathSpace:
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
+        # the bridge's likelihood of every state of the window, each state's value kept: a redraw of a path's suffix
+        # from the path prior keeps the earlier states, whose likelihoods are not computed again
+        self.window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [dataset], d,
+                                                        memo=True)
         self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
         self.path_prior = PathPrior(self.window[0].prior, kernel, length + 1, d)  # the bridge's start and redraws
         # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
@@ -212,6 +217,12 @@ class PathSpace:
         rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
         self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds,
                                    economy=config.economy or config.evidence == "importance")
+        # with the importance evidence the bridge and the stored paths' start are two independent starts of half the
+        # particles each, whose union the importance sweeps start from (pooled_start draws N from it): the second
+        # start guards the first against a lost or misweighed mode, for which half of N is enough, not a second N
+        self.pooled = bridge and config.evidence == "importance"
+        self.start_size = max(config.n_samples // 2, 1) if self.pooled else config.n_samples
+        self.start_config = replace(self.path_config, n_samples=self.start_size)
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         return None
@@ -225,7 +236,7 @@ class PathSpace:
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
         other, moves = None, tempered.moves
-        if self.bridge:
+        if self.pooled:
             # a second cloud of the same target, pooled with the bridge's: the stored paths hold the modes the
             # previous particles held, which the bridge's tempering can lose; where they cannot carry the step,
             # a second bridge, as a bridge's tempering can also end trapped in a minor mode
@@ -239,8 +250,9 @@ class PathSpace:
         # below the refit threshold per sweep where all of them together are well above it
         config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)))
         importance = self.config.evidence == "importance"
+        n_found = weighed.n_found * config.n_samples / self.start_size  # in draws per N, as the restart's threshold
         cloud, log_increment, evidence_ess, n_independent = estimate_increment(
-            tempered.cloud, tempered.log_z, weighed.n_found, self.path_problem, config, self.path_likelihood,
+            tempered.cloud, tempered.log_z, n_found, self.path_problem, config, self.path_likelihood,
             self.prior_logpdf, importance, rng, other, pool_sweeps=True)
         return Estimate(cloud, log_increment, evidence_ess, n_independent,
                         importance and log_increment != tempered.log_z, moves)
@@ -301,11 +313,11 @@ class PathSpace:
         from the previous steps' particles, so a mode of ``pi`` whose earlier states the earlier data had ruled
         out given the stored paths is reached.
         """
-        d, n = self.problem.kernel.dim, self.config.n_samples
-        path_prior = self.path_prior
-        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        d, n = self.problem.kernel.dim, self.start_size
+        path_prior, window_likelihood = self.path_prior, self.window_likelihood
         walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood)
+            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood,
+            max_rounds=100 * self.config.n_samples // n)  # the draws N would make: a half start is not starved sooner
         components = np.column_stack([loglike, path_prior.logpdf(walkers)])
         cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
         return Weighed(cloud, ExactPrior(path_prior.logpdf), moves, log_restricted_mass, n_found)
@@ -320,11 +332,10 @@ class PathSpace:
         d = self.problem.kernel.dim
         # every stage keeps tempering_ess of the ESS: the tempering_threshold shortcut to beta = 1 lets a cloud
         # gathered in a narrow minor mode of an early stage finish there
-        config = replace(self.path_config, tempering_threshold=self.path_config.tempering_ess)
-        window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [self.dataset], d)
+        config = replace(self.start_config, tempering_threshold=self.start_config.tempering_ess)
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, window_likelihood,
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, self.window_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
                                         prior_moves=self.path_prior)
         cloud = tempered.cloud
@@ -339,13 +350,17 @@ class PathSpace:
         """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
         ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.engine.stages.weigh`, a
         restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
-        Components ``(log L_s, log path prior)``."""
+        Components ``(log L_s, log path prior)``. With fewer particles than the posterior's (:attr:`start_size`),
+        the paths are resampled to them."""
         state, kernel, config = self.state, self.problem.kernel, self.config
-        d, n, support = kernel.dim, config.n_samples, self.path_problem.support
+        d, n, support = kernel.dim, self.start_size, self.path_problem.support
         paths = _start_paths(state, kernel, self.length, rng)
-        walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(
-            paths.shape[0], -1)
-        log_weights, log_restricted_mass, n_found, labels = state.posterior_log_weights, 0.0, n, np.arange(n)
+        log_weights, labels = state.posterior_log_weights, np.arange(paths.shape[0])
+        if n < paths.shape[0]:
+            labels = resample(config.resampling, np.exp(log_weights - logsumexp(log_weights)), rng, n)
+            paths, log_weights = paths[labels], np.full(n, -np.log(n))
+        walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(n, -1)
+        log_restricted_mass, n_found = 0.0, n
         loglike = np.full(n, -np.inf)
         inside = inside_space(walkers, support)
         loglike[inside] = self.path_likelihood.loglike(walkers[inside])
@@ -363,6 +378,6 @@ class PathSpace:
 
     def _stored_temper(self, weighed, rng) -> Tempered:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
+        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
