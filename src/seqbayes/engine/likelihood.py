@@ -193,31 +193,38 @@ class StateMemo:
 
     A proposal that redraws only a path's suffix (:meth:`seqbayes.predictive.paths.PathPrior.resimulate`) keeps
     the earlier states bit for bit; their likelihoods are read here, not recomputed (an expensive model's call
-    saved, the sum unchanged). A sorted table of :func:`row_hashes`, so that a lookup is vectorised over the
-    rows (a dict would loop over them in Python); a hit also compares the rows themselves."""
+    saved, the sum unchanged). Sorted tables of :func:`row_hashes`, so that a lookup is vectorised over the
+    rows (a dict would loop over them in Python), in runs of halving size (a table merges with the one before
+    while that is at most twice its size: ``O(K log K)`` in all for ``K`` rows, where merging every batch into one
+    table cost ``O(K^2 / M)``); a hit also compares the rows themselves."""
 
     def __init__(self, dim: int):
-        self.keys, self.rows, self.values = np.empty(0, dtype=np.uint64), np.empty((0, dim)), np.empty(0)
+        self.dim, self.tables = dim, []   # (keys, rows, values), each sorted by key
 
     def lookup(self, rows) -> tuple[np.ndarray, np.ndarray]:
         """``(found (M,) bool, values (M,))`` for ``rows (M, d)``: the stored log-likelihoods where found."""
         found, values = np.zeros(rows.shape[0], dtype=bool), np.full(rows.shape[0], np.nan)
         keys = row_hashes(rows)
-        if keys is None or self.keys.size == 0:
+        if keys is None:
             return found, values
-        index = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
-        found = (self.keys[index] == keys) & (self.rows[index] == rows).all(axis=1)
-        values[found] = self.values[index[found]]
+        for table_keys, table_rows, table_values in self.tables:
+            index = np.minimum(np.searchsorted(table_keys, keys), table_keys.size - 1)
+            hit = ~found & (table_keys[index] == keys) & (table_rows[index] == rows).all(axis=1)
+            values[hit] = table_values[index[hit]]
+            found |= hit
         return found, values
 
     def add(self, rows, values) -> None:
         keys = row_hashes(rows)
-        if keys is None:
+        if keys is None or keys.size == 0:
             return
-        keys = np.concatenate([self.keys, keys])
-        order = np.argsort(keys, kind="stable")
-        self.keys = keys[order]
-        self.rows, self.values = np.concatenate([self.rows, rows])[order], np.concatenate([self.values, values])[order]
+        order = np.argsort(keys)
+        self.tables.append((keys[order], rows[order], values[order]))
+        while len(self.tables) > 1 and self.tables[-2][0].size <= 2 * self.tables[-1][0].size:
+            (k1, r1, v1), (k2, r2, v2) = self.tables.pop(), self.tables.pop()
+            keys = np.concatenate([k2, k1])
+            order = np.argsort(keys, kind="stable")
+            self.tables.append((keys[order], np.concatenate([r2, r1])[order], np.concatenate([v2, v1])[order]))
 
 
 class WindowLikelihood:
