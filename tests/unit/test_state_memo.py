@@ -16,7 +16,7 @@ def _likelihood():
 
 
 def test_memo_finds_exactly_the_stored_rows():
-    memo = StateMemo(2)
+    memo = StateMemo()
     rows = np.random.default_rng(0).normal(size=(50, 2))
     memo.add(rows, np.arange(50.0))
     queries = np.concatenate([rows[::-1], rows[:5] + 1e-15, [[0.0, 0.0]], -0.0 * np.ones((1, 2))])
@@ -26,7 +26,7 @@ def test_memo_finds_exactly_the_stored_rows():
     assert np.isnan(values[50:]).all()
     memo.add(np.zeros((1, 2)), np.array([7.0]))   # -0.0 and 0.0 are one state
     assert memo.lookup(-0.0 * np.ones((1, 2)))[1][0] == 7.0
-    assert row_hashes(np.zeros((3, 65))) is None and not StateMemo(65).lookup(np.zeros((3, 65)))[0].any()
+    assert row_hashes(np.zeros((3, 65))) is None and not StateMemo().lookup(np.zeros((3, 65)))[0].any()
 
 
 @pytest.mark.parametrize("seed", [0, 1])

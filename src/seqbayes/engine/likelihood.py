@@ -13,6 +13,8 @@ of it on flattened paths ``(M, T d)``.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from ..parallel import evaluate_loglike, read_only
@@ -138,15 +140,17 @@ class ValidatedLikelihood:
         values = self.history.loglike(read_only(np.array(theta, dtype=float)), read_only(frozen(summary)))
         return self._checked(np.asarray(values, dtype=float), theta, "history.loglike")
 
-    def add_along_paths(self, out, states, datasets) -> np.ndarray:
+    def add_along_paths(self, out, states, datasets, memos=None) -> np.ndarray:
         """Add ``sum_t log L_t(theta_t)`` (dataset ``t`` at state ``t`` of ``states (M, T, d)``) to ``out (M,)`` in
         place, one call per dataset for the paths still finite (a path with one zero likelihood stops there);
-        returns ``out``."""
+        returns ``out``. ``memos``: one :class:`StateMemo` per dataset, which evaluates only the states it lacks."""
         for t, dataset in enumerate(datasets):
             alive = np.isfinite(out)
             if not alive.any():
                 break
-            out[alive] += self.loglike_on(states[alive, t], dataset)
+            rows = states[alive, t]
+            out[alive] += (self.loglike_on(rows, dataset) if memos is None
+                           else memos[t].loglike(rows, partial(self.loglike_on, dataset=dataset)))
         return out
 
     def of_last_state(self, dim: int) -> "LastStateLikelihood":
@@ -198,8 +202,17 @@ class StateMemo:
     while that is at most twice its size: ``O(K log K)`` in all for ``K`` rows, where merging every batch into one
     table cost ``O(K^2 / M)``); a hit also compares the rows themselves."""
 
-    def __init__(self, dim: int):
-        self.dim, self.tables = dim, []   # (keys, rows, values), each sorted by key
+    def __init__(self):
+        self.tables = []   # (keys, rows, values), each sorted by key
+
+    def loglike(self, rows, evaluate) -> np.ndarray:
+        """``(M,)`` log-likelihoods at ``rows (M, d)``: the stored ones, and ``evaluate(missing)`` (then stored)
+        for the rest."""
+        found, values = self.lookup(rows)
+        if not found.all():
+            values[~found] = evaluate(rows[~found])
+            self.add(rows[~found], values[~found])
+        return values
 
     def lookup(self, rows) -> tuple[np.ndarray, np.ndarray]:
         """``(found (M,) bool, values (M,))`` for ``rows (M, d)``: the stored log-likelihoods where found."""
@@ -233,25 +246,11 @@ class WindowLikelihood:
 
     def __init__(self, base: ValidatedLikelihood, datasets: tuple, dim: int, memo: bool = False):
         self.base, self.datasets, self.dim, self.step = base, datasets, dim, base.step
-        self.memos = tuple(StateMemo(dim) for _ in datasets) if memo else None
+        self.memos = tuple(StateMemo() for _ in datasets) if memo else None
 
     n_evals = property(lambda self: self.base.n_evals, doc="Rows evaluated by the base likelihood.")
     n_nan = property(lambda self: self.base.n_nan, doc="NaN values it returned.")
 
     def loglike(self, walkers) -> np.ndarray:
         states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
-        out = np.zeros(walkers.shape[0])
-        if self.memos is None:
-            return self.base.add_along_paths(out, states, self.datasets)
-        # as add_along_paths (a path with one zero likelihood stops there), the same values added in the same order
-        for t, (dataset, memo) in enumerate(zip(self.datasets, self.memos)):
-            alive = np.isfinite(out)
-            if not alive.any():
-                break
-            rows = states[alive, t]
-            found, values = memo.lookup(rows)
-            if not found.all():
-                values[~found] = self.base.loglike_on(rows[~found], dataset)
-                memo.add(rows[~found], values[~found])
-            out[alive] += values
-        return out
+        return self.base.add_along_paths(np.zeros(walkers.shape[0]), states, self.datasets, self.memos)

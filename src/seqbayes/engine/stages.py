@@ -41,8 +41,6 @@ class ExactPrior:
         return components
 
 
-
-
 def count_distinct(samples) -> int:
     """Number of distinct rows of ``samples (N, d)``, by a 64-bit hash of their bit patterns.
 

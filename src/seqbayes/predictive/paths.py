@@ -168,8 +168,8 @@ class PathSpace:
     tempered jointly (:meth:`_bridge_weigh`), so that every mode of the path posterior is weighed afresh;
     the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, each with half
     of the N particles, and the two clouds are pooled into N, each cluster given its importance-sampling share
-    of the mass, before the importance sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly once the modes have separated
-    (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
+    of the mass, before the importance sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly
+    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
     (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
     ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
     the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
