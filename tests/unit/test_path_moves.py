@@ -161,3 +161,79 @@ def test_the_kernel_density_sweeps_leave_the_target_invariant_stage_after_stage(
     np.testing.assert_allclose(components[:, 0], gaussian_components(position)[:, 0])
     assert abs(np.mean(np.sum(position**2, axis=1)) / D - 1.0) < 5 * np.sqrt(2 / 12000)
     assert abs(np.mean(np.abs(position) > stats.norm.ppf(0.995)) - 0.01) < 5 * np.sqrt(0.01 * 0.99 / 12000)
+
+
+def test_the_suffix_move_keeps_each_prefix_bit_for_bit_and_draws_the_suffix_uniformly():
+    from seqbayes.moves.gaussian import GaussianMove
+    from seqbayes.moves.scaled import DifferentialMove, SuffixMove
+    from seqbayes.moves.stretch import StretchMove
+
+    rng = np.random.default_rng(3)
+    walkers = rng.standard_normal((20000, 6))    # paths of three states of two parameters
+    proposals, log_hastings = SuffixMove(GaussianMove(np.eye(6)), 3).propose(walkers, rng)
+    moved = (proposals != walkers).reshape(-1, 3, 2)
+    assert np.all(moved[..., 0] == moved[..., 1])               # a state moves whole
+    first = np.argmax(moved[..., 0], axis=1)
+    assert np.all(moved[..., 0] == (np.arange(3)[None, :] >= first[:, None]))  # from one state to the last
+    # its first moved state is uniform on the three: 5 binomial sds of 20,000 draws
+    assert np.all(np.abs(np.bincount(first, minlength=3) / 20000 - 1 / 3) < 5 * np.sqrt(2 / 9 / 20000))
+    assert np.all(log_hastings == 0)
+    complement = rng.standard_normal((50, 6))
+    proposals, _, identical = SuffixMove(DifferentialMove(1.0), 3).propose(walkers[:100], complement, rng)
+    assert not identical.any() and np.all(proposals[:, 4:] != walkers[:100, 4:])  # the last state always moves
+    with pytest.raises(ValueError, match="symmetric"):
+        SuffixMove(StretchMove(2.0), 3).propose(walkers[:100], complement, rng)
+
+
+@pytest.mark.parametrize("move", ["gaussian", "differential"])
+def test_suffix_sweeps_keep_the_chain_target(move):
+    # exact MH: the suffix is drawn independently of the walker, so the restricted move stays symmetric. From the
+    # path prior's draws the sweeps alone reach the tempered chain's exact Gaussian moments (5 standard errors)
+    from seqbayes.moves.gaussian import GaussianMove, gaussian_sweep, weighted_covariance
+    from seqbayes.moves.scaled import DifferentialMove, SuffixMove, differential_sweep
+
+    path_prior, loglike, mean, cov = _chain_target(beta=0.3)
+    rng = np.random.default_rng(4)
+    walkers = path_prior.sample(4000, rng)
+
+    def component_fn(x):
+        return np.column_stack([loglike(x), path_prior.logpdf(x)])
+
+    coefficients = np.array([0.3, 1.0])
+    components, accepted = component_fn(walkers), 0
+    if move == "gaussian":
+        local, sweep_fn = SuffixMove(GaussianMove(weighted_covariance(walkers), 2.38 / np.sqrt(3)), 3), gaussian_sweep
+    else:
+        local, sweep_fn = SuffixMove(DifferentialMove(1.0), 3), differential_sweep
+    for _ in range(SWEEPS):
+        walkers, components, sweep = sweep_fn(walkers, components, component_fn, coefficients, local, rng, None)
+        accepted += sweep.n_accepted
+    np.testing.assert_array_equal(components, component_fn(walkers))
+    assert 0.2 < accepted / (SWEEPS * 4000) < 0.9
+    _assert_moments(walkers, mean, cov)
+
+
+def test_a_suffix_sweep_evaluates_only_the_moved_states_through_the_memo():
+    # the window likelihood's memo holds every state of the walkers: a sweep's calls are its proposals' moved states
+    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.moves.gaussian import GaussianMove, gaussian_sweep
+    from seqbayes.moves.scaled import SuffixMove
+
+    rng = np.random.default_rng(5)
+    base = ValidatedLikelihood(lambda theta, y: -0.5 * np.sum((theta - y) ** 2, axis=1))
+    window = base.over_window([np.zeros(2), np.ones(2), np.full(2, 2.0)], 2, memo=True)
+    walkers = rng.standard_normal((500, 6))
+    components = window.loglike(walkers)[:, None]
+    seen = []
+
+    class Recording(SuffixMove):
+        def propose(self, points, *args):
+            out = super().propose(points, *args)
+            seen.append((out[0] != points).reshape(-1, 3, 2).any(axis=2).sum())
+            return out
+
+    before = base.n_evals
+    walkers, _, sweep = gaussian_sweep(walkers, components, window.loglike, np.ones(1),
+                                       Recording(GaussianMove(np.eye(6), 0.3), 3), rng, None)
+    assert base.n_evals - before == seen[0] < 3 * 500    # the kept states are read, not computed
+    assert sweep.n_evaluations == 500                    # rows proposed, as the sweep counts them

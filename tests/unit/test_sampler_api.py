@@ -332,11 +332,12 @@ def test_a_starved_restart_uses_the_rejection_mass_for_the_evidence():
     # and duplicates it. The importance density fitted to that single point would put the (flat
     # likelihood) evidence ~19 nats too low; the rejection estimate is within binomial error of the
     # exact -11.09 (computed from the step-1 mixture by the oscillator engineer, docs/damped_oscillator.md).
-    # This seed's stream finds one, in the path-space bridge's restart (about half the seeds find none and raise
-    # ZeroLikelihoodError, as the zero-likelihood tests check; seed 1 did before the bridge drew in halves of N).
+    # This seed's stream finds one, in the path-space bridge's restart (most seeds find none and raise
+    # ZeroLikelihoodError, as the zero-likelihood tests check; of seeds 0-11, 4 finds two and 8 one since the
+    # local moves move path suffixes; seed 3 did before, seed 1 before the bridge drew in halves of N).
     prior = JointPrior({"a": stats.uniform(0, 1)})
     sampler = SEMC(prior, MarkovKernel([Drift(-1.15, noise_std=0.05)]), lambda th, d: np.zeros(th.shape[0]),
-                   n_samples=200, rng=3)
+                   n_samples=200, rng=8)
     sampler.update(1.0)
     with pytest.warns(RuntimeWarning, match="step 2: importance-sampling evidence unreliable"):
         info = sampler.update(1.0)

@@ -150,7 +150,7 @@ def test_the_path_prior_density_of_no_walker_is_empty():
     from seqbayes.predictive.paths import path_prior_logpdf
 
     prior = SimpleNamespace(logpdf=lambda theta: np.zeros(len(theta)))
-    likelihood = SimpleNamespace(add_along_paths=lambda out, states, datasets: out)
+    likelihood = SimpleNamespace(add_along_paths=lambda out, states, datasets, memos=None: out)
     window = (PastStep(np.zeros((3, 2)), prior, np.zeros((5, 2)), np.zeros(5), 0.0, 0.0),)
     kernel = MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])
     logpdf = path_prior_logpdf(window, kernel, likelihood, 2)

@@ -214,9 +214,9 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 
 
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
-                         kernel_density=False, prior_moves=None):
+                         kernel_density=False, prior_moves=None, path_states=1):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move
-    (``kernel_density``, ``prior_moves``: as :func:`~seqbayes.moves.schedule.move_stage`).
+    (``kernel_density``, ``prior_moves``, ``path_states``: as :func:`~seqbayes.moves.schedule.move_stage`).
 
     Returns a :class:`~seqbayes.engine.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
     any restricted mass (the caller's)."""
@@ -238,7 +238,7 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
             moved = move_stage(problem, config, moves.step_size, particles, components, beta, prior_logpdf, rng,
-                               likelihood.loglike, kernel_density, prior_moves, prior_share)
+                               likelihood.loglike, kernel_density, prior_moves, prior_share, path_states)
             particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
             prior_share = moved.prior_share  # the prior's redraws only lose ground as beta grows
     return Tempered(Cloud(particles, log_weights, components, labels), log_z, tuple(temperatures), moves, resampled,

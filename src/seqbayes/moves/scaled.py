@@ -32,7 +32,8 @@ import numpy as np
 from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 from .stretch import stretch_sweep
 
-__all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "whitened_jumps"]
+__all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "SuffixMove",
+           "whitened_jumps"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -134,6 +135,38 @@ def differential_sweep(walkers, components, component_fn, coefficients, move: Di
     stretch move's sweep (:func:`~seqbayes.moves.stretch_sweep`, whose arguments and returns it
     shares) with this move's proposals."""
     return stretch_sweep(walkers, components, component_fn, coefficients, move, rng, support)
+
+
+@dataclass(frozen=True, eq=False)
+class SuffixMove:
+    """A symmetric local move (:class:`~seqbayes.moves.gaussian.GaussianMove`, :class:`DifferentialMove`)
+    restricted, walker by walker, to a random suffix of a path of ``n_states`` states of equal dimension: the
+    states from one drawn uniformly on move, the earlier ones are kept bit for bit.
+
+    The suffix is drawn independently of the walkers, so the proposal stays symmetric (log-Hastings 0) and the
+    sweep keeps its target. With a likelihood that keeps each state's value
+    (:class:`~seqbayes.engine.likelihood.StateMemo`) a proposal costs only its moved states' calls.
+
+    Parameters
+    ----------
+    move : GaussianMove or DifferentialMove
+        ``propose(walkers, ..., rng)`` returning ``(proposals, log_hastings, ...)`` with ``log_hastings`` zero.
+    n_states : int
+        States per walker: a walker ``(n_states * dim,)`` is its states one after the other.
+    """
+
+    move: object
+    n_states: int
+
+    def propose(self, walkers, *args):
+        """The inner move's proposals with each walker's states before its suffix put back: the same tuple."""
+        proposal = self.move.propose(walkers, *args)
+        if np.any(proposal[1]):
+            raise ValueError("move: a suffix move needs a symmetric inner move (log-Hastings 0)")
+        n, width = walkers.shape
+        start = args[-1].integers(self.n_states, size=n)
+        kept = np.repeat(np.arange(self.n_states)[None, :] < start[:, None], width // self.n_states, axis=1)
+        return (np.where(kept, walkers, proposal[0]), *proposal[1:])
 
 
 def whitened_jumps(before, after, proposal: FittedGaussian) -> np.ndarray:

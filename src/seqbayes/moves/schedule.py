@@ -17,7 +17,8 @@ from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
-from .scaled import DifferentialMove, FittedGaussian, differential_sweep, independence_sweep, whitened_jumps
+from .scaled import (DifferentialMove, FittedGaussian, SuffixMove, differential_sweep, independence_sweep,
+                     whitened_jumps)
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
@@ -69,7 +70,8 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE):
+               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE,
+               path_states: int = 1):
     """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
 
     With ``config.transform`` the move works in unconstrained coordinates
@@ -80,7 +82,8 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
     rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
     :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
     scaled rounds then mix in :func:`prior_sweep`, from ``prior_share`` (the last stage's
-    :attr:`StageMoves.prior_share`). Returns a :class:`StageMoves`.
+    :attr:`StageMoves.prior_share`). ``path_states``: the walkers are paths of that many states, whose scaled
+    rounds' local sweep moves a random suffix of each (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
     """
     transform = problem.transform if config.transform else None
     if transform is None:
@@ -110,7 +113,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
         resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
         position, components, stats, n_virtual, prior_share = scaled_rounds(
             config, position, components, component_fn, coefficients, support, rng, kernel_density, resimulate,
-            prior_share)
+            prior_share, path_states)
         step_size = state_step_size if config.move == "stretch" else float("nan")
     elif config.move == "gaussian":
         stats = SweepStats()
@@ -243,7 +246,7 @@ def _global_sweep(position, components, component_fn, coefficients, gaussian, re
 
 
 def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
-                  kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE):
+                  kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE, path_states: int = 1):
     """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
 
     Each round is an independence-MH sweep in which each half of the particles proposes from a density fitted to
@@ -264,6 +267,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     local sweep gives way to a second :func:`prior_sweep` while the prior's redraws are accepted more often than
     the local move was. Each is an exact Metropolis-Hastings kernel of the stage's target.
 
+    With ``path_states > 1`` (the path-space remedy) the local sweep moves each path from a random state on
+    (:class:`~seqbayes.moves.scaled.SuffixMove`): a likelihood that keeps each state's value then evaluates only the
+    moved states, and the later states, which the newest data pull hardest, move most often.
+
     Parameters
     ----------
     position : (N, d) array
@@ -274,6 +281,8 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
         rest, in the move's coordinates (NaN rows: outside the parameter space); see :func:`prior_sweep`.
     share : float
         The redraws' share of the first round's global sweep (with ``resimulate``).
+    path_states : int
+        The walkers are paths of that many states of equal dimension (1: the local sweep moves whole walkers).
 
     Returns
     -------
@@ -307,11 +316,13 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
         else:
             if config.move == "gaussian":
                 local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
-                position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients, local,
-                                                             rng, support)
+                sweep_fn = gaussian_sweep
             else:
-                position, components, sweep = differential_sweep(position, components, component_fn, coefficients,
-                                                                 DifferentialMove(scale), rng, support)
+                local, sweep_fn = DifferentialMove(scale), differential_sweep
+            if path_states > 1:
+                local = SuffixMove(local, path_states)
+            position, components, sweep = sweep_fn(position, components, component_fn, coefficients, local, rng,
+                                                   support)
             # Eq. (9)
             local_rate, scale = sweep.acceptance_rate, float(scale * np.exp(sweep.acceptance_rate - LOCAL_ACCEPTANCE))
         stats = stats + sweep

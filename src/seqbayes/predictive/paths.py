@@ -73,12 +73,14 @@ def _add_transitions(out, states, kernel):
     return out
 
 
-def path_prior_logpdf(window, kernel, likelihood, dim):
+def path_prior_logpdf(window, kernel, likelihood, dim, memos=None):
     """``log p(theta_{w:s-1} | D^{w:s-1}) + log T(theta_s | theta_{s-1})`` for flattened paths ``(M, L d)``.
 
     The window's first state has the prior its step used (exact from step 1 on), every later one
     the exact transition, every past state its dataset's likelihood; the log of the window's evidence
-    ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior)."""
+    ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior).
+    ``memos``: one :class:`~seqbayes.engine.likelihood.StateMemo` per past dataset, which keeps each state's
+    likelihood (a move of a path's suffix keeps the earlier states)."""
     normaliser = sum(past.log_evidence_increment for past in window)
 
     def logpdf(walkers):
@@ -87,7 +89,8 @@ def path_prior_logpdf(window, kernel, likelihood, dim):
         states = walkers.reshape(walkers.shape[0], walkers.shape[1] // dim, dim)
         out = np.asarray(window[0].prior.logpdf(states[:, 0]), dtype=float) - normaliser
         _add_transitions(out, states, kernel)  # transitions into steps w+1..s
-        return likelihood.add_along_paths(out, states, [past.dataset for past in window])  # the past datasets'
+        # the past datasets'
+        return likelihood.add_along_paths(out, states, [past.dataset for past in window], memos)
 
     return logpdf
 
@@ -200,10 +203,12 @@ class PathSpace:
                                     problem.executor, problem.n_chunks)
         self.path_likelihood = likelihood.of_last_state(d)
         # the bridge's likelihood of every state of the window, each state's value kept: a redraw of a path's suffix
-        # from the path prior keeps the earlier states, whose likelihoods are not computed again
+        # from the path prior, or a local move of it, keeps the earlier states, whose likelihoods are not computed
+        # again; the stored paths' prior reads the past datasets' through the same memos
         self.window_likelihood = likelihood.over_window([past.dataset for past in self.window] + [dataset], d,
                                                         memo=True)
-        self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d))
+        self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d,
+                                                         self.window_likelihood.memos[:-1]))
         self.path_prior = PathPrior(self.window[0].prior, kernel, length + 1, d)  # the bridge's start and redraws
         # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
         self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
@@ -337,9 +342,12 @@ class PathSpace:
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_resample_move(weighed.cloud, self.path_problem, config, self.window_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        prior_moves=self.path_prior)
+                                        prior_moves=self.path_prior, path_states=self.length + 1)
         cloud = tempered.cloud
-        last = likelihood.of_last_state(d).loglike(cloud.particles)  # N calls; the rest is a difference
+        states = cloud.particles.reshape(cloud.particles.shape[0], self.length + 1, d)
+        # read from the memo, where the stages left every final state's value; the rest is a difference
+        last = likelihood.add_along_paths(np.zeros(states.shape[0]), states[:, -1:], [self.dataset],
+                                          self.window_likelihood.memos[-1:])
         normaliser = sum(past.log_evidence_increment for past in self.window)
         cloud = Cloud(cloud.particles, cloud.log_weights,
                       np.column_stack([last, cloud.components[:, 1] + (cloud.components[:, 0] - last) - normaliser]),
@@ -379,5 +387,6 @@ class PathSpace:
     def _stored_temper(self, weighed, rng) -> Tempered:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
         tempered = temper_resample_move(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True)
+                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
+                                        path_states=self.length + 1)
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
