@@ -317,3 +317,35 @@ def test_a_step_with_no_predictive_draw_inside_is_rescued_by_the_bridge():
     assert result.steps[1].info.path_steps == 2
     assert abs(result.steps[1].mean()[0] - mean) / sd < 0.3
     assert abs(result.steps[1].info.log_evidence - log_evidence) < 0.3
+
+
+def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
+    # the rule of TransitionMixture.remedy alone, on constructed diagnostics (the seed-pinned runs test it through
+    # random streams, whose trigger decisions near the threshold move with any change to the moves)
+    from types import SimpleNamespace
+
+    from seqbayes.predictive import transition
+
+    monkeypatch.setattr(transition, "PathSpace", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
+    config = SamplerConfig(move="stretch", n_samples=1000)
+    mixture = transition.TransitionMixture(SimpleNamespace(kernel=KERNEL), config, "transition")
+    mixture.lagged_variance = 0.0
+
+    def decide(ancestor_ess=500.0, conflict=1.0, n_found=1000, after_path_space=False, window=True):
+        state = SimpleNamespace(window=(_past(2 if after_path_space else 0),) if window else ())
+        info = SimpleNamespace(ancestor_ess=ancestor_ess, prior_data_conflict=conflict)
+        return mixture.remedy(state, None, None, info, SimpleNamespace(n_found=n_found))
+
+    # the ancestor threshold: max(remedy_ess N, 1 / (se^2 + 1 / N)) = max(50, 1 / (0.01 + 0.001)) = 90.9
+    threshold = 1.0 / (transition.REMEDY_ANCESTOR_SE**2 + 1.0 / 1000)
+    assert decide() is None
+    assert decide(ancestor_ess=threshold * 1.01) is None and decide(ancestor_ess=threshold * 0.99) == ("path", True)
+    # five times remedy_ess N right after a path-space step (its mixture understates the conflict)
+    assert decide(ancestor_ess=249.0, after_path_space=True) == ("path", True)
+    assert decide(ancestor_ess=251.0, after_path_space=True) is None
+    assert decide(conflict=4.01) == ("path", True) and decide(conflict=3.99) is None
+    assert decide(n_found=99) == ("path", True) and decide(n_found=100) is None     # STARVED_RESTART = 0.1
+    mixture.lagged_variance = transition.REMEDY_ANCESTOR_SE**2 * 1.01
+    assert decide() == ("path", True)
+    mixture.lagged_variance = 0.0
+    assert decide(conflict=10.0, window=False) is None        # no past step: nothing to assimilate on a path
