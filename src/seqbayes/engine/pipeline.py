@@ -31,7 +31,7 @@ import time
 
 from ..predictive.base import predictive_for
 from ..results import StepInfo, StepRecord
-from .errors import ZeroLikelihoodError
+from .errors import PlainConflict, ZeroLikelihoodError
 from .likelihood import ValidatedLikelihood, check_dataset
 from .outputs import check_step
 from .stages import count_distinct
@@ -91,6 +91,14 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
     predictive, start_state = predictive_for(state, problem, config)
     try:
         new_state, record, weighed = run_step(predictive, start_state, dataset, likelihood, rng, start)
+    except PlainConflict as plain:
+        try:
+            new_state, record, _ = run_step(plain.remedy, state, dataset, likelihood, rng, start)
+        except ZeroLikelihoodError:  # the paths' restart found nothing: the mixture's step after all, to its end
+            predictive.check_stages = False
+            new_state, record, _ = run_step(predictive, start_state, dataset, likelihood, rng, start)
+        check_step(new_state, record)
+        return new_state, record
     except ZeroLikelihoodError as error:
         remedy = predictive.remedy(state, dataset, likelihood, None, None)
         if remedy is None:

@@ -115,9 +115,15 @@ class ParticlePredictive:
                                                     self.exact_prior(state))
         return Weighed(cloud, prior_logpdf, moves, log_restricted_mass, n_found, rejuvenated)
 
+    def stage_check(self):
+        """A check of each intermediate stage's particles (:func:`~seqbayes.engine.stages.temper_resample_move`), or
+        None (the default)."""
+        return None
+
     def temper(self, weighed, likelihood, rng) -> Tempered:
         tempered = temper_resample_move(weighed.cloud, self.problem, self.config, likelihood, weighed.prior_logpdf,
-                                        weighed.moves, self.moves_every_stage(), self.deferred, rng)
+                                        weighed.moves, self.moves_every_stage(), self.deferred, rng,
+                                        stage_check=self.stage_check())
         # Z = P(inside, L > 0) E[L | inside, L > 0]
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
 

@@ -214,9 +214,11 @@ def reweight_stage(log_weights, loglike, beta, n_stages, config, step):
 
 
 def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
-                         kernel_density=False, prior_moves=None, path_states=1):
+                         kernel_density=False, prior_moves=None, path_states=1, stage_check=None):
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move
     (``kernel_density``, ``prior_moves``, ``path_states``: as :func:`~seqbayes.moves.schedule.move_stage`).
+    ``stage_check(particles)`` is called with each intermediate stage's resampled particles (it may raise
+    :class:`~seqbayes.engine.errors.PlainConflict`).
 
     Returns a :class:`~seqbayes.engine.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
     any restricted mass (the caller's)."""
@@ -234,6 +236,8 @@ def temper_resample_move(cloud, problem, config, likelihood, prior_logpdf, moves
             particles, components = particles[index], components[index]
             labels = None if labels is None else labels[index]   # copies keep their initial draw's label
             log_weights = np.full(n, -np.log(n))
+            if stage_check is not None and beta < 1.0:
+                stage_check(particles)
         # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
         if resampled or move_every_stage or (config.economy and beta == 1.0 and len(temperatures) > 1):
             components = prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor

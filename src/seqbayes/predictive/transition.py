@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine.protocol import ParticlePredictive
+from ..engine.errors import PlainConflict
 from ..engine.settings import STARVED_RESTART
 from ..engine.stages import ExactPrior
 from ..engine.state import PastStep, kept_copy, remedy_window, variance_before
@@ -58,21 +59,17 @@ class TransitionMixture(ParticlePredictive):
     #: The step's :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`, set by :meth:`remedy_fields` (a
     #: predictive serves one step) for :meth:`remedy`.
     lagged_variance = float("nan")
+    #: Whether :meth:`stage_check` checks the stages (off when the path space it handed a step to failed).
+    check_stages = True
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
         """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
         if not remedy_applies(self.config, self.method, self.problem.kernel):
             return float("nan"), None, (), None
         spread, ancestors, paths = None, float("nan"), None
-        if state.window and state.paths is None and isinstance(state.prior, GaussianMixture):
-            # the mixture's own components' responsibilities: one matrix product, not the pairwise transition density
-            spread = state.prior.ancestor_spread(cloud.particles, cloud.log_weights, posterior_labels(state))
-            ancestors = spread.ess
-        elif state.window:
-            index, mass = ancestor_mass(self.problem.kernel, cloud.particles, state.posterior,
-                                        state.posterior_log_weights, None if state.paths is None else rng,
-                                        cloud.log_weights)
-            spread = mass_spread(state, mass)
+        if state.window:
+            spread, index = self._ancestor_spread(state, cloud.particles, cloud.log_weights,
+                                                  None if state.paths is None else rng)
             ancestors = spread.ess
             if state.paths is not None:
                 paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)
@@ -83,6 +80,48 @@ class TransitionMixture(ParticlePredictive):
                                                         cloud.log_weights, float(log_increment),
                                                         variance_before(state)),), self.config.remedy_lag)
         return ancestors, spread, window, None if paths is None else paths[:, -len(window):]
+
+    def _ancestor_spread(self, state, particles, log_weights, rng=None):
+        """``(spread, index)``: the :class:`~seqbayes.predictive.ancestry.AncestorSpread` of the last posterior's
+        particles under ``particles (N, d)`` with ``log_weights``, and (with ``rng``, after a path-space step) an
+        ancestor drawn for each particle."""
+        if state.paths is None and isinstance(state.prior, GaussianMixture):
+            # the mixture's own components' responsibilities: one matrix product, not the pairwise transition density
+            return state.prior.ancestor_spread(particles, log_weights, posterior_labels(state)), None
+        index, mass = ancestor_mass(self.problem.kernel, particles, state.posterior, state.posterior_log_weights, rng,
+                                    log_weights)
+        return mass_spread(state, mass), index
+
+    def _ancestor_threshold(self, state) -> float:
+        """The ancestor ESS below which :meth:`remedy` takes the path space."""
+        config = self.config
+        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0) * config.n_samples
+        if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
+            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
+        return threshold
+
+    def weigh(self, state, dataset, likelihood, rng):
+        self.step_inputs = (state, dataset, likelihood)   # for stage_check (a predictive serves one step)
+        return super().weigh(state, dataset, likelihood, rng)
+
+    def stage_check(self):
+        """The ancestor trigger of :meth:`remedy` on each intermediate stage's particles: once they are below its
+        threshold the step goes to the path space (:class:`~seqbayes.engine.errors.PlainConflict`) without its last
+        stages, moves and evidence, which only serve the mixture step the remedy replaces. Tempering further towards
+        the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "An early decision")."""
+        state, dataset, likelihood = self.step_inputs
+        config = self.config
+        if not (self.check_stages and state.window and config.remedy_ess > 0
+                and remedy_applies(config, self.method, self.problem.kernel)):
+            return None
+        threshold = self._ancestor_threshold(state)
+
+        def check(particles):
+            n = particles.shape[0]
+            if self._ancestor_spread(state, particles, np.full(n, -np.log(n)))[0].ess < threshold:
+                raise PlainConflict(PathSpace(state, dataset, self, likelihood, config.remedy_bridge))
+
+        return check
 
     def remedy(self, state, dataset, likelihood, info, weighed):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
@@ -100,9 +139,7 @@ class TransitionMixture(ParticlePredictive):
             return None
         if info is None:
             return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
-        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0) * config.n_samples
-        if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
-            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
+        threshold = self._ancestor_threshold(state)
         starved = weighed.n_found < STARVED_RESTART * config.n_samples
         lagged = config.remedy_ess > 0 and self.lagged_variance > REMEDY_ANCESTOR_SE**2
         if (info.ancestor_ess < threshold or lagged or info.prior_data_conflict > config.conflict_threshold
