@@ -349,3 +349,33 @@ def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
     assert decide() == ("path", True)
     mixture.lagged_variance = 0.0
     assert decide(conflict=10.0, window=False) is None        # no past step: nothing to assimilate on a path
+
+
+def test_a_plain_conflict_goes_to_the_path_space_before_the_mixture_steps_last_stages(monkeypatch):
+    # the jump at step 4: the ancestor ESS of an intermediate stage's particles is already below the trigger, so the
+    # ordinary step stops there (TransitionMixture.stage_check) and the path space takes the step; without the check
+    # the same step takes the path space after the mixture step's every stage, moves and evidence
+    from seqbayes.predictive.transition import TransitionMixture
+
+    ys = datasets()[:4]
+    info = {}
+    for check in (True, False):
+        monkeypatch.setattr(TransitionMixture, "check_stages", check)
+        result, _, _ = run(SMC, ys, 1)   # seed 1's stages cross the trigger before the last (seeds 0-1, SMC, SEMC)
+        info[check] = result.steps[3].info
+    assert info[True].path_steps == info[False].path_steps == 4
+    assert info[True].n_loglike_evals < info[False].n_loglike_evals
+
+
+def test_when_the_path_space_finds_nothing_the_mixture_step_runs_to_its_end(monkeypatch):
+    from seqbayes.engine.errors import ZeroLikelihoodError
+    from seqbayes.predictive.paths import PathSpace
+
+    def nothing(self, *args):
+        raise ZeroLikelihoodError("no path inside")
+
+    monkeypatch.setattr(PathSpace, "weigh", nothing)
+    result, mean, log_evidence = run(SMC, datasets()[:4], 1)   # step 4 stops early, as in the test above
+    info = result.steps[3].info
+    assert info.path_steps == 0 and np.isfinite(log_evidence).all() and info.temperatures[-1] == 1.0
+    assert info.ancestor_ess < 1.0 / (0.1**2 + 1.0 / 1000)   # the mixture step's own diagnostics: the trigger's
