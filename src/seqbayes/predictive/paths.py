@@ -252,8 +252,11 @@ class PathSpace:
             other, moves = second.cloud, second.moves
         # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
         # path's earlier states; every sweep's draws enter the estimate, whose fit on the path space has an ESS
-        # below the refit threshold per sweep where all of them together are well above it
-        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)))
+        # below the refit threshold per sweep where all of them together are well above it. Four times the refits:
+        # where both starts missed the posterior (small N, a drift towards the box's edge) each refit's sweeps carry
+        # the cloud further towards it, and five left the estimate tens of nats short (docs/benchmarks.md)
+        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)),
+                         max_refits=4 * self.config.max_refits)
         importance = self.config.evidence == "importance"
         n_found = weighed.n_found * config.n_samples / self.start_size  # in draws per N, as the restart's threshold
         cloud, log_increment, evidence_ess, n_independent = estimate_increment(
