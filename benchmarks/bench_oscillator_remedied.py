@@ -8,7 +8,7 @@ docs/benchmarks.md, "Suffix moves on the path space"). Every kernel and sampler,
 
 Printed: the mean evaluations per run of runs 0, 3 and 9 (over kernels, samplers and replicates) and their sum,
 the study's estimate, and per sampler the largest ``|mean - exact| / exact sd`` and ``|log p(D^1:s) - exact|`` over
-every (run, kernel, step), and their root mean square over the path-space steps alone (the steps a change to the
+every (run, kernel, step), the number of path-space steps and the errors' root mean square over them alone (the steps a change to the
 path space changes; the largest error over 36 tasks moves by a few hundredths of an sd between seeds).
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oscillator_remedied.py [--replicates 2]
@@ -74,8 +74,8 @@ def main(argv=None) -> int:
           f"({time.perf_counter() - start:.0f} s wall)")
     for s in study.SAMPLERS:
         mean_sd, log_z = (np.concatenate(x) for x in remedied[s])
-        print(f"{s}: largest error {worst[s][0]:.3f} sd, {worst[s][1]:.3f} nats; on the path-space steps "
-              f"rms {np.sqrt(np.mean(mean_sd**2)):.4f} sd, {np.sqrt(np.mean(log_z**2)):.4f} nats")
+        print(f"{s}: largest error {worst[s][0]:.3f} sd, {worst[s][1]:.3f} nats; on the {log_z.size} path-space "
+              f"steps rms {np.sqrt(np.mean(mean_sd**2)):.4f} sd, {np.sqrt(np.mean(log_z**2)):.4f} nats")
     return 0
 
 
