@@ -188,13 +188,15 @@ def test_docs_show_the_reduced_study():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known failure, docs/benchmarks.md 'A decision before the ordinary step': at "
-                   "N = 300 a path-space step of run 0 under T6 can lose its importance ESS (1.1 of 300) and fall back "
-                   "to a tempering path 84 nats off; strict, so that a fix shows here")
-def test_run_0_under_t6_at_n_300_keeps_the_evidence_through_its_path_space_steps():
+@pytest.mark.parametrize("replicate", [1, 4])
+def test_run_0_under_t6_at_n_300_keeps_the_evidence_through_its_path_space_steps(replicate):
+    # at N = 300 a path-space step of run 0 under T6 (the drift takes c towards the box's edge) can start with both of
+    # its clouds off the posterior; five refits of the importance sweeps left replicate 1 84 nats off at step 4 (the
+    # fallback to the tempering path), replicate 4 193 nats with the early remedy decision's streams. With four times
+    # the refits on the path space, replicates 0, 1 and 4 end within 0.1 nats and 0.32 sd (docs/benchmarks.md)
     from seqbayes.models import oscillator as osc
 
     ref = osc.load_exact_references()[(0, "T6")]
-    out = study.run_task(0, 0, "T6", "SMC", n_samples=300, replicate=1)   # 1 of replicates 0-11 fails
+    out = study.run_task(0, 0, "T6", "SMC", n_samples=300, replicate=replicate)
     assert np.all(np.abs(out["log_evidence"] - ref.log_evidence) < 0.5)
     assert np.all(np.abs(out["mean"] - ref.mean) / ref.std < 0.5)
