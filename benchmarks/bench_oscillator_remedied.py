@@ -8,8 +8,9 @@ docs/benchmarks.md, "Suffix moves on the path space"). Every kernel and sampler,
 
 Printed: the mean evaluations per run of runs 0, 3 and 9 (over kernels, samplers and replicates) and their sum,
 the study's estimate, and per sampler the largest ``|mean - exact| / exact sd`` and ``|log p(D^1:s) - exact|`` over
-every (run, kernel, step), the number of path-space steps and the errors' root mean square over them alone (the steps a change to the
-path space changes; the largest error over 36 tasks moves by a few hundredths of an sd between seeds).
+every (run, kernel, step), the number of path-space steps and the errors' root mean square over them alone (the
+steps a change to the path space changes; the largest error over 36 tasks moves by a few hundredths of an sd
+between seeds).
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oscillator_remedied.py [--replicates 2]
 [--workers 2] [--others 850000]``

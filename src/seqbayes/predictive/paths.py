@@ -172,14 +172,16 @@ class PathSpace:
     the stored paths' start (or, where it cannot carry the step, a second bridge) runs as well, each with half
     of the N particles, and the two clouds are pooled into N, each cluster given its importance-sampling share
     of the mass, before the importance sweeps (:meth:`estimate`), because a tempering can weigh a mode wrongly
-    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the previous posterior's paths
-    (kept from the last path-space step, or drawn backwards with the exact transition), are extended by
-    ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are moved on
-    the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel density
-    as the independence proposal and, in the bridge, redraws of path suffixes from the path prior:
-    :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence increment is Eq. (1) or the importance estimate of
-    :mod:`seqbayes.engine.evidence` on the path space; the cost of a move is one likelihood call per state of
-    the window. The record has ``StepInfo.path_steps = L``.
+    once the modes have separated (lose it, or end trapped in a minor one). Without it they start from the
+    previous posterior's paths (kept from the last path-space step, or drawn backwards with the exact transition),
+    are extended by ``theta_s ~ T(. | theta_{s-1})`` and tempered in ``L_s`` (Eq. A5) only. Either way they are
+    moved on the whole path by the scaled rounds (:func:`~seqbayes.moves.schedule.scaled_rounds`, with the kernel
+    density as the independence proposal, a local sweep on random path suffixes
+    (:class:`~seqbayes.moves.scaled.SuffixMove`) and, in the bridge, redraws of path suffixes from the path prior:
+    :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence
+    increment is Eq. (1) or the importance estimate of :mod:`seqbayes.engine.evidence` on the path space. Every
+    likelihood of the window goes through one memo per dataset, so a move costs one likelihood call per state it
+    changes. The record has ``StepInfo.path_steps = L``.
 
     Parameters
     ----------

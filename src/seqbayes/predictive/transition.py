@@ -108,7 +108,8 @@ class TransitionMixture(ParticlePredictive):
         """The ancestor trigger of :meth:`remedy` on each intermediate stage's particles: once they are below its
         threshold the step goes to the path space (:class:`~seqbayes.engine.errors.PlainConflict`) without its last
         stages, moves and evidence, which only serve the mixture step the remedy replaces. Tempering further towards
-        the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "An early decision")."""
+        the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "A decision before the
+        ordinary step")."""
         state, dataset, likelihood = self.step_inputs
         config = self.config
         if not (self.check_stages and state.window and config.remedy_ess > 0
