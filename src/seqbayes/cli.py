@@ -142,8 +142,7 @@ def _numeric_summary(messages) -> str:
         kind = _NUMPY_FLOAT.fullmatch(text).group(1)
         counts[kind] = counts.get(kind, 0) + 1
     met = ", ".join(f"{_NUMERIC_WORDS[kind]} {n} time{'s' if n > 1 else ''}" for kind, n in counts.items())
-    return (f"the computation met {met} (numpy floating-point warnings); the results above passed the "
-            f"command's checks, but look at the data's units and the options")
+    return f"the computation met {met} (numpy floating-point warnings); check the data's units and the options"
 
 
 # --------------------------------------------------------------------- bounded options
@@ -404,7 +403,7 @@ def _write_forecast(path, store, draws):
 # ------------------------------------------------------------------ output targets
 def _check_targets(outputs, *, inputs=(), stores=(), force=False, run=None) -> dict:
     """Refuse output targets that are inputs, stores or files the command did not write
-    (:func:`seqbayes.store.targets.check_outputs`); ``outputs``: ``(option, path, recognise)``; ``run``:
+    (:func:`seqbayes.store.targets.check_outputs`); ``outputs``: the fields of ``Output``; ``run``:
     ``(name, path)`` of a run store to create, checked against the inputs only (``init --force`` decides
     on an existing store)."""
     from .store.targets import Output, check_outputs, refuse_inputs
@@ -500,7 +499,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.no_embed and os.path.lexists(figures) and not figures.is_dir():
         raise CommandError(f"{figures}: is not a folder; the report's figures go there (--no-embed)")
     old_figures = sorted(figures.glob("fig-*.png")) if args.no_embed and figures.is_dir() else []
-    _check_targets([("--output", output, html_page), *[("--no-embed", f, png_figure) for f in old_figures]],
+    _check_targets([("--output", output, html_page, True), *[("--no-embed", f, png_figure) for f in old_figures]],
                    inputs=[args.data, args.modes, *_store_inputs(store)], stores=[args.run, *(args.compare or ())],
                    force=args.force)
     try:
@@ -744,6 +743,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning   # restored on leaving: main() is also called from Python
+            # every one of numpy's floating-point warnings reaches _show_warning, to be counted (not only the first)
+            warnings.filterwarnings("always", message=_NUMPY_FLOAT.pattern, category=RuntimeWarning)
             if args.command == "example":
                 code = _run_example(args.name, rest)
             else:

@@ -162,8 +162,7 @@ class TableSpec:
 
 def _rule(config, name, default=None):
     """A rule of :class:`TableSpec` from any config (a run's :class:`RunConfig` has none of them)."""
-    value = getattr(config, name, default)
-    return default if value is None else value
+    return getattr(config, name, default)
 
 
 def _refuse_irregular(path, mode: int, what: str, error) -> None:

@@ -77,11 +77,14 @@ class Output:
         ``recognise(head: bytes) -> bool``: whether an existing file whose first :data:`HEAD_BYTES`
         bytes are ``head`` is an earlier output of this command (then it is replaced without
         ``force``). ``None``: every existing file needs ``force``.
+    creates_folder : bool
+        The command creates a missing folder of the target (else a missing folder is refused).
     """
 
     option: str
     path: str | os.PathLike | None
     recognise: Callable[[bytes], bool] | None = None
+    creates_folder: bool = False
 
 
 def starts_with(*prefixes: bytes) -> Callable[[bytes], bool]:
@@ -241,7 +244,7 @@ def check_outputs(outputs: Iterable[Output], *, inputs: Iterable = (), stores: I
         try:
             info = os.lstat(path)
         except FileNotFoundError:
-            if not os.path.isdir(path.parent or "."):
+            if not output.creates_folder and not os.path.isdir(path.parent or "."):
                 raise OutputError(f"{where}: the folder {printable(path.parent)} does not exist") from None
             chosen[output.option] = path
             continue
