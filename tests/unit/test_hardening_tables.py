@@ -214,6 +214,7 @@ def _no_hang(target, seconds=30.0):
 
 def test_a_fifo_is_refused_without_waiting_on_it(tmp_path, capsys):
     from seqbayes.store.modules import read_toml
+    from seqbayes.store.sg_report import read_mode_shapes
 
     os.mkfifo(tmp_path / "year.csv")
     refused(capsys, tmp_path / "year.csv", r"year.csv: is a FIFO \(named pipe\), not a regular file; a data file is "
@@ -222,6 +223,15 @@ def test_a_fifo_is_refused_without_waiting_on_it(tmp_path, capsys):
         _no_hang(lambda: read_datafile(tmp_path / "year.csv", TableSpec(("day",))))
     with pytest.raises(ValueError, match=r"is a FIFO \(named pipe\), not a regular file; a TOML run configuration"):
         _no_hang(lambda: read_toml(tmp_path / "year.csv"))             # `seqbayes init FIFO RUN` hung too
+    with pytest.raises(ValueError, match=r"--modes: .*year.csv: is a FIFO \(named pipe\)"):
+        _no_hang(lambda: read_mode_shapes(tmp_path / "year.csv", 4))   # `seqbayes report --modes FIFO`
+    os.mkfifo(tmp_path / "year.nc")
+    with pytest.raises(DataError, match=r"year.nc: is a FIFO"):
+        _no_hang(lambda: read_datafile(tmp_path / "year.nc", TableSpec(("day",))))
+    (tmp_path / "text.nc").write_text("day\n1\n")
+    with pytest.raises(DataError, match=r"text.nc: cannot read as NetCDF: the file starts with neither the NetCDF-3 "
+                                        r"nor the NetCDF-4/HDF5 signature"):
+        read_datafile(tmp_path / "text.nc", TableSpec(("day",)))
 
 
 def test_dev_zero_and_a_file_over_the_bound_are_refused_before_they_are_read(tmp_path, capsys, monkeypatch):

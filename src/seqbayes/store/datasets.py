@@ -478,12 +478,17 @@ def _read_netcdf(path, columns, extra: str = "ignore", hint: str = "") -> np.nda
     import xarray as xr
 
     with open(path, "rb") as fh:
-        classic = fh.read(4) in (b"CDF\x01", b"CDF\x02")   # NetCDF-3 (64-bit offsets too): scipy reads it
+        head = fh.read(8)
+    classic = head[:4] in (b"CDF\x01", b"CDF\x02")   # NetCDF-3 (64-bit offsets too): scipy reads it
+    if not classic and head != b"\x89HDF\r\n\x1a\n":
+        raise DataError(f"{path}: cannot read as NetCDF: the file starts with neither the NetCDF-3 nor the "
+                        f"NetCDF-4/HDF5 signature (a data file named .nc, .nc4, .netcdf, .h5 or .hdf5 is read as "
+                        f"NetCDF, any other as CSV)")
     try:
         ds = xr.open_dataset(path, engine="scipy" if classic else "h5netcdf")
     except Exception as err:
         kind = "NetCDF-3" if classic else "NetCDF-4/HDF5"
-        raise DataError(f"{path}: cannot read as {kind}: {type(err).__name__}: {err}") from None
+        raise DataError(f"{path}: cannot read as {kind}: {type(err).__name__}: {printable(err, 200)}") from None
     with ds:
         missing = [c for c in columns if c not in ds.variables]
         if missing:

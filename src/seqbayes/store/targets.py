@@ -20,17 +20,21 @@ Every ``--json``, ``--report``, ``--output``/``-o`` and ``--out`` target (and th
    through. The free space is checked first; a full disk or a read-only folder is one
    :class:`OutputError`, and the old file stays as it was. A replaced file keeps its permission bits.
 
-The OMA and fleet commands call them the same way::
+The OMA and fleet commands call them the same way (with ``--force`` as ``seqbayes.cli.FORCE_OPTION``)::
 
-    from seqbayes.store.targets import Output, check_outputs, starts_with, write_output
+    from seqbayes.store.targets import Output, check_outputs, json_with_keys, starts_with, write_output
 
     targets = check_outputs([Output("--out", args.out, starts_with(b"time_start,day,slot,")),
                              Output("--json", args.json, json_with_keys("settings", "modes"))],
                             inputs=[args.record], stores=[], force=args.force)
     ...                                                    # the work
-    write_output(targets["--out"], modes_csv_text)         # str (UTF-8) or bytes
+    write_output(targets["--out"], modes_csv_text, "--out")   # str (UTF-8) or bytes
 
-A target left out (``path=None``) is skipped, and :func:`check_outputs` maps only the given ones.
+``inputs`` are every file the command reads and ``stores`` every run store it reads or writes (a fleet:
+all of its members' stores); a command writing several files names each in its own :class:`Output`. A
+target left out (``path=None``) is skipped, and :func:`check_outputs` maps only the given ones. The
+recognisers here (:func:`html_page`, :func:`png_figure`, :func:`forecast_file`, :func:`json_with_keys`,
+:func:`starts_with`) say which existing files are earlier outputs; a new output kind adds its own.
 """
 
 from __future__ import annotations
