@@ -53,6 +53,21 @@ def base_table(columns, rng, n_rows=12, *, covariate=True, frequencies=(4.0, 10.
                  measurements=tuple(range(2 if covariate else 1, len(columns))))
 
 
+def record_table(columns, rng, n_rows=512, dt=0.01, frequencies=(1.5, 4.0)) -> Table:
+    """A valid response record (for an OMA command): times ``k dt`` in the first column, then one channel per
+    other column, each a sum of lightly damped modes at ``frequencies`` [Hz] driven by white noise."""
+    t = np.arange(n_rows) * dt
+    channels = []
+    for c in range(len(columns) - 1):
+        signal = sum(np.convolve(rng.standard_normal(n_rows), np.exp(-0.02 * 2 * np.pi * f * t)
+                                 * np.sin(2 * np.pi * f * t), mode="full")[:n_rows] * (c + 1) ** k
+                     for k, f in enumerate(frequencies))
+        channels.append(signal + 0.01 * rng.standard_normal(n_rows))
+    cells = [[f"{v:.10g}" for v in t]] + [[f"{v:.10g}" for v in ch] for ch in channels]
+    return Table(tuple(columns), tuple(tuple(r) for r in zip(*cells)), time=0, covariate=None,
+                 measurements=tuple(range(1, len(columns))))
+
+
 def _set(table, row, col, value):
     rows = [list(r) for r in table.rows]
     rows[row][col] = value

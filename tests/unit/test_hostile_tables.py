@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from _hostile import base_table, hostile_table, snapshot, write_table
+from _hostile import base_table, hostile_table, record_table, snapshot, write_table  # noqa: F401 (record_table: oma)
 from _user_model import decay_tables, write_config, write_model
 
 from seqbayes import cli
@@ -44,16 +44,20 @@ class Case:
 @dataclass(frozen=True)
 class Command:
     """A command that reads a table: the header of its valid table, whether the second column is a covariate
-    (temperature), the typical measurements, its argv for a case, whether it writes the case's run store, the
-    classes of trouble it must always refuse, and its output files (absent after a refusal)."""
+    (temperature), the typical measurements, its argv for a case, what a result prints on stdout, whether it
+    writes the case's run store, the classes of trouble it must always refuse, its output files (absent
+    after a refusal) and, where the valid table is not a monitoring table, how to make it
+    (``base(columns, rng) -> Table``, e.g. :func:`_hostile.record_table` for a response record)."""
 
     columns: tuple
     covariate: bool
     values: tuple
     argv: Callable[[Case], list]
+    result: str
     store: bool = False
     refuses: frozenset | None = None     # None: every class but a BOM and CRLF
     outputs: tuple = ()
+    base: Callable | None = None
 
 
 #: Classes every reader refuses whatever the command's rules.
@@ -61,17 +65,15 @@ READER_REFUSES = frozenset({"FIFO", "/dev/zero", "sparse 1 GiB", "header only", 
                             "';' separators", "ragged row", "binary bytes", "comment line"})
 
 COMMANDS = {
-    "update": Command(("t", "y"), False, (1.0,), lambda c: ["update", c.store, c.table, "-q"], store=True,
-                      refuses=READER_REFUSES),
+    "update": Command(("t", "y"), False, (1.0,), lambda c: ["update", c.store, c.table, "-q"], "step 2 from",
+                      store=True, refuses=READER_REFUSES),
     "environment": Command(("day", "temperature", "f1", "f2"), True, (4.0, 10.0),
                            lambda c: ["environment", c.table, "--masses", MASSES, "--stiffness", STIFFNESS,
-                                      "--particles", "10", "--json", c.folder / "out.json"], outputs=("out.json",)),
-    # the lead adds `oma` here, e.g.: "oma": Command((...record columns...), False, (...), lambda c: ["oma", c.table,
-    #     "--out", c.folder / "modes.csv"], outputs=("modes.csv",), refuses=READER_REFUSES),
+                                      "--particles", "10", "--json", c.folder / "out.json"], "alarm day:",
+                           outputs=("out.json",)),
+    # `oma` is one more entry, e.g. "oma": Command(("t", "a1", "a2"), False, (), lambda c: ["oma", c.table, "--out",
+    #     c.folder / "modes.csv"], "modes", outputs=("modes.csv",), refuses=READER_REFUSES, base=record_table),
 }
-
-#: What a result must print on stdout.
-RESULT = {"update": "step 2 from", "environment": "alarm day:"}
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +91,8 @@ def run_case(name: str, index: int, root: Path, pristine, capsys) -> tuple:
     """Generate table ``index`` of command ``name``, run it, check the properties; ``(families, exit code)``."""
     command = COMMANDS[name]
     rng = np.random.default_rng([42, index, zlib.crc32(name.encode())])
-    base = base_table(command.columns, rng, covariate=command.covariate, frequencies=command.values)
+    base = (command.base(command.columns, rng) if command.base is not None
+            else base_table(command.columns, rng, covariate=command.covariate, frequencies=command.values))
     table = hostile_table(base, rng)
     folder = root / f"{name}-{index}"
     folder.mkdir()
@@ -115,7 +118,7 @@ def run_case(name: str, index: int, root: Path, pristine, capsys) -> tuple:
         if store:
             assert snapshot(store.parent) == store_before, what     # the store (and its folder) unchanged
     else:
-        assert RESULT[name] in out, what
+        assert command.result in out, what
         if store:
             assert RunStore.open(store).n_steps == 2, what
     refuses = command.refuses if command.refuses is not None else set(table.classes) - {"BOM", "CRLF"}
