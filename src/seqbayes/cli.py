@@ -25,6 +25,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import re
 import sys
 import traceback
 import warnings
@@ -115,7 +117,78 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     """A warning as one line, ``seqbayes: warning: Category: text`` (no source line: the user did not write it)."""
     from .store.datasets import printable
 
+    if _NUMERIC_WARNINGS is not None and _numeric(message, category):
+        _NUMERIC_WARNINGS.append(str(message))     # said once, in our words, when the command ends
+        return
     print(f"seqbayes: warning: {category.__name__}: {printable(message)}", file=file or sys.stderr)
+
+
+#: numpy's floating-point warnings ("invalid value encountered in subtract"): counted, not printed raw
+_NUMPY_FLOAT = re.compile(r"(invalid value|divide by zero|overflow|underflow) encountered in [\w .]+")
+_NUMERIC_WORDS = {"invalid value": "an invalid value (NaN: inf - inf, 0 / 0, ...)",
+                  "divide by zero": "a division by zero", "overflow": "an overflow", "underflow": "an underflow"}
+#: the numeric warnings of the running command (None outside main())
+_NUMERIC_WARNINGS: list | None = None
+
+
+def _numeric(message, category) -> bool:
+    return issubclass(category, RuntimeWarning) and _NUMPY_FLOAT.fullmatch(str(message)) is not None
+
+
+def _numeric_summary(messages) -> str:
+    """One line on the numeric warnings a command met, in our words: how often each kind occurred."""
+    counts = {}
+    for text in messages:
+        kind = _NUMPY_FLOAT.fullmatch(text).group(1)
+        counts[kind] = counts.get(kind, 0) + 1
+    met = ", ".join(f"{_NUMERIC_WORDS[kind]} {n} time{'s' if n > 1 else ''}" for kind, n in counts.items())
+    return f"the computation met {met} (numpy floating-point warnings); check the data's units and the options"
+
+
+# --------------------------------------------------------------------- bounded options
+def _bounded(kind, low=None, high=None, *, open_low=False, open_high=False, allow_inf=False):
+    """An argparse type: a number of ``kind`` (int or float) within the bounds, else a one-line error saying
+    what is expected (NaN is refused; inf only with ``allow_inf``)."""
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
+                                             f"got {text!r}") from None
+        finite = value == value and abs(value) != float("inf")
+        below = low is not None and (value <= low if open_low else value < low)
+        above = high is not None and (value >= high if open_high else value > high)
+        if not (finite or (allow_inf and value == float("inf"))) or below or above:
+            lo = "" if low is None else f"{'>' if open_low else '>='} {low:g}"
+            hi = "" if high is None else f"{'<' if open_high else '<='} {high:g}"
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'} "
+                                             f"{' and '.join(b for b in (lo, hi) if b)}, got {text}")
+        return value
+    parse.__name__ = kind.__name__          # argparse names the type in its messages
+    return parse
+
+
+def _range_option(low: float, high: float):
+    """An argparse type for ``LOW,HIGH``: two finite numbers ``low <= LOW < HIGH <= high``."""
+    def parse(text):
+        try:
+            first, second = (float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected LOW,HIGH (two numbers), got {text!r}") from None
+        if not low <= first < second <= high:
+            raise argparse.ArgumentTypeError(f"expected LOW,HIGH with {low:g} <= LOW < HIGH <= {high:g}, got {text}")
+        return first, second
+    parse.__name__ = "range"
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (no usage block): ``seqbayes CMD: error: ... (see --help)``."""
+
+    def error(self, message):
+        from .store.datasets import printable
+
+        self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
 
 def list_examples() -> str:
@@ -163,6 +236,8 @@ def cmd_init(args: argparse.Namespace) -> int:
     from .store.files import store_lock
 
     config = load_config(args.config)
+    _check_targets([], inputs=[args.config, getattr(config, "likelihood_file", None)], stores=(),
+                   run=("RUN", args.run))
     with store_lock(args.run, create=True, timeout=args.lock_timeout):
         store = create_run(args.run, config, overwrite=args.force)
     print(f"created {printable(store.describe())}")
@@ -181,6 +256,9 @@ def cmd_update(args: argparse.Namespace) -> int:
         store = open_run(args.run)
         if args.replace_last:
             store.require("replace_last")
+        for path in args.datafiles:
+            if _same_file(path, args.run):
+                raise CommandError(f"{path}: is the run store {args.run} itself, not a data file")
         tables = [store.read_datafile(path) for path in args.datafiles]  # all files checked first
         executor, close = store.make_executor()
         done = []
@@ -204,6 +282,9 @@ def cmd_update(args: argparse.Namespace) -> int:
                 done.append(f"{Path(path).name} (step {store.n_steps})")
                 tqdm.write(printable(f"{args.run}: {store.step_summary(info, Path(path).name)}"), file=sys.stdout)
                 for warning in caught:  # one line each (BoundWarning says what it is in its text)
+                    if _NUMERIC_WARNINGS is not None and _numeric(warning.message, warning.category):
+                        _NUMERIC_WARNINGS.append(str(warning.message))   # counted, said once at the end
+                        continue
                     kind = "" if issubclass(warning.category, BoundWarning) else f"{warning.category.__name__}: "
                     print(f"seqbayes update: warning: {kind}{printable(warning.message)}", file=sys.stderr)
                 args.replace_last = False
@@ -259,6 +340,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .store import open_run
     from .store.report import first_passage_json, forecast_rows, format_first_passage, format_forecast
+    from .store.targets import forecast_file
 
     store = open_run(args.run)
     store.require("predict")
@@ -270,6 +352,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     if args.output and Path(args.output).is_dir():
         raise CommandError(f"{args.output}: is a folder; give the forecast's file name, e.g. "
                            f"{Path(args.output) / 'forecast.csv'}")
+    _check_targets([("--output", args.output, forecast_file(store.names))], inputs=_store_inputs(store),
+                   stores=[args.run], force=args.force)
     thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
     draws = store.predict(args.steps)
     rows = forecast_rows(store, args.steps, args.level, draws)
@@ -292,19 +376,55 @@ def cmd_predict(args: argparse.Namespace) -> int:
 
 
 def _write_forecast(path, store, draws):
+    """The forecast draws as CSV or NetCDF, built in memory and written atomically (:mod:`seqbayes.store.targets`)."""
+    import io
+
     import numpy as np
     import xarray as xr
+
+    from .store.files import netcdf_bytes
+    from .store.targets import write_output
 
     if path.suffix.lower() == ".csv":
         steps = np.repeat(np.arange(1, draws.shape[0] + 1) + store.n_steps, draws.shape[1])
         table = np.column_stack([steps, draws.reshape(-1, draws.shape[2])])
         # integer steps; the draws with 17 significant digits, so they read back bit for bit
-        np.savetxt(path, table, delimiter=",", header=",".join(["step", *store.names]), comments="",
+        text = io.StringIO()
+        np.savetxt(text, table, delimiter=",", header=",".join(["step", *store.names]), comments="",
                    fmt=["%d"] + ["%.17g"] * draws.shape[2])
+        content = text.getvalue()
     else:
-        xr.Dataset({"forecast": (("step", "sample", "parameter"), draws)},
-                   coords={"step": np.arange(1, draws.shape[0] + 1) + store.n_steps,
-                           "parameter": list(store.names)}).to_netcdf(path, engine="h5netcdf")
+        content = netcdf_bytes(xr.Dataset({"forecast": (("step", "sample", "parameter"), draws)},
+                                          coords={"step": np.arange(1, draws.shape[0] + 1) + store.n_steps,
+                                                  "parameter": list(store.names)}), encoding={})
+    write_output(path, content, "--output")
+
+
+# ------------------------------------------------------------------ output targets
+def _check_targets(outputs, *, inputs=(), stores=(), force=False, run=None) -> dict:
+    """Refuse output targets that are inputs, stores or files the command did not write
+    (:func:`seqbayes.store.targets.check_outputs`); ``outputs``: the fields of ``Output``; ``run``:
+    ``(name, path)`` of a run store to create, checked against the inputs only (``init --force`` decides
+    on an existing store)."""
+    from .store.targets import Output, check_outputs, refuse_inputs
+
+    if run is not None:
+        refuse_inputs(*run, inputs=inputs)
+    return check_outputs([Output(*o) for o in outputs], inputs=inputs, stores=stores, force=force)
+
+
+def _same_file(first, second) -> bool:
+    """Whether two paths name one file (through links too); False if either does not exist."""
+    try:
+        return os.path.samefile(first, second)
+    except (OSError, ValueError):
+        return False
+
+
+def _store_inputs(store) -> list:
+    """The user's files a run store names (its likelihood module): protected from outputs too."""
+    user = store.user_code()
+    return [user[1]] if user is not None and user[1] else []
 
 
 def _open_for_comparison(paths, first=None):
@@ -359,6 +479,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from .prognostics import parse_threshold
     from .store import open_run
+    from .store.targets import html_page, png_figure
 
     store = open_run(args.run)
     store.require(*[f"report --{name}" for name in ("compare", "threshold", "data") if getattr(args, name)])
@@ -374,6 +495,13 @@ def cmd_report(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else Path(args.run).with_suffix(".html")
     if output.is_dir():
         raise CommandError(f"{output}: is a folder; give the report's file name, e.g. {output / 'report.html'}")
+    figures = output.parent / f"{output.stem}_figures"          # --no-embed: the PNG files of the page
+    if args.no_embed and os.path.lexists(figures) and not figures.is_dir():
+        raise CommandError(f"{figures}: is not a folder; the report's figures go there (--no-embed)")
+    old_figures = sorted(figures.glob("fig-*.png")) if args.no_embed and figures.is_dir() else []
+    _check_targets([("--output", output, html_page, True), *[("--no-embed", f, png_figure) for f in old_figures]],
+                   inputs=[args.data, args.modes, *_store_inputs(store)], stores=[args.run, *(args.compare or ())],
+                   force=args.force)
     try:
         thresholds = [parse_threshold(text, store.names) for text in args.threshold or ()]
         store.write_report(output, level=args.level, embed=not args.no_embed, others=others,
@@ -400,24 +528,57 @@ def _assimilated_dataset(store, path) -> tuple:
     return store.digests.index(digest), table
 
 
+#: Text appended to the messages of the year CSV's checks: the options that change each rule.
+ENVIRONMENT_HINTS = {"day": " (days since the first monitored day; --max-day sets the upper bound)",
+                     "temperature": " (degC; --temperature-range LOW,HIGH sets the bounds)",
+                     "frequency": " (Hz; --frequency-range LOW,HIGH sets the bounds)",
+                     "extra": "; name the columns to read with --columns DAY,TEMPERATURE,F1,...,Fn",
+                     "header": "; or name the file's columns with --columns DAY,TEMPERATURE,F1,...,Fn",
+                     "ascending": " (mode 1 is the lowest; check the column order)"}
 def cmd_environment(args: argparse.Namespace) -> int:
     """Damage against temperature on a year of identified frequencies (docs/environment.md)."""
     import numpy as np
 
-    from .structural.environment import monitor_year, read_frequency_csv
+    from .store.datasets import read_datafile
+    from .store.environment_report import write_environment_report
+    from .store.targets import html_page, json_with_keys, write_output
+    from .structural.environment import monitor_year
     from .structural.structures import ShearBuilding
+    from .studies.environment import check_against_building, check_days, check_memory, year_spec
 
     def numbers(text, name):
         try:
-            return [float(v) for v in text.split(",")]
+            values = [float(v) for v in text.split(",")]
         except ValueError:
             raise CommandError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+        if not all(0 < v < float("inf") for v in values):
+            raise CommandError(f"{name}: expected positive finite numbers, got {text!r}")
+        return values
 
-    building = ShearBuilding(numbers(args.masses, "--masses"), numbers(args.stiffness, "--stiffness"))
-    table = read_frequency_csv(args.data)
+    masses, stiffness = numbers(args.masses, "--masses"), numbers(args.stiffness, "--stiffness")
+    if len(stiffness) != len(masses):
+        raise CommandError(f"--stiffness: expected {len(masses)} values (one per storey, as --masses), got "
+                           f"{len(stiffness)}")
+    building = ShearBuilding(masses, stiffness)
+    n = building.n_storeys
+    targets = _check_targets([("--json", args.json, json_with_keys("alarm_day", "p_damage", "environment")),
+                              ("--report", args.report, html_page)], inputs=[args.data], force=args.force)
+    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    if columns is not None and len(columns) != n + 2:
+        raise CommandError(f"--columns: expected {n + 2} names (time, temperature and {n} frequencies for a "
+                           f"{n}-storey building), got {len(columns)}")
+    spec = year_spec(n, columns=columns, day_range=(0.0, args.max_day), temperature_range=args.temperature_range,
+                     frequency_range=args.frequency_range, hints=ENVIRONMENT_HINTS)
+    values = read_datafile(args.data, spec)
+    table = {name: values[:, i] for i, name in enumerate(["day", "temperature"] + [f"f{r + 1}" for r in range(n)])}
+    check_against_building(args.data, building, table, spec.columns[2:])
+    check_memory(n, args.particles, len(np.unique(np.floor(table["day"]))))
+    start = len(_NUMERIC_WARNINGS) if _NUMERIC_WARNINGS is not None else 0
     summary, monitor, days, records = monitor_year(building, table, rng=np.random.default_rng(args.seed),
                                                    n_particles=args.particles, threshold=args.threshold,
                                                    consecutive=args.consecutive)
+    numeric = (_NUMERIC_WARNINGS or [])[start:]
+    check_days(args.data, days, records, _numeric_summary(numeric).split(" (numpy")[0] if numeric else "")
     print(f"{'day':>5} {'P(damage)':>10} {'storey':>6} {'loss':>7}  P(M0), P(M1), ...")
     previous = None
     for day, record in zip(days, records):
@@ -433,26 +594,34 @@ def cmd_environment(args: argparse.Namespace) -> int:
     environment = summary["environment"]
     print(f"alarm day: {summary['alarm_day']}, storey: {summary['storey']}; learned under M{environment['model']}: "
           f"alpha = {environment['alpha']:.3e}, beta = {environment['beta']:.3e}, sigma = {environment['sigma']:.3e}")
-    if args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=1) + "\n")
-    if args.report:
-        from .store.environment_report import write_environment_report
-
-        out = write_environment_report(args.report, monitor, table, days, records, summary, source=args.data)
+    if "--json" in targets:
+        write_output(targets["--json"], json.dumps(summary, indent=1) + "\n", "--json")
+    if "--report" in targets:
+        out = write_environment_report(targets["--report"], monitor, table, days, records, summary, source=args.data)
         print(f"report: {out}")
     return 0
 
 
 # ----------------------------------------------------------------------- parser
 #: ``--lock-timeout`` of the commands that write a run store.
-LOCK_TIMEOUT_OPTION = dict(type=float, default=None, metavar="SECONDS",
+LOCK_TIMEOUT_OPTION = dict(type=_bounded(float, 0, allow_inf=True), default=None, metavar="SECONDS",
                            help="how long to wait while another update holds the run store's lock (which says who "
                                 "holds it) before giving up; 0: do not wait, inf: no limit (default: "
                                 "$SEQBAYES_LOCK_TIMEOUT, else 3600)")
+#: ``--level`` of the commands that print credible intervals.
+LEVEL_OPTION = dict(type=_bounded(float, 0, 1, open_low=True, open_high=True), default=0.95)
+#: ``--force`` of the commands that write files besides a run store (:mod:`seqbayes.store.targets`).
+FORCE_OPTION = dict(action="store_true", help="replace an existing output file that this command did not write "
+                                              "(never an input or a run store)")
+#: Most particles per model of ``seqbayes environment`` (the memory bound after reading the data is tighter).
+MAX_PARTICLES = 10_000_000
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ._version import __version__
+    from .studies.environment import DAY_RANGE, FREQUENCY_RANGE, TEMPERATURE_RANGE
 
-    parser = argparse.ArgumentParser(prog="seqbayes", description=DESCRIPTION,
+    parser = _Parser(prog="seqbayes", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"seqbayes {__version__}")
     parser.add_argument("--traceback", action="store_true", help="show the full traceback on errors")
@@ -479,16 +648,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")
     p.add_argument("run")
-    p.add_argument("--level", type=float, default=0.95, help="credible level (default 0.95)")
+    p.add_argument("--level", **LEVEL_OPTION, help="credible level (default 0.95)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_status)
 
     p = sub.add_parser("predict", help="forecast the parameters K steps ahead")
     p.add_argument("run")
-    p.add_argument("--steps", type=int, required=True, metavar="K")
-    p.add_argument("--level", type=float, default=0.95)
+    p.add_argument("--steps", type=_bounded(int, 1), required=True, metavar="K")
+    p.add_argument("--level", **LEVEL_OPTION)
     p.add_argument("--json", action="store_true")
     p.add_argument("--output", "-o", help="also write the forecast draws (.csv or .nc)")
+    p.add_argument("--force", **FORCE_OPTION)
     p.add_argument("--threshold", action="append", metavar="EXPR",
                    help='time to a threshold over the K steps: "NAME<VALUE" (the parameter falls below VALUE) or '
                         '"NAME>VALUE"; repeat for several. Quote it: < and > are shell redirections')
@@ -503,12 +673,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run")
     p.add_argument("--output", "-o", help="HTML file (default: RUN with suffix .html)")
     p.add_argument("--compare", nargs="+", metavar="RUN", help="competing runs shown in the evidence figures")
-    p.add_argument("--forecast", type=int, default=3, metavar="K", help="forecast horizon (default 3, 0: none)")
-    p.add_argument("--level", type=float, default=0.95)
+    p.add_argument("--forecast", type=_bounded(int, 0), default=3, metavar="K",
+                   help="forecast horizon (default 3, 0: none)")
+    p.add_argument("--level", **LEVEL_OPTION)
     p.add_argument("--no-embed", action="store_true", help="write PNG files next to the page instead of base64")
     p.add_argument("--threshold", action="append", metavar="EXPR",
                    help='add the time to a threshold, "NAME<VALUE" or "NAME>VALUE" (repeatable)')
-    p.add_argument("--horizon", type=int, default=20, metavar="H",
+    p.add_argument("--horizon", type=_bounded(int, 1), default=20, metavar="H",
                    help="steps ahead for the time to a threshold (default 20)")
     p.add_argument("--data", metavar="DATAFILE",
                    help="one of the assimilated datasets, for the data-versus-fit panel (needs [model] predict in "
@@ -516,6 +687,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", metavar="CSV",
                    help="SG-EnMCMC runs: identified mode shapes for the MAC (one row per floor, bottom to top, one "
                         "column per mode; default: the shapes of the configured building at ratios 1)")
+    p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("environment", help="damage against temperature on a CSV of identified frequencies "
@@ -523,15 +695,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", help="CSV with the header day,temperature,f1,...,fn; one update per whole day")
     p.add_argument("--masses", required=True, help="floor masses [kg], bottom to top, comma-separated")
     p.add_argument("--stiffness", required=True, help="nominal storey stiffnesses [N/m], comma-separated")
-    p.add_argument("--particles", type=int, default=128, help="particles per model (default 128)")
-    p.add_argument("--threshold", type=float, default=0.95, help="alarm when P(damage) exceeds this ...")
-    p.add_argument("--consecutive", type=int, default=2, help="... on this many days in a row")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--every", type=int, default=30,
+    p.add_argument("--particles", type=_bounded(int, 10, MAX_PARTICLES), default=128,
+                   help="particles per model (default 128)")
+    p.add_argument("--threshold", type=_bounded(float, 0, 1, open_low=True, open_high=True), default=0.95,
+                   help="alarm when P(damage) exceeds this ...")
+    p.add_argument("--consecutive", type=_bounded(int, 1, 100_000), default=2, help="... on this many days in a row")
+    p.add_argument("--seed", type=_bounded(int, 0, 2 ** 63 - 1), default=0)
+    p.add_argument("--every", type=_bounded(int, 1, 10 ** 9), default=30,
                    help="print every this many days (and the days P(damage) or the alarm changes state)")
+    p.add_argument("--columns", metavar="NAMES",
+                   help="the file's columns to read, comma-separated: time [days], temperature [degC] and the n "
+                        "frequencies [Hz], ascending (default: the header day,temperature,f1,...,fn, and no other "
+                        "column; with --columns other columns are ignored)")
+    p.add_argument("--max-day", type=_bounded(float, 0, 1e8, open_low=True), default=DAY_RANGE[1], metavar="DAYS",
+                   help=f"latest day accepted (default {DAY_RANGE[1]:g}: 100 years); days start at 0 and must "
+                        f"increase from row to row")
+    p.add_argument("--temperature-range", type=_range_option(-1e4, 1e4), default=TEMPERATURE_RANGE,
+                   metavar="LOW,HIGH", help=f"temperatures accepted [degC] (default {TEMPERATURE_RANGE[0]:g},"
+                                            f"{TEMPERATURE_RANGE[1]:g})")
+    p.add_argument("--frequency-range", type=_range_option(1e-9, 1e9), default=FREQUENCY_RANGE, metavar="LOW,HIGH",
+                   help=f"frequencies accepted [Hz] (default {FREQUENCY_RANGE[0]:g},{FREQUENCY_RANGE[1]:g})")
     p.add_argument("--json", help="write P(damage) per day, the alarms and the learned model here")
     p.add_argument("--report", metavar="HTML", help="write the year's report here: frequencies against temperature "
                                                     "with the learned law, P(damage) and the alarm, day by day")
+    p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_environment)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)
@@ -543,37 +730,59 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
-    if args.command == "example":
-        with warnings.catch_warnings():
-            warnings.showwarning = _show_warning
-            return _run_example(args.name, rest)
-    if rest:
+    if args.command != "example" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     from .store import ConfigError, DataError, StoreError
 
     from .store.datasets import printable
 
+    global _NUMERIC_WARNINGS
+    name = args.command if args.command != "example" else f"example {args.name or ''}".strip()
+    outer, _NUMERIC_WARNINGS = _NUMERIC_WARNINGS, []
+    numeric = _NUMERIC_WARNINGS
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning   # restored on leaving: main() is also called from Python
-            return int(args.func(args) or 0)
+            # every one of numpy's floating-point warnings reaches _show_warning, to be counted (not only the first)
+            warnings.filterwarnings("always", message=_NUMPY_FLOAT.pattern, category=RuntimeWarning)
+            if args.command == "example":
+                code = _run_example(args.name, rest)
+            else:
+                code = int(args.func(args) or 0)
+        if numeric:
+            print(f"seqbayes {name}: warning: {_numeric_summary(numeric)}", file=sys.stderr)
+        return code
     except (CommandError, ConfigError, DataError, StoreError, ValueError, TypeError) as err:
         if args.traceback:
             raise
         # the line quotes file names and fields from files the user was handed: no raw control characters
-        print(f"seqbayes {args.command}: error: {printable(err)}", file=sys.stderr)
+        print(f"seqbayes {name}: error: {printable(err)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `seqbayes status RUN | head`: the reader has what it wanted
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as err:  # a read-only folder, a full disk, a path that is a folder, ...
         if args.traceback:
             raise
         where = f"{err.filename}: " if err.filename else ""
-        print(f"seqbayes {args.command}: error: {printable(f'{where}{err.strerror or err}')}", file=sys.stderr)
+        print(f"seqbayes {name}: error: {printable(f'{where}{err.strerror or err}')}", file=sys.stderr)
         return 2
+    except MemoryError:
+        if args.traceback:
+            raise
+        print(f"seqbayes {name}: error: not enough memory for this run; reduce the sizes asked for (samples, "
+              f"particles, steps ahead)", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as err:  # a bug: one line still, the trace on request
+        if args.traceback:
+            raise
+        print(f"seqbayes {name}: error: {type(err).__name__} in seqbayes: {printable(err, 200)} (a bug: please "
+              f"report it with the output of --traceback)", file=sys.stderr)
+        return 2
+    finally:
+        _NUMERIC_WARNINGS = outer
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import plotting
 from .report import CSS, figure_html, table_html
+from .targets import write_output
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -128,7 +129,5 @@ def render_environment_report(monitor: EnvironmentMonitor, table: dict, days: li
 
 
 def write_environment_report(path: str | os.PathLike, *args, **kwargs) -> Path:
-    """Write :func:`render_environment_report` to ``path`` (UTF-8) and return it."""
-    out = Path(path)
-    out.write_text(render_environment_report(*args, **kwargs), encoding="utf-8")
-    return out
+    """Write :func:`render_environment_report` to ``path`` (UTF-8, atomically) and return it."""
+    return write_output(Path(path), render_environment_report(*args, **kwargs))

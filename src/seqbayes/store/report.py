@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import plotting
 from .datasets import printable
+from .targets import write_output
 
 if TYPE_CHECKING:
     import os
@@ -340,7 +341,7 @@ def figure_html(fig, caption, fig_id, image_dir=None):
         src = plotting.to_data_uri(fig)
     else:
         image_dir.mkdir(parents=True, exist_ok=True)
-        plotting.save(fig, image_dir / f"{fig_id}.png", dpi=100)
+        write_output(image_dir / f"{fig_id}.png", plotting.to_png(fig, dpi=100))
         src = urllib.parse.quote(f"{image_dir.name}/{fig_id}.png")   # the output's stem is the user's text
     return (f"<figure id='{fig_id}'><img src='{html.escape(src, quote=True)}' alt='{html.escape(caption)}'>"
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
@@ -516,5 +517,4 @@ def write_report(store: BaseStore, output: str | os.PathLike, **kwargs: Any) -> 
     image_dir = None if embed else output.parent / f"{output.stem}_figures"
     text = render_report(store, image_dir=image_dir, **kwargs)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(text, encoding="utf-8")
-    return output
+    return write_output(output, text)   # atomic: a reader never sees half a page

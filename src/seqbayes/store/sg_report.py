@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import plotting
-from .datasets import printable
+from .datasets import printable, read_regular
+from .targets import write_output
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
            "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
@@ -121,10 +122,9 @@ def read_mode_shapes(path: str | os.PathLike, n_storeys: int) -> np.ndarray:
         Naming the file: unreadable, not numeric, NaN, or not ``n_storeys`` rows.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"--modes: {path}: no such file")
+    raw = read_regular(path, "mode-shape CSV", error=lambda message: ValueError(f"--modes: {message}"))
     try:
-        text = path.read_text().strip().splitlines()
+        text = raw.decode("utf-8-sig").strip().splitlines()
         if text and any(c.isalpha() and c not in "eE" for c in text[0]):
             text = text[1:]
         shapes = np.array([[float(v) for v in line.split(",")] for line in text if line.strip()], float)
@@ -351,8 +351,7 @@ def write_sg_report(store: BaseStore, output: str | os.PathLike, *, embed: bool 
     image_dir = None if embed else output.parent / f"{output.stem}_figures"
     text = render_sg_report(store, image_dir=image_dir, **kwargs)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(text, encoding="utf-8")
-    return output
+    return write_output(output, text)   # atomic: a reader never sees half a page
 
 import typing as _typing  # noqa: E402
 

@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -50,7 +49,7 @@ from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
 __all__ = ["EnvironmentPrior", "ModelDay", "MonitorDay", "ChangeModelSampler", "EnvironmentMonitor", "alarm_days",
-           "split_days", "FrequencyLikelihood", "read_frequency_csv", "monitor_year", "held_for"]
+           "split_days", "FrequencyLikelihood", "monitor_year", "held_for"]
 
 _FLOOR = -1e250  # stands in for -inf in the tempering increments, which must be finite
 
@@ -622,24 +621,6 @@ class EnvironmentMonitor:
         return record
 
 
-def read_frequency_csv(path) -> dict:
-    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of ``(S,)`` columns.
-
-    A wrong header or row raises ``ValueError`` naming the file.
-    """
-    path = Path(path)
-    with open(path) as handle:
-        header = [h.strip() for h in handle.readline().strip().split(",")]
-    n_modes = len(header) - 2
-    expected = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
-    if n_modes < 1 or header != expected:
-        raise ValueError(f"{path}: expected the header 'day,temperature,f1,...,fn', got {','.join(header)!r}")
-    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if values.shape[1] != len(expected) or values.shape[0] == 0:
-        raise ValueError(f"{path}: expected rows of {len(expected)} values, got shape {values.shape}")
-    return {name: values[:, i] for i, name in enumerate(expected)}
-
-
 def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generator, damage_day: float | None = None,
                  truth_known: bool = False, **options) -> tuple[dict, EnvironmentMonitor, list, list]:
     """Run an :class:`EnvironmentMonitor` over a table (``day``, ``temperature``, ``f1..fn``), one update per whole day.
@@ -648,7 +629,8 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
     ----------
     building : ShearBuilding
     table : dict
-        Columns as :func:`read_frequency_csv` returns them.
+        Columns ``day``, ``temperature``, ``f1..fn`` of ``(S,)`` arrays (a year CSV as
+        :func:`seqbayes.studies.environment.read_year_csv` reads it).
     rng : numpy.random.Generator
     damage_day, truth_known : float or None, bool
         The true damage day (``None``: no damage) when the truth is known, to sort the alarms.
