@@ -284,7 +284,8 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
             raise ValueError(f"n_modes: the stabilisation diagram has {len(clusters)} stable modes, fewer than the "
                              f"{n_modes} asked for (a longer record or a higher max_order may help)")
         chosen = np.sort(np.argsort(-counts, kind="stable")[:n_modes])
-    rejected = [c for i, c in enumerate(clusters) if i not in set(chosen) and c["n_orders"] >= 3]
+    # a cluster stable at half the orders a mode needs is a candidate worth telling the user about
+    rejected = [c for i, c in enumerate(clusters) if i not in set(chosen) and c["n_orders"] >= max(3, needed / 2)]
     modes = _report([clusters[i] for i in chosen], diagram, blocks, p, settings)
     status, messages = "complete", list(notes)
     if not chosen.size:
