@@ -261,6 +261,7 @@ def _band(text):
 
 def run(record, dt=None, fs=None, band=None, out=None, json_path=None, diagram=None, day=None, stream=None) -> int:
     """``seqbayes oma``: identify one record, print its modes, write the outputs asked for (module docstring)."""
+    from .core import check_sampling_step
     from .identify import ssi_cov
 
     stream = stream or sys.stdout
@@ -272,6 +273,7 @@ def run(record, dt=None, fs=None, band=None, out=None, json_path=None, diagram=N
         if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
             raise ValueError(f"--fs: expected a positive sampling rate in Hz, got {fs}")
         dt = 1.0 / fs
+    dt = check_sampling_step(dt)
     if day is not None and not (math.isfinite(day) and abs(day) < 1e9):
         raise ValueError(f"--day: expected a finite number of days, got {day}")
     y, channels, dt_time = read_record(record)
