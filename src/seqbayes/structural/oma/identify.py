@@ -8,13 +8,14 @@
    inside the band with a damping ratio in ``(0, max_damping)``; a pole is stable when the previous
    order has one within ``frequency_tol`` in frequency, ``damping_tol`` in damping (both relative)
    and with a MAC above ``mac_tol``;
-3. hierarchical clustering of the stable poles (average linkage) on the distance
-   ``|f_i - f_j| / max(f_i, f_j) + 1 - MAC_ij`` cut at ``cluster_distance`` (Magalhães, Cunha & Caetano
-   2009, who cut at 0.02; at 0.02 the poles of a weakly excited mode in a 5-minute record fall into
-   several clusters, 0.1 keeps them together, docs/oma.md; the MAC term keeps close modes with
-   different shapes apart, whose distance is near 1); a cluster holding two poles at
-   many orders is two modes and is split by frequency (Reynders, Houbrechts & De Roeck 2012 use the
-   same one-pole-per-order rule);
+3. hierarchical clustering of the stable poles (average linkage, cut at 1) on the distance
+   ``|f_i - f_j| / max(f_i, f_j) / cluster_frequency + (1 - MAC_ij) / cluster_mac`` (the frequency-and-MAC
+   distance of Magalhães, Cunha & Caetano 2009, who cut ``df / f + 1 - MAC`` at 0.02; with 0.02 the poles of
+   a weakly excited mode in a 5-minute record, whose shapes vary from order to order, fall into several
+   clusters: docs/oma.md; scaled as here, poles 0.5 % apart or with MAC 0.9 are one step apart, and close
+   modes 1 % apart stay apart whatever their shapes); a cluster holding two poles at many orders is two
+   modes and is split by frequency (Reynders, Houbrechts & De Roeck 2012 use the same one-pole-per-order
+   rule);
 4. a cluster is a mode when it holds stable poles at ``min_stable_fraction`` of the orders; its
    representative is its pole nearest the cluster's median frequency, reported with the standard
    errors of :mod:`.uncertainty` at that pole's order;
@@ -40,7 +41,7 @@ __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_f
 #: it needs and its standard errors are calibrated (docs/oma.md, "Calibration"), averaged over this many orders.
 REPORT_ORDERS = 3
 TOLERANCES = {"frequency_tol": 0.01, "damping_tol": 0.3, "mac_tol": 0.95, "max_damping": 0.15,
-              "cluster_distance": 0.1, "min_stable_fraction": 0.3}
+              "cluster_frequency": 0.0075, "cluster_mac": 0.2, "min_stable_fraction": 0.3}
 
 
 @dataclass(frozen=True)
@@ -171,10 +172,10 @@ def cluster_poles(diagram: list[Poles], tolerances: dict) -> list[dict]:
     if f.size == 1:
         labels = np.array([1])
     else:
-        distance = (np.abs(f[:, None] - f[None]) / np.maximum(f[:, None], f[None])
-                    + 1 - complex_mac(shapes, shapes))
+        distance = (np.abs(f[:, None] - f[None]) / np.maximum(f[:, None], f[None]) / tolerances["cluster_frequency"]
+                    + (1 - complex_mac(shapes, shapes)) / tolerances["cluster_mac"])
         condensed = np.clip(distance[np.triu_indices(f.size, 1)], 0, None)
-        labels = fcluster(linkage(condensed, method="average"), tolerances["cluster_distance"], criterion="distance")
+        labels = fcluster(linkage(condensed, method="average"), 1.0, criterion="distance")
     groups = []
     for label in np.unique(labels):
         groups += _split_doubles(np.flatnonzero(labels == label), f, orders)

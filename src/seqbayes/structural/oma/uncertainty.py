@@ -32,9 +32,6 @@ import numpy as np
 
 from .core import complex_mac, output_covariances, poles_at_order, toeplitz
 
-#: Largest first-order rotation [rad] (at one standard error of ``T_s``) of a singular-vector pair that is kept.
-MAX_ROTATION = 0.3
-
 __all__ = ["ToeplitzBlocks", "toeplitz_blocks", "pole_derivatives", "pole_standard_errors", "jackknife_clusters"]
 
 
@@ -138,7 +135,8 @@ def _jackknife_std(values: np.ndarray) -> np.ndarray:
     return np.sqrt(nb - 1) * 1.4826 * mad
 
 
-def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, index: np.ndarray):
+def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, index: np.ndarray,
+                     max_rotation: float = np.inf):
     """Directional derivatives of chosen poles of one order along every block deviation.
 
     Parameters
@@ -150,6 +148,9 @@ def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, inde
     dt : float
     index : (j,) int array
         Which poles of :func:`~.core.poles_at_order` at this order (ascending frequency).
+    max_rotation : float
+        Leave out the singular-vector pairs across the cut whose first-order rotation at one standard
+        error of ``T_s`` exceeds this [rad] (default: none left out, the exact first-order map).
 
     Returns
     -------
@@ -171,10 +172,9 @@ def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, inde
     gap = np.nan_to_num(gap, posinf=0.0, neginf=0.0)
     X = (blocks.left[:, n:, :n] * s_in + s_out[:, None] * np.swapaxes(blocks.right[:, :n, n:], 1, 2)) * gap
     # a pair of singular vectors across the cut whose first-order rotation (one standard error of T_s) is not
-    # small is not resolved by the data: its linearisation is meaningless (it grows without bound as the two
-    # singular values meet); such pairs are left out
+    # small is not resolved by the data: its linearisation grows without bound as the two singular values meet
     rotation = np.sqrt(np.sum(X**2, axis=0) / (blocks.n_blocks * (blocks.n_blocks - 1)))
-    X = np.where(rotation < MAX_ROTATION, X, 0.0)
+    X = np.where(rotation < max_rotation, X, 0.0)
     O = U[:, :n]
     dO = U[:, n:] @ X                                                  # (nb, m, n)
     up, down = O[:-p], O[p:]
@@ -205,9 +205,10 @@ def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, inde
     return poles, d_frequency, d_damping, d_shape
 
 
-def pole_standard_errors(blocks: ToeplitzBlocks, p: int, order: int, dt: float, index: np.ndarray):
-    """Standard errors ``(std_f (j,), std_zeta (j,), std_shape (p, j))`` of chosen poles of one order."""
-    _, d_f, d_z, d_phi = pole_derivatives(blocks, p, order, dt, index)
+def pole_standard_errors(blocks: ToeplitzBlocks, p: int, order: int, dt: float, index: np.ndarray,
+                         max_rotation: float = np.inf):
+    """First-order standard errors ``(std_f (j,), std_zeta (j,), std_shape (p, j))`` of chosen poles of one order."""
+    _, d_f, d_z, d_phi = pole_derivatives(blocks, p, order, dt, index, max_rotation)
     scale = 1.0 / (blocks.n_blocks * (blocks.n_blocks - 1))
     return (np.sqrt(scale * np.sum(d_f**2, axis=0)), np.sqrt(scale * np.sum(d_z**2, axis=0)),
             np.sqrt(scale * np.sum(d_phi**2, axis=0)))
