@@ -85,8 +85,10 @@ def check_record(y, dt=1.0, min_channels: int = 1) -> tuple[np.ndarray, float]:
     bad = ~np.isfinite(y)
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise ValueError(f"y: {int(bad.sum())} values are NaN or infinite (the first at sample {row}, channel {col}); "
-                         f"fill or cut the gap before OMA")
+        count = int(bad.sum())
+        raise ValueError(f"y: {count} value{'s are' if count > 1 else ' is'} NaN or infinite (the first at sample {row}, "
+                         f"channel {col}); "
+                         "fill or cut the gap before OMA")
     if p < min_channels:
         raise ValueError(f"y: {p} channel{'s' if p > 1 else ''}; OMA needs at least {min_channels} channels (mode "
                          f"shapes, and close modes told apart by them)")
