@@ -15,7 +15,8 @@ seconds per record of each (the two run side by side in one process, so the rati
 
 Run (needs the bench extra: ``pip install -c requirements.lock -e ".[bench]"``)::
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_pyoma.py --seeds 10
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_pyoma.py --seeds 5
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_pyoma.py --seeds 2 --cells     # the tower only
 """
 
 from __future__ import annotations
@@ -90,13 +91,15 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--json")
+    parser.add_argument("--cells", nargs="*", help="FS:MINUTES:CHANNELS (default the four above; none: the tower only)")
     args = parser.parse_args(argv)
     logging.disable(logging.CRITICAL)
     os.environ["TQDM_DISABLE"] = "1"  # pyoma-2 draws a progress bar per run
     report = {"cells": [], "roving": None}
     print("| case | mode f [Hz] | seqbayes within 0.5 % | pyoma-2 within 0.5 % | seqbayes max err % | pyoma-2 max err % |")
     print("|---|---|---|---|---|---|")
-    for fs, minutes, channels in CELLS:
+    cells = CELLS if args.cells is None else [tuple(int(v) for v in c.split(":")) for c in args.cells]
+    for fs, minutes, channels in cells:
         model = sweep_model(channels)
         records = [(modal_record(model, 60.0 * minutes, 1.0 / fs,
                                  rng=np.random.default_rng([38, fs, minutes, channels, seed])), fs)

@@ -20,7 +20,8 @@ identified with the defaults and merged through the references
 Run::
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --seeds 20 --json sweep.json
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py roving --seeds 20
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py roving --seeds 10
+    .venv/bin/python benchmarks/bench_oma_sweep.py tables sweep.json     # the tables of docs/oma.md
 """
 
 from __future__ import annotations
@@ -148,13 +149,39 @@ def roving(args) -> dict:
     return {"modes": rows, "all_six": found_all, "per_setup": per_setup, "spurious": spurious}
 
 
+def tables(report: dict) -> str:
+    """The two tables of docs/oma.md (accuracy; calibration) from a saved ``sweep --json`` report."""
+    lines = ["| fs [Hz] | minutes | channels | modes within 0.5 % (of 20 seeds; 2.600, 2.626, 3.600, 7.285, 7.358 Hz) "
+             "| largest error % | spurious modes | results with a warning |", "|---|---|---|---|---|---|---|"]
+    for c in report["cells"]:
+        warned = sum(v for k, v in c["statuses"].items() if "warned" in k)
+        lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | "
+                     f"{', '.join(str(m['within_half_percent']) for m in c['modes'])} | "
+                     f"{max(m['max_abs_error'] for m in c['modes']) * 100:.2f} | {sum(c['spurious_per_seed'])} | "
+                     f"{warned} |")
+    lines += ["", "| fs [Hz] | minutes | channels | spread % (per mode) | reported sd %, median | ratio median / spread "
+              "| ratio rms / spread |", "|---|---|---|---|---|---|---|"]
+    for c in report["cells"]:
+        def row(key, scale=1.0, digits=3):
+            return ", ".join(f"{scale * x[key]:.{digits}f}" for x in c["modes"])
+
+        lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | {row('spread', 100)} | "
+                     f"{row('median_reported_sd', 100)} | {row('ratio_median', 1, 2)} | {row('ratio_rms', 1, 2)} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=["sweep", "roving"])
+    parser.add_argument("what", choices=["sweep", "roving", "tables"])
+    parser.add_argument("report", nargs="?", help="tables: a saved sweep --json report")
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--cells", nargs="*", help="FS:MINUTES:CHANNELS (default: the ten of the docs)")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
+    if args.what == "tables":
+        with open(args.report) as fh:
+            print(tables(json.load(fh)))
+        return {}
     report = sweep(args) if args.what == "sweep" else roving(args)
     if args.json:
         with open(args.json, "w") as fh:
