@@ -48,6 +48,8 @@ monitoring (a run is one NetCDF file):
   seqbayes environment YEAR.csv --masses .. --stiffness ..
                                             damage against temperature on identified frequencies:
                                             P(damage) per day, its storey, the alarm
+  seqbayes oma RECORD --fs FS [--out modes.csv] [--json modes.json] [--diagram d.png]
+                                            modes with standard errors from an ambient record
 
 studies:
   seqbayes example                          list the papers' studies
@@ -602,6 +604,14 @@ def cmd_environment(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_oma(args: argparse.Namespace) -> int:
+    """Operational modal analysis of one ambient record: modes with standard errors (docs/oma.md)."""
+    from .structural.oma.io import run
+
+    return run(args.record, dt=args.dt, fs=args.fs, band=args.band, out=args.out, json_path=args.json,
+               diagram=args.diagram, day=args.day)
+
+
 # ----------------------------------------------------------------------- parser
 #: ``--lock-timeout`` of the commands that write a run store.
 LOCK_TIMEOUT_OPTION = dict(type=_bounded(float, 0, allow_inf=True), default=None, metavar="SECONDS",
@@ -720,6 +730,19 @@ def build_parser() -> argparse.ArgumentParser:
                                                     "with the learned law, P(damage) and the alarm, day by day")
     p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_environment)
+
+    p = sub.add_parser("oma", help="modes with standard errors from an ambient record (automated SSI-cov)")
+    p.add_argument("record", help="CSV (header of channel names, optional time column) or .npy array (T, p)")
+    rate = p.add_mutually_exclusive_group(required=True)
+    rate.add_argument("--dt", type=float, help="sampling step [s]")
+    rate.add_argument("--fs", type=float, help="sampling rate [Hz]")
+    p.add_argument("--band", metavar="LO,HI", help="frequencies sought [Hz] (default: derived from the spectrum)")
+    p.add_argument("--out", metavar="CSV", help="write the modes table here (docs/oma.md: the mast poles' columns "
+                                                "and phi_<channel>, std_phi_<channel>)")
+    p.add_argument("--json", metavar="JSON", help="write the modes, the settings chosen and the messages here")
+    p.add_argument("--diagram", metavar="PNG", help="draw the stabilisation diagram here")
+    p.add_argument("--day", type=float, help="the record's start in days (the table's day column)")
+    p.set_defaults(func=cmd_oma)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)
     p.add_argument("name", nargs="?", help=f"one of: {', '.join(EXAMPLES)}")
