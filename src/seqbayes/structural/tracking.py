@@ -48,7 +48,7 @@ from scipy.optimize import linear_sum_assignment, minimize
 from .modes_table import PoleTable, write_modes_table
 
 __all__ = ["TrackerSettings", "ReferenceModes", "TrackState", "TrackedModes", "assign", "track_step",
-           "track_poles", "reference_from_poles", "shape_mac"]
+           "track_poles", "reference_from_poles", "shape_mac", "covariates_at"]
 
 _UNMATCHED = 1e9      # the cost of a forbidden pair (finite: linear_sum_assignment needs a feasible matrix)
 
@@ -385,7 +385,7 @@ class TrackedModes:
             table = self.poles.take(rows)
             extra = dict(table.covariates)
             if covariates is not None:
-                extra.update(_covariates_at(self.day[r], covariates, self.reference.spacing))
+                extra.update(covariates_at(self.day[r], covariates, self.reference.spacing))
             out.append(replace(table, mode=self.assignment[rows],
                                covariates={k: np.broadcast_to(v, rows.shape) for k, v in extra.items()}))
         return out
@@ -404,7 +404,9 @@ class TrackedModes:
         return [write_modes_table(folder / f"{prefix}_{i + 1:0{width}d}.csv", t) for i, t in enumerate(tables)]
 
 
-def _covariates_at(day: float, covariates: tuple, spacing: float) -> dict:
+def covariates_at(day: float, covariates: tuple, spacing: float) -> dict:
+    """The covariates ``(day (C,), {name: (C,)})`` of the row nearest ``day`` within half a record ``spacing``
+    (NaN if none), as ``{name: 0-d array}``."""
     days, values = covariates
     i = int(np.argmin(np.abs(np.asarray(days) - day))) if len(days) else -1
     near = i >= 0 and abs(days[i] - day) <= 0.5 * spacing + 1e-9
@@ -474,9 +476,17 @@ def _local_level_nll(log_params, f, std, dt, x0, p0):
     return nll
 
 
-def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSettings()) -> ReferenceModes:
+def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSettings(),
+                         frequencies=None) -> ReferenceModes:
     """The tracked modes and their noise, found in the first ``settings.initial_days`` of ``poles``
     (module docstring).
+
+    Parameters
+    ----------
+    poles : PoleTable
+    settings : TrackerSettings
+    frequencies : (m,) array, optional
+        The modes to track [Hz], if known (their noise is still fitted to the first days).
 
     Raises
     ------
@@ -490,6 +500,23 @@ def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSe
     if len(window) < 5:
         raise ValueError(f"poles: {len(window)} record(s) in the first {settings.initial_days:g} days; the modes "
                          f"are found from at least 5 (raise initial_days, or give the reference modes)")
+    rows = np.concatenate(window)
+    if frequencies is not None:
+        freqs = np.sort(np.asarray(frequencies, dtype=float).reshape(-1))
+        if freqs.size == 0 or not np.all(np.isfinite(freqs) & (freqs > 0)):
+            raise ValueError(f"frequencies: expected positive frequencies [Hz], got {frequencies!r}")
+        spreads = 0.003 * freqs
+    else:
+        freqs, spreads = _modes_in_window(poles, window, settings)
+    spreads = np.maximum(spreads, 1e-4 * freqs)
+    shapes, channels = _initial_shapes(poles, rows, freqs)
+    first = ReferenceModes(freqs, spreads, drift=0.5 * spreads, scatter=spreads, std_scale=0.0, spacing=spacing,
+                           shapes=shapes, channels=channels)
+    return _fitted(first, poles, window, settings)
+
+
+def _modes_in_window(poles: PoleTable, window: list, settings: TrackerSettings) -> tuple:
+    """The modes of the window's bands (module docstring): ``(frequencies (m,), spreads (m,))``."""
     rows = np.concatenate(window)
     record_of = np.concatenate([np.full(r.size, i) for i, r in enumerate(window)])
     f = poles.frequency[rows]
@@ -509,12 +536,7 @@ def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSe
         raise ValueError(f"poles: no frequency band holds poles in at least {settings.min_presence:.0%} of the "
                          f"{len(window)} records of the first {settings.initial_days:g} days; lower min_presence or "
                          f"give the reference modes")
-    freqs, spreads = np.array(freqs), np.array(spreads)
-    spreads = np.maximum(spreads, 1e-4 * freqs)
-    shapes, channels = _initial_shapes(poles, rows, freqs)
-    first = ReferenceModes(freqs, spreads, drift=0.5 * spreads, scatter=spreads, std_scale=0.0, spacing=spacing,
-                           shapes=shapes, channels=channels)
-    return _fitted(first, poles, window, settings)
+    return np.array(freqs), np.array(spreads)
 
 
 def _initial_shapes(poles, rows, freqs):

@@ -68,7 +68,8 @@ class DenseSolver:
 @dataclass(frozen=True)
 class SparseSolver:
     """:func:`scipy.sparse.linalg.eigsh` in shift-invert mode about ``shift`` [rad^2/s^2] (default 0: the
-    lowest modes), one particle at a time (a sparse LU of ``K - shift M`` and a Lanczos run each)."""
+    lowest modes), one particle at a time (a sparse LU of ``K - shift M`` and a Lanczos run each, from the
+    model's fixed starting vector: ARPACK's default is random)."""
 
     shift: float = 0.0
     tol: float = 0.0
@@ -80,7 +81,8 @@ class SparseSolver:
         for i, t in enumerate(theta):
             K = model.stiffness(t)
             try:
-                w2, v = spla.eigsh(K, k=q, M=model.mass, sigma=self.shift, which="LM", tol=self.tol)
+                w2, v = spla.eigsh(K, k=q, M=model.mass, sigma=self.shift, which="LM", tol=self.tol,
+                                   v0=model.start_vector)
             except (RuntimeError, spla.ArpackNoConvergence, ValueError):   # singular or indefinite K: zero likelihood
                 continue
             order = np.argsort(w2)
@@ -129,7 +131,8 @@ class ReducedBasis:
         largest singular value dropped."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
         k = model.n_modes + int(extra_modes)
-        X = np.hstack([spla.eigsh(model.stiffness(t), k=k, M=model.mass, sigma=0.0, which="LM")[1] for t in thetas])
+        X = np.hstack([spla.eigsh(model.stiffness(t), k=k, M=model.mass, sigma=0.0, which="LM", v0=model.start_vector)[1]
+                       for t in thetas])
         L = model._mass_cholesky()
         U, s, _ = np.linalg.svd(L.T @ X, full_matrices=False)      # M-inner products become Euclidean
         U = U[:, s > tol * s[0]]
@@ -218,6 +221,11 @@ class LinearModel:
     @property
     def n_dofs(self) -> int:
         return self.mass.shape[0]
+
+    @property
+    def start_vector(self) -> np.ndarray:
+        """ARPACK's starting vector (fixed, so that a solve gives the same numbers every time)."""
+        return np.linspace(1.0, 2.0, self.n_dofs)
 
     def stiffness(self, theta: np.ndarray) -> sp.csc_matrix:
         """``K(theta)`` of one parameter vector ``(d,)``, sparse."""
