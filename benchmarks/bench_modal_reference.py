@@ -20,7 +20,6 @@ The bars (issue 38): posterior means within 0.3 sd, sds within 20 %, log-evidenc
 """
 
 import argparse
-import hashlib
 import os
 import time
 import warnings
@@ -29,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from seqbayes import SEMC, SMC
-from seqbayes.structural.modal_references import (SHEAR_CASES, frame_case, grid_reference, importance_reference,
-                                                 shear_building_case)
+from seqbayes.structural.modal_references import (SHEAR_CASES, datasets_digest, frame_case, grid_reference,
+                                                 importance_reference, read_importance_reference, shear_building_case)
 from seqbayes.structural.structures.linear import DenseSolver, LinearModel, SparseSolver
 
 FRAME_REFERENCE = Path(__file__).resolve().parents[1] / "src" / "seqbayes" / "data" / "modal_frame_reference.csv"
@@ -91,15 +90,6 @@ def bench_shear(seeds: int, n_samples: int):
                   f"{np.mean([r[4] for r in rows]):.1f} s per run")
 
 
-def frame_digest(case) -> str:
-    """SHA-256 of the case's datasets to 8 significant digits (the same on any BLAS)."""
-    h = hashlib.sha256()
-    for data in case.datasets:
-        for key in sorted(data):
-            h.update((key + ":" + ",".join(f"{v:.8e}" for v in np.asarray(data[key], dtype=float))).encode())
-    return h.hexdigest()
-
-
 def write_frame_reference(draws: int):
     case = frame_case()
     start = time.perf_counter()
@@ -109,7 +99,7 @@ def write_frame_reference(draws: int):
              f"# sampling: {draws} Student-t draws per step (seed 2024), {seconds:.0f} s ({_load()}). Written by",
              "# OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_modal_reference.py --frame-reference "
              f"--draws {draws}",
-             f"# datasets sha256 {frame_digest(case)}",
+             f"# datasets sha256 {datasets_digest(case)}",
              "# importance ESS per step: " + ", ".join(f"{v:.0f}" for v in se["ess"]),
              "step,quantity,mean,std,se_mean,se_std"]
     for s in range(len(case.datasets)):
@@ -123,32 +113,14 @@ def write_frame_reference(draws: int):
           f"{np.max(se['log_evidence']):.4f} nats")
 
 
-def read_frame_reference(path=FRAME_REFERENCE):
-    """``(GridReference, se dict, datasets sha256)`` of the stored frame reference."""
-    from seqbayes.reference import GridReference
-
-    text = Path(path).read_text().splitlines()
-    digest = next(line.split()[-1] for line in text if line.startswith("# datasets sha256"))
-    rows = [line.split(",") for line in text if line and not line.startswith("#")][1:]
-    names = list(dict.fromkeys(r[1] for r in rows if r[1] != "log_evidence"))
-    S = max(int(r[0]) for r in rows)
-    mean, std, se_m, se_s = (np.zeros((S, len(names))) for _ in range(4))
-    log_z, se_z = np.zeros(S), np.zeros(S)
-    for r in rows:
-        s = int(r[0]) - 1
-        if r[1] == "log_evidence":
-            log_z[s], se_z[s] = float(r[2]), float(r[4])
-        else:
-            j = names.index(r[1])
-            mean[s, j], std[s, j], se_m[s, j], se_s[s, j] = map(float, (r[2], r[3], r[4], r[5]))
-    ref = GridReference(tuple(names), mean, std, log_z, np.diff(log_z, prepend=0.0), {})
-    return ref, {"mean": se_m, "std": se_s, "log_evidence": se_z}, digest
+def read_frame_reference():
+    return read_importance_reference(FRAME_REFERENCE.read_text())
 
 
 def bench_frame(seeds: int, n_samples: int):
     case = frame_case()
     ref, se, digest = read_frame_reference()
-    assert digest == frame_digest(case), "the frame case changed since the reference was written; rerun --frame-reference"
+    assert digest == datasets_digest(case), "the frame case changed since the reference was written; rerun --frame-reference"
     print(f"frame: 750 DOFs, 10 parameters, 5 modes with shapes at 10 floors, {len(case.datasets)} records; "
           f"N = {n_samples} ({_load()})")
     for cls in (SEMC, SMC):

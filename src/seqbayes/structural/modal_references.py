@@ -19,7 +19,9 @@ exact reference see the same problem:
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from importlib import resources
 
 import numpy as np
 from scipy import stats
@@ -35,7 +37,11 @@ from .structures.frame import plane_frame
 from .structures.linear import LinearModel, ReducedBasis, ShearBuildingModel, SparseSolver
 
 __all__ = ["ModalCase", "shear_building_case", "frame_case", "grid_reference", "importance_reference",
-           "mode_level_reference", "BUILDING", "SHEAR_CASES"]
+           "mode_level_reference", "BUILDING", "SHEAR_CASES", "datasets_digest", "read_importance_reference",
+           "FRAME_REFERENCE"]
+
+#: The bundled importance-sampling reference of :func:`frame_case` (``benchmarks/bench_modal_reference.py``)
+FRAME_REFERENCE = "data/modal_frame_reference.csv"
 
 BUILDING = ShearBuilding([2e5, 2e5, 2e5, 1.6e5], [3e8, 2.6e8, 2.2e8, 1.8e8])
 #: name -> (storeys, drift rate and noise of each stiffness ratio per record, learned error, shapes, records)
@@ -238,7 +244,7 @@ def importance_reference(case: ModalCase, n_draws: int = 200000, rng: int | np.r
     return ref, se
 
 
-def mode_level_reference(likelihood: ModalLikelihood, datasets, box, noise, n_points: int = 401):
+def mode_level_reference(likelihood: ModalLikelihood, datasets, box, noise, n_points: int = 201):
     """The exact filter of a mode-level run (:class:`~seqbayes.structural.structures.linear.ModeLevel`, random-walk
     kernel of sds ``noise``, uniform ``box``): the posterior factorises over the modes, so it is one 1-D
     grid filter per mode (the log-evidences add). Returns a :class:`~seqbayes.reference.GridReference`."""
@@ -259,9 +265,44 @@ def mode_level_reference(likelihood: ModalLikelihood, datasets, box, noise, n_po
             sd_model = np.broadcast_to(error.values(np.zeros((1, d)), data.mode), (1, data.mode.size))[0, keep][0]
             var = (likelihood.std_scale * data.std_frequency[keep][0]) ** 2 + (sd_model * f) ** 2
             return -0.5 * (np.log(2 * np.pi * var) + (data.frequency[keep][0] - f) ** 2 / var)
-        steps = reference.grid_filter(parsed, log_likelihood, box[[j]], [lambda x: x], [noise[j]], n_points)
+        steps = reference.grid_filter(parsed, log_likelihood, box[[j]], [lambda x: x], [noise[j]], n_points,
+                                      n_coarse=101)
         ref = reference.reference_from_steps(steps, (f"f{j + 1}",), S, {"n_points": n_points})
         mean[:, j], std[:, j] = ref.mean[:, 0], ref.std[:, 0]
         inc += ref.log_evidence_increment
     names = tuple(f"f{j + 1}" for j in range(d))
     return reference.GridReference(names, mean, std, np.cumsum(inc), inc, {"n_points": n_points})
+
+
+def datasets_digest(case: ModalCase) -> str:
+    """SHA-256 of a case's datasets to 8 significant digits (the same whatever the BLAS), to check that a
+    stored reference is of the case rebuilt here."""
+    h = hashlib.sha256()
+    for data in case.datasets:
+        for key in sorted(data):
+            h.update((key + ":" + ",".join(f"{v:.8e}" for v in np.asarray(data[key], dtype=float))).encode())
+    return h.hexdigest()
+
+
+def read_importance_reference(text: str | None = None) -> tuple:
+    """``(GridReference, se, digest)`` of a reference table written by ``benchmarks/bench_modal_reference.py
+    --frame-reference`` (default: the bundled :data:`FRAME_REFERENCE`): columns ``step, quantity, mean,
+    std, se_mean, se_std``, the datasets' digest in a ``# datasets sha256`` comment line."""
+    if text is None:
+        text = resources.files("seqbayes").joinpath(FRAME_REFERENCE).read_text()
+    lines = text.splitlines()
+    digest = next((line.split()[-1] for line in lines if line.startswith("# datasets sha256")), "")
+    rows = [line.split(",") for line in lines if line and not line.startswith("#")][1:]
+    names = list(dict.fromkeys(r[1] for r in rows if r[1] != "log_evidence"))
+    S = max(int(r[0]) for r in rows)
+    mean, std, se_m, se_s = (np.zeros((S, len(names))) for _ in range(4))
+    log_z, se_z = np.zeros(S), np.zeros(S)
+    for r in rows:
+        s = int(r[0]) - 1
+        if r[1] == "log_evidence":
+            log_z[s], se_z[s] = float(r[2]), float(r[4])
+        else:
+            j = names.index(r[1])
+            mean[s, j], std[s, j], se_m[s, j], se_s[s, j] = map(float, r[2:6])
+    ref = reference.GridReference(tuple(names), mean, std, log_z, np.diff(log_z, prepend=0.0), {})
+    return ref, {"mean": se_m, "std": se_s, "log_evidence": se_z}, digest
