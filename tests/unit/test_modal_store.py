@@ -133,11 +133,19 @@ def test_a_raw_record_is_identified_and_tracked(tmp_path):
     (("shape_error = 0.1", "shape_error = -0.1"), "shape_error: must be >= 0"),
     (("[priors]", "[data]\ncolumns = [\"f\"]\n[priors]"), "remove the \\[data\\] section"),
     (("likelihood = \"modal\"", "likelihood = \"mine:loglike\""), "built-in likelihood"),
+    (("storeys = [1, 2]", "storeys = [1, 2]\nchannels = [\"a\", \"b\"]"), "expected 4 distinct names"),
 ])
 def test_configuration_errors_name_the_field(tmp_path, change, match):
     (tmp_path / "b.toml").write_text(SHEAR_TOML.replace(*change))
     with pytest.raises(ConfigError, match=match):
         load_config(tmp_path / "b.toml")
+
+
+def test_the_floors_channels_name_the_shape_columns(tmp_path):
+    (tmp_path / "b.toml").write_text(SHEAR_TOML.replace("storeys = [1, 2]", 'storeys = [1, 2]\nchannels = ["a1", "a2", "a3", "a4"]'))
+    config = load_config(tmp_path / "b.toml")
+    assert config.columns[3:5] == ("phi_a1", "phi_a2") and config.columns[-1] == "std_phi_a4"
+    assert config.build_likelihood().model.channels == ("a1", "a2", "a3", "a4")
 
 
 def test_a_stored_modal_run_reopens_with_its_table(tmp_path):

@@ -23,6 +23,7 @@ table says which model predicts the modes::
     # masses = [...]                  # shear_building: floor masses [kg], nominal storey stiffnesses [N/m]
     # stiffnesses = [...]             # and the storeys whose stiffness ratio the parameters are
     # storeys = [1, 2]                # (default: all, in order)
+    # channels = ["a1", "a2", ...]    # the floors' channel names in the records (default "1" .. "n")
 
     [priors]                          # as any run: the model's parameters first, then the learned errors
     f1 = { dist = "uniform", lower = 0.33, upper = 0.37 }
@@ -57,8 +58,8 @@ RUN_KIND = "modal"
 LIKELIHOOD = "seqbayes.structural.modal_likelihood:ModalLikelihood"
 MODELS = ("modes", "shear_building")
 _KEYS = {"model", "frequency_error", "shape_error", "std_scale", "pairing", "model_modes", "gate", "mac_gate",
-         "record_dt", "masses", "stiffnesses", "storeys"}
-_BUILDING_KEYS = {"masses", "stiffnesses", "storeys"}
+         "record_dt", "masses", "stiffnesses", "storeys", "channels"}
+_BUILDING_KEYS = {"masses", "stiffnesses", "storeys", "channels"}
 
 
 def _fail(source, name, message):
@@ -126,6 +127,12 @@ def parse_modal(spec: dict, names: tuple, source: str) -> dict:
                 or len(set(storeys)) != len(storeys)):
             _fail(source, "storeys", f"expected distinct storeys in 1..{n}, got {storeys!r}")
         out["storeys"] = list(storeys)
+        channels = spec.get("channels", [str(i + 1) for i in range(n)])
+        if (not isinstance(channels, list) or len(channels) != n or not all(isinstance(c, str) and c for c in channels)
+                or len(set(channels)) != n):
+            _fail(source, "channels", f"expected {n} distinct names (the floors' channels, bottom to top, as in the "
+                                      f"records' phi_<channel> columns), got {channels!r}")
+        out["channels"] = list(channels)
         if len(storeys) != len(model_names):
             _fail(source, "storeys", f"{len(storeys)} storeys but {len(model_names)} model parameters "
                                      f"({', '.join(model_names)}); one prior per storey")
@@ -171,7 +178,8 @@ def build_modal_likelihood(modal: dict, names: tuple):
     if modal["model"] == "modes":
         model = ModeLevel(n_model)
     else:
-        model = ShearBuildingModel(ShearBuilding(modal["masses"], modal["stiffnesses"]), modal["storeys"])
+        model = ShearBuildingModel(ShearBuilding(modal["masses"], modal["stiffnesses"]), modal["storeys"],
+                                   modal.get("channels"))
 
     def error(value):
         if value is None:
@@ -189,7 +197,7 @@ def modal_columns(modal: dict) -> tuple:
     """The dataset columns of a modal run."""
     columns = ["mode", "frequency_hz", "std_frequency_hz"]
     if "shape_error" in modal:
-        channels = [str(i + 1) for i in range(len(modal["masses"]))]
+        channels = modal.get("channels", [str(i + 1) for i in range(len(modal["masses"]))])
         columns += [f"phi_{c}" for c in channels] + [f"std_phi_{c}" for c in channels]
     return tuple(columns)
 

@@ -14,7 +14,8 @@ exact reference see the same problem:
   run per step (:func:`importance_reference`) from a Student-t fitted at the posterior mode (Laplace),
   with Monte Carlo errors;
 - :func:`mode_level_reference`: the mast's mode-level run, whose posterior factorises over the modes,
-  as one 1-D grid filter per mode.
+  as one 1-D grid filter per mode;
+- :func:`simulate_poles`: hourly poles of modes like the mast's with known truth, for the tracker.
 """
 
 from __future__ import annotations
@@ -32,13 +33,14 @@ from .. import reference
 from ..kernels import Drift, MarkovKernel, Static
 from ..priors import JointPrior
 from .modal_likelihood import Fixed, Learned, ModalLikelihood
+from .modes_table import PoleTable
 from .structures import ShearBuilding
 from .structures.frame import plane_frame
 from .structures.linear import LinearModel, ReducedBasis, ShearBuildingModel, SparseSolver
 
 __all__ = ["ModalCase", "shear_building_case", "frame_case", "grid_reference", "importance_reference",
            "mode_level_reference", "BUILDING", "SHEAR_CASES", "datasets_digest", "read_importance_reference",
-           "FRAME_REFERENCE"]
+           "FRAME_REFERENCE", "simulate_poles"]
 
 #: The bundled importance-sampling reference of :func:`frame_case` (``benchmarks/bench_modal_reference.py``)
 FRAME_REFERENCE = "data/modal_frame_reference.csv"
@@ -306,3 +308,38 @@ def read_importance_reference(text: str | None = None) -> tuple:
             mean[s, j], std[s, j], se_m[s, j], se_s[s, j] = map(float, r[2:6])
     ref = reference.GridReference(tuple(names), mean, std, log_z, np.diff(log_z, prepend=0.0), {})
     return ref, {"mean": se_m, "std": se_s, "log_evidence": se_z}, digest
+
+
+def simulate_poles(rng: np.random.Generator, days: float = 4.0, presence=(0.85, 0.8, 0.8, 0.8, 0.55, 0.4),
+                   noise: float = 0.0015, duplicate: float = 0.1, clutter: float = 2.0) -> tuple:
+    """Hourly poles of modes like the mast's six lowest (two pairs 1 % apart) under a daily temperature cycle
+    of +-0.25 %: mode ``j`` seen with probability ``presence[j]`` (pole error ``noise``, relative), a second
+    pole of a seen mode with probability ``duplicate``, Poisson(``clutter``) spurious poles per record
+    (log-uniform in 0.1-5 Hz), the SSI's sds unrelated to the errors (about 2 %, as the mast's).
+
+    Returns
+    -------
+    table : PoleTable
+        Rows unsorted within each record.
+    truth : (n,) int array
+        Each pole's mode (1-based); 0 for clutter, ``-j`` for a duplicate of mode ``j``.
+    """
+    f0 = np.array([0.351, 0.355, 0.620, 0.626, 1.31, 2.04])
+    rows = []
+    for h in range(int(days * 24)):
+        t = h / 24
+        f = f0 * (1 - 0.0005 * 5 * np.sin(2 * np.pi * t))
+        for j in range(f0.size):
+            if rng.random() < presence[j]:
+                rows.append((t, f[j] * (1 + noise * rng.standard_normal()), j + 1))
+                if rng.random() < duplicate:
+                    rows.append((t, f[j] * (1 + noise * rng.standard_normal()), -(j + 1)))
+        rows += [(t, np.exp(rng.uniform(np.log(0.1), np.log(5))), 0) for _ in range(rng.poisson(clutter))]
+    r = np.array(rows)
+    r = r[np.lexsort((rng.random(len(r)), r[:, 0]))]           # unsorted within a record
+    std = r[:, 1] * np.exp(rng.normal(np.log(0.02), 0.7, len(r)))
+    n = r.shape[0]
+    nan = np.full(n, np.nan)
+    table = PoleTable(day=r[:, 0], frequency=r[:, 1], std_frequency=std, damping_pct=nan, std_damping_pct=nan,
+                      mpc=nan, mpd=nan, model_order=nan, slot=np.zeros(n))
+    return table, r[:, 2].astype(int)
