@@ -5,6 +5,7 @@ scatter per mode, the tracked frequencies against temperature, and the tracked t
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_tracking_mast.py --run [--samples 300]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_tracking_mast.py --synthetic [--seeds 10]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_tracking_mast.py --samplers [--hours 60]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_tracking_mast.py --remedy [--hours 20]
 
 The data are the bundled ``seqbayes/data/guyed_mast`` files (Marwitz, Bauhaus-Universitat Weimar, MIT licence;
 PROVENANCE.md beside them). Without options: the tracker's modes, fitted noise, the per-mode table
@@ -14,7 +15,8 @@ folder, ``seqbayes init`` of the run.toml it writes and ``seqbayes update`` of e
 (timed), then the run's posterior against the exact filter of the same model (the mode-level posterior
 factorises over the modes: one 1-D grid filter per mode, :func:`seqbayes.structural.modal_references.mode_level_reference`).
 With ``--samplers``: the first ``--hours`` of the same run through the Python API with other sampler
-settings (N, SMC, more moves), each against the exact filter. With ``--synthetic``: the tracker on simulated
+settings (N, SMC, more moves), each against the exact filter. With ``--remedy``: the first ``--hours`` with the
+path-space remedy on and off (the run.toml turns it off): likelihood evaluations and time per step. With ``--synthetic``: the tracker on simulated
 poles with known modes
 (:func:`seqbayes.structural.modal_references.simulate_poles`, 7 days each): modes found, poles given to
 another mode, clutter accepted.
@@ -150,8 +152,12 @@ def run(n_samples: int):
             code = main(["update", str(out / "mast.nc"), *hours, "-q"])
         seconds = time.perf_counter() - start
         store = open_run(out / "mast.nc")
+        infos = [s.info for s in store.result.steps]
         print(f"seqbayes update of {len(hours)} hourly datasets: exit {code}, {store.n_steps} steps in {seconds:.0f} s "
-              f"({_load()}); {sum(s.info.n_loglike_evals for s in store.result.steps):,} likelihood evaluations")
+              f"({_load()}); {sum(i.n_loglike_evals for i in infos):,} likelihood evaluations (per step median "
+              f"{np.median([i.n_loglike_evals for i in infos]):,.0f}, largest {max(i.n_loglike_evals for i in infos):,});"
+              f" a step's sampler time median {np.median([i.wall_time for i in infos]):.2f} s, largest "
+              f"{max(i.wall_time for i in infos):.2f} s")
         config = store.config
         like = config.build_likelihood()
         data = [{"mode": t.mode, "frequency_hz": t.frequency, "std_frequency_hz": np.nan_to_num(t.std_frequency)}
@@ -217,6 +223,32 @@ def samplers(hours: int):
               f"{e['log_evidence'][-1]:+.1f} nats; {time.perf_counter() - start:.0f} s")
 
 
+def remedy(hours: int):
+    import warnings
+
+    from seqbayes import SEMC
+
+    config, data, ref = _mast_problem(hours)
+    print(f"the mast's first {hours} hours, SEMC N = {config.n_samples}, seed 0 ({_load()}):")
+    for on in (False, True):
+        settings = {**config.settings, "conflict_remedy": on}
+        sampler = SEMC(config.build_prior(), config.build_kernel(), config.build_likelihood(),
+                       n_samples=config.n_samples, rng=0, **settings)
+        evals, seconds = [], []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for dataset in data:
+                start = time.perf_counter()
+                info = sampler.update(dataset)
+                seconds.append(time.perf_counter() - start)
+                evals.append(info.n_loglike_evals)
+        e = ref.errors(sampler.result.means(), sampler.result.stds(), sampler.result.log_evidence)
+        print(f"  conflict_remedy = {str(on).lower()}: likelihood evaluations per step median {np.median(evals):,.0f}, "
+              f"largest {max(evals):,} (step {int(np.argmax(evals)) + 1}); time per step median "
+              f"{np.median(seconds):.2f} s, largest {max(seconds):.1f} s; mean error largest "
+              f"{np.abs(e['mean_sd']).max():.2f} sd, log-evidence after {hours} hours {e['log_evidence'][-1]:+.1f} nats")
+
+
 def synthetic(seeds: int):
     from seqbayes.structural.modal_references import simulate_poles
 
@@ -247,7 +279,11 @@ def main_(argv=None):
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--samplers", action="store_true", help="other sampler settings on the first hours")
     parser.add_argument("--hours", type=int, default=60)
+    parser.add_argument("--remedy", action="store_true", help="the path-space remedy on and off, the first hours")
     args = parser.parse_args(argv)
+    if args.remedy:
+        remedy(args.hours)
+        return
     if args.synthetic:
         synthetic(args.seeds)
         return

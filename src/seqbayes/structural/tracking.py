@@ -29,9 +29,10 @@ seen in at least ``min_presence`` of the records holds as many modes as the pole
 in at least that share of the records (poles of one record closer than ``merge`` counted once), and
 its modes start at the medians of the sorted poles of the records that show exactly that many. The
 noise of each track (``Q_jj``, ``s_j``, ``c_j``) is then fitted by maximum likelihood to the tracked
-first days. The drifts are taken as independent: their correlations cannot be learned from a few days
-(on the mast's first three days the standard error of such an estimate exceeds 0.5, because the
-record-to-record change of a track is mostly its scatter); give ``correlation`` to use known ones.
+first days. The drifts are taken as independent: their correlations cannot be learned from a few days,
+because the record-to-record change of a track is mostly its scatter (from ``n`` pairs of consecutive
+poles the estimate's standard error is about ``(1 + 2 s^2 / q) / sqrt(n)``, 0.2 to 1.5 for the mast's
+first four modes over three days, docs/modal.md); give ``correlation`` to use known ones.
 
 Written here because no maintained library does it: pyoma-2 clusters one record's stabilisation
 diagram but does not track across records; the assignment itself is SciPy's.
@@ -349,12 +350,15 @@ class TrackedModes:
     def scatter(self) -> dict:
         """Per mode (``(m,)`` arrays): ``mean``, ``sd`` and ``range`` of the tracked frequencies [Hz], and
         ``step_sd``, the sd of their change between consecutive records where both hold the mode [Hz]."""
+        def sd(values):
+            values = values[np.isfinite(values)]
+            return float(np.std(values, ddof=1)) if values.size > 1 else np.nan
         f = self.frequency
-        steps = np.diff(f, axis=0)
-        return {"mean": np.nanmean(f, axis=0), "sd": np.nanstd(f, axis=0, ddof=1),
-                "range": np.nanmax(f, axis=0) - np.nanmin(f, axis=0),
-                "step_sd": np.array([np.std(s[np.isfinite(s)], ddof=1) if np.isfinite(s).sum() > 1 else np.nan
-                                     for s in steps.T])}
+        seen = [col[np.isfinite(col)] for col in f.T]
+        return {"mean": np.array([v.mean() if v.size else np.nan for v in seen]),
+                "sd": np.array([sd(v) for v in seen]),
+                "range": np.array([np.ptp(v) if v.size else np.nan for v in seen]),
+                "step_sd": np.array([sd(col) for col in np.diff(f, axis=0).T])}
 
     def summary(self) -> str:
         """A markdown table, one row per mode: coverage, mean, sd and range of the tracked frequencies."""
@@ -491,22 +495,26 @@ def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSe
     Raises
     ------
     ValueError
-        Fewer than 5 records in that window, or no band seen often enough (the message says what to change).
+        Fewer than 5 records in that window without ``frequencies`` (with them, the noise takes defaults:
+        0.3 % of each frequency), or no band seen often enough (the message says what to change).
     """
     records = poles.records()
     day = np.array([poles.day[r[0]] for r in records])
     spacing = float(np.median(np.diff(day))) if day.size > 1 else 1.0
     window = [r for r, d in zip(records, day) if d < day[0] + settings.initial_days]
-    if len(window) < 5:
-        raise ValueError(f"poles: {len(window)} record(s) in the first {settings.initial_days:g} days; the modes "
-                         f"are found from at least 5 (raise initial_days, or give the reference modes)")
-    rows = np.concatenate(window)
     if frequencies is not None:
         freqs = np.sort(np.asarray(frequencies, dtype=float).reshape(-1))
         if freqs.size == 0 or not np.all(np.isfinite(freqs) & (freqs > 0)):
             raise ValueError(f"frequencies: expected positive frequencies [Hz], got {frequencies!r}")
         spreads = 0.003 * freqs
-    else:
+        if len(window) < 5:       # too little to fit the noise: a drift of half, a scatter of the whole 0.3 %
+            return ReferenceModes(freqs, spreads, drift=0.5 * spreads, scatter=spreads, std_scale=0.0,
+                                  spacing=spacing)
+    elif len(window) < 5:
+        raise ValueError(f"poles: {len(window)} record(s) in the first {settings.initial_days:g} days; the modes "
+                         f"are found from at least 5 (raise initial_days, or give the modes to track)")
+    rows = np.concatenate(window)
+    if frequencies is None:
         freqs, spreads = _modes_in_window(poles, window, settings)
     spreads = np.maximum(spreads, 1e-4 * freqs)
     shapes, channels = _initial_shapes(poles, rows, freqs)
