@@ -84,6 +84,9 @@ def test_an_oma_table_is_tracked_against_the_posterior(tracked, tmp_path):
     assert store.n_steps == 3
     with pytest.raises(DuplicateDatasetError):
         store.update(path)
+    with pytest.warns(ModalTrackingWarning):                   # tracked again against step 2's posterior
+        store.update(path, replace_last=True)
+    assert store.n_steps == 3 and store.sources[-1] == "oma.csv"
 
 
 SHEAR_TOML = """

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .datasets import DataError, check_table, dataset_digest
+from .errors import StoreError
 from .modal_config import ModalRunConfig
 from .modules import ModuleSource
 from .registry import register
@@ -200,10 +201,11 @@ class ModalRunStore(RunStore):
         return out
 
     # ------------------------------------------------------------- assimilation
-    def _tracked(self, table: np.ndarray, source: str) -> np.ndarray:
-        """An untracked table (``mode`` 0) with its poles assigned to modes against the current posterior."""
-        if self.n_steps:
-            record = self.result.steps[-1]
+    def _tracked(self, table: np.ndarray, source: str, base: int) -> np.ndarray:
+        """An untracked table (``mode`` 0) with its poles assigned to modes against the posterior after ``base``
+        steps (the prior's draws at 0)."""
+        if base:
+            record = self.result.steps[base - 1]
             particles, weights = record.posterior, _weights(record.log_weights)
         else:
             particles, weights = self.initial_particles, _weights(self.initial_log_weights)
@@ -240,8 +242,10 @@ class ModalRunStore(RunStore):
             raw = check_table(raw, self.config, what)
             digest = dataset_digest(raw, self.config.columns)
             with self._updating(write, replace_last):
+                if replace_last and self.n_steps == 0:
+                    raise StoreError(f"{self.path}: replace_last: no step to replace")
                 self.check_new_dataset(digest, replace_last)
-                tracked = self._tracked(raw, source)
+                tracked = self._tracked(raw, source, self.n_steps - 1 if replace_last else self.n_steps)
                 info = super().assimilate(tracked, source, replace_last=replace_last, write=False, **options)
                 self.digests[-1] = digest           # the record as given, so that it cannot be assimilated twice
                 if write:
