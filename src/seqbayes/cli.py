@@ -50,6 +50,8 @@ monitoring (a run is one NetCDF file):
                                             P(damage) per day, its storey, the alarm
   seqbayes oma RECORD --fs FS [--out modes.csv] [--json modes.json] [--diagram d.png]
                                             modes with standard errors from an ambient record
+  seqbayes track POLES.csv --out DIR        poles of many records tracked into modes: one modal dataset
+                                            per record and a run.toml for seqbayes init (docs/modal.md)
 
 studies:
   seqbayes example                          list the papers' studies
@@ -610,6 +612,21 @@ def cmd_oma(args: argparse.Namespace) -> int:
 
     return run(args.record, dt=args.dt, fs=args.fs, band=args.band, out=args.out, json_path=args.json,
                diagram=args.diagram, day=args.day)
+def cmd_track(args: argparse.Namespace) -> int:
+    """Poles of many records tracked into one modal dataset per record (docs/modal.md)."""
+    from .store.modal_files import track_to_folder
+    from .structural.tracking import TrackerSettings
+
+    frequencies = None
+    if args.reference:
+        try:
+            frequencies = [float(v) for v in args.reference.split(",")]
+        except ValueError:
+            raise CommandError(f"--reference: expected comma-separated frequencies [Hz], got {args.reference!r}") from None
+    settings = TrackerSettings(gate=args.gate, initial_days=args.initial_days, min_presence=args.min_presence)
+    print(track_to_folder(args.poles, args.out, covariates_path=args.temperature, prefix=args.prefix,
+                          settings=settings, frequencies=frequencies))
+    return 0
 
 
 # ----------------------------------------------------------------------- parser
@@ -743,6 +760,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--diagram", metavar="PNG", help="draw the stabilisation diagram here")
     p.add_argument("--day", type=float, help="the record's start in days (the table's day column)")
     p.set_defaults(func=cmd_oma)
+    p = sub.add_parser("track", help="track the poles of many records into modes: one modal dataset per record")
+    p.add_argument("poles", help="modes table of many records (time_start, day, slot, frequency_hz, std_frequency_hz, "
+                                 "..., phi_<channel>...; docs/modal.md), e.g. an automated OMA's output")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the datasets, tracking.csv and run.toml")
+    p.add_argument("--temperature", metavar="CSV", help="covariates per record (a day column and one column per "
+                                                        "sensor): copied into the datasets, with their mean as "
+                                                        "temperature")
+    p.add_argument("--prefix", default="record", help="dataset file names: PREFIX_001.csv, ... (default record)")
+    p.add_argument("--reference", metavar="F1,F2,...", help="the modes to track [Hz] (default: found in the first days)")
+    p.add_argument("--initial-days", type=float, default=3.0, help="days the modes and their noise are found in (3)")
+    p.add_argument("--gate", type=float, default=3.5, help="a pole joins a mode within this many sds (3.5)")
+    p.add_argument("--min-presence", type=float, default=0.25,
+                   help="a mode must be seen in this share of the first days' records (0.25)")
+    p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("example", help="run one of the papers' studies (no NAME: list them)", add_help=False)
     p.add_argument("name", nargs="?", help=f"one of: {', '.join(EXAMPLES)}")
