@@ -89,7 +89,7 @@ def run(args):
 
 
 def inner_sd(args):
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
     from seqbayes.predictive.pmmh import run_inner
     from seqbayes.predictive.smc2 import nested_split
 

@@ -67,7 +67,7 @@ def stored(self, weighed, rng):
     return t
 P.PathSpace._stored_temper = stored
 
-import seqbayes.engine.evidence as E
+import seqbayes.predictive.evidence as E
 orig_is = E.importance_step
 def importance_step(posterior, log_weights, *a, **kw):
     record.setdefault("is_in", []).append(tail(posterior[:, -1], log_weights))

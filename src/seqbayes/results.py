@@ -80,7 +80,7 @@ class StepInfo:
     prior_data_conflict : float
         How far the step's posterior lies in the tail of its prior (the predictive distribution
         restricted to the parameter space for ``s > 1``): the largest over parameters of
-        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.engine.stages.step_conflict``).
+        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.predictive.particle.step_conflict``).
         Under the model this exceeds 4 with probability below ~1e-4 per parameter; larger values
         flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
     conflict_parameter : int
@@ -111,7 +111,7 @@ class StepInfo:
         ``jump_size * reference``).
     log_evidence_increment_se, log_evidence_se : float
         Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
-        (:func:`~seqbayes.engine.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
+        (:func:`~seqbayes.predictive.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
     n_screen_evaluations, n_screened_out : int
         Delayed acceptance (``SamplerConfig.surrogate``): the cheap screen's evaluations and the proposals it
         rejected without a likelihood call. The expensive calls are ``n_loglike_evals`` (of which the moves'

@@ -9,7 +9,7 @@ from seqbayes import SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.results import prior_data_conflict
 from seqbayes import PriorDataConflictWarning
-from seqbayes.engine.stages import step_conflict
+from seqbayes.predictive.particle import step_conflict
 
 
 def test_shift_in_prior_sds_exactly():

@@ -15,8 +15,8 @@ from scipy import stats
 import seqbayes
 from seqbayes import SEMC, SMC
 from seqbayes.engine.settings import SamplerConfig
-from seqbayes.engine.likelihood import ValidatedLikelihood
-from seqbayes.engine.state import PastStep, Problem, remedy_window
+from seqbayes.core.likelihood import ValidatedLikelihood
+from seqbayes.core.state import PastStep, Problem, remedy_window
 from seqbayes.predictive.lineage import ancestor_draws
 from seqbayes.predictive.paths import PathPrior, path_prior_logpdf
 
@@ -368,7 +368,7 @@ def test_a_plain_conflict_goes_to_the_path_space_before_the_mixture_steps_last_s
 
 
 def test_when_the_path_space_finds_nothing_the_mixture_step_runs_to_its_end(monkeypatch):
-    from seqbayes.engine.errors import ZeroLikelihoodError
+    from seqbayes.core.errors import ZeroLikelihoodError
     from seqbayes.predictive.paths import PathSpace
 
     def nothing(self, *args):

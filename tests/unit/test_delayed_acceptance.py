@@ -11,7 +11,7 @@ from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static
 from seqbayes.engine.settings import SamplerConfig
 from seqbayes.moves import GaussianMove, StretchMove
 from seqbayes.moves.delayed import QuadraticScreen, Screening, pays, screened_sweep
-from seqbayes.moves.base import SweepStats
+from seqbayes.core.state import SweepStats
 
 
 def _standard_normal(points):

@@ -1,11 +1,11 @@
-"""The importance-sampling evidence (seqbayes.engine.evidence): its proposal at large N."""
+"""The importance-sampling evidence (seqbayes.predictive.evidence): its proposal at large N."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
 
-from seqbayes.engine.evidence import importance_step, pooled_start, step_standard_errors
+from seqbayes.predictive.evidence import importance_step, pooled_start, step_standard_errors
 from seqbayes.moves import proposals
 from seqbayes.moves.proposals import defensive_parts, thinned_components
 

@@ -115,7 +115,7 @@ def test_subsampled_rows_estimate_the_spread_and_the_backward_term(monkeypatch):
     sub = mixture.ancestor_spread(posterior, log_w, labels)
     assert sub.mass is None and sub.draws.shape == (512,)
     sub_backward = older.backward_spread(previous, previous_log_w, sub, older_labels)
-    monkeypatch.setattr(density_module, "_TREE_MIN_CENTRES", 10**9)   # every row
+    monkeypatch.setattr(density_module, "TREE_MIN_CENTRES", 10**9)   # every row
     every = mixture.ancestor_spread(posterior, log_w, labels)
     mass_backward = older.backward_spread(previous, previous_log_w, every, older_labels)   # rows drawn from the mass
     monkeypatch.setattr(density_module, "_BACKWARD_ROWS", 10**9)

@@ -18,8 +18,8 @@ from scipy import stats
 
 import seqbayes
 from seqbayes import cli
-from seqbayes.engine.errors import PriorDataConflictWarning, documented
-from seqbayes.engine.likelihood import ValidatedLikelihood
+from seqbayes.core.errors import PriorDataConflictWarning, documented
+from seqbayes.core.likelihood import ValidatedLikelihood
 from seqbayes.store import ConfigError, DataError, StoreError, create_run, load_config, open_run
 from seqbayes.store.base import rehash
 from seqbayes.store.config import RunConfig, parse_config

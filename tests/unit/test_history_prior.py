@@ -10,7 +10,7 @@ from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static, ZeroLik
 from seqbayes.predictive.history import HistoryPrior
 from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianProblem
-from seqbayes.engine.stages import count_distinct
+from seqbayes.predictive.particle import count_distinct
 from seqbayes.predictive.base import resolve_predictive
 
 PROBLEM = LinearGaussianProblem(drift_std=0.0)

@@ -205,7 +205,7 @@ def test_a_mixture_step_after_a_path_space_step_has_no_two_step_term():
     window's start (the mixture step and the path-space step report through the same jumps.jump_fields)."""
     from types import SimpleNamespace
 
-    from seqbayes.engine.state import Cloud
+    from seqbayes.core.state import Cloud
     from seqbayes.predictive.jumps import jump_fields
     from seqbayes.predictive.transition import TransitionMixture
 

@@ -123,7 +123,7 @@ def test_path_stages_with_the_prior_redraws_keep_the_tempered_target_in_the_box_
     # move_stage with prior_moves: the rounds mix the prior's redraws, the kernel density's independence sweeps and
     # the random walk, in the box's logit coordinates (the prior's and the proposal's Jacobians cancel coordinate by
     # coordinate). The box [-30, 30]^3 holds the target's mass but for ~1e-100: its moments are the Gaussian's
-    from seqbayes.engine.state import Problem
+    from seqbayes.core.state import Problem
 
     beta = 0.3
     path_prior, loglike, mean, cov = _chain_target(beta)
@@ -215,7 +215,7 @@ def test_suffix_sweeps_keep_the_chain_target(move):
 
 def test_a_suffix_sweep_evaluates_only_the_moved_states_through_the_memo():
     # the window likelihood's memo holds every state of the walkers: a sweep's calls are its proposals' moved states
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
     from seqbayes.moves.gaussian import GaussianMove, gaussian_sweep
     from seqbayes.moves.scaled import SuffixMove
 

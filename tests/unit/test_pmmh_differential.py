@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from seqbayes import SEMC
-from seqbayes.engine.likelihood import ValidatedLikelihood
+from seqbayes.core.likelihood import ValidatedLikelihood
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.predictive.pmmh import Rejuvenation, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import KalmanInnerFilter, nested_split

@@ -310,7 +310,7 @@ def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
 
 
 def test_unreliable_importance_evidence_falls_back_to_the_path(monkeypatch):
-    import seqbayes.engine.evidence as evidence
+    import seqbayes.predictive.evidence as evidence
 
     real = evidence.importance_step
 

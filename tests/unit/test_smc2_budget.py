@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from seqbayes import SMC
-from seqbayes.engine.errors import InnerFilterWarning
+from seqbayes.core.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
 from seqbayes.predictive.pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
@@ -187,7 +187,7 @@ def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
 
 
 def sampler_likelihood(sampler):
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
 
     return ValidatedLikelihood(sampler.problem.loglike, None, 1)
 

@@ -145,7 +145,7 @@ def test_the_path_prior_density_of_no_walker_is_empty():
     in tools/result_hash.py's oscillator run 0 under T6 with SEMC, the run at step 3)."""
     from types import SimpleNamespace
 
-    from seqbayes.engine.state import PastStep
+    from seqbayes.core.state import PastStep
     from seqbayes.kernels import Drift, MarkovKernel
     from seqbayes.predictive.paths import path_prior_logpdf
 

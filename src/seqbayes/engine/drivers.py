@@ -1,4 +1,4 @@
-"""The drivers :class:`SMC` and :class:`SEMC`: they hold the current :class:`~seqbayes.engine.state.SamplerState`
+"""The drivers :class:`SMC` and :class:`SEMC`: they hold the current :class:`~seqbayes.core.state.SamplerState`
 and call :func:`~seqbayes.engine.pipeline.assimilate`."""
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ from ..predictive.smc2 import ParticleInnerFilter, nested_split, start_nested
 from ..priors import as_samples, support_of
 from ..results import Result, StepInfo, StepRecord
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit
-from .errors import InnerFilterWarning, PriorDataConflictWarning, documented
+from ..core.errors import InnerFilterWarning, PriorDataConflictWarning, documented
 from .forecast import forecast
 from .pipeline import assimilate
 from .settings import MOVE_BUDGET, SamplerConfig
-from .stages import step_conflict
-from .state import Problem, SamplerState
+from ..core.state import Problem, SamplerState
+from ..core.tempering import blas_limit
+from ..predictive.particle import step_conflict
 
 __all__ = ["SMC", "SEMC"]
 

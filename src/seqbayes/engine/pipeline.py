@@ -1,5 +1,5 @@
 """One update of an on-line sampler: the pure function :func:`assimilate`, and the pipeline :func:`run_step`
-that every predictive prior goes through (:class:`~seqbayes.engine.protocol.Predictive`).
+that every predictive prior goes through (:class:`~seqbayes.predictive.particle.Predictive`).
 
 One dataset ``D^s`` is assimilated (docs/core.md explains each choice):
 
@@ -14,7 +14,7 @@ One dataset ``D^s`` is assimilated (docs/core.md explains each choice):
    stage; at the last when the ESS is below the threshold) and moved by an MCMC
    kernel that leaves ``L^beta p_s`` invariant (:mod:`seqbayes.moves.schedule`).
 4. The evidence increment is estimated by defensive importance sampling from
-   the final posterior (:mod:`seqbayes.engine.evidence`), whose proposal also drives
+   the final posterior (:mod:`seqbayes.predictive.evidence`), whose proposal also drives
    independence-MH sweeps; the stages' product of mean weights (Eq. 1) is kept
    as the "path" estimate.
 5. The posterior is propagated through the Markov kernel (Eq. A2), and the
@@ -31,10 +31,10 @@ import time
 
 from ..predictive.base import predictive_for
 from ..results import StepInfo, StepRecord
-from .errors import PlainConflict, ZeroLikelihoodError
-from .likelihood import ValidatedLikelihood, check_dataset
+from ..core.errors import PlainConflict, ZeroLikelihoodError
+from ..core.likelihood import ValidatedLikelihood, check_dataset
 from .outputs import check_step
-from .stages import count_distinct
+from ..predictive.particle import count_distinct
 
 __all__ = ["assimilate", "run_step"]
 
@@ -127,6 +127,6 @@ if _typing.TYPE_CHECKING:  # names used only in annotations
 
     import numpy as np
 
-    from .protocol import Predictive
+    from ..core.state import Predictive
     from .settings import SamplerConfig
-    from .state import Problem, Weighed
+    from ..core.state import Problem, Weighed

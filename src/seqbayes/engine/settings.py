@@ -5,6 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..core.tempering import Adaptive, Single
+from ..moves.schedule import HIGH_DIMENSION
+from ..predictive.pmmh import MOVE_BUDGET
 from ..resampling import SCHEMES
 
 __all__ = ["SamplerConfig", "PREDICTIVE_METHODS", "HIGH_DIMENSION", "MOVE_BUDGET"]
@@ -12,33 +15,6 @@ __all__ = ["SamplerConfig", "PREDICTIVE_METHODS", "HIGH_DIMENSION", "MOVE_BUDGET
 #: ``"auto"`` resolves to ``"history"`` for a kernel whose every parameter is static, ``"smc2"`` (nested
 #: filters, :mod:`seqbayes.predictive.smc2`) for one with static and drifting components, else ``"transition"``.
 PREDICTIVE_METHODS = ("auto", "transition", "kde", "history", "smc2")
-
-
-#: Above this many parameters the default moves are the scaled ones (``SamplerConfig.scaled_moves``).
-HIGH_DIMENSION = 10
-
-
-#: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
-JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
-
-
-#: SMC^2's PMMH budget per update, in units of ``N M`` (``SamplerConfig.move_budget``): with the advance itself an
-#: update without tempering costs at most ~6 ``N M`` (plus the guide's pilot) however long the stream.
-MOVE_BUDGET = 5
-
-#: ``economy``: the importance sweeps continue until the increment's standard error is below this.
-ECONOMY_EVIDENCE_SE = 0.02
-
-
-#: ``economy``: the scaled moves stop once this fraction of the particles has moved (at most ``moved_fraction``).
-ECONOMY_MOVED_FRACTION = 0.7
-
-
-#: Acceptance rate the scaled moves' local step aims at (Eq. 9 adapts its scale within a stage; Roberts et al. 1997).
-LOCAL_ACCEPTANCE = 0.234
-#: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
-#: step's evidence and posterior rest on a handful of draws of the prior's far tail.
-STARVED_RESTART = 0.1
 
 
 @dataclass(frozen=True)
@@ -135,7 +111,7 @@ class SamplerConfig:
         Steps kept for the path-space target (10): exact when the run has at most that many steps,
         else the window's first state takes the (mixture) prior that step used. After a path-space
         step the next ones reach back to its window's first step, up to ``2 remedy_lag`` states
-        (:func:`~seqbayes.engine.state.remedy_window`).
+        (:func:`~seqbayes.core.state.remedy_window`).
     remedy_bridge : bool
         How the path-space step reaches its target. ``True`` (default): from the window's path prior
         (the window's first prior, then the kernel), tempering every likelihood of the window jointly, so
@@ -159,7 +135,7 @@ class SamplerConfig:
         0 disables it (the paper's behaviour; advisable for very expensive likelihoods).
     evidence : {"importance", "path"}
         Estimator of the evidence increment: defensive importance sampling from the
-        final posterior (:mod:`seqbayes.engine.evidence`, N extra likelihood evaluations, whose
+        final posterior (:mod:`seqbayes.predictive.evidence`, N extra likelihood evaluations, whose
         draws also drive one independence-MH sweep of the particles), or the tempering
         path's product of mean weights alone (Eq. 1, the paper's). Both estimates are
         recorded in :class:`StepInfo`.
@@ -343,6 +319,13 @@ class SamplerConfig:
             raise ValueError(f"remedy_lag: must be an integer >= 2, got {self.remedy_lag}")
         if self.remedy_bridge not in (True, False):
             raise ValueError(f"remedy_bridge: expected True or False, got {self.remedy_bridge!r}")
+
+    def tempering_rule(self):
+        """The tempering loop's rule (:class:`~seqbayes.core.tempering.Adaptive`, or :class:`~seqbayes.core.tempering.Single`
+        without ``tempering``)."""
+        if self.tempering:
+            return Adaptive(self.max_stages, ess=self.tempering_ess, threshold=self.tempering_threshold)
+        return Single(self.max_stages)
 
     def uses_scaled_moves(self, dim: int) -> bool:
         """Whether the moves of :mod:`seqbayes.moves.scaled` run for ``dim`` parameters (see ``scaled_moves``)."""

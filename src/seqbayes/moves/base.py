@@ -1,14 +1,12 @@
-"""The accept/reject step shared by every move, and the sweep statistics record."""
+"""The accept/reject step shared by every move (the sweeps count into :class:`~seqbayes.core.state.SweepStats`)."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..priors import inside_support
 
-__all__ = ["metropolis_accept", "SweepStats", "evaluate_inside", "combine"]
+__all__ = ["metropolis_accept", "evaluate_inside", "combine"]
 
 
 def metropolis_accept(current_log_prob, proposal_log_prob, log_hastings, rng: np.random.Generator) -> np.ndarray:
@@ -60,30 +58,3 @@ def combine(components, coefficients) -> np.ndarray:
         total = components @ np.asarray(coefficients, dtype=float)
     total[np.isnan(total)] = -np.inf
     return total
-
-
-@dataclass(frozen=True)
-class SweepStats:
-    """Counts of one or more sweeps; the true acceptance rate is ``n_accepted / n_proposed``.
-
-    With delayed acceptance (:mod:`seqbayes.moves.delayed`) ``n_evaluations`` counts the expensive
-    evaluations only, ``n_screen_evaluations`` the cheap screen's and ``n_screened_out`` the proposals
-    it rejected before any expensive call."""
-
-    n_proposed: int = 0
-    n_accepted: int = 0
-    n_identical_partner: int = 0
-    n_evaluations: int = 0
-    n_screen_evaluations: int = 0
-    n_screened_out: int = 0
-
-    def __add__(self, other: "SweepStats") -> "SweepStats":
-        return SweepStats(self.n_proposed + other.n_proposed, self.n_accepted + other.n_accepted,
-                          self.n_identical_partner + other.n_identical_partner,
-                          self.n_evaluations + other.n_evaluations,
-                          self.n_screen_evaluations + other.n_screen_evaluations,
-                          self.n_screened_out + other.n_screened_out)
-
-    @property
-    def acceptance_rate(self) -> float:
-        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")

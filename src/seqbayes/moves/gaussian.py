@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..weights import normalise
-from .base import SweepStats, combine, evaluate_inside, metropolis_accept
+from ..core.state import SweepStats
+from .base import combine, evaluate_inside, metropolis_accept
 
 __all__ = ["GaussianMove", "weighted_covariance", "gaussian_sweep"]
 

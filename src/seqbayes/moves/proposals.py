@@ -1,7 +1,7 @@
 """Defensive proposal densities fitted to a weighted cloud: half a Gaussian kernel density of its distinct
 points, half a Student t with twice its covariance (:class:`DefensiveProposal`), or one per k-means cluster
 of several clouds (:class:`PooledProposal`). They drive the independence sweeps and the importance-sampling
-evidence (:mod:`seqbayes.engine.evidence`)."""
+evidence (:mod:`seqbayes.predictive.evidence`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from scipy import stats
 from scipy.cluster.vq import kmeans2
 
-from ..predictive.mixture import GaussianMixture, silverman_bandwidth
+from ..gaussian_sum import KernelMixture, silverman_bandwidth
 from ..weights import logsumexp, normalise
 from .scaled import FittedGaussian
 
@@ -92,7 +92,7 @@ def defensive_parts(u, log_weights, n_components=None, gaussian=False):
     cov = ((u - mean) * w[:, None]).T @ (u - mean)
     scale = np.maximum(np.diag(cov), 1e-24 * (1.0 + mean**2))
     cov = cov + np.diag(1e-9 * scale)  # keep it positive definite when a dimension is collapsed
-    kde = GaussianMixture(distinct, silverman_bandwidth(distinct, log_w), log_w)
+    kde = KernelMixture(distinct, silverman_bandwidth(distinct, log_w), log_w)
     t = stats.multivariate_t(loc=mean, shape=2.0 * cov * (_T_DOF - 2.0) / _T_DOF, df=_T_DOF, allow_singular=True)
     return kde, t
 

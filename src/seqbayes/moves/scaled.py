@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import SweepStats, combine, evaluate_inside, metropolis_accept
+from ..core.state import SweepStats
+from .base import combine, evaluate_inside, metropolis_accept
 from .stretch import stretch_sweep
 
 __all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "SuffixMove",
@@ -145,7 +146,7 @@ class SuffixMove:
 
     The suffix is drawn independently of the walkers, so the proposal stays symmetric (log-Hastings 0) and the
     sweep keeps its target. With a likelihood that keeps each state's value
-    (:class:`~seqbayes.engine.likelihood.StateMemo`) a proposal costs only its moved states' calls.
+    (:class:`~seqbayes.core.likelihood.StateMemo`) a proposal costs only its moved states' calls.
 
     Parameters
     ----------

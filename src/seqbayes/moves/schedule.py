@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
 from ..priors import inside_space
-from .base import SweepStats, combine, evaluate_inside, metropolis_accept
+from ..resampling import resample
+from ..core.state import Cloud, MoveTally, SweepStats
+from .base import combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
@@ -22,7 +23,17 @@ from .scaled import (DifferentialMove, FittedGaussian, SuffixMove, differential_
 from .stretch import StretchMove, stretch_sweep
 from .tuning import next_step_size
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep"]
+__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep", "Staged",
+           "ResampleMove", "HIGH_DIMENSION"]
+
+#: Above this many parameters the default moves are the scaled ones (``SamplerConfig.scaled_moves``).
+HIGH_DIMENSION = 10
+#: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
+JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
+#: ``economy``: the scaled moves stop once this fraction of the particles has moved (at most ``moved_fraction``).
+ECONOMY_MOVED_FRACTION = 0.7
+#: Acceptance rate the scaled moves' local step aims at (Eq. 9 adapts its scale within a stage; Roberts et al. 1997).
+LOCAL_ACCEPTANCE = 0.234
 
 #: The prior's redraws' share of the global sweep in a tempering's first round (:func:`scaled_rounds` with
 #: ``resimulate``), and the bounds it adapts within.
@@ -67,6 +78,61 @@ def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan
     if n_sweeps < config.n_moves:
         return False
     return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
+
+
+@dataclass(frozen=True, eq=False)
+class Staged:
+    """The particles of an SMC/SEMC step between the stages of the tempering loop
+    (:func:`~seqbayes.core.tempering.temper`): the cloud, what the moves did so far, the prior's redraws' share
+    (:func:`scaled_rounds`) and whether the last stage resampled."""
+
+    cloud: Cloud
+    moves: MoveTally
+    prior_share: float = PRIOR_SHARE
+    resampled: bool = False
+
+
+class ResampleMove:
+    """The particle predictives' mutation (:class:`~seqbayes.core.tempering.Mutation`): after each stage,
+    resample (always at an intermediate stage; at the last when the ESS is below ``ess_threshold * N`` and the
+    schedule does not defer it, IBIS's ``deferred``) and move (:func:`move_stage`) at every stage that resampled,
+    or at every stage with ``move_every_stage``, and with ``economy`` once more at the last stage of a tempered
+    step. ``stage_check(particles)`` is called with each intermediate stage's resampled particles; what it returns
+    (``None`` to go on) stops the loop. ``kernel_density``, ``prior_moves``, ``path_states``: as
+    :func:`move_stage`."""
+
+    def __init__(self, problem, config, likelihood, prior_logpdf, move_every_stage: bool, deferred: bool, rng,
+                 kernel_density=False, prior_moves=None, path_states=1, stage_check=None):
+        self.problem, self.config, self.likelihood, self.prior_logpdf = problem, config, likelihood, prior_logpdf
+        self.move_every_stage, self.deferred, self.rng, self.stage_check = move_every_stage, deferred, rng, stage_check
+        self.options = (kernel_density, prior_moves)
+        self.path_states = path_states
+
+    def __call__(self, staged: Staged, loglike, stage):
+        config, rng, beta = self.config, self.rng, stage.beta
+        cloud = staged.cloud
+        n = cloud.particles.shape[0]
+        particles, components, labels, log_weights = cloud.particles, cloud.components, cloud.labels, stage.log_weights
+        decision = None
+        resampled = beta < 1.0 or (stage.ess < config.ess_threshold * n and not self.deferred)
+        if resampled:
+            index = resample(config.resampling, stage.weights, rng, n)
+            particles, components = particles[index], components[index]
+            labels = None if labels is None else labels[index]   # copies keep their initial draw's label
+            log_weights = np.full(n, -np.log(n))
+            if self.stage_check is not None and beta < 1.0:
+                decision = self.stage_check(particles)
+        moves, prior_share = staged.moves, staged.prior_share
+        # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
+        if decision is None and (resampled or self.move_every_stage
+                                 or (config.economy and beta == 1.0 and stage.index > 1)):
+            components = self.prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
+            moved = move_stage(self.problem, config, moves.step_size, particles, components, beta, self.prior_logpdf,
+                               rng, self.likelihood.loglike, *self.options, prior_share, self.path_states)
+            particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.move)
+            prior_share = moved.prior_share  # the prior's redraws only lose ground as beta grows
+        staged = Staged(Cloud(particles, log_weights, components, labels), moves, prior_share, resampled)
+        return staged, components[:, 0], log_weights, decision
 
 
 def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,

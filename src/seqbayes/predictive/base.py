@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..engine.state import SamplerState
+from ..core.state import SamplerState
 from ..kernels import MarkovKernel
 from .history import ExactHistory
 from .smc2 import JointFirstStep, NestedPredictive, NestedState, nested_split
@@ -30,9 +30,9 @@ def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
 
 def predictive_for(state, problem, config):
     """``(predictive, state)``: the predictive of the step after ``state`` (a
-    :class:`~seqbayes.engine.protocol.Predictive`) and the state it starts from.
+    :class:`~seqbayes.predictive.particle.Predictive`) and the state it starts from.
 
-    SMC^2's first dataset with ``joint_first_step`` starts from a :class:`~seqbayes.engine.state.SamplerState`
+    SMC^2's first dataset with ``joint_first_step`` starts from a :class:`~seqbayes.core.state.SamplerState`
     over every parameter (:class:`~seqbayes.predictive.smc2.JointFirstStep`)."""
     if isinstance(state, NestedState):
         if state.step > 0 or not problem.inner_filter.joint_first_step:

@@ -7,9 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.protocol import ParticlePredictive
-from ..engine.stages import ExactPrior, rejuvenate_deferred
-from ..engine.state import MoveTally, kept_copy
+from ..core.state import MoveTally, kept_copy
+from .particle import ExactPrior, ParticlePredictive, rejuvenate_deferred
 
 __all__ = ["HistoryPrior", "RunningStatistics", "ExactHistory"]
 
@@ -131,7 +130,7 @@ class ExactHistory(ParticlePredictive):
     IBIS's schedule: the particles are resampled and moved only when the ESS falls below ``ess_threshold``
     (a move re-evaluates every past dataset, so spacing the moves out as the posterior concentrates bounds
     the amortised cost per update); with ``move_every_stage=False`` that resample-move waits for the next
-    dataset (:func:`~seqbayes.engine.stages.rejuvenate_deferred`). A step that kept its particles takes its
+    dataset (:func:`~seqbayes.predictive.particle.rejuvenate_deferred`). A step that kept its particles takes its
     evidence from the weights, which are the exact prior's importance weights.
     """
 

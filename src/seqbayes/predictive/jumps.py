@@ -141,7 +141,7 @@ def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights, labels
 
 def jump_fields(kernel: MarkovKernel, state, cloud, mixture_target: bool = True) -> dict:
     """:func:`jump_step_fields` of a step from ``state`` (its predictive prior ``state.prior``) whose posterior is
-    ``cloud`` (a :class:`~seqbayes.engine.state.Cloud` in the model's parameters), with every term of the se the state
+    ``cloud`` (a :class:`~seqbayes.core.state.Cloud` in the model's parameters), with every term of the se the state
     knows: the ancestors' labels and, where the ancestors are the last stored step's posterior drawn under its
     mixture prior (not a path-space step's), that prior and the window's chain of mixtures before it.
     ``mixture_target=False`` for a path-space step (:func:`jump_probability_se`)."""

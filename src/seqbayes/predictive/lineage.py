@@ -1,5 +1,5 @@
 """Ancestry of a step's posterior among the last posterior's particles: the exact transition's
-responsibilities, the particles' labels (:attr:`~seqbayes.engine.state.SamplerState.lineage`) and the
+responsibilities, the particles' labels (:attr:`~seqbayes.core.state.SamplerState.lineage`) and the
 parts of the evidence's standard error that come from them."""
 
 from __future__ import annotations

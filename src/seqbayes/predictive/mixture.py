@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from ..gaussian_sum import TruncatedSum
+from ..gaussian_sum import TREE_MIN_CENTRES, KernelMixture, silverman_bandwidth, weighted_moments
 from ..priors import as_samples
 from ..weights import logsumexp, normalise
 from .ancestry import AncestorSpread, grouped_sums, label_groups
@@ -47,13 +47,6 @@ from .ancestry import AncestorSpread, grouped_sums, label_groups
 __all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection",
            "backward_masses"]
 
-
-#: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
-_BLOCK_FLOATS = 8_000_000
-
-#: From this many centres on, a mixture is evaluated with a k-d tree where that saves work
-#: (:mod:`seqbayes.gaussian_sum`); below, every pair is summed (as fast, and bit for bit as before).
-_TREE_MIN_CENTRES = 4096
 
 #: From this many centres on, :meth:`GaussianMixture.ancestor_ess` is estimated from this many rows
 #: (``O(rows x N)`` instead of ``O(N^2)``); below, every row is used (bit for bit as before).
@@ -69,41 +62,11 @@ _BACKWARD_ROWS = 2048
 _GOLDEN = 0.6180339887498949
 
 
-def _weighted_moments(samples, log_weights):
-    w = np.exp(normalise(log_weights))
-    mean = w @ samples
-    var = w @ (samples - mean) ** 2
-    n_eff = 1.0 / np.sum(w**2)
-    return mean, var, n_eff
-
-
-def silverman_bandwidth(samples: ArrayLike, log_weights: ArrayLike | None = None) -> np.ndarray:
-    """Per-dimension Silverman bandwidth of Eq. (A10): ``sigma_j (4 / (N (d + 2)))^(1/(d + 4))``.
-
-    With weights, ``N`` is the effective sample size and ``sigma_j`` the weighted std.
-    A dimension with zero spread gets a tiny positive width (``1e-9 (1 + |mean|)``)
-    so that the density stays finite.
-
-    Parameters
-    ----------
-    samples : (N, d) array
-    log_weights : (N,) array, optional
-
-    Returns
-    -------
-    (d,) array
-    """
-    samples = as_samples(samples, name="samples")
-    n, d = samples.shape
-    log_weights = np.zeros(n) if log_weights is None else np.asarray(log_weights, dtype=float)
-    mean, var, n_eff = _weighted_moments(samples, log_weights)
-    h = np.sqrt(var) * (4.0 / (n_eff * (d + 2))) ** (1.0 / (d + 4))  # Eq. (A10)
-    return np.maximum(h, 1e-9 * (1.0 + np.abs(mean)))
-
-
 @dataclass(frozen=True, eq=False)
-class GaussianMixture:
-    """``sum_i W_i N(theta; centres_i, diag(bandwidth^2))``.
+class GaussianMixture(KernelMixture):
+    """``sum_i W_i N(theta; centres_i, diag(bandwidth^2))`` as the predictive prior of Eq. (A3): the density and
+    draws of :class:`~seqbayes.gaussian_sum.KernelMixture`, and how the components carry a weighted cloud (its
+    ancestors, for the evidence's standard error and the conflict remedy).
 
     Parameters
     ----------
@@ -112,85 +75,6 @@ class GaussianMixture:
     log_weights : (N,) array, optional
         Unnormalised log mixture weights (equal if omitted).
     """
-
-    centres: np.ndarray
-    bandwidth: np.ndarray
-    log_weights: np.ndarray | None = None
-
-    def __post_init__(self):
-        centres = as_samples(self.centres, name="centres")
-        bandwidth = np.asarray(self.bandwidth, dtype=float)
-        if bandwidth.shape != (centres.shape[1],) or not np.all(bandwidth > 0):
-            raise ValueError(f"bandwidth: expected {centres.shape[1]} positive widths, got {self.bandwidth!r}")
-        n = centres.shape[0]
-        log_w = np.full(n, -np.log(n)) if self.log_weights is None else normalise(self.log_weights)
-        if log_w.shape != (n,):
-            raise ValueError(f"log_weights: expected shape ({n},), got {log_w.shape}")
-        object.__setattr__(self, "centres", centres)
-        object.__setattr__(self, "bandwidth", bandwidth)
-        object.__setattr__(self, "log_weights", log_w)
-        # evaluation cache: centres in bandwidth units about their mean, in single precision
-        shift = centres.mean(axis=0)
-        scaled = (centres - shift) / bandwidth
-        object.__setattr__(self, "_shift", shift)
-        object.__setattr__(self, "_scaled_centres", np.ascontiguousarray(scaled.T, dtype=np.float32))
-        object.__setattr__(self, "_offset", (log_w - 0.5 * np.einsum("ij,ij->i", scaled, scaled)).astype(np.float32))
-        object.__setattr__(self, "_const", -np.sum(np.log(bandwidth)) - 0.5 * centres.shape[1] * np.log(2.0 * np.pi))
-        # centres within ~2.5 bandwidths of their mean on every axis: the truncation radius (~10 bandwidths,
-        # gaussian_sum) holds them all, so no tree can save work (a tree only adds cost there)
-        object.__setattr__(self, "_compact", bool(np.all(scaled.std(axis=0) < 2.5)))
-
-    @property
-    def dim(self) -> int:
-        return self.centres.shape[1]
-
-    def logpdf(self, theta: np.ndarray) -> np.ndarray:
-        """Log density at ``theta (m, d)``, returns ``(m,)``; memory ``O(block x N)``.
-
-        Below ``_TREE_MIN_CENTRES`` centres every pair is summed (:meth:`_dense_logsum`). With more,
-        the sum is truncated with a k-d tree (:class:`~seqbayes.gaussian_sum.TruncatedSum`: the
-        dropped terms add up to less than ``e^-40`` of the kept sum, so it is the all-pairs value to
-        rounding) wherever that saves work, i.e. where the bandwidth is narrow against the spread
-        of the centres; elsewhere every pair is summed.
-        """
-        theta = as_samples(theta, self.dim)
-        x = (theta - self._shift) / self.bandwidth  # centring keeps the expansion below accurate
-        if self.centres.shape[0] < _TREE_MIN_CENTRES or self._compact:
-            return self._dense_logsum(x) + self._const
-        truncated = self.__dict__.get("_truncated")
-        if truncated is None:  # built on first use: a mixture that is only sampled never needs it
-            truncated = TruncatedSum((self.centres - self._shift) / self.bandwidth, self.log_weights)
-            object.__setattr__(self, "_truncated", truncated)
-        return truncated(x, self._dense_logsum) + self._const
-
-    def _dense_logsum(self, x) -> np.ndarray:
-        """``log sum_i W_i exp(-|x - c_i|^2 / 2)`` over every centre, ``x (m, d)`` centred and in bandwidth units.
-
-        The ``(m, N)`` exponent block is formed and exponentiated in single precision
-        (2.3x faster than double): the log-density error is ~1e-6 near the bulk of the
-        mixture and grows only where the density is negligible.
-        """
-        # log sum_i W_i exp(-|x - c_i|^2 / 2) = -|x|^2 / 2 + log sum_i exp(x.c_i - |c_i|^2 / 2 + log W_i)
-        out = np.empty(x.shape[0])
-        for rows, xb, scaled, peak in self._scaled_terms(x, np.float32):
-            out[rows] = (np.log(scaled.sum(axis=1, dtype=np.float64)) + peak[:, 0]
-                         - 0.5 * np.einsum("ij,ij->i", xb, xb))
-        return out
-
-    def _scaled_terms(self, x, dtype):
-        """Blocks of the mixture's terms at ``x (m, d)`` (centred, in bandwidth units), memory ``O(block x N)``:
-        yields ``(rows, x[rows], exp(e - peak), peak)`` with ``e_ki = x_k.c_i - |c_i|^2 / 2 + log W_i`` in
-        ``dtype`` and ``peak (b, 1)`` its row maximum; never N x N x d."""
-        centres = self._scaled_centres if dtype == np.float32 else self._scaled_centres.astype(dtype)
-        block = max(1, _BLOCK_FLOATS // max(1, self.centres.shape[0]))
-        for start in range(0, x.shape[0], block):
-            xb = x[start:start + block]
-            exponent = xb.astype(dtype) @ centres
-            exponent += self._offset
-            peak = exponent.max(axis=1, keepdims=True)
-            exponent -= peak
-            np.exp(exponent, out=exponent)
-            yield slice(start, start + xb.shape[0]), xb, exponent, peak
 
     def ancestor_ess(self, theta: np.ndarray, log_weights: np.ndarray | None = None) -> float:
         """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
@@ -220,9 +104,9 @@ class GaussianMixture:
         ``A_e = sum_{i: labels_i = e} a_i`` and ``V_e = sum_{i: labels_i = e} W_i`` (the components'
         weights): :func:`grouped_ancestor_variance`, the relative variance of the evidence that the
         components carry when components with one label are dependent (copies of one draw,
-        :attr:`~seqbayes.engine.state.SamplerState.lineage`; :func:`~seqbayes.engine.evidence.step_standard_errors`).
+        :attr:`~seqbayes.core.state.SamplerState.lineage`; :func:`~seqbayes.predictive.evidence.step_standard_errors`).
 
-        With fewer than ``_TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
+        With fewer than ``TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
         in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with
         probabilities ``v`` (systematic selection, fixed offset 1/2: no random draw) and
         ``sum_i a_i^2 = E[r_k . r_k']`` (``k, k'`` independent draws of ``v``) is estimated by the
@@ -252,7 +136,7 @@ class GaussianMixture:
         v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
         weight = grouped_sums(np.exp(self.log_weights), groups)                     # V_e
         x = (theta - self._shift) / self.bandwidth
-        if min(m, n) >= _TREE_MIN_CENTRES:
+        if min(m, n) >= TREE_MIN_CENTRES:
             cumulative = np.cumsum(v)
             cumulative[-1] = 1.0
             rows = np.searchsorted(cumulative, (np.arange(_ANCESTOR_ROWS) + 0.5) / _ANCESTOR_ROWS)
@@ -539,16 +423,6 @@ class GaussianMixture:
             behind = behind[(cumulative[flat[behind]] <= values[behind]) & (flat[behind] < n - 1)]
         return position
 
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` draws, shape ``(n, d)``."""
-        index = rng.choice(self.centres.shape[0], size=int(n), p=np.exp(self.log_weights))
-        return self.centres[index] + rng.standard_normal((int(n), self.dim)) * self.bandwidth
-
-    def draw_one_per_component(self, rng: np.random.Generator) -> np.ndarray:
-        """One draw from each component, ``(N, d)``: a stratified draw of the mixture."""
-        return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
-
-
 #: Share of the ancestor proposal that follows the clusters' approximate contributions at theta (the rest
 #: draws clusters by their weights: a defensive mixture, so no one-term weight exceeds 10 x its W-draw's).
 _CLUSTER_SHARE = 0.9
@@ -716,7 +590,7 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
     if static.any():
         h = silverman_bandwidth(centres[:, static], log_weights)
         if shrink_static:  # Liu & West (2001): a = sqrt(1 - h^2 / sigma^2) keeps mean and variance
-            mean, var, _ = _weighted_moments(centres[:, static], log_weights)
+            mean, var, _ = weighted_moments(centres[:, static], log_weights)
             a = np.sqrt(np.clip(1.0 - h**2 / np.maximum(var, 1e-300), 0.0, 1.0))
             centres[:, static] = mean + a * (centres[:, static] - mean)
         bandwidth[static] = h

@@ -7,10 +7,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
-from ..engine.evidence import estimate_increment, step_standard_errors
-from ..engine.stages import ExactPrior, restricted_draws, step_conflict, temper_resample_move
-from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
+from ..core.errors import TemperingLimitError, ZeroLikelihoodError
+from .evidence import estimate_increment, step_standard_errors
+from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
+from ..core.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
                             kept_copy, remedy_window, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
@@ -79,7 +79,7 @@ def path_prior_logpdf(window, kernel, likelihood, dim, memos=None):
     The window's first state has the prior its step used (exact from step 1 on), every later one
     the exact transition, every past state its dataset's likelihood; the log of the window's evidence
     ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior).
-    ``memos``: one :class:`~seqbayes.engine.likelihood.StateMemo` per past dataset, which keeps each state's
+    ``memos``: one :class:`~seqbayes.core.likelihood.StateMemo` per past dataset, which keeps each state's
     likelihood (a move of a path's suffix keeps the earlier states)."""
     normaliser = sum(past.log_evidence_increment for past in window)
 
@@ -156,7 +156,7 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
 
 class PathSpace:
     """The exact remedy for prior-data conflict: the step assimilated on the path space (a predictive of
-    :class:`~seqbayes.engine.protocol.Predictive`, for one step).
+    :class:`~seqbayes.predictive.particle.Predictive`, for one step).
 
     The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
     posterior's particles are: a posterior that lies several predictive sds out is made of that
@@ -179,7 +179,7 @@ class PathSpace:
     density as the independence proposal, a local sweep on random path suffixes
     (:class:`~seqbayes.moves.scaled.SuffixMove`) and, in the bridge, redraws of path suffixes from the path prior:
     :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence
-    increment is Eq. (1) or the importance estimate of :mod:`seqbayes.engine.evidence` on the path space. Every
+    increment is Eq. (1) or the importance estimate of :mod:`seqbayes.predictive.evidence` on the path space. Every
     likelihood of the window goes through one memo per dataset, so a move costs one likelihood call per state it
     changes. The record has ``StepInfo.path_steps = L``.
 
@@ -311,7 +311,7 @@ class PathSpace:
     def _bridge_weigh(self, likelihood, moves, rng) -> Weighed:
         """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the
         kernel), restricted to the parameter space by rejection, whose acceptance fraction enters the evidence as
-        in :func:`~seqbayes.engine.stages.restricted_draws`, weighed by every likelihood of the window.
+        in :func:`~seqbayes.predictive.particle.restricted_draws`, weighed by every likelihood of the window.
 
         The path-space target (``w`` the window's first step, ``s`` this one),
 
@@ -345,7 +345,7 @@ class PathSpace:
         config = replace(self.start_config, tempering_threshold=self.start_config.tempering_ess)
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, self.window_likelihood,
+        tempered = temper_stages(weighed.cloud, self.path_problem, config, self.window_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
                                         prior_moves=self.path_prior, path_states=self.length + 1)
         cloud = tempered.cloud
@@ -361,7 +361,7 @@ class PathSpace:
 
     def _stored_weigh(self, moves, rng) -> Weighed:
         """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
-        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.engine.stages.weigh`, a
+        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.predictive.particle.weigh`, a
         restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
         Components ``(log L_s, log path prior)``. With fewer particles than the posterior's (:attr:`start_size`),
         the paths are resampled to them."""
@@ -390,8 +390,8 @@ class PathSpace:
                        log_restricted_mass, n_found)
 
     def _stored_temper(self, weighed, rng) -> Tempered:
-        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
+        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.predictive.particle.temper_stages`)."""
+        tempered = temper_stages(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
                                         weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
                                         path_states=self.length + 1)
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)

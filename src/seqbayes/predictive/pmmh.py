@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.settings import MOVE_BUDGET
-from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..core.state import SweepStats
+from ..moves import GaussianMove, StretchMove, metropolis_accept, next_step_size, weighted_covariance
 from ..moves.delayed import QuadraticScreen
 from ..moves.scaled import DifferentialMove
 from ..priors import inside_support
@@ -58,6 +58,10 @@ __all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "dis
            "outer_logpdf", "rerun_cost"]
 
 
+
+#: SMC^2's PMMH budget per update, in units of ``N M`` (``SamplerConfig.move_budget``): with the advance itself an
+#: update without tempering costs at most ~6 ``N M`` (plus the guide's pilot) however long the stream.
+MOVE_BUDGET = 5
 
 #: While the cloud's diversity is being restored, the fraction of the particles attempted per batch: small, so that the
 #: restoring stops soon after it is reached (each batch re-runs its particles' inner filters over the whole history).

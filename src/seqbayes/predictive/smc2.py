@@ -42,19 +42,18 @@ from __future__ import annotations
 import sys
 import warnings
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
-from ..engine.errors import InnerFilterWarning, ZeroLikelihoodError, zero_likelihood_message
-from ..engine.protocol import ParticlePredictive
-from ..engine.stages import prior_name, reweight_stage
-from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
+from ..core.errors import InnerFilterWarning, ZeroLikelihoodError, prior_name, zero_likelihood_message
+from ..core.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
 from ..kernels import Decay, Drift, MarkovKernel, Static
-from ..moves import SweepStats
 from ..priors import JointPrior, inside_support
 from ..resampling import resample
 from ..results import prior_data_conflict
-from ..tempering import next_increment
+from ..core.tempering import next_increment, temper
+from .particle import ParticlePredictive
 from .pmmh import RESTORE_LIMIT, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
 
 __all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
@@ -491,7 +490,7 @@ class OuterCloud(Cloud):
 
 @dataclass(frozen=True, eq=False)
 class OuterWeighed(Weighed):
-    """:class:`~seqbayes.engine.state.Weighed` with what SMC^2's later stages need: the datasets and guides so far
+    """:class:`~seqbayes.core.state.Weighed` with what SMC^2's later stages need: the datasets and guides so far
     and the inner filters' mean ESS."""
 
     datasets: tuple = ()
@@ -499,8 +498,19 @@ class OuterWeighed(Weighed):
     inner_ess: float = float("nan")
 
 
+@dataclass(frozen=True, eq=False)
+class _Rejuvenating:
+    """SMC^2's particles between the stages of the tempering loop: the outer cloud, the moves so far (``n_virtual``:
+    the PMMH batches), the evaluations spent on them in this update and whether the last stage resampled."""
+
+    cloud: OuterCloud
+    moves: MoveTally
+    spent: int = 0
+    resampled: bool = False
+
+
 class NestedPredictive:
-    """SMC^2 as a step's predictive (:class:`~seqbayes.engine.protocol.Predictive`): the inner filters' likelihood
+    """SMC^2 as a step's predictive (:class:`~seqbayes.predictive.particle.Predictive`): the inner filters' likelihood
     estimates weigh the outer particles; they are resampled when the ESS has fallen and moved by PMMH within a
     per-update budget (:func:`~seqbayes.predictive.pmmh.rejuvenate`); the evidence increment is the tempering
     path's (Eq. 1)."""
@@ -528,53 +538,59 @@ class NestedPredictive:
                             inner_ess=inner_ess)
 
     def temper(self, weighed, likelihood, rng) -> Tempered:
-        """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls, resample
-        and schedule PMMH sweeps. A tempered update completes them at every stage; an untempered one restores the
-        copies' diversity to the ESS before the resampling, then spends what is left of
+        """Reweight by the likelihood estimates' ``delta`` powers (density tempering) through the one tempering loop
+        (:func:`~seqbayes.core.tempering.temper`); when the ESS falls, resample and schedule PMMH sweeps
+        (:meth:`_resample_rejuvenate`). A tempered update completes them at every stage; an untempered one restores
+        the copies' diversity to the ESS before the resampling, then spends what is left of
         ``SamplerConfig.move_budget x N M`` evaluations and defers the rest (:mod:`seqbayes.predictive.pmmh`)."""
-        config, n = self.config, self.config.n_samples
-        static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
-        components, cloud, pending = weighed.cloud.components, weighed.cloud.inner, weighed.cloud.pending
-        budget = (sys.maxsize if config.move_budget is None  # None: the rejuvenation completes in this update
-                  else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
-        beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
-        stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
-        moves_spent, per_particle = 0, rerun_cost(self.inner, weighed.datasets)
-        while beta < 1.0:
-            beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
-                log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
-            log_z += stage_log_z
-            temperatures.append(beta)
-            resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
-            if resampled:
-                index = resample(config.resampling, weights, rng, n)
-                static, components, cloud = static[index], components[index], _take(cloud, index)
-                log_weights = np.full(n, -np.log(n))
-                if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
-                    concluded = pending.acceptance
-                pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
-            if pending.pending:
-                was_pending = pending.n_proposed
-                # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
-                # copies overstate); an untempered one first brings the copies back to the ESS the weights had
-                # before the resampling, then defers what exceeds the budget
-                # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
-                tempered = beta < 1.0 or len(temperatures) > 1
-                allowed = sys.maxsize if tempered and not config.strict_budget else budget
-                static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
-                    self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
-                    log_weights, cloud, components, beta, step_size, pending, allowed, likelihood, rng,
-                    restore=stage_ess / n if resampled else 0.0, spent=moves_spent if config.strict_budget else 0,
-                    restore_limit=1.0 if config.strict_budget else RESTORE_LIMIT)
-                moves_spent += sweep.n_evaluations * per_particle   # the budget's units: M s per re-run
-                stats, n_batches = stats + sweep, n_batches + batches
-                if config.move == "stretch":
-                    step_size = step_size_new
-                if not pending.pending and pending.n_proposed > was_pending:
-                    concluded = pending.acceptance
-        return Tempered(OuterCloud(static, log_weights, components, inner=cloud, pending=pending,
-                                   concluded=concluded),
-                        log_z, tuple(temperatures), MoveTally(stats, step_size, n_batches), resampled, stage_ess)
+        cloud = weighed.cloud
+        annealed = temper(_Rejuvenating(cloud, MoveTally(step_size=weighed.moves.step_size)), cloud.components[:, 0],
+                          cloud.log_weights, self.config.tempering_rule(),
+                          partial(self._resample_rejuvenate, weighed=weighed, likelihood=likelihood, rng=rng),
+                          likelihood.step)
+        staged = annealed.particles
+        return Tempered(staged.cloud, annealed.log_z, annealed.temperatures, staged.moves, staged.resampled,
+                        annealed.last.ess)
+
+    def _resample_rejuvenate(self, staged, loglike, stage, weighed, likelihood, rng):
+        """SMC^2's mutation (:class:`~seqbayes.core.tempering.Mutation`): resample at an intermediate stage, or at the
+        last when the ESS is below ``ess_threshold * N`` (which concludes the last rejuvenation and schedules the
+        next), then the PMMH attempts the budget allows (:func:`~seqbayes.predictive.pmmh.rejuvenate`)."""
+        config, n, beta = self.config, self.config.n_samples, stage.beta
+        outer, log_weights = staged.cloud, stage.log_weights
+        static, components, cloud = outer.particles, outer.components, outer.inner
+        pending, concluded = outer.pending, outer.concluded
+        resampled = beta < 1.0 or stage.ess < config.ess_threshold * n
+        if resampled:
+            index = resample(config.resampling, stage.weights, rng, n)
+            static, components, cloud = static[index], components[index], _take(cloud, index)
+            log_weights = np.full(n, -np.log(n))
+            if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
+                concluded = pending.acceptance
+            pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
+        moves, spent = staged.moves, staged.spent
+        if pending.pending:
+            budget = (sys.maxsize if config.move_budget is None  # None: the rejuvenation completes in this update
+                      else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
+            was_pending = pending.n_proposed
+            # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
+            # copies overstate); an untempered one first brings the copies back to the ESS the weights had
+            # before the resampling, then defers what exceeds the budget
+            # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
+            tempered = beta < 1.0 or stage.index > 1
+            allowed = sys.maxsize if tempered and not config.strict_budget else budget
+            static, cloud, components, sweep, step_size, batches, pending = rejuvenate(
+                self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
+                log_weights, cloud, components, beta, moves.step_size, pending, allowed, likelihood, rng,
+                restore=stage.ess / n if resampled else 0.0, spent=spent if config.strict_budget else 0,
+                restore_limit=1.0 if config.strict_budget else RESTORE_LIMIT)
+            spent += sweep.n_evaluations * rerun_cost(self.inner, weighed.datasets)   # the budget's units: M s per re-run
+            moves = MoveTally(moves.stats + sweep, step_size if config.move == "stretch" else moves.step_size,
+                              moves.n_virtual + batches)
+            if not pending.pending and pending.n_proposed > was_pending:
+                concluded = pending.acceptance
+        outer = OuterCloud(static, log_weights, components, inner=cloud, pending=pending, concluded=concluded)
+        return _Rejuvenating(outer, moves, spent, resampled), components[:, 0], log_weights, None
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
         """The tempering path's estimate (Eq. 1): the likelihood estimates are unbiased, so is it."""
@@ -745,4 +761,4 @@ import typing as _typing  # noqa: E402
 if _typing.TYPE_CHECKING:  # names used only in annotations
     from typing import Any
 
-    from ..engine.state import Problem
+    from ..core.state import Problem

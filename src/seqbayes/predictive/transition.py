@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.protocol import ParticlePredictive
-from ..engine.errors import PlainConflict
-from ..engine.settings import STARVED_RESTART
-from ..engine.stages import ExactPrior
-from ..engine.state import PastStep, kept_copy, remedy_window, variance_before
+from ..core.errors import PlainConflict
+from ..core.state import PastStep, kept_copy, remedy_window, variance_before
 from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
 from .jumps import jump_fields
 from .mixture import GaussianMixture, predictive_density
+from .evidence import STARVED_RESTART
+from .particle import ExactPrior, ParticlePredictive
 from .paths import PathSpace, remedy_applies
 from .pseudo_marginal import SubsampledPrior
 
@@ -106,7 +105,7 @@ class TransitionMixture(ParticlePredictive):
 
     def stage_check(self):
         """The ancestor trigger of :meth:`remedy` on each intermediate stage's particles: once they are below its
-        threshold the step goes to the path space (:class:`~seqbayes.engine.errors.PlainConflict`) without its last
+        threshold the step goes to the path space (:class:`~seqbayes.core.errors.PlainConflict`) without its last
         stages, moves and evidence, which only serve the mixture step the remedy replaces. Tempering further towards
         the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "A decision before the
         ordinary step")."""

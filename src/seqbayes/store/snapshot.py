@@ -28,12 +28,12 @@ The kinds and their arrays (after the ``step`` dimension):
 
 Every kind but ``nested`` also has ``state_log_evidence_variance ()``, the variance estimate of
 the cumulative log-evidence, ``state_window ()``, the length of the conflict remedy's window of
-past steps (:class:`~seqbayes.engine.state.PastStep`: rebuilt from the steps' records, datasets and
+past steps (:class:`~seqbayes.core.state.PastStep`: rebuilt from the steps' records, datasets and
 priors, so a window needs the datasets), and ``state_paths (L, N, d)``, the particle paths the
 remedy carries forward (``L = 0`` until it first runs; ``L`` changes over the steps, so the run
 store concatenates these arrays, see :data:`RAGGED`). Stores written before them read as 0 and
 no window. ``state_lineage (N, 2)``: the labels of the last two posteriors' particles
-(:attr:`~seqbayes.engine.state.SamplerState.lineage`, integers stored as floats); a store written
+(:attr:`~seqbayes.core.state.SamplerState.lineage`, integers stored as floats); a store written
 before it reads as no lineage (every particle its own label), which changes only the standard
 errors of the log-evidence. The state's ``previous_prior`` is the prior density of the step before,
 rebuilt from that step's arrays.
@@ -47,7 +47,7 @@ from ..predictive.history import HistoryPrior
 from ..predictive.mixture import GaussianMixture, MixtureSum
 from ..predictive.smc2 import NestedState, nested_guide, nested_moments, nested_state_arrays, nested_state_from_arrays, start_nested
 from ..results import StepRecord
-from ..engine.state import PastStep, SamplerState
+from ..core.state import PastStep, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
            "check_state", "is_state_variable", "fill_missing", "output_name", "per_step", "NESTED_PER_STEP",

@@ -87,7 +87,7 @@ import numpy as np
 from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
 from ..resampling import resample
-from ..tempering import normalised_ess
+from ..core.tempering import normalised_ess
 from ..weights import normalise
 from .filters.kalman import check_filter_inputs, measurement_covariance
 from .structures.shear_building import DiscreteModel

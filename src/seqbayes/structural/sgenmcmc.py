@@ -99,7 +99,7 @@ import numpy as np
 
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, normalised_ess, temper
+from ..core.tempering import TargetESS, between_stages, blas_limit, normalised_ess, temper
 from ..weights import normalise
 from .ensemble import run_ensemble
 from .filters.enkf import EnKFBank, enkf_log_likelihood
@@ -452,9 +452,10 @@ class SGEnMCMC:
         theta, past, logw, bank, mean, cov = state.theta, state.past, state.logw, state.bank, state.mean, state.cov
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
-        logw, inc, (theta, past, mean_k, cov_k, bank), state.evid[k] = temper(
-            logw, inc, self.ess_threshold * N, partial(self._resample_move, state, k),
-            (theta, past, mean_k, cov_k, bank), state.evid[k])
+        annealed = temper((theta, past, mean_k, cov_k, bank), inc, logw, TargetESS(self.ess_threshold * N),
+                          between_stages(partial(self._resample_move, state, k)), log_z=state.evid[k])
+        (theta, past, mean_k, cov_k, bank), inc, logw = annealed.particles, annealed.loglike, annealed.log_weights
+        state.evid[k] = annealed.log_z
         past = past + inc
         if bank.can_freeze and bank.frozen is None and k % 10 == 1 and not state.resampled[k]:  # steady test
             change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
@@ -471,7 +472,7 @@ class SGEnMCMC:
     def _resample_move(self, state, k: int, logw, inc, phi: float, particles):
         """Resample (Eq. 28) and move with Metropolis-Hastings targeting
         ``p(theta | y_{0:k-1}) p(y_k | y_{0:k-1}, theta)^phi``: the ``resample_move`` of
-        :func:`~seqbayes.tempering.temper`, recording the event on ``state``."""
+        the mutation of :func:`~seqbayes.core.tempering.temper` (:func:`~seqbayes.core.tempering.between_stages`), recording the event on ``state``."""
         theta, past, mean_k, cov_k, bank = particles
         N, R, rng = self.n_members, state.R, state.rng
         state.stats.flush(theta)

@@ -91,7 +91,7 @@ import numpy as np
 
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, temper
+from ..core.tempering import TargetESS, between_stages, blas_limit, temper
 from ..weights import logsumexp, normalise
 from .drop_paths import effective_theta, path_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, measurement_covariance
@@ -493,8 +493,9 @@ class StiffnessDropMonitor:
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(st.mean, st.cov, y[k], *inputs)
         particles = (theta, delta, tau, st.past, mean_k, cov_k, bank, st.events)
-        logw, inc, particles, evidence = temper(logw, inc, self.ess_threshold * N,  # (2) tempering, (3) moves
-                                                partial(self._resample_move, st.storey, k, run), particles, evidence)
+        annealed = temper(particles, inc, logw, TargetESS(self.ess_threshold * N),  # (2) tempering, (3) moves
+                          between_stages(partial(self._resample_move, st.storey, k, run)), log_z=evidence)
+        logw, inc, particles, evidence = annealed.log_weights, annealed.loglike, annealed.particles, annealed.log_z
         theta, delta, tau, past, mean_k, cov_k, bank, events = particles
         if self._collapsed(theta, delta, tau):  # (4) spread a part that is copies of a few particles
             w = np.exp(normalise(logw))
@@ -509,7 +510,7 @@ class StiffnessDropMonitor:
     def _resample_move(self, storey: int, k: int, run: dict, logw, inc, phi: float, particles):
         """Resample and move with Metropolis-Hastings targeting
         ``p(path | y_{0:k-1}) p(y_k | y_{0:k-1}, path)^phi``: the ``resample_move`` of
-        :func:`~seqbayes.tempering.temper`."""
+        :func:`~seqbayes.core.tempering.temper`."""
         theta, delta, tau, past, mean_k, cov_k, bank, events = particles
         rng, R, u, y = run["rng"], run["R"], run["u"], run["y"]
         w = np.exp(normalise(logw))

@@ -147,7 +147,7 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
     printed, the study's default; ``"defaults"``: the library's defaults).
     """
     from ..engine.drivers import SEMC
-    from ..engine.errors import ZeroLikelihoodError
+    from ..core.errors import ZeroLikelihoodError
 
     if settings not in SETTINGS:
         raise ValueError(f"settings: expected one of {sorted(SETTINGS)}, got {settings!r}")

@@ -54,7 +54,7 @@ from ..structural.structures import (
     scale_to_pga,
     simulate,
 )
-from ..tempering import normalised_ess
+from ..core.tempering import normalised_ess
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
            "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",

@@ -107,7 +107,7 @@ class ValidatedLikelihood:
 
     @classmethod
     def for_step(cls, problem, dataset, step: int, on_evaluated=None) -> "ValidatedLikelihood":
-        """The likelihood of ``problem`` (a :class:`~seqbayes.engine.state.Problem`) for ``dataset`` at ``step``."""
+        """The likelihood of ``problem`` (a :class:`~seqbayes.core.state.Problem`) for ``dataset`` at ``step``."""
         return cls(problem.loglike, dataset, step, executor=problem.executor, n_chunks=problem.n_chunks,
                    history=problem.history, on_evaluated=on_evaluated)
 

@@ -1,20 +1,21 @@
 """The records of the engine: the sampler's state between datasets, the model, a step's weighted cloud
 and what its moves did, the records each stage of the pipeline hands to the next (:class:`Weighed`,
-:class:`Tempered`, :class:`Estimate`, :class:`Outcome`), and the past steps kept for the path-space remedy."""
+:class:`Tempered`, :class:`Estimate`, :class:`Outcome`), the past steps kept for the path-space remedy, and the
+protocol of a step's predictive prior (:class:`Predictive`) that the pipeline goes through."""
 
 from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from ..kernels import MarkovKernel
-from ..moves import SweepStats
 from ..transforms import BoxTransform
 
-__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "MoveTally", "Weighed", "Tempered", "Estimate", "Outcome",
-           "kept_copy", "variance_before"]
+__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "SweepStats", "MoveTally", "Weighed", "Tempered",
+           "Estimate", "Outcome", "Predictive", "kept_copy", "variance_before"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,10 +48,10 @@ class SamplerState:
         After a path-space step: the paths over the last ``L`` steps of the posterior particles
         (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
     log_evidence_variance : float
-        Estimated variance of ``log_evidence`` (:func:`~seqbayes.engine.evidence.step_standard_errors`).
+        Estimated variance of ``log_evidence`` (:func:`~seqbayes.predictive.evidence.step_standard_errors`).
     lineage : (N, 2) int array or None
         Labels of the last two posteriors' particles, for the evidence's standard error
-        (:func:`~seqbayes.engine.evidence.step_standard_errors`): column 0 of ``posterior``'s, the index of the
+        (:func:`~seqbayes.predictive.evidence.step_standard_errors`): column 0 of ``posterior``'s, the index of the
         step's initial draw each particle descends from (the predictive draw, restart draw or path-space
         walker; resampling copies it, moves keep it), column 1 the previous posterior's (the components of
         ``previous_prior``). ``None`` (before the first step, a state from an older run store) counts every
@@ -111,6 +112,33 @@ class Cloud:
     log_weights: np.ndarray
     components: np.ndarray
     labels: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SweepStats:
+    """Counts of one or more sweeps; the true acceptance rate is ``n_accepted / n_proposed``.
+
+    With delayed acceptance (:mod:`seqbayes.moves.delayed`) ``n_evaluations`` counts the expensive
+    evaluations only, ``n_screen_evaluations`` the cheap screen's and ``n_screened_out`` the proposals
+    it rejected before any expensive call."""
+
+    n_proposed: int = 0
+    n_accepted: int = 0
+    n_identical_partner: int = 0
+    n_evaluations: int = 0
+    n_screen_evaluations: int = 0
+    n_screened_out: int = 0
+
+    def __add__(self, other: "SweepStats") -> "SweepStats":
+        return SweepStats(self.n_proposed + other.n_proposed, self.n_accepted + other.n_accepted,
+                          self.n_identical_partner + other.n_identical_partner,
+                          self.n_evaluations + other.n_evaluations,
+                          self.n_screen_evaluations + other.n_screen_evaluations,
+                          self.n_screened_out + other.n_screened_out)
+
+    @property
+    def acceptance_rate(self) -> float:
+        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
 
 
 @dataclass(frozen=True)
@@ -258,6 +286,27 @@ class PastStep:
     def path_space(self) -> bool:
         """Whether the step was assimilated on the path space."""
         return self.path_states > 0
+
+
+class Predictive(Protocol):
+    """What one step's predictive prior does at each stage of the pipeline."""
+
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+        """Stage 1: the prior particles and their likelihoods (Eq. A4)."""
+
+    def temper(self, weighed: Weighed, likelihood, rng) -> Tempered:
+        """Stages 2-4: reweight by ``L^delta`` (Eq. A5), resample, move."""
+
+    def estimate(self, tempered: Tempered, weighed: Weighed, likelihood, rng) -> Estimate:
+        """Stage 5: the evidence increment."""
+
+    def propagate(self, state, weighed: Weighed, tempered: Tempered, estimate: Estimate, dataset, likelihood,
+                  rng) -> Outcome:
+        """Stage 6: the next state (Eq. A2-A3) and the record's diagnostics."""
+
+    def remedy(self, state, dataset, likelihood, info, weighed) -> Predictive | None:
+        """The predictive to assimilate the step with again, given its ``info`` and what :meth:`weigh` found
+        (both ``None``: no particle had a non-zero likelihood), or ``None`` to keep the step."""
 
 
 def remedy_window(window: tuple, remedy_lag: int) -> tuple:

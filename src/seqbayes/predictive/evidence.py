@@ -41,16 +41,22 @@ import warnings
 
 import numpy as np
 
+from ..core.state import Cloud
 from ..moves import metropolis_accept
 from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts, complement_halves
 from ..priors import inside_support
 from ..resampling import resample
 from ..transforms import BoxTransform
 from ..weights import logsumexp, normalise
-from .settings import ECONOMY_EVIDENCE_SE, HIGH_DIMENSION, STARVED_RESTART
-from .state import Cloud
+from ..moves.schedule import HIGH_DIMENSION
 
-__all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment"]
+__all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment", "STARVED_RESTART"]
+
+#: ``economy``: the importance sweeps continue until the increment's standard error is below this.
+ECONOMY_EVIDENCE_SE = 0.02
+#: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
+#: step's evidence and posterior rest on a handful of draws of the prior's far tail.
+STARVED_RESTART = 0.1
 
 
 
@@ -263,7 +269,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
         not independent: their terms are summed per draw first, ``sum_e (A_e - V_e)^2`` (the
         genealogy estimator of Chan & Lai 2013 and Lee & Whiteley 2018, as Du & Guyader 2021 use it
         for adaptive SMC with MCMC moves; :meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_spread`,
-        labels in :attr:`~seqbayes.engine.state.SamplerState.lineage`). With distinct labels and equal
+        labels in :attr:`~seqbayes.core.state.SamplerState.lineage`). With distinct labels and equal
         weights it is ``1 / ESS_a - 1 / N``.
       - the posterior's before, through the mixture the last step used: ``Z_s`` is the ratio of the
         two- and one-step evidence through those particles, which makes consecutive increments'
@@ -352,10 +358,10 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
 def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
               other=None, pool_sweeps: bool = False):
     """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
-    (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
+    (:mod:`seqbayes.predictive.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
 
     ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
-    sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`),
+    sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.predictive.evidence.pooled_start`),
     and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
     ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
 
