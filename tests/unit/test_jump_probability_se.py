@@ -155,7 +155,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
                                weights @ _responsibilities(priors[2], clouds[2]), rtol=1e-6)
     window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_space=False)
                    for p, c, w in zip(priors, clouds, logws))
-    state = SimpleNamespace(window=window, posterior_log_weights=window[-1].log_weights)
+    state = SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=window[-1].log_weights)
     assert lagged_ancestor_variance(state, AncestorSpread(1.0, 0.25, mass=None), 0.0) == 0.25   # no mass: lag 1 alone
     mass = rng.dirichlet(np.ones(7))
     total = lagged_ancestor_variance(state, AncestorSpread(1.0, float(np.sum((mass - np.exp(logws[3] - np.log(
@@ -170,7 +170,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     # a path-space step stops the sum behind it, and its particles' term is that of steps 4 and 5 together:
     # against their own weights, not step 4's posterior masses
     window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_space": True}),) + window[3:]
-    cut = lagged_ancestor_variance(SimpleNamespace(window=window, posterior_log_weights=state.posterior_log_weights),
+    cut = lagged_ancestor_variance(SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=state.posterior_log_weights),
                                    AncestorSpread(1.0, float(np.sum((mass - np.exp(window[-1].log_weights)) ** 2)),
                                                   mass=mass), 0.0)
     r = _responsibilities(priors[3], clouds[3])
@@ -220,7 +220,7 @@ def test_a_mixture_step_after_a_path_space_step_has_no_two_step_term():
 
     def state(path_space):
         last = SimpleNamespace(prior=earlier_prior, posterior=ancestors, path_space=path_space)
-        return SimpleNamespace(window=(last,), prior=prior, posterior=ancestors, lineage=None)
+        return SimpleNamespace(memory=SimpleNamespace(window=(last,), lineage=None), prior=prior, posterior=ancestors)
 
     mixture = TransitionMixture.__new__(TransitionMixture)
     mixture.problem = SimpleNamespace(kernel=kernel)

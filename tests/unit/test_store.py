@@ -104,7 +104,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     assert path_steps[3] > 0 and not any(path_steps[:3]), path_steps   # the remedy ran at the jump
     if remedy_lag is not None:
         assert path_steps[3:6] == [3, 4, 5], path_steps
-    assert reference.snapshot()[0].paths is not None                  # and its paths were carried on
+    assert reference.snapshot()[0].memory.paths is not None                  # and its paths were carried on
     RunStore.create(tmp_path / "run.nc", cfg)
     for i, d in enumerate(data):
         RunStore.open(tmp_path / "run.nc").assimilate(d, f"d{i}")
@@ -112,9 +112,9 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     assert_same_steps(reference.result.steps, store.result.steps)
     state = store.state_at(len(data))[0]
     expected = reference.snapshot()[0]
-    np.testing.assert_array_equal(state.paths, expected.paths)
-    assert len(state.window) == len(expected.window)
-    for mine, theirs in zip(state.window, expected.window):
+    np.testing.assert_array_equal(state.memory.paths, expected.memory.paths)
+    assert len(state.memory.window) == len(expected.memory.window)
+    for mine, theirs in zip(state.memory.window, expected.memory.window):
         np.testing.assert_array_equal(mine.dataset, theirs.dataset)
         np.testing.assert_array_equal(mine.posterior, theirs.posterior)
         assert mine.path_space == theirs.path_space

@@ -1,6 +1,6 @@
 """The samplers' exceptions and warnings, and where the package documents them."""
 
-__all__ = ["ZeroLikelihoodError", "PlainConflict", "TemperingLimitError", "PriorDataConflictWarning",
+__all__ = ["ZeroLikelihoodError", "TemperingLimitError", "PriorDataConflictWarning",
            "InnerFilterWarning", "zero_likelihood_message", "prior_name", "documented"]
 
 
@@ -39,16 +39,6 @@ def documented(page: str) -> str:
 
 class ZeroLikelihoodError(RuntimeError):
     """Every sample has zero likelihood for a dataset."""
-
-
-class PlainConflict(Exception):
-    """Raised by a step's tempering once its conflict with the data already calls for the path-space remedy, before
-    its last stage (:meth:`seqbayes.predictive.transition.TransitionMixture.stage_check`): ``remedy`` is the
-    predictive that assimilates the step instead (:func:`seqbayes.engine.pipeline.assimilate`)."""
-
-    def __init__(self, remedy):
-        super().__init__("the step's prior-data conflict calls for the remedy before its last stage")
-        self.remedy = remedy
 
 
 class PriorDataConflictWarning(RuntimeWarning):

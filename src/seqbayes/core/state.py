@@ -6,16 +6,102 @@ protocol of a step's predictive prior (:class:`Predictive`) that the pipeline go
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from ..kernels import MarkovKernel
+from .errors import ZeroLikelihoodError
 from ..transforms import BoxTransform
 
-__all__ = ["SamplerState", "Problem", "PastStep", "Cloud", "SweepStats", "MoveTally", "Weighed", "Tempered",
-           "Estimate", "Outcome", "Predictive", "kept_copy", "variance_before"]
+__all__ = ["SamplerState", "RemedyMemory", "Problem", "PastStep", "Cloud", "SweepStats", "MoveTally", "Weighed",
+           "Tempered", "Estimate", "Outcome", "Failure", "Reassimilate", "Assimilated", "Predictive", "kept_copy",
+           "variance_before"]
+
+
+@dataclass(frozen=True, eq=False)
+class RemedyMemory:
+    """What the conflict remedy keeps from one step to the next, as one record that says how it is stored.
+
+    Attributes
+    ----------
+    window : tuple of PastStep
+        The last ``lag`` steps (datasets, priors, posteriors) of the path-space target.
+    paths : (N, L, d) array or None
+        After a path-space step: the paths over the last ``L`` steps of the posterior particles
+        (``paths[:, -1]`` is the posterior); ``None`` until the remedy first runs.
+    lineage : (N, 2) int array or None
+        Labels of the last two posteriors' particles, for the ancestors' spread and the evidence's standard error
+        (:func:`~seqbayes.predictive.evidence.step_standard_errors`): column 0 of the posterior's, the index of the
+        step's initial draw each particle descends from (the predictive draw, restart draw or path-space
+        walker; resampling copies it, moves keep it), column 1 the previous posterior's (the components of
+        ``SamplerState.previous_prior``). ``None`` (before the first step, a state from an older run store) counts
+        every particle as its own.
+    """
+
+    window: tuple = ()
+    paths: np.ndarray | None = None
+    lineage: np.ndarray | None = None
+
+    def arrays(self, n: int, d: int) -> dict:
+        """The run store's arrays (float64): ``state_window ()`` (the window's length: its steps are rebuilt from the
+        store's records, datasets and priors), ``state_paths (L, N, d)`` (``L`` varies over the steps; 0 before
+        the remedy first runs) and ``state_lineage (N, 2)`` when known."""
+        paths = np.zeros((0, n, d)) if self.paths is None else np.transpose(self.paths, (1, 0, 2))
+        out = {"state_window": len(self.window), "state_paths": paths}
+        if self.lineage is not None:
+            out["state_lineage"] = self.lineage
+        return {name: np.array(value, dtype=float) for name, value in out.items()}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, window: tuple) -> "RemedyMemory":
+        """The inverse of :meth:`arrays`, given the ``window`` rebuilt from the store (of ``state_window`` steps)."""
+        paths, lineage = arrays.get("state_paths"), arrays.get("state_lineage")
+        return cls(window, None if paths is None or not len(paths) else np.transpose(paths, (1, 0, 2)),
+                   None if lineage is None else np.asarray(lineage).astype(np.intp))
+
+    @staticmethod
+    def window_length(arrays: dict, step: int) -> int:
+        """The stored window's length at ``step`` (0 for a store written before the remedy kept one)."""
+        length = float(arrays.get("state_window", 0))
+        if not (length == int(length) and 0 <= length <= step):
+            raise ValueError(f"state_window: the conflict remedy's window at step {step} holds {length:g} steps; "
+                             f"expected an integer in [0, {step}] (the store was edited)")
+        return int(length)
+
+
+@dataclass(frozen=True, eq=False)
+class Failure:
+    """A stage that cannot go on, as a value: the error it would raise (:class:`~seqbayes.core.errors.ZeroLikelihoodError`,
+    :class:`~seqbayes.core.errors.TemperingLimitError`). The pipeline decides what follows (a remedy, the first
+    outcome, or raising it to the caller)."""
+
+    error: Exception
+
+    @property
+    def zero_likelihood(self) -> bool:
+        return isinstance(self.error, ZeroLikelihoodError)
+
+
+@dataclass(frozen=True, eq=False)
+class Reassimilate:
+    """A remedy's decision: assimilate the step through ``predictive`` instead; should that fail, through
+    ``otherwise`` (``None``: keep the first outcome, or raise its failure)."""
+
+    predictive: object
+    otherwise: object = None
+
+
+@dataclass(frozen=True, eq=False)
+class Assimilated:
+    """A step that went through the pipeline: the new state, its record, what weighing found, and what the
+    predictive's remedy reads from it (``lagged_variance``: :attr:`Outcome.lagged_variance`)."""
+
+    state: object
+    record: object
+    weighed: object
+    lagged_variance: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,20 +128,10 @@ class SamplerState:
     log_prior : (N,) array or None
         ``prior.logpdf(particles)`` when known (a :class:`~seqbayes.predictive.history.HistoryPrior` at
         the last posterior: its target values, so the past datasets are not re-evaluated).
-    window : tuple of PastStep
-        The last ``remedy_lag`` steps (datasets, priors, posteriors) for the conflict remedy.
-    paths : (N, L, d) array or None
-        After a path-space step: the paths over the last ``L`` steps of the posterior particles
-        (``paths[:, -1]`` is ``posterior``); ``None`` until the remedy first runs.
+    memory : RemedyMemory
+        What the conflict remedy keeps from step to step (the window of past steps, the paths, the lineage).
     log_evidence_variance : float
         Estimated variance of ``log_evidence`` (:func:`~seqbayes.predictive.evidence.step_standard_errors`).
-    lineage : (N, 2) int array or None
-        Labels of the last two posteriors' particles, for the evidence's standard error
-        (:func:`~seqbayes.predictive.evidence.step_standard_errors`): column 0 of ``posterior``'s, the index of the
-        step's initial draw each particle descends from (the predictive draw, restart draw or path-space
-        walker; resampling copies it, moves keep it), column 1 the previous posterior's (the components of
-        ``previous_prior``). ``None`` (before the first step, a state from an older run store) counts every
-        particle as its own.
     previous_prior : GaussianMixture or None
         The mixture prior the last step used (components: the previous posterior's particles), for the
         part of the next increment's standard error that comes from it
@@ -71,10 +147,8 @@ class SamplerState:
     posterior: np.ndarray | None = None
     posterior_log_weights: np.ndarray | None = None
     log_prior: np.ndarray | None = None
-    window: tuple = ()
-    paths: np.ndarray | None = None
+    memory: RemedyMemory = field(default_factory=lambda: RemedyMemory())
     log_evidence_variance: float = 0.0
-    lineage: np.ndarray | None = None
     previous_prior: object = None
 
     @property
@@ -106,7 +180,7 @@ class Problem:
 class Cloud:
     """The weighted particles of one step between stages, with their ``(log L, log p_s)`` components and
     their labels: the index of the step's initial draw each descends from (resampling copies it, moves keep it;
-    :attr:`SamplerState.lineage`)."""
+    :attr:`RemedyMemory.lineage`)."""
 
     particles: np.ndarray
     log_weights: np.ndarray
@@ -238,6 +312,9 @@ class Outcome:
     moments : tuple of two (d,) arrays or None
         The posterior's mean and sd when the predictive knows them better than the draws do (SMC^2's
         Rao-Blackwellised drifting parameters); ``None``: from the weighted draws.
+    lagged_variance : float
+        The earlier posteriors' share of the increment's variance, for the remedy's decision
+        (:func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`; NaN where not computed).
     """
 
     state: object
@@ -249,6 +326,7 @@ class Outcome:
     step_size: float
     fields: dict
     moments: tuple | None = None
+    lagged_variance: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,24 +367,25 @@ class PastStep:
 
 
 class Predictive(Protocol):
-    """What one step's predictive prior does at each stage of the pipeline."""
+    """What one step's predictive prior does at each stage of the pipeline. A stage that cannot go on returns a
+    :class:`Failure`; :meth:`temper` may also return a remedy's :class:`Reassimilate`, decided between its stages."""
 
-    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed | Failure:
         """Stage 1: the prior particles and their likelihoods (Eq. A4)."""
 
-    def temper(self, weighed: Weighed, likelihood, rng) -> Tempered:
+    def temper(self, state, dataset, weighed: Weighed, likelihood, rng) -> Tempered | Failure | Reassimilate:
         """Stages 2-4: reweight by ``L^delta`` (Eq. A5), resample, move."""
 
-    def estimate(self, tempered: Tempered, weighed: Weighed, likelihood, rng) -> Estimate:
+    def estimate(self, tempered: Tempered, weighed: Weighed, likelihood, rng) -> Estimate | Failure:
         """Stage 5: the evidence increment."""
 
     def propagate(self, state, weighed: Weighed, tempered: Tempered, estimate: Estimate, dataset, likelihood,
                   rng) -> Outcome:
         """Stage 6: the next state (Eq. A2-A3) and the record's diagnostics."""
 
-    def remedy(self, state, dataset, likelihood, info, weighed) -> Predictive | None:
-        """The predictive to assimilate the step with again, given its ``info`` and what :meth:`weigh` found
-        (both ``None``: no particle had a non-zero likelihood), or ``None`` to keep the step."""
+    def remedy(self, state, dataset, likelihood, outcome: Assimilated | Failure) -> Reassimilate | None:
+        """What to do with the step's ``outcome``: ``None`` keeps it (or raises its failure), a
+        :class:`Reassimilate` assimilates the step again through another predictive."""
 
 
 def remedy_window(window: tuple, remedy_lag: int) -> tuple:

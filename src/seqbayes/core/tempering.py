@@ -20,6 +20,7 @@ import numpy as np
 
 from ..weights import logsumexp, normalise
 from .errors import TemperingLimitError, ZeroLikelihoodError, prior_name
+from .state import Failure
 
 __all__ = ["tempered_ess", "bisect_increment", "next_increment", "next_exponent", "Stage", "Mutation", "Tempering",
            "Adaptive", "Single", "TargetESS", "Annealed", "temper", "between_stages", "normalised_ess", "blas_limit"]
@@ -178,18 +179,15 @@ class Tempering:
         """One stage of Eq. (A5): reweight the normalised ``log_weights (N,)`` by ``L^delta`` (``loglike (N,)``,
         ``-inf`` allowed) with the next increment ``delta`` from ``beta``, after ``n_stages`` stages of ``step``.
 
-        Raises
-        ------
-        TemperingLimitError
-            ``max_stages`` stages did not reach ``beta = 1``.
-        ZeroLikelihoodError
-            Every particle with a non-zero weight has zero likelihood.
+        Returns a :class:`Stage`, or a :class:`~seqbayes.core.state.Failure` when ``max_stages`` stages did not reach
+        ``beta = 1`` (:class:`TemperingLimitError`) or every particle with a non-zero weight has zero likelihood
+        (:class:`ZeroLikelihoodError`).
         """
         if n_stages >= self.max_stages:
-            raise TemperingLimitError(
+            return Failure(TemperingLimitError(
                 f"step {step}: tempering reached exponent {beta:.3g} after max_stages = {self.max_stages} "
                 f"stages; the dataset lies very far from the {prior_name(step)}"
-                f" (check its units and the model), or raise max_stages")
+                f" (check its units and the model), or raise max_stages"))
         remaining = 1.0 - beta
         delta = self.increment(log_weights, loglike, remaining)
         if remaining - delta < 1e-12:
@@ -198,8 +196,8 @@ class Tempering:
         increment = np.where(finite, delta * np.where(finite, loglike, 0.0), -np.inf)
         stage_log_z = logsumexp(log_weights + increment)  # Eq. (1), one stage
         if not np.isfinite(stage_log_z):  # the particles with a non-zero likelihood all have zero weight
-            raise ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; the "
-                                      f"{prior_name(step)} is too far from the data")
+            return Failure(ZeroLikelihoodError(f"step {step}: every sample with a non-zero weight has zero likelihood; "
+                                               f"the {prior_name(step)} is too far from the data"))
         beta = 1.0 if delta == remaining else beta + delta
         log_weights = log_weights + increment - stage_log_z  # normalised: the carried weights sum to one
         weights = np.exp(log_weights)
@@ -241,8 +239,9 @@ class TargetESS:
 @dataclass(frozen=True, eq=False)
 class Annealed:
     """What :func:`temper` leaves: the particles, their ``loglike`` and ``log_weights``, the path's log-evidence
-    ``log_z`` (Eq. 1, from the ``log_z`` it was given), the exponents reached, the last :class:`Stage` and the
-    decision that stopped the loop (``None``: it reached ``beta = 1``)."""
+    ``log_z`` (Eq. 1, from the ``log_z`` it was given), the exponents reached, the last :class:`Stage` and what
+    stopped the loop: the mutation's decision or a stage's :class:`~seqbayes.core.state.Failure` (``None``: it
+    reached ``beta = 1``)."""
 
     particles: Any
     loglike: np.ndarray
@@ -275,9 +274,12 @@ def temper(particles, loglike, log_weights, rule, mutate, step: int = 0, log_z: 
     -------
     Annealed
     """
-    beta, temperatures = 0.0, []
+    beta, temperatures, stage = 0.0, [], None
     while beta < 1.0:
-        stage = rule.stage(log_weights, loglike, beta, len(temperatures), step)
+        reached = rule.stage(log_weights, loglike, beta, len(temperatures), step)
+        if isinstance(reached, Failure):
+            return Annealed(particles, loglike, log_weights, log_z, tuple(temperatures), stage, reached)
+        stage = reached
         log_z += stage.log_z
         beta = stage.beta
         temperatures.append(beta)

@@ -31,8 +31,8 @@ import time
 
 from ..predictive.base import predictive_for
 from ..results import StepInfo, StepRecord
-from ..core.errors import PlainConflict, ZeroLikelihoodError
 from ..core.likelihood import ValidatedLikelihood, check_dataset
+from ..core.state import Assimilated, Failure, Reassimilate
 from .outputs import check_step
 from ..predictive.particle import count_distinct
 
@@ -40,14 +40,22 @@ __all__ = ["assimilate", "run_step"]
 
 
 def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikelihood, rng: np.random.Generator,
-             start: float) -> tuple[object, StepRecord, Weighed]:
+             start: float) -> Assimilated | Failure | Reassimilate:
     """One step through ``predictive``: weigh -> temper/resample/move -> evidence -> propagate -> record.
 
-    Returns the new state, the step's record and what weighing found (for the remedy's decision);
-    ``start`` is the step's ``time.perf_counter()``."""
+    Returns the step (:class:`~seqbayes.core.state.Assimilated`: the new state, the record and what weighing found,
+    for the remedy's decision), or what stopped it: a stage's :class:`~seqbayes.core.state.Failure` or a remedy's
+    :class:`~seqbayes.core.state.Reassimilate`, decided between the tempering stages. ``start`` is the step's
+    ``time.perf_counter()``."""
     weighed = predictive.weigh(state, dataset, likelihood, rng)
-    tempered = predictive.temper(weighed, likelihood, rng)
+    if isinstance(weighed, Failure):
+        return weighed
+    tempered = predictive.temper(state, dataset, weighed, likelihood, rng)
+    if isinstance(tempered, (Failure, Reassimilate)):
+        return tempered
     estimate = predictive.estimate(tempered, weighed, likelihood, rng)
+    if isinstance(estimate, Failure):
+        return estimate
     outcome = predictive.propagate(state, weighed, tempered, estimate, dataset, likelihood, rng)
     moves = estimate.moves
     info = StepInfo(
@@ -62,14 +70,19 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         n_move_evaluations=moves.stats.n_evaluations, n_screen_evaluations=moves.stats.n_screen_evaluations,
         n_screened_out=moves.stats.n_screened_out, wall_time=time.perf_counter() - start, **outcome.fields)
     record = StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive, outcome.moments)
-    return outcome.state, record, weighed
+    return Assimilated(outcome.state, record, weighed, outcome.lagged_variance)
 
 
 def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng: np.random.Generator, *,
                on_evaluated: Callable[[int], None] | None = None) -> tuple[object, StepRecord]:
     """Assimilate one dataset (pure; ``state`` is not modified): :func:`run_step` through the step's predictive
-    (:func:`~seqbayes.predictive.base.predictive_for`), then again through the remedy it hands a conflicted step to
-    (the path-space step, :class:`~seqbayes.predictive.paths.PathSpace`), if any.
+    (:func:`~seqbayes.predictive.base.predictive_for`), then as its remedy decides.
+
+    The remedy's decision is a value: ``None`` keeps the step, a :class:`~seqbayes.core.state.Reassimilate` runs the
+    step again through another predictive (the path-space step, :class:`~seqbayes.predictive.paths.PathSpace`), and,
+    should that find nothing, through its ``otherwise`` or back to the first outcome. The decision may come between
+    the first step's tempering stages (then the first outcome is the decision itself) or after it. A failure that
+    no remedy takes is raised.
 
     ``on_evaluated(n_rows)`` is told of every likelihood evaluation (a progress bar's ``update``).
 
@@ -82,6 +95,8 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
     ------
     ZeroLikelihoodError
         If every sample has zero likelihood.
+    TemperingLimitError
+        If the tempering took more than ``max_stages`` stages.
     InvalidStepError
         The new state or record holds a value the run store would refuse (:mod:`seqbayes.engine.outputs`).
     """
@@ -89,34 +104,18 @@ def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng
     check_dataset(dataset, state.step + 1)
     likelihood = ValidatedLikelihood.for_step(problem, dataset, state.step + 1, on_evaluated)
     predictive, start_state = predictive_for(state, problem, config)
-    try:
-        new_state, record, weighed = run_step(predictive, start_state, dataset, likelihood, rng, start)
-    except PlainConflict as plain:
-        try:
-            new_state, record, _ = run_step(plain.remedy, state, dataset, likelihood, rng, start)
-        except ZeroLikelihoodError:  # the paths' restart found nothing: the mixture's step after all, to its end
-            predictive.check_stages = False
-            new_state, record, _ = run_step(predictive, start_state, dataset, likelihood, rng, start)
-        check_step(new_state, record)
-        return new_state, record
-    except ZeroLikelihoodError as error:
-        remedy = predictive.remedy(state, dataset, likelihood, None, None)
-        if remedy is None:
-            raise
-        try:
-            new_state, record, _ = run_step(remedy, state, dataset, likelihood, rng, start)
-        except ZeroLikelihoodError:
-            raise error from None
-        check_step(new_state, record)
-        return new_state, record
-    remedy = predictive.remedy(state, dataset, likelihood, record.info, weighed)
-    if remedy is not None:
-        try:
-            new_state, record, _ = run_step(remedy, state, dataset, likelihood, rng, start)
-        except ZeroLikelihoodError:  # the paths' restart found nothing the mixture's did: keep the mixture's step
-            pass
-    check_step(new_state, record)  # what the run store re-opens (one definition: engine.outputs)
-    return new_state, record
+    first = run_step(predictive, start_state, dataset, likelihood, rng, start)
+    decision = first if isinstance(first, Reassimilate) else predictive.remedy(state, dataset, likelihood, first)
+    outcome = first
+    if decision is not None:
+        outcome = run_step(decision.predictive, state, dataset, likelihood, rng, start)
+        if isinstance(outcome, Failure) and outcome.zero_likelihood:   # the paths' restart found nothing
+            outcome = first if decision.otherwise is None else run_step(decision.otherwise, start_state, dataset,
+                                                                        likelihood, rng, start)
+    if isinstance(outcome, Failure):
+        raise outcome.error
+    check_step(outcome.state, outcome.record)  # what the run store re-opens (one definition: engine.outputs)
+    return outcome.state, outcome.record
 
 
 import typing as _typing  # noqa: E402

@@ -43,7 +43,7 @@ def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.
 
     ``A_e = sum_{j: labels_j = e} mass_j`` is the later posterior's mass on the ancestors labelled ``e``
     and ``V_e`` their weight (both sum to one). The label of an ancestor is the index of the initial draw
-    it descends from (:attr:`~seqbayes.core.state.SamplerState.lineage`), so ancestors that resampling
+    it descends from (:attr:`~seqbayes.core.state.RemedyMemory.lineage`), so ancestors that resampling
     copied from one draw form one group (Chan & Lai 2013; Lee & Whiteley 2018). With distinct labels it
     is ``sum_j (mass_j - W_j)^2``, ``1 / ESS_a - 1 / N`` for equal weights.
 

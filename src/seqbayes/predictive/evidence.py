@@ -269,7 +269,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
         not independent: their terms are summed per draw first, ``sum_e (A_e - V_e)^2`` (the
         genealogy estimator of Chan & Lai 2013 and Lee & Whiteley 2018, as Du & Guyader 2021 use it
         for adaptive SMC with MCMC moves; :meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_spread`,
-        labels in :attr:`~seqbayes.core.state.SamplerState.lineage`). With distinct labels and equal
+        labels in :attr:`~seqbayes.core.state.RemedyMemory.lineage`). With distinct labels and equal
         weights it is ``1 / ESS_a - 1 / N``.
       - the posterior's before, through the mixture the last step used: ``Z_s`` is the ratio of the
         two- and one-step evidence through those particles, which makes consecutive increments'

@@ -146,12 +146,12 @@ def jump_fields(kernel: MarkovKernel, state, cloud, mixture_target: bool = True)
     mixture prior (not a path-space step's), that prior and the window's chain of mixtures before it.
     ``mixture_target=False`` for a path-space step (:func:`jump_probability_se`)."""
     earlier = {}
-    last = state.window[-1] if state.window else None
+    last = state.memory.window[-1] if state.memory.window else None
     # a path-space posterior rests on its window's start, not on its mixture prior (negligible: docs/jump_kernels.md)
     if (last is not None and not last.path_space and isinstance(last.prior, (GaussianMixture, MixtureSum))
             and state.posterior is not None and np.array_equal(last.posterior, state.posterior)):
         earlier = dict(ancestors=state.posterior, earlier_prior=last.prior, earlier_labels=posterior_labels(state, 1),
-                       deeper=mixture_chain(state.window[:-1]))
+                       deeper=mixture_chain(state.memory.window[:-1]))
     return jump_step_fields(kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
                             posterior_labels(state), mixture_target=mixture_target, **earlier)
 

@@ -1,5 +1,5 @@
 """Ancestry of a step's posterior among the last posterior's particles: the exact transition's
-responsibilities, the particles' labels (:attr:`~seqbayes.core.state.SamplerState.lineage`) and the
+responsibilities, the particles' labels (:attr:`~seqbayes.core.state.RemedyMemory.lineage`) and the
 parts of the evidence's standard error that come from them."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ __all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "
 
 
 def lineage_after(state, labels) -> np.ndarray:
-    """``(N, 2)`` :attr:`SamplerState.lineage` after a step whose posterior particles descend from the
+    """``(N, 2)`` :attr:`RemedyMemory.lineage` after a step whose posterior particles descend from the
     initial draws ``labels (N,)``: those, and the labels of the last posterior (distinct without lineage)."""
     labels = np.asarray(labels, dtype=np.intp)
     previous = posterior_labels(state)
@@ -24,9 +24,9 @@ def lineage_after(state, labels) -> np.ndarray:
 def posterior_labels(state, column=0):
     """Column ``column`` of ``state``'s lineage (0: the last posterior's labels, 1: the one's before), or
     ``None`` (every particle its own) without lineage of the posterior's size."""
-    if state.lineage is None or state.posterior is None or state.lineage.shape[0] != state.posterior.shape[0]:
+    if state.memory.lineage is None or state.posterior is None or state.memory.lineage.shape[0] != state.posterior.shape[0]:
         return None
-    return state.lineage[:, column]
+    return state.memory.lineage[:, column]
 
 
 def mass_spread(state, mass) -> AncestorSpread:
@@ -85,17 +85,17 @@ def lagged_ancestor_variance(state, spread, floor: float) -> float:
     float
     """
     total = spread.variance
-    if spread.mass is None or not state.window:
+    if spread.mass is None or not state.memory.window:
         return float(total)
     mass = np.stack([spread.mass, np.exp(state.posterior_log_weights)])
-    chain = mixture_chain(state.window)
-    since_path_step = state.window[-1 - len(chain)].path_space
+    chain = mixture_chain(state.memory.window)
+    since_path_step = state.memory.window[-1 - len(chain)].path_space
     for lag, (prior, posterior) in enumerate(chain, 2):
         if posterior.shape[0] != mass.shape[1]:
             break
         mass = backward_masses(prior, posterior, mass)
         if since_path_step:
-            mass[1] = np.exp(state.window[-lag].log_weights)
+            mass[1] = np.exp(state.memory.window[-lag].log_weights)
         term = float(np.sum((mass[0] - mass[1]) ** 2))
         total += term
         if term < floor:

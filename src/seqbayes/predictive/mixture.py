@@ -104,7 +104,7 @@ class GaussianMixture(KernelMixture):
         ``A_e = sum_{i: labels_i = e} a_i`` and ``V_e = sum_{i: labels_i = e} W_i`` (the components'
         weights): :func:`grouped_ancestor_variance`, the relative variance of the evidence that the
         components carry when components with one label are dependent (copies of one draw,
-        :attr:`~seqbayes.core.state.SamplerState.lineage`; :func:`~seqbayes.predictive.evidence.step_standard_errors`).
+        :attr:`~seqbayes.core.state.RemedyMemory.lineage`; :func:`~seqbayes.predictive.evidence.step_standard_errors`).
 
         With fewer than ``TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
         in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with

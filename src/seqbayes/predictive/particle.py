@@ -16,7 +16,8 @@ import numpy as np
 
 from ..core.errors import ZeroLikelihoodError, prior_name, zero_likelihood_message
 from ..core.likelihood import row_hashes
-from ..core.state import Cloud, Estimate, MoveTally, Outcome, SamplerState, Tempered, Weighed
+from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, Reassimilate, RemedyMemory, SamplerState, Tempered,
+                          Weighed)
 from ..core.tempering import temper
 from ..moves.schedule import ResampleMove, Staged, move_stage
 from ..priors import inside_space
@@ -79,14 +80,15 @@ class ParticlePredictive:
         return None
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
-        """``(ancestor_ess, spread, window, paths)`` kept for the path-space remedy (none by default)."""
-        return float("nan"), None, (), None
+        """``(ancestor_ess, spread, window, paths, lagged_variance)`` kept for the path-space remedy (none by
+        default; :attr:`~seqbayes.core.state.Outcome.lagged_variance`)."""
+        return float("nan"), None, (), None, float("nan")
 
     def previous_prior(self, state):
         """The mixture prior this step used, for the next increment's standard error (None by default)."""
         return None
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         return None
 
     # ---- the stages
@@ -94,23 +96,27 @@ class ParticlePredictive:
         """The particles to weigh: ``(particles, log_weights, log_prior or None, moves, rejuvenated, labels or None)``."""
         return state.particles, state.log_weights, None, MoveTally(step_size=state.step_size), False, None
 
-    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed | Failure:
         prior_logpdf = self.prior_logpdf(state, likelihood, rng)
         particles, log_weights, log_prior, moves, rejuvenated, labels = self.start(state, prior_logpdf, rng)
-        cloud, log_restricted_mass, n_found = weigh(state, particles, log_weights, log_prior, self.problem,
-                                                    self.config, likelihood, prior_logpdf, rng, labels,
-                                                    self.exact_prior(state))
+        weighed = weigh(state, particles, log_weights, log_prior, self.problem, self.config, likelihood, prior_logpdf,
+                        rng, labels, self.exact_prior(state))
+        if isinstance(weighed, Failure):
+            return weighed
+        cloud, log_restricted_mass, n_found = weighed
         return Weighed(cloud, prior_logpdf, moves, log_restricted_mass, n_found, rejuvenated)
 
-    def stage_check(self):
-        """A check of each intermediate stage's particles (:func:`temper_stages`), or
-        None (the default)."""
+    def stage_check(self, state, dataset, likelihood):
+        """A check of each intermediate stage's particles (:func:`temper_stages`: ``check(particles) -> decision or
+        None``), or None (the default)."""
         return None
 
-    def temper(self, weighed, likelihood, rng) -> Tempered:
+    def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure | Reassimilate:
         tempered = temper_stages(weighed.cloud, self.problem, self.config, likelihood, weighed.prior_logpdf,
-                                        weighed.moves, self.moves_every_stage(), self.deferred, rng,
-                                        stage_check=self.stage_check())
+                                 weighed.moves, self.moves_every_stage(), self.deferred, rng,
+                                 stage_check=self.stage_check(state, dataset, likelihood))
+        if not isinstance(tempered, Tempered):
+            return tempered
         # Z = P(inside, L > 0) E[L | inside, L > 0]
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
 
@@ -129,7 +135,8 @@ class ParticlePredictive:
                                                          rng)
         conflict = step_conflict(weighed.cloud.particles, weighed.cloud.log_weights, cloud.particles,
                                  cloud.log_weights, self.problem.support)
-        ancestors, spread, window, paths = self.remedy_fields(state, cloud, estimate.log_increment, dataset, rng)
+        ancestors, spread, window, paths, lagged = self.remedy_fields(state, cloud, estimate.log_increment, dataset,
+                                                                      rng)
         if spread is None:
             spread = self.ancestor_spread(state, cloud, rng)
         ancestor_variance, covariance = ancestor_terms(state, spread)
@@ -142,15 +149,15 @@ class ParticlePredictive:
                                  log_evidence=log_evidence,
                                  step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                                  posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
-                                 log_prior=next_log_prior, window=window, paths=paths,
-                                 log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
-                                 previous_prior=self.previous_prior(state))
+                                 log_prior=next_log_prior,
+                                 memory=RemedyMemory(window, paths, lineage_after(state, cloud.labels)),
+                                 log_evidence_variance=evidence_variance, previous_prior=self.previous_prior(state))
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       ancestor_ess=ancestors, log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
                       **self.jump_fields(state, cloud))
         step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
         return Outcome(new_state, cloud.particles, cloud.log_weights, draws, cloud.particles, log_evidence, step_size,
-                       fields)
+                       fields, lagged_variance=lagged)
 
     def jump_fields(self, state, cloud) -> dict:
         """The :class:`~seqbayes.results.StepInfo` fields of a jump kernel's posterior (none by default)."""
@@ -214,7 +221,8 @@ def restricted_draws(prior, support, n, rng, step, likelihood, max_rounds=100):
     """``n`` equal-weight draws of ``prior`` restricted to ``{theta in the parameter space, L(theta) > 0}``
     by rejection, their log-likelihoods, the log of the restricted prior mass (the acceptance
     fraction of the rejection sampler), the number of distinct draws found and ``(n,)`` labels
-    (:attr:`SamplerState.lineage`): the index of each draw among the distinct ones (copies share it)."""
+    (:attr:`~seqbayes.core.state.RemedyMemory.lineage`): the index of each draw among the distinct ones (copies
+    share it); a :class:`~seqbayes.core.state.Failure` when no draw is found."""
     kept, kept_ll, n_drawn, n_kept = [], [], 0, 0
     while n_kept < n and n_drawn < max_rounds * n:
         draws = prior.sample(n, rng)
@@ -226,13 +234,13 @@ def restricted_draws(prior, support, n, rng, step, likelihood, max_rounds=100):
         kept_ll.append(loglike[ok])
         n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
     if n_kept == 0 and 0 < likelihood.n_evals <= likelihood.n_nan:  # the model failed, the prior is not to blame
-        raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
+        return Failure(ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood)))
     if n_kept == 0:
-        raise ZeroLikelihoodError(
+        return Failure(ZeroLikelihoodError(
             f"step {step}: every sample has zero likelihood (0 of {n_drawn} draws of the "
             f"{prior_name(step)} are inside the parameter space with a "
             f"non-zero likelihood); the {prior_name(step)} is too far "
-            f"from the data")
+            f"from the data"))
     kept, kept_ll = np.concatenate(kept), np.concatenate(kept_ll)
     labels = np.arange(n)
     if n_kept < n:  # almost no mass: duplicate what there is (the caller is told through n_kept)
@@ -271,7 +279,8 @@ def weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
     ``exact_prior``: the step's prior is exact (the history prior), so the step never restarts.
 
     Returns the cloud, the log of the restricted prior mass (0 without restart) and the number of
-    distinct restart draws (N without restart)."""
+    distinct restart draws (N without restart), or a :class:`~seqbayes.core.state.Failure` when no particle can
+    carry the step."""
     n, step = config.n_samples, likelihood.step
     inside = inside_space(particles, problem.support)
     if inside.all():
@@ -283,10 +292,12 @@ def weigh(state, particles, log_weights, log_prior, problem, config, likelihood,
     log_restricted_mass, n_found, restarted = 0.0, n, False
     labels = np.arange(n) if labels is None else labels
     if not valid.any() and (inside.all() or exact_prior):
-        raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
+        return Failure(ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood)))
     if not exact_prior and not valid.all() and (not inside.all() or valid.sum() < _min_valid(config, particles)):
-        particles, loglike, log_restricted_mass, n_found, labels = restricted_draws(state.prior, problem.support,
-                                                                                     n, rng, step, likelihood)
+        restart = restricted_draws(state.prior, problem.support, n, rng, step, likelihood)
+        if isinstance(restart, Failure):
+            return restart
+        particles, loglike, log_restricted_mass, n_found, labels = restart
         log_weights, restarted = np.full(n, -np.log(n)), True
     if log_prior is not None:
         components = np.column_stack([loglike, log_prior])
@@ -314,11 +325,14 @@ def temper_stages(cloud, problem, config, likelihood, prior_logpdf, moves, move_
     ``stage_check``: as there).
 
     Returns a :class:`~seqbayes.core.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
-    any restricted mass (the caller's)."""
+    any restricted mass (the caller's), or what stopped the stages (a :class:`~seqbayes.core.state.Failure`, the
+    stage check's decision)."""
     mutate = ResampleMove(problem, config, likelihood, prior_logpdf, move_every_stage, deferred, rng, kernel_density,
                           prior_moves, path_states, stage_check)
     annealed = temper(Staged(cloud, moves), cloud.components[:, 0], cloud.log_weights, config.tempering_rule(),
                       mutate, likelihood.step)
+    if annealed.decision is not None:  # a Failure, or the stage check's decision
+        return annealed.decision
     staged = annealed.particles
     return Tempered(staged.cloud, annealed.log_z, annealed.temperatures, staged.moves, staged.resampled,
                     annealed.last.ess)

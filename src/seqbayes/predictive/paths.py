@@ -7,18 +7,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.errors import TemperingLimitError, ZeroLikelihoodError
-from .evidence import estimate_increment, step_standard_errors
-from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
-from ..core.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
-                            kept_copy, remedy_window, variance_before)
+from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, PastStep, Problem, RemedyMemory, SamplerState,
+                          Tempered, Weighed, kept_copy, remedy_window, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..resampling import resample
 from ..weights import logsumexp
 from .jumps import jump_fields
+from .evidence import estimate_increment, step_standard_errors
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
 from .mixture import GaussianMixture
+from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
 
 __all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
 
@@ -32,12 +31,12 @@ def _start_paths(state, kernel, length, rng):
     """``(N, length, d)`` paths over the window's steps ending at the posterior particles: the last
     path-space step's paths where kept, extended backwards by drawing ancestors (backward simulation
     with the exact transition) among the window's stored posteriors."""
-    window = state.window[-length:]
+    window = state.memory.window[-length:]
     n, d = state.posterior.shape
     paths = np.empty((n, length, d))
-    known = 0 if state.paths is None else min(length, state.paths.shape[1])
+    known = 0 if state.memory.paths is None else min(length, state.memory.paths.shape[1])
     if known:
-        paths[:, length - known:] = state.paths[:, -known:]
+        paths[:, length - known:] = state.memory.paths[:, -known:]
     else:
         paths[:, -1] = state.posterior
         known = 1
@@ -199,7 +198,7 @@ class PathSpace:
         problem, config = mixture.problem, mixture.config
         self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
         kernel, d = problem.kernel, problem.kernel.dim
-        self.window = remedy_window(state.window, config.remedy_lag)
+        self.window = remedy_window(state.memory.window, config.remedy_lag)
         self.length = length = len(self.window)
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                                     problem.executor, problem.n_chunks)
@@ -231,26 +230,31 @@ class PathSpace:
         self.start_size = max(config.n_samples // 2, 1) if self.pooled else config.n_samples
         self.start_config = replace(self.path_config, n_samples=self.start_size)
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         return None
 
-    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed | Failure:
         moves = MoveTally(step_size=state.step_size)
         return self._bridge_weigh(likelihood, moves, rng) if self.bridge else self._stored_weigh(moves, rng)
 
-    def temper(self, weighed, likelihood, rng) -> Tempered:
+    def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure:
         return self._bridge_temper(weighed, likelihood, rng) if self.bridge else self._stored_temper(weighed, rng)
 
-    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
+    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate | Failure:
         other, moves = None, tempered.moves
         if self.pooled:
             # a second cloud of the same target, pooled with the bridge's: the stored paths hold the modes the
             # previous particles held, which the bridge's tempering can lose; where they cannot carry the step,
             # a second bridge, as a bridge's tempering can also end trapped in a minor mode
-            try:
-                second = self._stored_temper(self._stored_weigh(moves, rng), rng)
-            except (ZeroLikelihoodError, TemperingLimitError):
-                second = self._bridge_temper(self._bridge_weigh(likelihood, moves, rng), likelihood, rng)
+            second = self._stored_weigh(moves, rng)
+            if not isinstance(second, Failure):
+                second = self._stored_temper(second, rng)
+            if isinstance(second, Failure):
+                second = self._bridge_weigh(likelihood, moves, rng)
+                if not isinstance(second, Failure):
+                    second = self._bridge_temper(second, likelihood, rng)
+            if isinstance(second, Failure):
+                return second
             other, moves = second.cloud, second.moves
         # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
         # path's earlier states; every sweep's draws enter the estimate, whose fit on the path space has an ESS
@@ -291,14 +295,15 @@ class PathSpace:
         moves = estimate.moves
         past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment),
                         variance_before(state), self.length + 1)
-        window = remedy_window(state.window + (past,), config.remedy_lag)
+        window = remedy_window(state.memory.window + (past,), config.remedy_lag)
         new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
                                  prior=density, log_evidence=log_evidence,
                                  step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
                                  posterior=posterior, posterior_log_weights=cloud.log_weights,
-                                 window=window,
-                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
-                                 log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
+                                 memory=RemedyMemory(window,
+                                                     cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
+                                                     lineage_after(state, cloud.labels)),
+                                 log_evidence_variance=evidence_variance,
                                  previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
@@ -308,7 +313,7 @@ class PathSpace:
         step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
         return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
 
-    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed:
+    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed | Failure:
         """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the
         kernel), restricted to the parameter space by rejection, whose acceptance fraction enters the evidence as
         in :func:`~seqbayes.predictive.particle.restricted_draws`, weighed by every likelihood of the window.
@@ -325,14 +330,16 @@ class PathSpace:
         """
         d, n = self.problem.kernel.dim, self.start_size
         path_prior, window_likelihood = self.path_prior, self.window_likelihood
-        walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood,
-            max_rounds=100 * self.config.n_samples // n)  # the draws N would make: a half start is not starved sooner
+        start = restricted_draws(path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood,
+                                 max_rounds=100 * self.config.n_samples // n)  # a half start is not starved sooner
+        if isinstance(start, Failure):
+            return start
+        walkers, loglike, log_restricted_mass, n_found, labels = start
         components = np.column_stack([loglike, path_prior.logpdf(walkers)])
         cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
         return Weighed(cloud, ExactPrior(path_prior.logpdf), moves, log_restricted_mass, n_found)
 
-    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered:
+    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered | Failure:
         """The bridge's stages (Eq. A5, the moves on the whole path). The stages' product of mean weights
         (Eq. 1) estimates ``log Z_{w:s} = log m + sum_k log mean_i w_i^(k)``; the step's increment is that
         minus the window's stored increments ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of
@@ -346,8 +353,10 @@ class PathSpace:
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_stages(weighed.cloud, self.path_problem, config, self.window_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        prior_moves=self.path_prior, path_states=self.length + 1)
+                                 weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
+                                 prior_moves=self.path_prior, path_states=self.length + 1)
+        if isinstance(tempered, Failure):
+            return tempered
         cloud = tempered.cloud
         states = cloud.particles.reshape(cloud.particles.shape[0], self.length + 1, d)
         # read from the memo, where the stages left every final state's value; the rest is a difference
@@ -359,7 +368,7 @@ class PathSpace:
                       cloud.labels)
         return replace(tempered, cloud=cloud, log_z=tempered.log_z + weighed.log_restricted_mass - normaliser)
 
-    def _stored_weigh(self, moves, rng) -> Weighed:
+    def _stored_weigh(self, moves, rng) -> Weighed | Failure:
         """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
         ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.predictive.particle.weigh`, a
         restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
@@ -380,8 +389,10 @@ class PathSpace:
         valid = np.isfinite(loglike)
         if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
             extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-            walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-                extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            restart = restricted_draws(extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            if isinstance(restart, Failure):
+                return restart
+            walkers, loglike, log_restricted_mass, n_found, labels = restart
             log_weights = np.full(n, -np.log(n))
         components = np.column_stack([loglike, np.full(n, -np.inf)])
         carried = np.isfinite(loglike)
@@ -389,9 +400,11 @@ class PathSpace:
         return Weighed(Cloud(walkers, log_weights, components, labels), self.prior_logpdf, moves,
                        log_restricted_mass, n_found)
 
-    def _stored_temper(self, weighed, rng) -> Tempered:
+    def _stored_temper(self, weighed, rng) -> Tempered | Failure:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.predictive.particle.temper_stages`)."""
         tempered = temper_stages(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        path_states=self.length + 1)
+                                 weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
+                                 path_states=self.length + 1)
+        if isinstance(tempered, Failure):
+            return tempered
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)

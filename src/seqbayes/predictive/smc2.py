@@ -47,7 +47,7 @@ from functools import partial
 import numpy as np
 
 from ..core.errors import InnerFilterWarning, ZeroLikelihoodError, prior_name, zero_likelihood_message
-from ..core.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
+from ..core.state import Cloud, Estimate, Failure, MoveTally, Outcome, Tempered, Weighed, kept_copy
 from ..kernels import Decay, Drift, MarkovKernel, Static
 from ..priors import JointPrior, inside_support
 from ..resampling import resample
@@ -519,10 +519,10 @@ class NestedPredictive:
         self.problem, self.config = problem, config
         self.split, self.inner = nested_split(problem.kernel), problem.inner_filter
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         return None
 
-    def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed:
+    def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed | Failure:
         problem, split, inner, step = self.problem, self.split, self.inner, state.step + 1
         guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, likelihood, rng)
                  if step > 1 else None)
@@ -531,13 +531,13 @@ class NestedPredictive:
         inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
         components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
         if not np.isfinite(log_increment).any():
-            raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
+            return Failure(ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood)))
         return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud, pending=state.pending),
                             None, MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
                             datasets=state.datasets + (kept_copy(dataset),), guides=state.guides + (guide,),
                             inner_ess=inner_ess)
 
-    def temper(self, weighed, likelihood, rng) -> Tempered:
+    def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure:
         """Reweight by the likelihood estimates' ``delta`` powers (density tempering) through the one tempering loop
         (:func:`~seqbayes.core.tempering.temper`); when the ESS falls, resample and schedule PMMH sweeps
         (:meth:`_resample_rejuvenate`). A tempered update completes them at every stage; an untempered one restores
@@ -548,6 +548,8 @@ class NestedPredictive:
                           cloud.log_weights, self.config.tempering_rule(),
                           partial(self._resample_rejuvenate, weighed=weighed, likelihood=likelihood, rng=rng),
                           likelihood.step)
+        if annealed.decision is not None:  # a stage's Failure
+            return annealed.decision
         staged = annealed.particles
         return Tempered(staged.cloud, annealed.log_z, annealed.temperatures, staged.moves, staged.resampled,
                         annealed.last.ess)

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.errors import PlainConflict
-from ..core.state import PastStep, kept_copy, remedy_window, variance_before
+from ..core.state import Failure, PastStep, Reassimilate, kept_copy, remedy_window, variance_before
 from .lineage import ancestor_mass, lagged_ancestor_variance, mass_spread, posterior_labels
 from .jumps import jump_fields
 from .mixture import GaussianMixture, predictive_density
@@ -55,36 +54,36 @@ class TransitionMixture(ParticlePredictive):
     def jump_fields(self, state, cloud) -> dict:
         return jump_fields(self.problem.kernel, state, cloud)
 
-    #: The step's :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`, set by :meth:`remedy_fields` (a
-    #: predictive serves one step) for :meth:`remedy`.
-    lagged_variance = float("nan")
-    #: Whether :meth:`stage_check` checks the stages (off when the path space it handed a step to failed).
-    check_stages = True
+    def __init__(self, problem, config, method: str, check_stages: bool = True):
+        super().__init__(problem, config, method)
+        #: Whether :meth:`stage_check` checks the stages (not in the step that replaces a failed path-space step).
+        self.check_stages = check_stages
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
-        """The ancestor ESS of the posterior and the window (and paths, after a path-space step) kept for the remedy."""
+        """The ancestor ESS of the posterior, the window (and paths, after a path-space step) kept for the remedy,
+        and the lagged ancestor variance its decision reads (:meth:`remedy`)."""
         if not remedy_applies(self.config, self.method, self.problem.kernel):
-            return float("nan"), None, (), None
-        spread, ancestors, paths = None, float("nan"), None
-        if state.window:
+            return float("nan"), None, (), None, float("nan")
+        spread, ancestors, paths, lagged = None, float("nan"), None, float("nan")
+        if state.memory.window:
             spread, index = self._ancestor_spread(state, cloud.particles, cloud.log_weights,
-                                                  None if state.paths is None else rng)
+                                                  None if state.memory.paths is None else rng)
             ancestors = spread.ess
-            if state.paths is not None:
-                paths = np.concatenate([state.paths[index], cloud.particles[:, None]], axis=1)
+            if state.memory.paths is not None:
+                paths = np.concatenate([state.memory.paths[index], cloud.particles[:, None]], axis=1)
         if spread is not None and self.config.remedy_ess > 0:
             # lags that add less than 1 % of the trigger's variance cannot change its decision
-            self.lagged_variance = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
-        window = remedy_window(state.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles,
-                                                        cloud.log_weights, float(log_increment),
-                                                        variance_before(state)),), self.config.remedy_lag)
-        return ancestors, spread, window, None if paths is None else paths[:, -len(window):]
+            lagged = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
+        window = remedy_window(state.memory.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles,
+                                                               cloud.log_weights, float(log_increment),
+                                                               variance_before(state)),), self.config.remedy_lag)
+        return ancestors, spread, window, None if paths is None else paths[:, -len(window):], lagged
 
     def _ancestor_spread(self, state, particles, log_weights, rng=None):
         """``(spread, index)``: the :class:`~seqbayes.predictive.ancestry.AncestorSpread` of the last posterior's
         particles under ``particles (N, d)`` with ``log_weights``, and (with ``rng``, after a path-space step) an
         ancestor drawn for each particle."""
-        if state.paths is None and isinstance(state.prior, GaussianMixture):
+        if state.memory.paths is None and isinstance(state.prior, GaussianMixture):
             # the mixture's own components' responsibilities: one matrix product, not the pairwise transition density
             return state.prior.ancestor_spread(particles, log_weights, posterior_labels(state)), None
         index, mass = ancestor_mass(self.problem.kernel, particles, state.posterior, state.posterior_log_weights, rng,
@@ -94,24 +93,20 @@ class TransitionMixture(ParticlePredictive):
     def _ancestor_threshold(self, state) -> float:
         """The ancestor ESS below which :meth:`remedy` takes the path space."""
         config = self.config
-        threshold = config.remedy_ess * (5.0 if state.window[-1].path_space else 1.0) * config.n_samples
+        threshold = config.remedy_ess * (5.0 if state.memory.window[-1].path_space else 1.0) * config.n_samples
         if config.remedy_ess > 0:   # 0 turns the ancestor trigger off
             threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / config.n_samples))
         return threshold
 
-    def weigh(self, state, dataset, likelihood, rng):
-        self.step_inputs = (state, dataset, likelihood)   # for stage_check (a predictive serves one step)
-        return super().weigh(state, dataset, likelihood, rng)
-
-    def stage_check(self):
+    def stage_check(self, state, dataset, likelihood):
         """The ancestor trigger of :meth:`remedy` on each intermediate stage's particles: once they are below its
-        threshold the step goes to the path space (:class:`~seqbayes.core.errors.PlainConflict`) without its last
-        stages, moves and evidence, which only serve the mixture step the remedy replaces. Tempering further towards
-        the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "A decision before the
-        ordinary step")."""
-        state, dataset, likelihood = self.step_inputs
+        threshold the step goes to the path space (a :class:`~seqbayes.core.state.Reassimilate` that stops the
+        tempering loop) without its last stages, moves and evidence, which only serve the mixture step the remedy
+        replaces; should the path space find nothing, this mixture step runs to its end without the check.
+        Tempering further towards the data only concentrates the posterior on fewer ancestors (docs/benchmarks.md,
+        "A decision before the ordinary step")."""
         config = self.config
-        if not (self.check_stages and state.window and config.remedy_ess > 0
+        if not (self.check_stages and state.memory.window and config.remedy_ess > 0
                 and remedy_applies(config, self.method, self.problem.kernel)):
             return None
         threshold = self._ancestor_threshold(state)
@@ -119,30 +114,34 @@ class TransitionMixture(ParticlePredictive):
         def check(particles):
             n = particles.shape[0]
             if self._ancestor_spread(state, particles, np.full(n, -np.log(n)))[0].ess < threshold:
-                raise PlainConflict(PathSpace(state, dataset, self, likelihood, config.remedy_bridge))
+                return Reassimilate(PathSpace(state, dataset, self, likelihood, config.remedy_bridge),
+                                    TransitionMixture(self.problem, config, self.method, check_stages=False))
+            return None
 
         return check
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         """The path-space step (:class:`~seqbayes.predictive.paths.PathSpace`) where the posterior lies in the
         predictive's far tail: few of the previous posterior's particles carry it (``ancestor_ess`` below
         ``remedy_ess * N``, five times that right after a path-space step, whose mixture understates the
         conflict) or so few that they alone make the increment's log-evidence uncertain by more than
         :data:`REMEDY_ANCESTOR_SE` nats (at lag 1 or summed over the earlier posteriors the mixtures rest on,
-        :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`), its mean shifted by more than ``conflict_threshold`` prior sds, or its
-        restart found fewer than ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (the no-draw case short of zero: a posterior
-        grown from copies of a few far-tail draws, whose evidence misses the mass between them). With ``info``
-        None (no predictive draw had a non-zero likelihood) only the bridge from the path prior can find the
-        paths."""
+        :func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`), its mean shifted by more than
+        ``conflict_threshold`` prior sds, or its restart found fewer than ``STARVED_RESTART * N`` draws inside
+        ``{box, L > 0}`` (the no-draw case short of zero: a posterior grown from copies of a few far-tail draws,
+        whose evidence misses the mass between them). Where no predictive draw had a non-zero likelihood (the
+        ``outcome`` a zero-likelihood :class:`~seqbayes.core.state.Failure`) only the bridge from the path prior can
+        find the paths. Should the path space find nothing, the step keeps this ``outcome``."""
         config = self.config
-        if not (state.window and remedy_applies(config, self.method, self.problem.kernel)):
+        if not (state.memory.window and remedy_applies(config, self.method, self.problem.kernel)):
             return None
-        if info is None:
-            return PathSpace(state, dataset, self, likelihood, True) if config.remedy_bridge else None
-        threshold = self._ancestor_threshold(state)
-        starved = weighed.n_found < STARVED_RESTART * config.n_samples
-        lagged = config.remedy_ess > 0 and self.lagged_variance > REMEDY_ANCESTOR_SE**2
+        if isinstance(outcome, Failure):
+            bridge = outcome.zero_likelihood and config.remedy_bridge
+            return Reassimilate(PathSpace(state, dataset, self, likelihood, True)) if bridge else None
+        info, threshold = outcome.record.info, self._ancestor_threshold(state)
+        starved = outcome.weighed.n_found < STARVED_RESTART * config.n_samples
+        lagged = config.remedy_ess > 0 and outcome.lagged_variance > REMEDY_ANCESTOR_SE**2
         if (info.ancestor_ess < threshold or lagged or info.prior_data_conflict > config.conflict_threshold
                 or starved):
-            return PathSpace(state, dataset, self, likelihood, config.remedy_bridge)
+            return Reassimilate(PathSpace(state, dataset, self, likelihood, config.remedy_bridge))
         return None

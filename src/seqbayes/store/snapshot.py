@@ -33,7 +33,7 @@ priors, so a window needs the datasets), and ``state_paths (L, N, d)``, the part
 remedy carries forward (``L = 0`` until it first runs; ``L`` changes over the steps, so the run
 store concatenates these arrays, see :data:`RAGGED`). Stores written before them read as 0 and
 no window. ``state_lineage (N, 2)``: the labels of the last two posteriors' particles
-(:attr:`~seqbayes.core.state.SamplerState.lineage`, integers stored as floats); a store written
+(:attr:`~seqbayes.core.state.RemedyMemory.lineage`, integers stored as floats); a store written
 before it reads as no lineage (every particle its own label), which changes only the standard
 errors of the log-evidence. The state's ``previous_prior`` is the prior density of the step before,
 rebuilt from that step's arrays.
@@ -47,7 +47,7 @@ from ..predictive.history import HistoryPrior
 from ..predictive.mixture import GaussianMixture, MixtureSum
 from ..predictive.smc2 import NestedState, nested_guide, nested_moments, nested_state_arrays, nested_state_from_arrays, start_nested
 from ..results import StepRecord
-from ..core.state import PastStep, SamplerState
+from ..core.state import PastStep, RemedyMemory, SamplerState
 
 __all__ = ["state_arrays", "state_from_arrays", "initial_state", "state_kind", "needs_datasets", "state_dims",
            "check_state", "is_state_variable", "fill_missing", "output_name", "per_step", "NESTED_PER_STEP",
@@ -152,15 +152,10 @@ def state_arrays(state) -> dict:
     if isinstance(state, SamplerState):
         for _, cls, to_arrays, _, _ in _KINDS.values():
             if type(state.prior) is cls:
-                d = state.particles.shape[1]
-                paths = (np.zeros((0, state.particles.shape[0], d)) if state.paths is None
-                         else np.transpose(state.paths, (1, 0, 2)))       # (L, N, d): L varies over the steps
                 arrays = {**to_arrays(state.prior, state.log_prior),
-                          "state_log_evidence_variance": state.log_evidence_variance,
-                          "state_window": len(state.window), "state_paths": paths}
-                if state.lineage is not None:
-                    arrays["state_lineage"] = state.lineage
-                return {name: np.array(value, dtype=float) for name, value in arrays.items()}
+                          "state_log_evidence_variance": state.log_evidence_variance}
+                arrays = {name: np.array(value, dtype=float) for name, value in arrays.items()}
+                return {**arrays, **state.memory.arrays(*state.particles.shape)}
     kind = type(state.prior).__name__ if isinstance(state, SamplerState) else type(state).__name__
     raise UnsupportedState(f"state: cannot store a sampler state whose prior is a {kind}")
 
@@ -292,27 +287,20 @@ def state_from_arrays(arrays_by_step, records, step_size: float, initial_prior, 
 
     prior, log_prior = prior_of(step)
     record = records[step - 1]
-    window_length = float(arrays.get("state_window", 0))
-    if not (window_length == int(window_length) and 0 <= window_length <= step):
-        raise ValueError(f"state_window: the conflict remedy's window at step {step} holds {window_length:g} steps; "
-                         f"expected an integer in [0, {step}] (the store was edited)")
+    window_length = RemedyMemory.window_length(arrays, step)
     # the conflict remedy's window: the last steps' datasets, the priors they used, their posteriors
-    # (sequential.assimilate keeps exactly these); a path-space step has a nonzero path_steps
     # (the cumulative variance before each: the step before's reported se, squared)
     window = tuple(PastStep(datasets[k - 1], prior_of(k - 1)[0], records[k - 1].posterior, records[k - 1].log_weights,
                             records[k - 1].info.log_evidence_increment,
                             float(records[k - 2].info.log_evidence_se) ** 2 if k >= 2 else 0.0,
                             int(records[k - 1].info.path_steps))
-                   for k in range(step - int(window_length) + 1, step + 1))
-    paths = arrays.get("state_paths")
-    lineage = arrays.get("state_lineage")
+                   for k in range(step - window_length + 1, step + 1))
     previous_prior = prior_of(step - 1)[0] if step >= 2 and state_kind(arrays_by_step[-2]) == "mixture" else None
     return SamplerState(step=step, particles=record.predictive, log_weights=record.log_weights,
                         prior=prior, log_evidence=record.info.log_evidence, step_size=float(step_size),
                         posterior=record.posterior, posterior_log_weights=record.log_weights, log_prior=log_prior,
-                        window=window, paths=None if paths is None or not len(paths) else np.transpose(paths, (1, 0, 2)),
+                        memory=RemedyMemory.from_arrays(arrays, window),
                         log_evidence_variance=float(arrays.get("state_log_evidence_variance", 0.0)),
-                        lineage=None if lineage is None else np.asarray(lineage).astype(np.intp),
                         previous_prior=previous_prior)
 
 
