@@ -29,10 +29,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from seqbayes.engine.settings import SamplerConfig  # noqa: E402
+from seqbayes.predictive.paths import PathSpace  # noqa: E402
 from seqbayes.studies import oscillator as study  # noqa: E402
 
-REMEDY_ESS = SamplerConfig(move="gaussian").remedy_ess
+REMEDY_ESS = PathSpace().ancestor_ess
 #: ``--off``: the remedy's bookkeeping on (so the mixture step's ancestor ESS is recorded) but never triggered:
 #: the same draws as ``conflict_remedy=False``, whose steps record no ancestor ESS
 NEVER_REMEDY = {"remedy_ess": 0.0, "conflict_threshold": 1e300}

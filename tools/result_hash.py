@@ -88,6 +88,24 @@ def _samplers():
     return (_load("SEMC", "seqbayes"), _load("SMC", "seqbayes"))
 
 
+def _options(cls, flat: dict) -> dict:
+    """Flat settings as the sampler ``cls`` takes them: its components (``engine.settings.from_flat``), or the flat
+    keywords themselves on code before the components."""
+    try:
+        from_flat = _load("from_flat", "seqbayes.engine.settings")
+    except ImportError:
+        return flat
+    return from_flat(cls.__name__, **flat)
+
+
+def _inner(filter_) -> dict:
+    """The keyword that gives a sampler SMC^2's inner filter: ``predictive=SMC2(inner=...)``, or ``inner_filter``."""
+    try:
+        return {"predictive": _load("SMC2", "seqbayes.predictive.smc2")(inner=filter_)}
+    except ImportError:
+        return {"inner_filter": filter_}
+
+
 def coulomb(h):
     model = importlib.import_module("seqbayes.models.coulomb")
     data = model.load_experiment()
@@ -106,7 +124,7 @@ def oscillator(h):
         problem = osc.make_problem(np.random.default_rng(getattr(study, "problem_seed", getattr(study, "_problem_seed", None))(0, run)))
         for cls in _samplers():
             smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=300,
-                      rng=np.random.default_rng(7), **study.DEFAULT_OPTIONS[cls.__name__])
+                      rng=np.random.default_rng(7), **_options(cls, study.DEFAULT_OPTIONS[cls.__name__]))
             try:
                 smp.run(problem.datasets)
                 h.add(smp.predict(3), f"osc.{run}.{kernel}.{cls.__name__}.forecast")
@@ -135,7 +153,7 @@ def smc2(h):
     data, _ = problem.simulate(10, rng=11)
     for cls in _samplers():
         for name, inner in (("kalman", kalman_inner(problem.observe)), ("particle", particle_inner(20))):
-            smp = cls(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=4, inner_filter=inner)
+            smp = cls(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=4, **_inner(inner))
             smp.run(data[:6] if name == "particle" else data)
             h.sampler(smp, f"smc2.{name}.{cls.__name__}")
 

@@ -32,11 +32,12 @@ import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "MIN_CHUNK_SECONDS", "make_executor"]
+__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "Workers", "MIN_CHUNK_SECONDS", "make_executor"]
 
 #: A chunk expected to take less than this (seconds) is not worth a round trip: the batch is evaluated
 #: serially. 20 ms: a Dask round trip costs 5-20 ms, a local process pool's 0.5-2 ms (docs/parallel.md).
@@ -44,6 +45,15 @@ MIN_CHUNK_SECONDS = 0.02
 
 #: Payloads (likelihood, dataset) kept per pool; the history prior's past datasets each need one.
 _KEPT_PAYLOADS = 16
+
+
+@dataclass(frozen=True)
+class Workers:
+    """An executor and the number of chunks each batch is split into (``None``: one per worker), as a sampler's
+    ``executor``: ``SEMC(..., executor=Workers(client, n_chunks=8))``."""
+
+    executor: Any
+    n_chunks: int | None = None
 
 
 def read_only(value):

@@ -125,12 +125,12 @@ def test_a_path_space_step_reports_the_mixture_steps_jump_se(monkeypatch):
         return value
     monkeypatch.setattr(jumps, "jump_probability_se", spy)
     marks = []
-    propagate = paths.PathSpace.propagate
+    propagate = paths.PathStep.propagate
 
     def marked(self, *args):
         marks.append(len(calls))
         return propagate(self, *args)
-    monkeypatch.setattr(paths.PathSpace, "propagate", marked)
+    monkeypatch.setattr(paths.PathStep, "propagate", marked)
     r = bench.run((2.0, "frequency", "jump", "SEMC", 1, 1000, 13))
     assert r["path_steps"][12] > 0 and marks, r["path_steps"]
     args, kwargs, value = calls[marks[-1]]

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes import SEMC, SMC
 from seqbayes.engine.settings import SamplerConfig
@@ -53,7 +54,7 @@ KERNEL = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=Q)])
 
 
 def run(cls, ys, seed, **settings):
-    result = cls(PRIOR, KERNEL, loglike, n_samples=1000, rng=seed, **settings).run(ys)
+    result = cls(PRIOR, KERNEL, loglike, n_samples=1000, rng=seed, **from_flat(cls.__name__, **settings)).run(ys)
     mean = np.array([r.mean()[0] for r in result.steps])
     log_evidence = np.array([r.info.log_evidence for r in result.steps])
     return result, mean, log_evidence
@@ -222,14 +223,14 @@ def test_chained_remedies_keep_the_evidence_of_the_first_ones_window(cls):
 @pytest.mark.slow
 def test_a_remedied_run_is_reproducible_and_keeps_a_bounded_window():
     ys = datasets()
-    sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3)
+    sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, **from_flat("SMC", remedy_lag=3))
     first = sampler.run(ys)
     path_steps = [r.info.path_steps for r in first.steps]
     # steps 4-6 ran on the path space; steps 5 and 6 reached back to step 4's first state (step 2), which the
     # window kept, within 2 remedy_lag = 6 states
     assert path_steps == [0, 0, 0, 3, 4, 5]
     assert 2 <= len(sampler.state.memory.window) <= 5 and sampler.state.memory.paths.shape == (300, len(sampler.state.memory.window), 1)
-    again = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3).run(ys)
+    again = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, **from_flat("SMC", remedy_lag=3)).run(ys)
     for a, b in zip(first.steps, again.steps):
         np.testing.assert_array_equal(a.posterior, b.posterior)
         assert a.info.log_evidence == b.info.log_evidence
@@ -246,7 +247,7 @@ def test_the_remedy_does_not_apply_to_static_parameters():
                                          ("remedy_bridge", None)])
 def test_bad_remedy_settings_are_refused(name, value):
     with pytest.raises(ValueError, match=name):
-        SamplerConfig(move="gaussian", **{name: value})
+        from_flat("SMC", **{name: value})
 
 
 @pytest.mark.slow
@@ -312,7 +313,7 @@ def test_a_step_with_no_predictive_draw_inside_is_rescued_by_the_bridge():
     mean = np.trapezoid(grid * marginal, grid) / z
     sd = np.sqrt(np.trapezoid((grid - mean) ** 2 * marginal, grid) / z)
     with pytest.raises(seqbayes.ZeroLikelihoodError):
-        SMC(prior, kernel, loglike, n_samples=1000, rng=0, remedy_bridge=False).run(ys)
+        SMC(prior, kernel, loglike, n_samples=1000, rng=0, **from_flat("SMC", remedy_bridge=False)).run(ys)
     result = SMC(prior, kernel, loglike, n_samples=1000, rng=0).run(ys)
     assert result.steps[1].info.path_steps == 2
     assert abs(result.steps[1].mean()[0] - mean) / sd < 0.3
@@ -324,10 +325,10 @@ def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
     # random streams, whose trigger decisions near the threshold move with any change to the moves)
     from types import SimpleNamespace
 
-    from seqbayes.predictive import transition
+    from seqbayes.predictive import paths, transition
 
-    monkeypatch.setattr(transition, "PathSpace", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
-    config = SamplerConfig(move="stretch", n_samples=1000)
+    monkeypatch.setattr(paths, "PathStep", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
+    config = SamplerConfig(1000)
     mixture = transition.TransitionMixture(SimpleNamespace(kernel=KERNEL), config, "transition")
     lagged = [0.0]
 
@@ -374,12 +375,12 @@ def test_a_plain_conflict_goes_to_the_path_space_before_the_mixture_steps_last_s
 def test_when_the_path_space_finds_nothing_the_mixture_step_runs_to_its_end(monkeypatch):
     from seqbayes.core.errors import ZeroLikelihoodError
     from seqbayes.core.state import Failure
-    from seqbayes.predictive.paths import PathSpace
+    from seqbayes.predictive.paths import PathStep
 
     def nothing(self, *args):
         return Failure(ZeroLikelihoodError("no path inside"))
 
-    monkeypatch.setattr(PathSpace, "weigh", nothing)
+    monkeypatch.setattr(PathStep, "weigh", nothing)
     result, mean, log_evidence = run(SMC, datasets()[:4], 1)   # step 4 stops early, as in the test above
     info = result.steps[3].info
     assert info.path_steps == 0 and np.isfinite(log_evidence).all() and info.temperatures[-1] == 1.0

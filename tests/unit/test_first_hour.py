@@ -16,6 +16,7 @@ import pytest
 import xarray as xr
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes import cli
 from seqbayes.core.errors import PriorDataConflictWarning, documented
@@ -363,8 +364,7 @@ def test_an_all_nan_likelihood_under_smc2_blames_the_model_too():
     """Static and drifting parameters together (SMC^2): the same message from the inner filters' estimates."""
     prior = seqbayes.JointPrior({"a": stats.norm(0, 1), "b": stats.norm(0, 1)})
     kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=0.1), seqbayes.Static()])
-    sampler = seqbayes.SMC(prior, kernel, lambda theta, y: np.full(theta.shape[0], np.nan), n_samples=50, rng=0,
-                           n_inner=5)
+    sampler = seqbayes.SMC(prior, kernel, lambda theta, y: np.full(theta.shape[0], np.nan), n_samples=50, rng=0, **from_flat("SMC", n_inner=5))
     with pytest.raises(seqbayes.ZeroLikelihoodError, match="the likelihood returned NaN for every sample"):
         sampler.update(1.0)
 

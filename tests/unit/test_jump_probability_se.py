@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SMC, Drift, Jump, MarkovKernel, jump_posterior
 from seqbayes.predictive.jumps import jump_probability_se
 from seqbayes.predictive.mixture import predictive_density
@@ -114,7 +115,7 @@ def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
 
     def step_4(seed, **settings):
         return SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed,
-                   **settings).run(data).steps[3].info
+                   **from_flat("SMC", **settings)).run(data).steps[3].info
 
     # the ancestor ESS at step 4 is 7-27 over seeds 0-5; seeds 0-3 hold at least one above 10
     on = [step_4(seed) for seed in range(4)]

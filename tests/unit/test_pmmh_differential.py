@@ -5,6 +5,7 @@ calls")."""
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC
 from seqbayes.core.likelihood import ValidatedLikelihood
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
@@ -22,8 +23,7 @@ def mixed():
 def _rejuvenate_exact_draws(problem, data, strict, n, seed):
     """Equal-weight draws of the exact (Kalman) posterior of the static parameters, moved by PMMH until 90 % have
     moved (the stages' rule), with the exact Kalman inner filter."""
-    sampler = SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=0,
-                   inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict)
+    sampler = SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=0, **from_flat("SEMC", inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict))
     config, inner, split = sampler.config, sampler.problem.inner_filter, nested_split(problem.kernel)
     exact = problem.exact(data)[-1]
     mean, cov = exact.mean[split[0]], exact.cov[np.ix_(split[0], split[0])]

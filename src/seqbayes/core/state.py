@@ -223,10 +223,10 @@ class MoveTally:
     step_size: float = float("nan")
     n_virtual: int = 0
 
-    def then(self, moved, move: str) -> "MoveTally":
-        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; SEMC (``move``
-        ``"stretch"``) carries its adapted step size on."""
-        return MoveTally(self.stats + moved.stats, moved.step_size if move == "stretch" else self.step_size,
+    def then(self, moved, moves) -> "MoveTally":
+        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; the ``moves``
+        component says whether the adapted step size carries on (SEMC's)."""
+        return MoveTally(self.stats + moved.stats, moves.step_size_after(moved.step_size, self.step_size),
                          self.n_virtual + moved.n_virtual)
 
 

@@ -13,11 +13,12 @@ exponents, and with them every result, in the last bits).
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
 
+from ..resampling import SCHEMES
 from ..weights import logsumexp, normalise
 from .errors import TemperingLimitError, ZeroLikelihoodError, prior_name
 from .state import Failure
@@ -171,9 +172,23 @@ class Tempering:
     scheme: str = "systematic"
     min_valid_fraction: float = 0.5
 
+    def __post_init__(self):
+        if isinstance(self.max_stages, bool) or int(self.max_stages) != self.max_stages or self.max_stages < 1:
+            raise ValueError(f"max_stages: must be an integer >= 1, got {self.max_stages}")
+        if not 0.0 < self.resample_below <= 1.0:
+            raise ValueError(f"resample_below: must lie in (0, 1], got {self.resample_below}")
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"scheme: unknown resampling scheme {self.scheme!r}; choose from {sorted(SCHEMES)}")
+        if not 0.0 <= self.min_valid_fraction <= 1.0:
+            raise ValueError(f"min_valid_fraction: must lie in [0, 1], got {self.min_valid_fraction}")
+
     def increment(self, log_weights, loglike, remaining: float) -> float:
         """The next exponent increment (all of ``remaining`` here: the paper's single reweighting)."""
         return remaining
+
+    def without_shortcut(self) -> "Tempering":
+        """This rule with every stage keeping its ESS target (:class:`Adaptive`'s ``threshold`` at ``ess``)."""
+        return self
 
     def stage(self, log_weights, loglike, beta: float, n_stages: int, step: int) -> Stage:
         """One stage of Eq. (A5): reweight the normalised ``log_weights (N,)`` by ``L^delta`` (``loglike (N,)``,
@@ -218,8 +233,18 @@ class Adaptive(Tempering):
     ess: float = 0.5
     threshold: float = 0.1
 
+    def __post_init__(self):
+        super().__post_init__()
+        if not 0.0 < self.ess <= 1.0:
+            raise ValueError(f"ess: must lie in (0, 1], got {self.ess}")
+        if not 0.0 < self.threshold <= self.ess:
+            raise ValueError(f"threshold: must lie in (0, ess], got {self.threshold}")
+
     def increment(self, log_weights, loglike, remaining: float) -> float:
         return next_increment(log_weights, loglike, remaining, self.ess, self.threshold)
+
+    def without_shortcut(self) -> "Adaptive":
+        return replace(self, threshold=self.ess)
 
 
 @dataclass(frozen=True)

@@ -4,22 +4,24 @@ and call :func:`~seqbayes.engine.pipeline.assimilate`."""
 from __future__ import annotations
 
 import warnings
-from dataclasses import fields, replace
+from dataclasses import fields
 
 import numpy as np
 
 from ..kernels import MarkovKernel
-from ..moves import paper_target_acceptance
-from ..predictive.base import resolve_predictive
-from ..predictive.history import RunningStatistics
-from ..predictive.smc2 import ParticleInnerFilter, nested_split, start_nested
+from ..core.tempering import Adaptive, Tempering
+from ..moves import Moves, RandomWalk, Stretch
+from ..parallel import Workers
+from ..predictive.evidence import Importance
+from ..predictive.paths import Conflict, PathSpace
+from ..predictive.smc2 import nested_split, start_nested
 from ..priors import as_samples, support_of
 from ..results import Result, StepInfo, StepRecord
 from ..rng import as_generator, generator_from_state, generator_state
 from ..core.errors import InnerFilterWarning, PriorDataConflictWarning, documented
 from .forecast import forecast
 from .pipeline import assimilate
-from .settings import MOVE_BUDGET, SamplerConfig
+from .settings import SamplerConfig
 from ..core.state import Problem, SamplerState
 from ..core.tempering import blas_limit
 from ..predictive.particle import step_conflict
@@ -27,29 +29,55 @@ from ..predictive.particle import step_conflict
 __all__ = ["SMC", "SEMC"]
 
 
-def _settings(values: dict) -> dict:
-    """The :class:`SamplerConfig` fields among a driver's keyword arguments."""
-    names = {f.name for f in fields(SamplerConfig)} - {"move", "n_samples"}
-    return {k: v for k, v in values.items() if k in names}
-
-
 class _SequentialSampler:
-    """Driver: holds the state, calls :func:`assimilate`, keeps the records. The public
-    classes :class:`SEMC` and :class:`SMC` spell their settings out as keyword arguments."""
+    """The driver of SMC and SEMC: holds the state, calls :func:`~seqbayes.engine.pipeline.assimilate`, keeps the
+    records. The two differ only in their default moves.
 
-    _move = ""
+    Parameters
+    ----------
+    prior : JointPrior or object with ``logpdf`` and ``sample``
+    kernel : MarkovKernel
+    loglike : callable ``(theta (N, d), dataset) -> (N,)``
+    n_samples : int
+        Number of particles ``N`` (at least ``2 d`` for the stretch move).
+    rng : int or numpy.random.Generator
+    moves : Stretch or RandomWalk, optional
+        The MCMC moves and their schedule (:mod:`seqbayes.moves`): SEMC's default ``Stretch()`` (Algorithm 2),
+        SMC's ``RandomWalk()`` (Algorithm 4).
+    tempering : Adaptive or Single
+        How the likelihood enters a step and when the stages resample (:mod:`seqbayes.core.tempering`).
+    evidence : Importance or PathEvidence
+        The evidence increment's estimator (:mod:`seqbayes.predictive.evidence`); both estimates are recorded.
+    predictive : predictive component, optional
+        Each step's prior: ``None`` lets the kernel choose (:class:`~seqbayes.predictive.base.Auto`); else
+        ``Transition()``, ``KernelDensity()``, ``History(running=...)`` or ``SMC2(inner=...)``.
+    remedy : PathSpace, Conflict or None
+        What a prior-data conflict calls for: the path-space remedy (:class:`~seqbayes.predictive.paths.PathSpace`,
+        the default), or ``Conflict()`` / ``None``: detected and reported only.
+    executor : object with ``map``, optional
+        Evaluates likelihood chunks in parallel (a ``concurrent.futures`` executor, a ``dask.distributed.Client``,
+        :class:`~seqbayes.parallel.ProcessWorkers`, or :class:`~seqbayes.parallel.Workers` with a chunk count).
+    blas_threads : int or None
+        BLAS threads inside :meth:`update` (1: the hot products have an inner dimension of d, where threads cost
+        3x; ``None`` leaves BLAS as it is).
+
+    The flat settings of a TOML ``[sampler]`` table or of earlier versions map onto the components with
+    :func:`~seqbayes.engine.settings.from_flat`: ``SEMC(prior, kernel, loglike, **from_flat(tempering_ess=0.3))``.
+    """
+
+    _moves = Moves
 
     def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None,
-                 blas_threads: int | None = 1, **settings: Any):
+                 rng: int | np.random.Generator | None = None, *, moves: Moves | None = None,
+                 tempering: Tempering = Adaptive(), evidence: Any = Importance(), predictive: Any = None,
+                 remedy: Conflict | None = PathSpace(), executor: Any = None, blas_threads: int | None = 1):
         if not (hasattr(prior, "logpdf") and hasattr(prior, "sample")):
             raise TypeError("prior: expected an object with logpdf(theta) and sample(n, rng)")
         if not isinstance(kernel, MarkovKernel):
             raise TypeError(f"kernel: expected a seqbayes.MarkovKernel, got {type(kernel).__name__}")
         if not callable(loglike):
             raise TypeError("loglike: expected a callable loglike(theta (N, d), dataset) -> (N,)")
+        executor, n_chunks = (executor.executor, executor.n_chunks) if isinstance(executor, Workers) else (executor, None)
         if executor is not None and not hasattr(executor, "map"):
             raise TypeError("executor: expected an object with a map method (concurrent.futures or dask Client)")
         if blas_threads is not None and (isinstance(blas_threads, bool) or int(blas_threads) != blas_threads
@@ -59,6 +87,8 @@ class _SequentialSampler:
         if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer, float)) \
                 or int(n_samples) != n_samples or n_samples < 2:
             raise ValueError(f"n_samples: must be an integer >= 2, got {n_samples!r}")
+        config = SamplerConfig(int(n_samples), self._moves() if moves is None else moves, tempering, evidence,
+                               predictive, Conflict() if remedy is None else remedy)
         self._rng = as_generator(rng)
         initial = as_samples(prior.sample(int(n_samples), self._rng), name="prior.sample(n, rng)")
         dim = initial.shape[1]
@@ -68,33 +98,19 @@ class _SequentialSampler:
             raise ValueError(f"kernel: has {kernel.dim} parameters but the prior has {dim}")
         if not np.all(np.isfinite(initial)):
             raise ValueError("prior.sample: returned non-finite samples")
-        if self._move == "stretch" and int(n_samples) < 2 * dim:
-            raise ValueError(f"n_samples: the stretch move needs at least 2 d = {2 * dim} walkers, got {n_samples}")
-        if "target_acceptance" not in settings or settings["target_acceptance"] is None:
-            settings["target_acceptance"] = paper_target_acceptance(dim)  # Eq. (10)
-        config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
-        # record what "auto" chose; a 'history' prior needs a static kernel
-        self.config = replace(config, predictive=resolve_predictive(config.predictive, kernel))
-        if history is not None and not isinstance(history, RunningStatistics):
-            raise TypeError("history: expected a seqbayes.RunningStatistics(summarise, loglike)")
-        if self.config.predictive == "smc2":
-            inner_filter = ParticleInnerFilter(self.config.n_inner) if inner_filter is None else inner_filter
-            if not (hasattr(inner_filter, "advance") and hasattr(inner_filter, "draws")):
-                raise TypeError("inner_filter: expected a seqbayes.ParticleInnerFilter or KalmanInnerFilter")
-        elif inner_filter is not None:
-            raise ValueError(f"inner_filter: only used with predictive='smc2' (static and drifting parameters), "
-                             f"this run uses {self.config.predictive!r}")
-        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks, history,
-                               inner_filter)
+        self.config = config.resolved(kernel, dim)   # what "auto" chose, the moves' Eq. (10) target
+        component = self.config.predictive
+        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks,
+                               getattr(component, "running", None), getattr(component, "inner", None))
         self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
-        if self.config.predictive == "smc2":
+        step_size = float(self.config.moves.initial_step_size)
+        if component.method == "smc2":
             split = nested_split(kernel)
-            inner_filter.check(self.problem, split)
-            self._state = start_nested(prior, inner_filter.outer_columns(split, dim), initial,
-                                       float(self.config.step_size))
+            component.inner.check(self.problem, split)
+            self._state = start_nested(prior, component.inner.outer_columns(split, dim), initial, step_size)
         else:
             self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
-                                       prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))
+                                       prior=prior, log_evidence=0.0, step_size=step_size)
         self._records: list[StepRecord] = []
 
     @property
@@ -152,20 +168,21 @@ class _SequentialSampler:
         self._records.append(record)
         if record.info.inner_ess < 0.05:
             warnings.warn(f"step {record.info.step}: SMC^2's inner particle filters are degenerate (mean ESS "
-                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.config.n_inner}): the data put the "
+                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.problem.inner_filter.n_inner}): the data put the "
                           f"drifting parameters far from where the kernel predicts them, or pin them far more tightly "
                           f"than its noise, so the likelihood estimates are noisy and the moves rarely accept. A "
                           f"kernel the data contradict loses evidence anyway; otherwise raise n_inner, declare a "
                           f"KalmanInnerFilter if the model is linear-Gaussian in them, or for a short run use "
-                          f"predictive='transition' ({documented('core')})",
+                          f"predictive=Transition() ({documented('core')})",
                           InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         # either half of the diagnostic: the posterior mean's shift, or a posterior carried by a few of the predictive
         # mixture's components (the ancestor ESS, which catches conflicts the shift misses; docs/prior_data_conflict.md)
-        tail = record.info.ancestor_ess < self.config.remedy_ess * self.config.n_samples
-        if record.info.prior_data_conflict > self.config.conflict_threshold or tail:
+        threshold = self.config.remedy.threshold
+        tail = record.info.ancestor_ess < self.config.remedy.ancestor_ess * self.config.n_samples
+        if record.info.prior_data_conflict > threshold or tail:
             conflict = step_conflict(*prior, record.posterior, record.log_weights, self.problem.support)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
-                            if value > self.config.conflict_threshold) or \
+                            if value > threshold) or \
                 f"{self.names[record.info.conflict_parameter]} {record.info.prior_data_conflict:.1f}"
             if np.isfinite(record.info.ancestor_ess):
                 far += (f"; {record.info.ancestor_ess:.0f} of the {self.config.n_samples} previous posterior "
@@ -219,47 +236,16 @@ class _SequentialSampler:
 
     @property
     def result(self) -> Result:
-        meta = {"sampler": type(self).__name__, "config": {k: v for k, v in vars(self.config).items()},
+        meta = {"sampler": type(self).__name__, "config": {f.name: repr(getattr(self.config, f.name))
+                                                             for f in fields(self.config)},
                 "kernel": self.problem.kernel.describe(),
                 "prior": self.problem.prior.describe() if hasattr(self.problem.prior, "describe") else repr(self.problem.prior)}
         return Result(self.names, tuple(self._records), meta)
 
 
 class SEMC(_SequentialSampler):
-    """Sequential Ensemble Monte Carlo (Algorithm 2): stretch moves with an adaptive step size.
-
-    Parameters
-    ----------
-    prior : JointPrior or object with ``logpdf`` and ``sample``
-    kernel : MarkovKernel
-    loglike : callable ``(theta (N, d), dataset) -> (N,)``
-    n_samples : int
-        Ensemble size ``N`` (at least ``2 d``).
-    rng : int or numpy.random.Generator
-    executor : object with ``map``, optional
-        Evaluates likelihood chunks in parallel (``concurrent.futures`` executor or ``dask.distributed.Client``).
-    history : RunningStatistics, optional
-        With every parameter static: the likelihood's additive statistics, so that the exact
-        history prior evaluates every past dataset in one call (bounded cost per update).
-    inner_filter : ParticleInnerFilter or KalmanInnerFilter, optional
-        With static and drifting parameters (SMC^2, :mod:`seqbayes.predictive.smc2`): the filter over the
-        drifting ones (default ``ParticleInnerFilter(100)``).
-    blas_threads : int or None
-        BLAS threads inside :meth:`update` (1: the hot products have an inner dimension of d,
-        where threads cost 3x; ``None`` leaves BLAS as it is).
-    target_acceptance : float, optional
-        SEMC's target acceptance rate ``alpha_tr`` (default: Eq. 10, ``0.21 / d + 0.23``).
-    step_size : float
-        Initial stretch-move step size ``u`` (2).
-    max_virtual, virtual_tolerance : int, float
-        Cap on virtual iterations (sweeps) per stage and their stopping tolerance.
-    tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
-predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
-move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
-conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, scaled_moves, economy, \
-surrogate, move_budget, strict_budget
-        The fields of :class:`SamplerConfig` of the same names, with its defaults and
-        validation (see there for what each does).
+    """Sequential Ensemble Monte Carlo (Algorithm 2): the stretch move with an adaptive step size
+    (``moves=Stretch(...)``). Parameters as the driver's (:class:`SMC` shares them; ``moves`` may be any).
 
     Examples
     --------
@@ -274,61 +260,15 @@ surrogate, move_budget, strict_budget
     1
     """
 
-    _move = "stretch"
-
-    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
-                 target_acceptance: float | None = None, step_size: float = 2.0, max_virtual: int = 30,
-                 virtual_tolerance: float = 0.1, tempering: bool = True, tempering_ess: float = 0.5,
-                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
-                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
-                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
-                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
-                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
-                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
-        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
-                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
-                         **_settings(locals()))
+    _moves = Stretch
 
 
 class SMC(_SequentialSampler):
-    """Sequential Monte Carlo (Algorithm 4): Gaussian random-walk MH with the weighted covariance.
+    """Sequential Monte Carlo (Algorithm 4): the Gaussian random walk with the weighted covariance
+    (``moves=RandomWalk(...)``). Parameters as :class:`SEMC`'s."""
 
-    Parameters as :class:`SEMC`, without its stretch-move settings (``target_acceptance``,
-    ``step_size``, ``max_virtual``, ``virtual_tolerance``), and:
+    _moves = RandomWalk
 
-    Parameters
-    ----------
-    proposal_scale : float
-        ``gamma`` of Eq. (A7) (1).
-    max_moves : int
-        Cap on MH steps per stage (30); ``n_moves`` is the minimum (3; the paper uses 1).
-    """
-
-    _move = "gaussian"
-
-    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
-                 proposal_scale: float = 1.0, max_moves: int = 30, tempering: bool = True, tempering_ess: float = 0.5,
-                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
-                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
-                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
-                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
-                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
-                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
-        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
-                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
-                         **_settings(locals()))
 
 import typing as _typing  # noqa: E402
 

@@ -1,5 +1,6 @@
 """Random-walk Metropolis-Hastings with a Gaussian proposal whose covariance is
-``gamma^2`` times the weighted sample covariance (Eq. A6-A8): the SMC sampler's move.
+``gamma^2`` times the weighted sample covariance (Eq. A6-A8): the SMC sampler's move, and its component
+:class:`RandomWalk`.
 """
 
 from __future__ import annotations
@@ -8,11 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..weights import normalise
 from ..core.state import SweepStats
-from .base import combine, evaluate_inside, metropolis_accept
+from ..weights import normalise
+from .base import Moves, combine, evaluate_inside, metropolis_accept
+from .delayed import screened_sweep
 
-__all__ = ["GaussianMove", "weighted_covariance", "gaussian_sweep"]
+__all__ = ["RandomWalk", "GaussianMove", "weighted_covariance", "gaussian_sweep"]
 
 
 def weighted_covariance(samples, log_weights=None) -> np.ndarray:
@@ -68,3 +70,59 @@ def gaussian_sweep(walkers, components, component_fn, coefficients, move: Gaussi
     walkers = np.where(accept[:, None], proposals, walkers)
     components = np.where(accept[:, None], proposal_components, components)
     return walkers, components, SweepStats(walkers.shape[0], int(accept.sum()), 0, n_eval)
+
+
+@dataclass(frozen=True)
+class RandomWalk(Moves):
+    """SMC's moves (Algorithm 4): the Gaussian random walk with ``scale^2`` times the particles' covariance (Eq. A7),
+    ``min_sweeps`` to ``max_sweeps`` MH steps per stage (and the shared rules of :class:`~seqbayes.moves.base.Moves`).
+
+    Parameters
+    ----------
+    scale : float
+        ``gamma`` of Eq. (A7) (1).
+    min_sweeps, max_sweeps, moved_fraction, every_stage, transform, scaled, economy, screen
+        As :class:`~seqbayes.moves.base.Moves`.
+    """
+
+    scale: float = 1.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not self.scale > 0:
+            raise ValueError(f"scale: must be positive, got {self.scale}")
+
+    def stage(self, position, components, component_fn, coefficients, support, rng, screening, step_size):
+        """One stage's MH steps: ``(position, components, stats, NaN, 0)`` after them (no step size is adapted);
+        arguments as :meth:`~seqbayes.moves.stretch.Stretch.stage`."""
+        start, stats, n_done = position, SweepStats(), 0
+        while True:
+            move = GaussianMove(weighted_covariance(position), self.scale)
+            if screening.active():
+                position, components, sweep = screened_sweep(position, components, component_fn, coefficients, move,
+                                                             rng, support, screening.screen, halves=False)
+            else:
+                position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients,
+                                                             move, rng, support)
+            screening.record(sweep)
+            stats = stats + sweep
+            n_done += 1
+            if self.done(n_done, position, start):
+                return position, components, stats, float("nan"), 0
+
+    def local_move(self, cov, scale: float, dim: int):
+        """The scaled rounds' local move: the random walk with ``2.38 / sqrt(d)`` times the covariance's factor."""
+        return GaussianMove(cov, scale * 2.38 / np.sqrt(dim)), gaussian_sweep
+
+    def pmmh_batch(self, k: int, n: int) -> int:
+        return k
+
+    def pmmh_proposals(self, position, active, log_weights, step_size, strict: bool, rng):
+        """``(proposals, log_hastings, identical)`` for the PMMH batch ``active``: the random walk with the weighted
+        particles' covariance."""
+        move = GaussianMove(weighted_covariance(position, log_weights), self.scale)
+        proposals, log_hastings = move.propose(position[active], rng)
+        return proposals, log_hastings, np.zeros(active.size, dtype=bool)
+
+    def pmmh_step_size(self, step_size: float, acceptance: float, strict: bool) -> float:
+        return step_size

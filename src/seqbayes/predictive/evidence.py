@@ -38,6 +38,7 @@ and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of th
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,9 +49,9 @@ from ..priors import inside_support
 from ..resampling import resample
 from ..transforms import BoxTransform
 from ..weights import logsumexp, normalise
-from ..moves.schedule import HIGH_DIMENSION
+from ..moves.base import HIGH_DIMENSION
 
-__all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment", "STARVED_RESTART"]
+__all__ = ["Importance", "PathEvidence", "importance_step", "pooled_start", "step_standard_errors", "STARVED_RESTART"]
 
 #: ``economy``: the importance sweeps continue until the increment's standard error is below this.
 ECONOMY_EVIDENCE_SE = 0.02
@@ -355,72 +356,114 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
-              other=None, pool_sweeps: bool = False):
-    """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
-    (:mod:`seqbayes.predictive.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
+@dataclass(frozen=True)
+class PathEvidence:
+    """The evidence increment from the tempering path alone: the stages' product of mean weights (Eq. 1, the
+    paper's estimate)."""
 
-    ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
-    sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.predictive.evidence.pooled_start`),
-    and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
-    ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
+    importance = False
 
-    When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
-    (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
-
-    Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
-    n, step = config.n_samples, likelihood.step
-    if not use_importance:
+    def estimate(self, cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, rng, other=None,
+                 pool_sweeps: bool = False):
+        """The path's increment: ``(cloud, log_increment_path, NaN, 0)`` (the arguments as :meth:`Importance.estimate`)."""
         return cloud, log_increment_path, float("nan"), 0
-    n_independent = 0
-    scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
-    if config.uses_scaled_moves(cloud.particles.shape[1]):
-        scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
-        if config.economy:
-            scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=config.n_independent + 2 * config.max_refits,
-                          min_fraction=config.min_evidence_ess)
-    # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
-    # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
-    if other is not None:
-        index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
-                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False), n)
-        labels = None
-        if cloud.labels is not None and other.labels is not None:
-            labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
-        cloud = Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
-                       np.concatenate([cloud.components, other.components])[index], labels)
-    also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
-    particles, components = cloud.particles, cloud.components
-    warm_up = 1 if config.economy else 0
-    reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
-    estimates = []
-    for attempt in range(warm_up + 1 + config.max_refits):
-        # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
-        # them and estimate again (each q is independent of its own draws, so every estimate is valid)
-        log_increment, evidence_ess, particles, components, accepted = importance_step(
-            particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
-            config.n_independent, other=also_fit, pool_sweeps=pool_sweeps,
-            **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
-        n_independent += accepted
-        if attempt >= warm_up:
-            if evidence_ess >= config.min_evidence_ess * n:
-                break
-            estimates.append((log_increment, evidence_ess))
-    else:
-        pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
-        # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
-        # not one of ESS 12
-        if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
-            log_z, fit_ess = np.array(pooled).T
-            total = float(fit_ess.sum())
-            log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
-            # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
-            evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
-    # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
-    # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
-    if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
-        warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
-                      f"{n_found} distinct restart draws); using the tempering path's estimate and the "
-                      f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
-        log_increment = log_increment_path
-    return Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent
+
+
+@dataclass(frozen=True)
+class Importance:
+    """The evidence increment by defensive importance sampling from the final posterior (the module docstring; N extra
+    likelihood evaluations per sweep, whose draws also drive independence-MH sweeps of the particles). The path's
+    estimate (Eq. 1) is kept as ``StepInfo.log_evidence_increment_path``.
+
+    Parameters
+    ----------
+    sweeps : int
+        Independence sweeps per fitted proposal (3).
+    min_ess : float
+        A fit whose importance ESS is below this fraction of N is refitted to the swept particles (0.3).
+    max_refits : int
+        At most this many refits (5); when none reaches ``min_ess`` the fits' estimates are pooled by their ESS.
+    """
+
+    sweeps: int = 3
+    min_ess: float = 0.3
+    max_refits: int = 5
+
+    importance = True
+
+    def __post_init__(self):
+        if isinstance(self.sweeps, bool) or int(self.sweeps) != self.sweeps or self.sweeps < 1:
+            raise ValueError(f"sweeps: must be an integer >= 1, got {self.sweeps}")
+        if not 0.0 <= self.min_ess <= 1.0:
+            raise ValueError(f"min_ess: must lie in [0, 1], got {self.min_ess}")
+        if isinstance(self.max_refits, bool) or int(self.max_refits) != self.max_refits or self.max_refits < 0:
+            raise ValueError(f"max_refits: must be an integer >= 0, got {self.max_refits}")
+
+    def estimate(self, cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, rng, other=None,
+                 pool_sweeps: bool = False):
+        """Stage 5: the evidence increment, by defensive importance sampling from the final posterior (its draws
+        drive independence-MH sweeps; ``n_found`` the distinct restart draws, ``config`` the sampler's settings,
+        whose ``n_samples`` and moves it follows).
+
+        ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
+        sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.predictive.evidence.pooled_start`),
+        and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
+        ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
+
+        When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
+        (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
+
+        Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
+        n, step, moves = config.n_samples, likelihood.step, config.moves
+        n_independent = 0
+        scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
+        if moves.uses_scaled(cloud.particles.shape[1]):
+            scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
+            if moves.economy:
+                scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=self.sweeps + 2 * self.max_refits,
+                              min_fraction=self.min_ess)
+        # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
+        # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
+        if other is not None:
+            index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
+                                    likelihood.loglike, problem.support, rng, scaled.get("gaussian", False), n)
+            labels = None
+            if cloud.labels is not None and other.labels is not None:
+                labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
+            cloud = Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
+                           np.concatenate([cloud.components, other.components])[index], labels)
+        also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
+        particles, components = cloud.particles, cloud.components
+        warm_up = 1 if moves.economy else 0
+        reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
+        estimates = []
+        for attempt in range(warm_up + 1 + self.max_refits):
+            # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
+            # them and estimate again (each q is independent of its own draws, so every estimate is valid)
+            log_increment, evidence_ess, particles, components, accepted = importance_step(
+                particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
+                self.sweeps, other=also_fit, pool_sweeps=pool_sweeps,
+                **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
+            n_independent += accepted
+            if attempt >= warm_up:
+                if evidence_ess >= self.min_ess * n:
+                    break
+                estimates.append((log_increment, evidence_ess))
+        else:
+            pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
+            # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
+            # not one of ESS 12
+            if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
+                log_z, fit_ess = np.array(pooled).T
+                total = float(fit_ess.sum())
+                log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
+                # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
+                evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
+        # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
+        # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
+        if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
+            warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
+                          f"{n_found} distinct restart draws); using the tempering path's estimate and the "
+                          f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
+            log_increment = log_increment_path
+        return Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent

@@ -8,9 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.state import MoveTally, kept_copy
+from .evidence import PathEvidence
 from .particle import ExactPrior, ParticlePredictive, rejuvenate_deferred
 
-__all__ = ["HistoryPrior", "RunningStatistics", "ExactHistory"]
+__all__ = ["History", "HistoryPrior", "RunningStatistics", "ExactHistory"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +124,37 @@ class HistoryPrior:
                 break
         return out
 
+@dataclass(frozen=True)
+class History:
+    """The exact prior of static parameters as each step's prior (the default when every parameter is static):
+    ``p_0 prod_{k<s} L_k / Z_{1:s-1}`` (:class:`HistoryPrior`, as IBIS).
+
+    Parameters
+    ----------
+    running : RunningStatistics, optional
+        The likelihood's additive statistics, so that the prior evaluates every past dataset in one call (a bounded
+        cost per update); without them each past dataset is evaluated anew.
+    """
+
+    running: RunningStatistics | None = None
+
+    method = "history"
+
+    def __post_init__(self):
+        if self.running is not None and not isinstance(self.running, RunningStatistics):
+            raise TypeError("running: expected a seqbayes.RunningStatistics(summarise, loglike)")
+
+    def resolve(self, kernel) -> "History":
+        """This predictive, checked against ``kernel`` (every parameter static)."""
+        if not kernel.is_static:
+            raise ValueError("predictive: History (the exact prior p_0 x past likelihoods) needs a kernel whose every "
+                             "parameter is Static; with process noise use Transition()")
+        return self
+
+    def predictive(self, state, problem, config):
+        return ExactHistory(problem, config, self.method), state
+
+
 class ExactHistory(ParticlePredictive):
     """The exact prior of static parameters as a step's predictive: the last posterior itself, its particles
     kept with their weights and their prior values (:class:`HistoryPrior`).
@@ -136,14 +168,15 @@ class ExactHistory(ParticlePredictive):
 
     def __init__(self, problem, config, method: str = "history"):
         super().__init__(problem, config, method)
-        self.deferred = config.move_every_stage is False
+        self.deferred = config.moves.every_stage is False
 
     def exact_prior(self, state) -> bool:
         return isinstance(state.prior, HistoryPrior)  # the initial prior at the first step
 
     def moves_every_stage(self) -> bool:
-        """``SamplerConfig.move_every_stage``; when ``None``, False: moves only after a resampling."""
-        return False if self.config.move_every_stage is None else self.config.move_every_stage
+        """The moves' ``every_stage``; when ``None``, False: moves only after a resampling."""
+        every = self.config.moves.every_stage
+        return False if every is None else every
 
     def prior_logpdf(self, state, likelihood, rng):
         if self.exact_prior(state):
@@ -160,9 +193,9 @@ class ExactHistory(ParticlePredictive):
             state, self.problem, self.config, prior_logpdf, moves, rng)
         return particles, log_weights, log_prior, moves, rejuvenated, labels if rejuvenated else None
 
-    def uses_importance(self, moves) -> bool:
+    def evidence(self, moves):
         # a step that kept its particles needs no fitted proposal (which would re-evaluate the past, at O(s) cost)
-        return self.config.evidence == "importance" and moves.stats.n_proposed != 0
+        return self.config.evidence if moves.stats.n_proposed != 0 else PathEvidence()
 
     def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
         """This posterior, exactly: the particles and their weights are kept, with their prior values."""

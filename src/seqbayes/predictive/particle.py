@@ -24,7 +24,7 @@ from ..priors import inside_space
 from ..resampling import resample
 from ..results import prior_data_conflict
 from ..weights import ess
-from .evidence import estimate_increment, step_standard_errors
+from .evidence import step_standard_errors
 from .lineage import ancestor_terms, lineage_after
 
 __all__ = ["ParticlePredictive", "ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "temper_stages",
@@ -64,11 +64,13 @@ class ParticlePredictive:
         return False
 
     def moves_every_stage(self) -> bool:
-        """``SamplerConfig.move_every_stage``; when ``None``, True (the paper's Algorithm 4)."""
-        return True if self.config.move_every_stage is None else self.config.move_every_stage
+        """The moves' ``every_stage``; when ``None``, True (the paper's Algorithm 4)."""
+        every = self.config.moves.every_stage
+        return True if every is None else every
 
-    def uses_importance(self, moves: MoveTally) -> bool:
-        return self.config.evidence == "importance"
+    def evidence(self, moves: MoveTally):
+        """The step's evidence component (``SamplerConfig.evidence``)."""
+        return self.config.evidence
 
     def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
         """``(density, draws, their log prior or None)`` of the next step (Eq. A2-A3)."""
@@ -121,12 +123,12 @@ class ParticlePredictive:
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
-        use_importance = self.uses_importance(tempered.moves)
-        cloud, log_increment, evidence_ess, n_independent = estimate_increment(
+        evidence = self.evidence(tempered.moves)
+        cloud, log_increment, evidence_ess, n_independent = evidence.estimate(
             tempered.cloud, tempered.log_z, weighed.n_found, self.problem, self.config, likelihood,
-            weighed.prior_logpdf, use_importance, rng)
+            weighed.prior_logpdf, rng)
         return Estimate(cloud, log_increment, evidence_ess, n_independent,
-                        use_importance and log_increment != tempered.log_z, tempered.moves)
+                        evidence.importance and log_increment != tempered.log_z, tempered.moves)
 
     def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
         config, cloud = self.config, estimate.cloud
@@ -147,7 +149,7 @@ class ParticlePredictive:
         moves = estimate.moves
         new_state = SamplerState(step=state.step + 1, particles=draws, log_weights=cloud.log_weights, prior=density,
                                  log_evidence=log_evidence,
-                                 step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                                 step_size=float(config.moves.step_size_after(moves.step_size, state.step_size)),
                                  posterior=cloud.particles, posterior_log_weights=cloud.log_weights,
                                  log_prior=next_log_prior,
                                  memory=RemedyMemory(window, paths, lineage_after(state, cloud.labels)),
@@ -155,7 +157,7 @@ class ParticlePredictive:
         fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
                       ancestor_ess=ancestors, log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
                       **self.jump_fields(state, cloud))
-        step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
+        step_size = float(config.moves.step_size_after(moves.step_size, float("nan")))
         return Outcome(new_state, cloud.particles, cloud.log_weights, draws, cloud.particles, log_evidence, step_size,
                        fields, lagged_variance=lagged)
 
@@ -256,14 +258,14 @@ def rejuvenate_deferred(state, problem, config, prior_logpdf, moves, rng):
     posterior's particle each descends from)."""
     n = config.n_samples
     particles, log_weights = state.particles, state.log_weights
-    if ess(log_weights) >= config.ess_threshold * n:
+    if ess(log_weights) >= config.tempering.resample_below * n:
         return particles, log_weights, state.log_prior, moves, False, np.arange(n)
-    index = resample(config.resampling, np.exp(log_weights), rng, n)
+    index = resample(config.tempering.scheme, np.exp(log_weights), rng, n)
     values = prior_logpdf(particles) if state.log_prior is None else state.log_prior
-    moved = move_stage(problem, config, moves.step_size, particles[index],
+    moved = move_stage(problem, config.moves, moves.step_size, particles[index],
                        np.column_stack([np.zeros(n), values[index]]), 0.0, prior_logpdf, rng,
                        lambda theta: np.zeros(theta.shape[0]))
-    return (moved.walkers, np.full(n, -np.log(n)), moved.components[:, 1], moves.then(moved, config.move), True,
+    return (moved.walkers, np.full(n, -np.log(n)), moved.components[:, 1], moves.then(moved, config.moves), True,
             index)
 
 
@@ -313,8 +315,8 @@ def _min_valid(config, particles) -> float:
     the restart's rejection sampling costs N / (valid fraction) likelihood calls, 65,000 of them at N = 1000
     for the Coulomb experiment's first dataset, where the tempering's resample-move spreads the ~15 valid
     particles instead)."""
-    threshold = config.min_valid_fraction * particles.shape[0]
-    return min(threshold, particles.shape[1] + 1.0) if config.economy else threshold
+    threshold = config.tempering.min_valid_fraction * particles.shape[0]
+    return min(threshold, particles.shape[1] + 1.0) if config.moves.economy else threshold
 
 
 def temper_stages(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
@@ -329,7 +331,7 @@ def temper_stages(cloud, problem, config, likelihood, prior_logpdf, moves, move_
     stage check's decision)."""
     mutate = ResampleMove(problem, config, likelihood, prior_logpdf, move_every_stage, deferred, rng, kernel_density,
                           prior_moves, path_states, stage_check)
-    annealed = temper(Staged(cloud, moves), cloud.components[:, 0], cloud.log_weights, config.tempering_rule(),
+    annealed = temper(Staged(cloud, moves), cloud.components[:, 0], cloud.log_weights, config.tempering,
                       mutate, likelihood.step)
     if annealed.decision is not None:  # a Failure, or the stage check's decision
         return annealed.decision

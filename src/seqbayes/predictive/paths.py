@@ -7,24 +7,153 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, PastStep, Problem, RemedyMemory, SamplerState,
-                          Tempered, Weighed, kept_copy, remedy_window, variance_before)
+from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, PastStep, Problem, Reassimilate, RemedyMemory,
+                          SamplerState, Tempered, Weighed, kept_copy, remedy_window, variance_before)
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
 from ..resampling import resample
 from ..weights import logsumexp
 from .jumps import jump_fields
-from .evidence import estimate_increment, step_standard_errors
+from .evidence import STARVED_RESTART, step_standard_errors
 from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
 from .mixture import GaussianMixture
 from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
 
-__all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
+__all__ = ["Conflict", "PathSpace", "PathStep", "PathPrior", "path_prior_logpdf", "REMEDY_ANCESTOR_SE"]
 
 
-def remedy_applies(config, method, kernel) -> bool:
-    """The path-space remedy needs a transition density in every parameter (no static ones)."""
-    return config.conflict_remedy and method in ("transition", "kde") and not kernel.static_mask.any()
+#: A conflict costs accuracy when the earlier posteriors' finite samples alone would make the step's log-evidence
+#: uncertain by more than this (sd, nats): the tilt the new data give each earlier posterior the mixtures rest on,
+#: times that posterior's sampling error, summed over the lags (:func:`~seqbayes.predictive.lineage.
+#: lagged_ancestor_variance`; ``sqrt(1 / ancestor_ess - 1 / N)`` at lag 1 alone). The posterior inherits the same
+#: error and carries it into every later step (docs/jump_kernels.md, moderate damage).
+REMEDY_ANCESTOR_SE = 0.1
+
+
+@dataclass(frozen=True)
+class Conflict:
+    """Prior-data conflict detected and reported (``PriorDataConflictWarning``), not remedied: the remedy component
+    of a sampler without one (``remedy=None``).
+
+    Parameters
+    ----------
+    threshold : float
+        A step whose posterior mean lies more than this many prior sds from its prior's (``StepInfo.prior_data_conflict``)
+        is a conflict (4).
+    ancestor_ess : float
+        Or whose posterior fewer than this fraction of the previous posterior's particles carry
+        (``StepInfo.ancestor_ess``; 0.05; 0 turns that trigger off).
+    """
+
+    threshold: float = 4.0
+    ancestor_ess: float = 0.05
+
+    def __post_init__(self):
+        if not self.threshold > 0:
+            raise ValueError(f"threshold: must be positive, got {self.threshold}")
+        if not 0.0 <= self.ancestor_ess <= 1.0:
+            raise ValueError(f"ancestor_ess: must lie in [0, 1], got {self.ancestor_ess}")
+
+    def applies(self, method: str, kernel) -> bool:
+        """Whether the remedy can assimilate a step of the ``method`` predictive under ``kernel`` (never here)."""
+        return False
+
+    def stage_check(self, mixture, state, dataset, likelihood):
+        """A check of the mixture step's intermediate stages (none here)."""
+        return None
+
+    def decide(self, mixture, state, dataset, likelihood, outcome):
+        """What to do with the mixture step's ``outcome``: keep it (``None``, here always)."""
+        return None
+
+
+@dataclass(frozen=True)
+class PathSpace(Conflict):
+    """The exact remedy for prior-data conflict (docs/prior_data_conflict.md): a conflicted step is assimilated again
+    on the path space of the last ``lag`` states, whose target is the model's exact one (:class:`PathStep`).
+
+    Parameters
+    ----------
+    lag : int
+        Steps kept for the path-space target (10): exact when the run has at most that many steps, else the
+        window's first state takes the (mixture) prior that step used. After a path-space step the next ones reach
+        back to its window's first step, up to ``2 lag`` states (:func:`~seqbayes.core.state.remedy_window`).
+    bridge : bool
+        How the path-space step reaches its target. ``True`` (default): from the window's path prior, tempering
+        every likelihood of the window jointly, so that each mode of the path posterior is weighed afresh and the
+        window's evidence estimated directly. ``False``: from the stored paths of the previous posterior, tempering
+        only the new dataset (about half the cost; it cannot reach a mode whose earlier states the earlier steps
+        ruled out).
+    threshold, ancestor_ess
+        As :class:`Conflict`: the triggers.
+    """
+
+    lag: int = 10
+    bridge: bool = True
+
+    def __post_init__(self):
+        super().__post_init__()
+        if isinstance(self.lag, bool) or int(self.lag) != self.lag or self.lag < 2:
+            raise ValueError(f"lag: must be an integer >= 2, got {self.lag}")
+        if self.bridge not in (True, False):
+            raise ValueError(f"bridge: expected True or False, got {self.bridge!r}")
+
+    def applies(self, method: str, kernel) -> bool:
+        """The path-space remedy needs a transition density in every parameter (no static ones)."""
+        return method in ("transition", "kde") and not kernel.static_mask.any()
+
+    def threshold_of(self, state, n: int) -> float:
+        """The ancestor ESS below which :meth:`decide` takes the path space: ``ancestor_ess * N`` (five times that
+        right after a path-space step, whose mixture understates the conflict), at least so few that they alone
+        make the increment's log-evidence uncertain by :data:`REMEDY_ANCESTOR_SE` nats."""
+        threshold = self.ancestor_ess * (5.0 if state.memory.window[-1].path_space else 1.0) * n
+        if self.ancestor_ess > 0:   # 0 turns the ancestor trigger off
+            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / n))
+        return threshold
+
+    def stage_check(self, mixture, state, dataset, likelihood):
+        """The ancestor trigger of :meth:`decide` on each intermediate stage's particles of the ``mixture`` step
+        (a :class:`~seqbayes.predictive.transition.TransitionMixture`): once they are below its threshold the step
+        goes to the path space (a :class:`~seqbayes.core.state.Reassimilate` that stops the tempering loop) without
+        its last stages, moves and evidence, which only serve the mixture step the remedy replaces; should the path
+        space find nothing, the mixture step runs to its end without the check. Tempering further towards the data
+        only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "A decision before the ordinary
+        step")."""
+        if not (state.memory.window and self.ancestor_ess > 0 and self.applies(mixture.method, mixture.problem.kernel)):
+            return None
+        threshold = self.threshold_of(state, mixture.config.n_samples)
+
+        def check(particles):
+            n = particles.shape[0]
+            if mixture.spread_over(state, particles, np.full(n, -np.log(n)))[0].ess < threshold:
+                return Reassimilate(PathStep(state, dataset, mixture, likelihood, self.bridge),
+                                    type(mixture)(mixture.problem, mixture.config, mixture.method, check_stages=False))
+            return None
+
+        return check
+
+    def decide(self, mixture, state, dataset, likelihood, outcome):
+        """The path-space step (:class:`PathStep`) where the mixture step's posterior lies in the predictive's far
+        tail: fewer of the previous posterior's particles carry it than :meth:`threshold_of`, or so few at lag 1 or
+        summed over the earlier posteriors the mixtures rest on that they make the increment's log-evidence uncertain
+        by more than :data:`REMEDY_ANCESTOR_SE` nats (:func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`),
+        its mean shifted by more than ``threshold`` prior sds, or its restart found fewer than
+        ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (a posterior grown from copies of a few far-tail draws,
+        whose evidence misses the mass between them). Where no predictive draw had a non-zero likelihood (the
+        ``outcome`` a zero-likelihood :class:`~seqbayes.core.state.Failure`) only the bridge from the path prior can
+        find the paths. Should the path space find nothing, the step keeps the ``outcome``."""
+        if not (state.memory.window and self.applies(mixture.method, mixture.problem.kernel)):
+            return None
+        if isinstance(outcome, Failure):
+            bridge = outcome.zero_likelihood and self.bridge
+            return Reassimilate(PathStep(state, dataset, mixture, likelihood, True)) if bridge else None
+        n = mixture.config.n_samples
+        info, threshold = outcome.record.info, self.threshold_of(state, n)
+        starved = outcome.weighed.n_found < STARVED_RESTART * n
+        lagged = self.ancestor_ess > 0 and outcome.lagged_variance > REMEDY_ANCESTOR_SE**2
+        if info.ancestor_ess < threshold or lagged or info.prior_data_conflict > self.threshold or starved:
+            return Reassimilate(PathStep(state, dataset, mixture, likelihood, self.bridge))
+        return None
 
 
 def _start_paths(state, kernel, length, rng):
@@ -153,7 +282,7 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-class PathSpace:
+class PathStep:
     """The exact remedy for prior-data conflict: the step assimilated on the path space (a predictive of
     :class:`~seqbayes.predictive.particle.Predictive`, for one step).
 
@@ -198,7 +327,7 @@ class PathSpace:
         problem, config = mixture.problem, mixture.config
         self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
         kernel, d = problem.kernel, problem.kernel.dim
-        self.window = remedy_window(state.memory.window, config.remedy_lag)
+        self.window = remedy_window(state.memory.window, config.remedy.lag)
         self.length = length = len(self.window)
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
                                     problem.executor, problem.n_chunks)
@@ -211,8 +340,9 @@ class PathSpace:
         self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d,
                                                          self.window_likelihood.memos[:-1]))
         self.path_prior = PathPrior(self.window[0].prior, kernel, length + 1, d)  # the bridge's start and redraws
-        # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
-        self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
+        # the evidence's moves follow the model's d, not the path's (L + 1) d (Moves.scaled)
+        moves, importance = config.moves, config.evidence.importance
+        self.config = replace(config, moves=replace(moves, scaled=moves.uses_scaled(d)))
         # the path's moves are the scaled rounds (an independence sweep from the kernel density fitted to the stage's
         # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
         # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
@@ -220,15 +350,14 @@ class PathSpace:
         # "Oscillator at 300,000 evaluations"). With the importance evidence they stop as economy's do (half the
         # travel, 70 % moved): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
         # exact independence sweeps from the pooled fit decorrelate it; the path's evidence has no such sweeps
-        rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
-        self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds,
-                                   economy=config.economy or config.evidence == "importance")
+        rounds = max(1, min(moves.max_sweeps, 4 * (length + 1)) // 2)
+        self.path_config = replace(config, moves=replace(moves, scaled=True, min_sweeps=1, max_sweeps=rounds,
+                                                         economy=moves.economy or importance))
         # with the importance evidence the bridge and the stored paths' start are two independent starts of half the
         # particles each, whose union the importance sweeps start from (pooled_start draws N from it): the second
         # start guards the first against a lost or misweighed mode, for which half of N is enough, not a second N
-        self.pooled = bridge and config.evidence == "importance"
+        self.pooled = bridge and importance
         self.start_size = max(config.n_samples // 2, 1) if self.pooled else config.n_samples
-        self.start_config = replace(self.path_config, n_samples=self.start_size)
 
     def remedy(self, state, dataset, likelihood, outcome):
         return None
@@ -261,15 +390,16 @@ class PathSpace:
         # below the refit threshold per sweep where all of them together are well above it. Four times the refits:
         # where both starts missed the posterior (small N, a drift towards the box's edge) each refit's sweeps carry
         # the cloud further towards it, and five left the estimate tens of nats short (docs/benchmarks.md)
-        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)),
-                         max_refits=4 * self.config.max_refits)
-        importance = self.config.evidence == "importance"
+        config, evidence = self.config, self.config.evidence
+        if evidence.importance:
+            evidence = replace(evidence, sweeps=max(evidence.sweeps, 2 * (self.length + 1)),
+                               max_refits=4 * evidence.max_refits)
         n_found = weighed.n_found * config.n_samples / self.start_size  # in draws per N, as the restart's threshold
-        cloud, log_increment, evidence_ess, n_independent = estimate_increment(
+        cloud, log_increment, evidence_ess, n_independent = evidence.estimate(
             tempered.cloud, tempered.log_z, n_found, self.path_problem, config, self.path_likelihood,
-            self.prior_logpdf, importance, rng, other, pool_sweeps=True)
+            self.prior_logpdf, rng, other, pool_sweeps=True)
         return Estimate(cloud, log_increment, evidence_ess, n_independent,
-                        importance and log_increment != tempered.log_z, moves)
+                        evidence.importance and log_increment != tempered.log_z, moves)
 
     def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
         config, kernel, d, n = self.config, self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
@@ -295,10 +425,10 @@ class PathSpace:
         moves = estimate.moves
         past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment),
                         variance_before(state), self.length + 1)
-        window = remedy_window(state.memory.window + (past,), config.remedy_lag)
+        window = remedy_window(state.memory.window + (past,), config.remedy.lag)
         new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
                                  prior=density, log_evidence=log_evidence,
-                                 step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                                 step_size=float(config.moves.step_size_after(moves.step_size, state.step_size)),
                                  posterior=posterior, posterior_log_weights=cloud.log_weights,
                                  memory=RemedyMemory(window,
                                                      cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
@@ -310,7 +440,7 @@ class PathSpace:
                       log_evidence_se=evidence_se,
                       # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
                       **jump_fields(kernel, state, replace(cloud, particles=posterior), mixture_target=False))
-        step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
+        step_size = float(config.moves.step_size_after(moves.step_size, float("nan")))
         return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
 
     def _bridge_weigh(self, likelihood, moves, rng) -> Weighed | Failure:
@@ -349,7 +479,7 @@ class PathSpace:
         d = self.problem.kernel.dim
         # every stage keeps tempering_ess of the ESS: the tempering_threshold shortcut to beta = 1 lets a cloud
         # gathered in a narrow minor mode of an early stage finish there
-        config = replace(self.start_config, tempering_threshold=self.start_config.tempering_ess)
+        config = replace(self.path_config, tempering=self.path_config.tempering.without_shortcut())
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
         tempered = temper_stages(weighed.cloud, self.path_problem, config, self.window_likelihood,
@@ -379,7 +509,7 @@ class PathSpace:
         paths = _start_paths(state, kernel, self.length, rng)
         log_weights, labels = state.posterior_log_weights, np.arange(paths.shape[0])
         if n < paths.shape[0]:
-            labels = resample(config.resampling, np.exp(log_weights - logsumexp(log_weights)), rng, n)
+            labels = resample(config.tempering.scheme, np.exp(log_weights - logsumexp(log_weights)), rng, n)
             paths, log_weights = paths[labels], np.full(n, -np.log(n))
         walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(n, -1)
         log_restricted_mass, n_found = 0.0, n
@@ -387,7 +517,7 @@ class PathSpace:
         inside = inside_space(walkers, support)
         loglike[inside] = self.path_likelihood.loglike(walkers[inside])
         valid = np.isfinite(loglike)
-        if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+        if not valid.all() and (not inside.all() or valid.sum() < config.tempering.min_valid_fraction * n):
             extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
             restart = restricted_draws(extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
             if isinstance(restart, Failure):
@@ -402,7 +532,7 @@ class PathSpace:
 
     def _stored_temper(self, weighed, rng) -> Tempered | Failure:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.predictive.particle.temper_stages`)."""
-        tempered = temper_stages(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
+        tempered = temper_stages(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
                                  weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
                                  path_states=self.length + 1)
         if isinstance(tempered, Failure):

@@ -26,7 +26,7 @@ stage's ratio keeps the pseudo-marginal target exact.
 SEMC's moves are ensemble moves: a proposal for a particle of the batch is built from particles outside it. By default
 that is the stretch move with the step size adapted by Eq. (9), as in the paper's stages. With
 ``SamplerConfig.strict_budget`` it is the differential-evolution move instead (ter Braak 2006,
-:class:`~seqbayes.moves.scaled.DifferentialMove`: ``x + 2.38 / sqrt(2 d) (x_j - x_k)``, still affine invariant): when
+:class:`~seqbayes.moves.stretch.DifferentialMove`: ``x + 2.38 / sqrt(2 d) (x_j - x_k)``, still affine invariant): when
 the expensive re-runs are the budget, what counts is how far the particles travel per re-run, and at the same
 acceptance the stretch move's accepted jumps are much shorter (its proposals mix long stretches, mostly rejected, with
 short ones). The outer moves of SMC^2 are a PMMH kernel, not the paper's SEMC stage move, so any kernel that keeps the
@@ -48,9 +48,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.state import SweepStats
-from ..moves import GaussianMove, StretchMove, metropolis_accept, next_step_size, weighted_covariance
+from ..moves import metropolis_accept
 from ..moves.delayed import QuadraticScreen
-from ..moves.scaled import DifferentialMove
 from ..priors import inside_support
 from ..transforms import BoxTransform
 
@@ -137,7 +136,7 @@ def _pmmh_screen(config, static, components, coefficients, transform):
     or ``None``: a quadratic fitted to the particles' log targets in the moves' coordinates, the evaluations already
     made. Fixed for the call, so for every attempt it is a function of the proposal alone, which keeps the
     pseudo-marginal target exact (the inner filters' randomness enters stage 2 only)."""
-    if config.surrogate not in ("quadratic", "auto"):
+    if config.moves.screen not in ("quadratic", "auto"):
         return None
     position = transform.forward(static) if transform is not None else static
     jacobian = transform.log_jacobian(position) if transform is not None else 0.0
@@ -180,30 +179,26 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     per_particle = rerun_cost(inner, datasets)
     columns = inner.outer_columns(split, problem.kernel.dim)
     support = problem.support[columns]
-    transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
+    moves, strict = config.moves, config.predictive.strict_budget
+    transform = BoxTransform(support) if moves.transform and np.isfinite(support).any() else None
     coefficients = np.array([beta, 1.0, 1.0])
     stats, n_batches = SweepStats(), 0
     queue, sweeps_left = pending.queue, pending.sweeps_left
     n_proposed, n_accepted = pending.n_proposed, pending.n_accepted
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
-    most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
-    ensemble = config.move == "stretch"
-    # under a strict budget SEMC's PMMH proposes by differential evolution, not the stretch move (see the module doc)
-    differential = ensemble and config.strict_budget
     screen = _pmmh_screen(config, static, components, coefficients, transform)
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
-            done = most - sweeps_left
-            if done >= config.n_moves and (config.moved_fraction == 0 or moved_since.mean() >= config.moved_fraction):
+            done = moves.max_sweeps - sweeps_left
+            if done >= moves.min_sweeps and (moves.moved_fraction == 0 or moved_since.mean() >= moves.moved_fraction):
                 sweeps_left = 0
                 break
             queue, sweeps_left = rng.permutation(n), sweeps_left - 1
         k = min(queue.size, (budget - spent) // per_particle)
         if restore and spent < restore_limit * budget and distinct_ess(static) < restore * n:  # restore the ESS first
             k = min(queue.size, max(k, int(np.ceil(RESTORE_BATCH * n))))
-        if ensemble:  # the ensemble moves need a complement to draw partners from
-            k = min(k, n // 2)
+        k = moves.pmmh_batch(k, n)  # the ensemble moves need a complement to draw partners from
         if k < 1:
             if spent or budget <= 0:
                 break
@@ -214,15 +209,8 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
             copied = True
         active, queue = queue[:k], queue[k:]
         position = transform.forward(static) if transform is not None else static
-        if ensemble:
-            rest = np.ones(n, dtype=bool)
-            rest[active] = False
-            move = DifferentialMove() if differential else StretchMove(step_size)
-            proposals, log_hastings, identical = move.propose(position[active], position[rest], rng)
-        else:
-            move = GaussianMove(weighted_covariance(position, log_weights), config.proposal_scale)
-            proposals, log_hastings = move.propose(position[active], rng)
-            identical = np.zeros(k, dtype=bool)
+        # under a strict budget SEMC's PMMH proposes by differential evolution, not the stretch move (module doc)
+        proposals, log_hastings, identical = moves.pmmh_proposals(position, active, log_weights, step_size, strict, rng)
         phi = transform.inverse(proposals) if transform is not None else proposals
         inside = ~identical & inside_support(phi, support)
         cheap_old = cheap_new = np.zeros(k)
@@ -262,7 +250,6 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         n_batches += 1
         n_proposed, n_accepted = n_proposed + k, n_accepted + int(accept.sum())
         stats = stats + SweepStats(k, int(accept.sum()), int(identical.sum()), int(inside.sum()))
-        if ensemble and not differential:
-            step_size = next_step_size(step_size, float(accept.mean()), config.target_acceptance)  # Eq. (9)
+        step_size = moves.pmmh_step_size(step_size, float(accept.mean()), strict)  # Eq. (9) for SEMC's
     return (static, cloud, components, stats, step_size, n_batches,
             Rejuvenation(queue, sweeps_left, n_proposed, n_accepted, moved_since))

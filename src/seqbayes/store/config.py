@@ -32,7 +32,8 @@ A run is described by one TOML file::
     type = "SEMC"                      # or "SMC"
     n_samples = 500
     seed = 2024
-    # any SamplerConfig setting: tempering, resampling, target_acceptance, step_size, ...
+    # any flat setting of seqbayes.engine.settings.FLAT (mapped onto the sampler's components):
+    # tempering, resampling, target_acceptance, step_size, remedy_lag, ...
 
     [parallel]                         # optional
     executor = "serial"                # "serial", "processes" or "dask"
@@ -64,9 +65,6 @@ from .modules import (ConfigError, ModuleSource, split_likelihood, file_sha256, 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
            "load_located", "ModuleSource", "file_sha256"]
 
-#: Settings of :class:`seqbayes.engine.settings.SamplerConfig` that only one of the samplers takes.
-SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
-SMC_ONLY = ("proposal_scale", "max_moves")
 KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",),
                 "jump": ("base", "rate", "p", "drop_mean", "drop_sd", "reference")}
 #: Optional settings of a jump kernel entry (``tail``: "gaussian" or "heavy"; or explicit ``scales``).
@@ -137,7 +135,8 @@ class RunConfig:
     n_samples : int
     seed : int
     settings : dict
-        Further sampler settings (fields of :class:`seqbayes.engine.settings.SamplerConfig`).
+        Further sampler settings, flat (:data:`seqbayes.engine.settings.FLAT`: each maps onto a field of one of
+        the sampler's components, :func:`~seqbayes.engine.settings.from_flat`).
     executor : {"serial", "processes", "dask"}
     workers : int
     address : str or None
@@ -215,9 +214,10 @@ class RunConfig:
         ValueError
             ``predictive = "history"`` with a kernel that is not static.
         """
+        from ..engine.settings import from_flat
         from ..predictive.base import resolve_predictive
 
-        return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
+        return resolve_predictive(from_flat(self.sampler, **self.settings)["predictive"], self.build_kernel()).method
 
     def locate_likelihood(self) -> "ModuleSource":
         """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
@@ -239,11 +239,12 @@ class RunConfig:
             Overrides the configured likelihood (e.g. a wrapper counting evaluations).
         """
         from ..engine.drivers import SEMC, SMC
+        from ..engine.settings import from_flat
 
         cls = SEMC if self.sampler == "SEMC" else SMC
         loglike = self.load_likelihood() if loglike is None else loglike
         return cls(self.build_prior(), self.build_kernel(), loglike, n_samples=self.n_samples, rng=self.seed,
-                   executor=executor, **self.settings)
+                   executor=executor, **from_flat(self.sampler, **self.settings))
 
     # ------------------------------------------------------------- persistence
     def to_dict(self) -> dict:
@@ -392,29 +393,15 @@ def _memory_bound(n_samples, dim, source):
                                            f"{need / 2**30:.3g} GiB of memory; this machine has {have / 2**30:.3g} GiB")
 
 
-def _sampler_settings(kind):
-    """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
-    import dataclasses
-
-    from ..engine.settings import SamplerConfig
-
-    names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
-    excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
-    return tuple(n for n in names if n not in excluded)
-
-
 def _typed_setting(key, value, source):
-    """A ``[sampler]`` setting checked against the type of its :class:`~seqbayes.engine.settings.SamplerConfig` field.
+    """A ``[sampler]`` setting checked against its type (:data:`seqbayes.engine.settings.FLAT`).
 
     ``tempering = "false"`` (a string, which Python would take as true) or ``max_stages = 10.5``
     are refused rather than silently reinterpreted.
     """
-    import dataclasses
+    from ..engine.settings import FLAT
 
-    from ..engine.settings import SamplerConfig
-
-    kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
-    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    kind = FLAT[key][2]
     name = f"sampler.{key}"
     if kind == "bool":
         if not isinstance(value, bool):
@@ -572,7 +559,9 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     kind = sampler_raw.pop("type", "SEMC")
     if kind not in ("SEMC", "SMC"):
         _fail(source, "sampler.type", f"expected \"SEMC\" or \"SMC\", got {kind!r}")
-    allowed = _sampler_settings(kind)
+    from ..engine.settings import SamplerConfig, flat_names, from_flat
+
+    allowed = flat_names(kind)
     n_samples = _number(sampler_raw.pop("n_samples", 1000), source, "sampler.n_samples", integer=True,
                         positive=True)
     seed = _number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)
@@ -580,12 +569,8 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
         _fail(source, "sampler.seed", f"must be >= 0, got {seed}")
     _check_keys(sampler_raw, {*allowed, "type", "n_samples", "seed"}, source, "sampler")
     settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
-    # let the core validate values, reporting the field
-    from ..engine.settings import SamplerConfig
-
-    try:
-        SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
-                      **{k: v for k, v in settings.items()})
+    try:  # the components validate the values, naming the field
+        SamplerConfig(n_samples, **from_flat(kind, **settings))
     except (TypeError, ValueError) as err:
         _fail(source, "sampler", str(err))
     if kind == "SEMC" and n_samples < 2 * len(priors):
