@@ -29,6 +29,17 @@ import numpy as np  # noqa: E402
 
 _TIME_FIELDS = {"wall_time", "elapsed", "seconds"}  # plus --skip-fields: diagnostics a commit added
 
+#: StepInfo's diagnostics in the order and under the names its flat record had before they moved into the
+#: components' records (moves, evidence, conflict, jumps, nested): a step is hashed as that flat record was, so
+#: hashes of code before and after compare.
+_STEP_INFO = ("step", "log_evidence_increment", "log_evidence", "ess", "resampled", "acceptance_rate", "step_size",
+              "n_virtual", "n_stages", "temperatures", "n_loglike_evals", "n_nan", "n_distinct", "n_proposed",
+              "n_accepted", "n_identical_partner", "log_evidence_increment_path", "evidence_ess",
+              "n_independent_accepted", "n_move_evaluations", "wall_time", "prior_data_conflict",
+              "conflict_parameter", "inner_ess", "ancestor_ess", "path_steps", "jump_probability", "jump_parameter",
+              "jump_size", "jump_size_sd", "log_evidence_increment_se", "log_evidence_se", "n_screen_evaluations",
+              "n_screened_out", "amortised_evals", "pmmh_acceptance", "pending_moves", "jump_probability_se")
+
 
 def _load(name: str, *modules: str):
     """``name`` from the first of ``modules`` that defines it."""
@@ -77,8 +88,19 @@ class _Hasher:
             self.add(record.posterior, f"{label}.{i}.posterior")
             self.add(record.log_weights, f"{label}.{i}.log_weights")
             self.add(record.predictive, f"{label}.{i}.predictive")
-            self.add(record.info, f"{label}.{i}.info")
+            self.info(record.info, f"{label}.{i}.info")
         self.add(smp.rng.bit_generator.state, f"{label}.rng")
+
+    def info(self, info, label):
+        """A StepInfo, field by field in the flat order of :data:`_STEP_INFO` (the records' fields read as
+        attributes of the step); a flat record of older code, field by field as it is."""
+        if not hasattr(info, "to_dict"):
+            self.add(info, label)
+            return
+        self._h.update(label.encode())   # as add() does for a dataclass, before its fields
+        for name in _STEP_INFO:
+            if name not in _TIME_FIELDS:
+                self.add(getattr(info, name), f"{label}.{name}")
 
     def hexdigest(self):
         return self._h.hexdigest()

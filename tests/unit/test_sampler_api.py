@@ -167,7 +167,7 @@ def test_result_netcdf_round_trip(tmp_path):
     assert back.names == ("a", "b") and len(back.steps) == 3
     for a, b in zip(result.steps, back.steps):
         np.testing.assert_array_equal(a.posterior, b.posterior)
-        for name, value in vars(a.info).items():  # NaN (no move in a step) counts as equal to NaN
+        for name, value in a.info.to_dict().items():  # NaN (no move in a step) counts as equal to NaN
             other = getattr(b.info, name)
             assert value == other or (value != value and other != other), (name, value, other)
     ds = result.to_xarray()

@@ -58,11 +58,11 @@ def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikeli
         return estimate
     outcome = predictive.propagate(state, weighed, tempered, estimate, dataset, likelihood, rng)
     moves = estimate.moves
-    info = StepInfo(
+    info = StepInfo.of(
         step=state.step + 1, log_evidence_increment=float(estimate.log_increment), log_evidence=outcome.log_evidence,
         ess=float(tempered.stage_ess), resampled=bool(tempered.resampled or weighed.rejuvenated),
         acceptance_rate=moves.stats.acceptance_rate, step_size=outcome.step_size, n_virtual=moves.n_virtual,
-        n_stages=len(tempered.temperatures), temperatures=tempered.temperatures,
+        temperatures=tempered.temperatures,
         n_loglike_evals=likelihood.n_evals, n_nan=likelihood.n_nan, n_distinct=count_distinct(outcome.distinct),
         n_proposed=moves.stats.n_proposed, n_accepted=moves.stats.n_accepted,
         n_identical_partner=moves.stats.n_identical_partner, log_evidence_increment_path=float(tempered.log_z),

@@ -219,7 +219,7 @@ class RunStore(BaseStore):
             generator_from_state(rng_states[-1])
         except ValueError as err:
             raise StoreError(f"{path}: damaged run store: rng_state[{len(rng_states) - 1}]: {err}") from None
-        records = [StepRecord(_step_info(info), variables["posterior"][i], variables["log_weights"][i],
+        records = [StepRecord(StepInfo.from_dict(info), variables["posterior"][i], variables["log_weights"][i],
                               variables["predictive"][i])
                    for i, info in enumerate(json_values(text.get("step_info", []), path, "step_info"))]
         result = Result(stored.names, tuple(records), json_value(attrs.get("result_meta", "{}"), path, "result_meta"))
@@ -279,7 +279,7 @@ class RunStore(BaseStore):
     # ------------------------------------------------------------------ writing
     def _step_texts(self, k: int) -> tuple:
         """Step ``k``'s (0-based) text records, in the order of :data:`~seqbayes.store.base.RECORD_TEXT`."""
-        return (json.dumps(dataclasses.asdict(self.result.steps[k].info)), json.dumps(self.rng_states[k + 1]),
+        return (json.dumps(self.result.steps[k].info.to_dict()), json.dumps(self.rng_states[k + 1]),
                 self.digests[k], self.sources[k], self.module_hashes[k])
 
     def _own_attrs(self) -> dict:
@@ -287,7 +287,7 @@ class RunStore(BaseStore):
 
     def _step_rows(self, start: int, data: dict, coords: dict) -> None:
         steps = self.result.steps[start:]
-        infos = [dataclasses.asdict(r.info) for r in steps]
+        infos = [r.info.to_dict() for r in steps]
         numeric = [k for k, v in infos[0].items() if isinstance(v, (int, float)) and k != "step"]
         coords.update(step=np.array([r.info.step for r in steps]), diagnostic=numeric)
         data.update({
@@ -738,22 +738,6 @@ def _keep_full_state(states: list) -> None:
 def _full(arrays: dict) -> bool:
     """Whether a step's state arrays hold SMC^2's full state (not only what every step keeps)."""
     return not all(snapshot.per_step(name) for name in arrays)
-
-
-_STEP_INFO_FIELDS = {f.name: f.type for f in dataclasses.fields(StepInfo)}
-
-
-def _step_info(values: dict) -> StepInfo:
-    """A :class:`StepInfo` from its stored dict: directly when it has this version's fields (what
-    this version wrote; several times faster, which counts at 500 steps), else by
-    :meth:`StepInfo.from_dict` (tolerant of fields added or removed since)."""
-    if isinstance(values, dict) and values.keys() == _STEP_INFO_FIELDS.keys():
-        # what StepInfo(**values) makes (a frozen dataclass without __post_init__), without its 38
-        # object.__setattr__ calls (16 -> 9 ms of profiled time for 500 steps)
-        info = object.__new__(StepInfo)
-        info.__dict__.update(values, temperatures=tuple(values["temperatures"]))
-        return info
-    return StepInfo.from_dict(values)
 
 
 def posterior_to_arviz(result: Result, step: int | None = -1, rng: int | np.random.Generator | None = None,
