@@ -9,7 +9,7 @@ import numpy as np
 
 from ..priors import inside_support
 
-__all__ = ["metropolis_accept", "evaluate_inside", "combine", "Moves", "HIGH_DIMENSION"]
+__all__ = ["metropolis_accept", "accepted", "evaluate_inside", "combine", "Moves", "HIGH_DIMENSION"]
 
 #: Above this many parameters the default moves are the scaled ones (:attr:`Moves.scaled`).
 HIGH_DIMENSION = 10
@@ -22,9 +22,15 @@ def metropolis_accept(current_log_prob, proposal_log_prob, log_hastings, rng: np
     ``-inf`` or NaN log-probability is always rejected; a current point at
     ``-inf`` is left for any finite proposal.
     """
+    proposal = np.asarray(proposal_log_prob, dtype=float)
+    return accepted(np.log(rng.random(proposal.shape)), current_log_prob, proposal, log_hastings)
+
+
+def accepted(log_u, current_log_prob, proposal_log_prob, log_hastings) -> np.ndarray:
+    """:func:`metropolis_accept`'s decision for the log-uniforms ``log_u`` drawn beforehand (a sampler that draws them
+    before it evaluates the proposals, to keep its random stream)."""
     current = np.asarray(current_log_prob, dtype=float)
     proposal = np.asarray(proposal_log_prob, dtype=float)
-    log_u = np.log(rng.random(proposal.shape))
     if np.isfinite(current).all():  # the usual case: no -inf - -inf to guard against
         return log_u < proposal - current + log_hastings  # NaN compares False
     finite = np.isfinite(proposal)

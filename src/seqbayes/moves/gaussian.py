@@ -14,7 +14,7 @@ from ..weights import normalise
 from .base import Moves, combine, evaluate_inside, metropolis_accept
 from .delayed import screened_sweep
 
-__all__ = ["RandomWalk", "GaussianMove", "weighted_covariance", "gaussian_sweep"]
+__all__ = ["RandomWalk", "GaussianMove", "FittedMove", "weighted_covariance", "gaussian_sweep"]
 
 
 def weighted_covariance(samples, log_weights=None) -> np.ndarray:
@@ -58,6 +58,39 @@ class GaussianMove:
         """Returns ``(proposals (n, d), log_hastings (n,))``."""
         noise = rng.standard_normal(walkers.shape) @ self._factor.T
         return walkers + noise, np.zeros(walkers.shape[0])
+
+
+class FittedMove:
+    """The structural samplers' proposal from a weighted Gaussian fit ``N(mean, L L^T)``: for each walker either an
+    independence draw ``mean + scale L z`` (Hastings term ``log q(x) - log q(x*)``, ``q = N(mean, scale^2 L L^T)``) or a
+    random walk ``x + 2.38 / sqrt(d) L z`` (symmetric), as the caller's ``independent`` mask says (drawn independently
+    of the walkers, so the mixture is a valid kernel).
+
+    Parameters
+    ----------
+    mean : (d,) array
+    chol : (d, d) array
+        Lower Cholesky factor ``L`` of the fitted covariance.
+    scale : float
+        Scale of the independence proposal's spread.
+    """
+
+    def __init__(self, mean, chol, scale: float = 1.0):
+        self.mean, self.chol, self.scale = mean, chol, scale
+        self._chol_inv = np.linalg.inv(chol)
+
+    def log_q(self, points) -> np.ndarray:
+        """``log q`` of the independence proposal at ``points (n, d)``, up to its constant."""
+        z = (points - self.mean) @ self._chol_inv.T / self.scale
+        return -0.5 * np.einsum("nd,nd->n", z, z)
+
+    def propose(self, walkers, noise, independent):
+        """``(proposals (n, d), log_hastings (n,))`` for ``walkers (n, d)`` from standard normal ``noise (n, d)``, each
+        an independence draw where ``independent (n,)`` is True, else a random-walk step."""
+        step = noise @ self.chol.T
+        d = walkers.shape[1]
+        proposals = np.where(independent[:, None], self.mean + self.scale * step, walkers + 2.38 / np.sqrt(d) * step)
+        return proposals, np.where(independent, self.log_q(walkers) - self.log_q(proposals), 0.0)
 
 
 def gaussian_sweep(walkers, components, component_fn, coefficients, move: GaussianMove,

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..resampling import resample
 from ..core.tempering import TargetESS, between_stages, temper
+from ..moves.base import metropolis_accept
 from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
@@ -495,8 +496,7 @@ class ChangeModelSampler:
                 cur_new, _ = self.log_marginal(new0, new1)
                 prev_new = self._previous(new0, new1)
                 target_new = prior + (1 - exponent) * prev_new + exponent * cur_new
-                log_ratio = np.where(inside, target_new - log_target, -np.inf)
-            accept = np.log(self.rng.uniform(size=self.n_particles)) < log_ratio
+            accept = metropolis_accept(log_target, np.where(inside, target_new, -np.inf), 0.0, self.rng)
             self.phi[accept] = proposal[accept]
             self.loglike0[accept] = new0[accept]
             if loglike1 is not None:

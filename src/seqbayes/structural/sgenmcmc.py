@@ -100,6 +100,8 @@ import numpy as np
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
 from ..core.tempering import TargetESS, between_stages, blas_limit, normalised_ess, temper
+from ..moves.base import accepted
+from ..moves.gaussian import FittedMove
 from ..weights import normalise
 from .ensemble import run_ensemble
 from .filters.enkf import EnKFBank, enkf_log_likelihood
@@ -628,37 +630,28 @@ class SGEnMCMC:
         particles at once, targeting ``log p(theta) + past + phi * inc``."""
         N, d = theta.shape
         jitter = 1e-12 * max(float(np.trace(fit_cov)) / d, 1e-30) * np.eye(d)
-        chol = np.linalg.cholesky(fit_cov + jitter)
-        chol_inv = np.linalg.inv(chol)
-        scale = self.proposal_scale
-        rw_step = 2.38 / np.sqrt(d)
-
-        def log_q(x):  # independent proposal N(fit_mean, scale^2 fit_cov), up to a constant
-            z = (x - fit_mean) @ chol_inv.T / scale
-            return -0.5 * np.einsum("nd,nd->n", z, z)
-
+        move = FittedMove(fit_mean, np.linalg.cholesky(fit_cov + jitter), self.proposal_scale)
         acceptance = []
         total = 0.0
         steady = True
         while total < self.moves_per_particle and len(acceptance) < self.max_sweeps:
-            eps = rng.standard_normal((N, d)) @ chol.T
+            noise = rng.standard_normal((N, d))
             if self.proposal == "independent":
                 independent = np.ones(N, bool)
             elif self.proposal == "random_walk":
                 independent = np.zeros(N, bool)
             else:
                 independent = rng.random(N) < 0.5
-            candidate = np.where(independent[:, None], fit_mean + scale * eps, theta + rw_step * eps)
-            log_hastings = np.where(independent, log_q(theta) - log_q(candidate), 0.0)
+            candidate, log_hastings = move.propose(theta, noise, independent)
             inside = np.all((candidate > self.lower) & (candidate < self.upper), axis=1)  # uniform prior
-            log_u = np.log(rng.random(N))
+            log_u = np.log(rng.random(N))  # drawn before the candidates' filters run (an EnKF draws too)
             accept = np.zeros(N, bool)
             if inside.any():
                 c_past, c_inc, c_mean, c_cov, c_steady = self._history_likelihood(candidate[inside], phi, k, u, y,
                                                                                   R, rng)
                 steady = steady and c_steady
-                log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
-                ok = log_u[inside] < log_ratio
+                ok = accepted(log_u[inside], past[inside] + phi * inc[inside], c_past + phi * c_inc,
+                              log_hastings[inside])
                 where = np.flatnonzero(inside)[ok]
                 accept[where] = True
                 theta = theta.copy()

@@ -91,7 +91,10 @@ import numpy as np
 
 from ..resampling import resample
 from ..rng import as_generator, generator_from_state, generator_state
+from ..selection import ModelBank
 from ..core.tempering import TargetESS, between_stages, blas_limit, temper
+from ..moves.base import accepted
+from ..moves.gaussian import FittedMove
 from ..weights import logsumexp, normalise
 from .drop_paths import effective_theta, path_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, measurement_covariance
@@ -279,7 +282,8 @@ class StiffnessDropMonitor:
             classes.append(_ClassState(storey, theta, np.zeros(N), np.full(N, -1), bank, mean, cov, np.zeros(N),
                                        np.zeros(N), 0.0, 0))
         self._run = {"rng": rng, "R": R, "probe": probe, "u": np.zeros(0), "y": np.zeros((0, R.shape[0])),
-                     "classes": classes, "active": np.ones(d + 1, bool), "low_steps": np.zeros(d + 1, int),
+                     "classes": classes, "bank": ModelBank(self.log_prior_classes, np.zeros(d + 1), np.ones(d + 1, bool),
+                                                           np.zeros(d + 1, int)),
                      "history": []}
 
     def update(self, ground_acceleration, measurements) -> DropBlock:
@@ -297,11 +301,9 @@ class StiffnessDropMonitor:
         with blas_limit(self.blas_threads):
             for k in range(first, run["u"].size):  # loop over time only
                 run["classes"] = [self._class_step(c, k, run) if on else c
-                                  for c, on in zip(run["classes"], run["active"])]
-                if self.prune_below > 0:  # count the consecutive steps each class spent below prune_below
-                    low = np.exp(self._log_class_probabilities(run)) < self.prune_below
-                    run["low_steps"] = np.where(low, run["low_steps"] + 1, 0)
-                    run["active"] = run["active"] & (run["low_steps"] < self.prune_after)
+                                  for c, on in zip(run["classes"], run["bank"].active)]
+                run["bank"] = run["bank"].updated([c.log_evidence for c in run["classes"]], self.prune_below,
+                                                  self.prune_after)
         block = self._summary(run, before, time.perf_counter() - started)
         run["history"].append(block)
         return block
@@ -369,7 +371,7 @@ class StiffnessDropMonitor:
         classes = run["classes"]
         out = {f"setting_{name}": value for name, value in self._settings().items()}
         out["rng_state"] = np.array(json.dumps(generator_state(run["rng"])))
-        out.update(u=run["u"], y=run["y"], active=run["active"], low_steps=run["low_steps"])
+        out.update(u=run["u"], y=run["y"], active=run["bank"].active, low_steps=run["bank"].low_steps)
         for name in self._CLASS_ARRAYS:
             out[f"class_{name}"] = np.stack([getattr(c, name) for c in classes])
         out["class_log_evidence"] = np.array([c.log_evidence for c in classes], float)
@@ -434,15 +436,16 @@ class StiffnessDropMonitor:
             history.append(DropBlock(**values))
         self._run = {"rng": rng, "R": R, "probe": probe, "u": np.array(snapshot["u"], float),
                      "y": np.array(snapshot["y"], float).reshape(-1, R.shape[0]), "classes": classes,
-                     "active": np.array(snapshot["active"], bool), "low_steps": np.array(snapshot["low_steps"], int),
+                     "bank": ModelBank(self.log_prior_classes, log_z.copy(), np.array(snapshot["active"], bool),
+                                       np.array(snapshot["low_steps"], int)),
                      "history": history}
 
     def _summary(self, run, before, seconds) -> DropBlock:
         classes = run["classes"]
         C = len(classes)
         log_z = np.array([c.log_evidence for c in classes])
-        active = run["active"].copy()
-        probs = np.exp(self._log_class_probabilities(run))
+        active = run["bank"].active.copy()
+        probs = np.exp(run["bank"].log_probabilities())
         changed, drop_mean, time_mean = np.zeros(C), np.full(C, np.nan), np.full(C, np.nan)
         theta_mean = np.empty((C, self.lower.size))
         for c, st in enumerate(classes):
@@ -460,11 +463,6 @@ class StiffnessDropMonitor:
                          class_probabilities=probs, changed=changed, change_probability=p_change,
                          detected=p_change > self.threshold, storey=int(np.argmax(probs[1:])) + 1,
                          drop_mean=drop_mean, change_time_mean=time_mean, theta_mean=theta_mean, active=active, seconds=seconds)
-
-    def _log_class_probabilities(self, run) -> np.ndarray:
-        """``log P(M_c | y)`` among the active classes (``-inf`` for pruned ones)."""
-        log_z = np.array([c.log_evidence for c in run["classes"]])
-        return normalise(np.where(run["active"], self.log_prior_classes + log_z, -np.inf))
 
     # --------------------------------------------------------------- the step
     def _model(self, theta) -> DiscreteModel:
@@ -588,25 +586,16 @@ class StiffnessDropMonitor:
             for part, dim, fit in ((tau < 0, d, fits[0]), (tau >= 0, d + 1, fits[1])):
                 if fit is None or not part.any():
                     continue
-                mean, chol = fit
-                step = z_all[part, :dim] @ chol.T
                 # not dropped: independent or random walk (1/2 each); dropped: independent 0.4, random walk
                 # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range): a cloud that
                 # collapsed away from the mode of delta cannot reach it with proposals fitted to itself
                 ind = kind[part] < (0.5 if dim == d else 0.4)
                 current = x[part, :dim]
-                proposed = np.where(ind[:, None], mean + step, current + 2.38 / np.sqrt(dim) * step)
+                proposed, log_hastings[part] = FittedMove(*fit).propose(current, z_all[part, :dim], ind)
                 if dim > d:
                     wide = kind[part] >= 0.8
                     proposed[wide, :d] = current[wide, :d]
                     proposed[wide, d] = current[wide, d] + 0.1 * (hi - lo) * z_all[part, d][wide]
-                chol_inv = np.linalg.inv(chol)
-
-                def log_q(v):
-                    z = (v - mean) @ chol_inv.T
-                    return -0.5 * np.einsum("nd,nd->n", z, z)
-
-                log_hastings[part] = np.where(ind, log_q(current) - log_q(proposed), 0.0)
                 candidate[np.ix_(np.flatnonzero(part), np.arange(dim))] = proposed
             c_theta, c_delta = candidate[:, :d], candidate[:, d]
             inside = np.all((c_theta > self.lower) & (c_theta < self.upper), axis=1)
@@ -617,8 +606,8 @@ class StiffnessDropMonitor:
                 where_in = np.flatnonzero(inside)
                 c_past, c_inc, c_mean, c_cov = self._candidate_terms(storey, c_theta[inside], c_delta[inside],
                                                                       tau[inside], k, u, y)
-                log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
-                ok = log_u[inside] < log_ratio
+                ok = accepted(log_u[inside], past[inside] + phi * inc[inside], c_past + phi * c_inc,
+                              log_hastings[inside])
                 where = where_in[ok]
                 accept[where] = True
                 theta, delta = theta.copy(), delta.copy()
