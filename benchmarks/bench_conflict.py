@@ -29,7 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from seqbayes.predictive.paths import PathSpace  # noqa: E402
+from seqbayes.predictive.transition import PathSpace  # noqa: E402
 from seqbayes.studies import oscillator as study  # noqa: E402
 
 REMEDY_ESS = PathSpace().ancestor_ess

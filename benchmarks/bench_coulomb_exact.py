@@ -134,7 +134,7 @@ def pmmh_jumps(args):
 
     from seqbayes.predictive import smc2
     from seqbayes.predictive.pmmh import rerun_cost
-    from seqbayes.transforms import BoxTransform
+    from seqbayes.priors import BoxTransform
 
     data = model.load_experiment()
     original = smc2.rejuvenate

@@ -72,7 +72,7 @@ orig_is = E.importance_step
 def importance_step(posterior, log_weights, *a, **kw):
     record.setdefault("is_in", []).append(tail(posterior[:, -1], log_weights))
     if posterior.shape[1] == 10 and kw.get("other") is not None:   # the path step's proposal: its tail against pi's
-        from seqbayes.transforms import BoxTransform
+        from seqbayes.priors import BoxTransform
         from seqbayes.moves.proposals import PooledProposal, clustered_parts
         prior_logpdf, loglike, support = a[1], a[2], a[3]
         tr = BoxTransform(support); oth = kw["other"]

@@ -1,8 +1,8 @@
 """Which source files of seqbayes one ``update()`` runs through: the reader's path through an update.
 
-Traces one SEMC update of the damped oscillator under a drifting kernel (the transition mixture of Eq. A3, its
-second step, so that the mixture prior is in force) with :func:`sys.setprofile` and counts the distinct files of
-the ``seqbayes`` package whose functions the calls enter, and the switches between files::
+Traces one SEMC update under a drifting kernel (the transition mixture of Eq. A3, the second step, so that the
+mixture prior is in force) of a model defined here, as a user's would be, with :func:`sys.setprofile`, and counts the
+distinct files of the ``seqbayes`` package whose functions the calls enter, and the switches between files::
 
     python tools/trace_update.py            # the count and the files
     python tools/trace_update.py --json     # the same as JSON
@@ -49,15 +49,27 @@ def traced_files(update, package_root: str) -> tuple[list[str], int, int]:
 
 
 def semc_transition_update():
-    """``(update, package_root)``: the second update of an SEMC run under the oscillator's drifting kernel T3."""
-    import seqbayes
-    from seqbayes.models import oscillator as osc
+    """``(update, package_root)``: the second update of SEMC under a drifting kernel (the transition mixture prior,
+    Eq. A3), on a user's model defined here (a damped sine with a bounded frequency and damping, uniform priors), so
+    that only the library's files are counted."""
+    from scipy import stats
 
-    problem = osc.make_problem(np.random.default_rng(0))
-    sampler = seqbayes.SEMC(osc.prior(), problem.kernels["T3"].kernel, osc.log_likelihood, n_samples=200, rng=1)
-    sampler.update(problem.datasets[0])
+    import seqbayes
+
+    t = np.linspace(0.0, 4.0, 40)
+
+    def loglike(theta, y):
+        model = np.exp(-theta[:, 1:2] * t) * np.sin(theta[:, 0:1] * t)
+        return -0.5 * np.sum((y - model) ** 2, axis=1) / 0.05**2
+
+    truth = np.exp(-0.3 * t) * np.sin(2.0 * t)
+    data = [truth + 0.05 * np.random.default_rng(s).standard_normal(t.size) for s in range(2)]
+    prior = seqbayes.JointPrior({"omega": stats.uniform(1.0, 2.0), "zeta": stats.uniform(0.05, 0.9)})
+    kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=0.02), seqbayes.Drift(0.0, noise_std=0.01)])
+    sampler = seqbayes.SEMC(prior, kernel, loglike, n_samples=200, rng=1)
+    sampler.update(data[0])
     root = str(Path(seqbayes.__file__).parent)
-    return (lambda: sampler.update(problem.datasets[1])), root
+    return (lambda: sampler.update(data[1])), root
 
 
 def main(argv=None) -> int:

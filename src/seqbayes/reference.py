@@ -2,7 +2,7 @@
 cumulative log-evidence, on a tensor grid with quadrature instead of samples.
 
 The target is the samplers' (Eqs. A2-A3 of Lye et al. 2023 with the box convention of
-:mod:`seqbayes.engine.pipeline`): the parameter space is the prior's box and the likelihood
+:mod:`seqbayes.engine.drivers`): the parameter space is the prior's box and the likelihood
 is zero outside it, so at step ``s``
 
     p_s(theta) = L_s(theta) pi_s(theta) 1_box(theta) / Z_s,

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     import xarray as xr
 
 __all__ = ["StepInfo", "MoveInfo", "EvidenceInfo", "ConflictInfo", "JumpInfo", "NestedInfo", "StepRecord", "Result",
-           "weighted_quantile", "prior_data_conflict"]
+           "weighted_quantile"]
 
 
 @dataclass(frozen=True)
@@ -95,7 +95,7 @@ class ConflictInfo:
     prior_data_conflict : float
         How far the step's posterior lies in the tail of its prior (the predictive distribution restricted to the
         parameter space for ``s > 1``): the largest over parameters of ``|posterior mean - prior mean| / prior sd``
-        (:func:`prior_data_conflict`). Under the model this exceeds 4 with probability below ~1e-4 per parameter;
+        (:func:`~seqbayes.predictive.particle.prior_data_conflict`). Under the model this exceeds 4 with probability below ~1e-4 per parameter;
         larger values flag an abrupt change or a kernel too narrow for the data.
     conflict_parameter : int
         The parameter (column) where it is largest.
@@ -271,22 +271,6 @@ _TYPES = {**{f.name: _type_name(f) for f in dataclasses.fields(StepInfo) if f.na
           **{f.name: _type_name(f) for record in RECORDS.values() for f in dataclasses.fields(record)}}
 
 
-def prior_data_conflict(prior: np.ndarray, prior_log_weights: np.ndarray, posterior: np.ndarray,
-                        posterior_log_weights: np.ndarray) -> np.ndarray:
-    """``|posterior mean - prior mean| / prior sd`` per parameter, ``(d,)``.
-
-    Parameters
-    ----------
-    prior, posterior : (N, d) arrays
-        The step's prior particles (before the likelihood) and its posterior particles.
-    prior_log_weights, posterior_log_weights : (N,) arrays
-    """
-    w0, w1 = np.exp(normalise(prior_log_weights)), np.exp(normalise(posterior_log_weights))
-    mean0 = w0 @ prior
-    sd0 = np.sqrt(np.maximum(w0 @ (prior - mean0) ** 2, 1e-300))
-    return np.abs(w1 @ posterior - mean0) / sd0
-
-
 def weighted_quantile(samples: ArrayLike, log_weights: ArrayLike, q: ArrayLike) -> np.ndarray:
     """Weighted quantiles ``(len(q), d)`` of ``samples (N, d)``."""
     samples = np.asarray(samples, dtype=float)
@@ -348,7 +332,7 @@ class StepRecord:
 
     def equal_weight_samples(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
         """Resampled (systematic) equal-weight posterior samples, ``(n, d)``."""
-        from .resampling import systematic
+        from .weights import systematic
 
         return self.posterior[systematic(self._w(), rng, n)]
 

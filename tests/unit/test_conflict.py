@@ -8,7 +8,7 @@ import pytest
 from seqbayes.engine.settings import from_flat
 from seqbayes import SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
-from seqbayes.results import prior_data_conflict
+from seqbayes.predictive.particle import prior_data_conflict
 from seqbayes import PriorDataConflictWarning
 from seqbayes.predictive.particle import step_conflict
 

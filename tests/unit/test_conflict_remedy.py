@@ -1,4 +1,4 @@
-"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.paths.PathSpace``.
+"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.transition.PathSpace``.
 
 A random walk ``theta_s = theta_{s-1} + N(0, Q^2)`` observed through ``M`` Gaussian measurements per
 dataset has the scalar Kalman filter as its exact answer. The data jump by 0.6 (12 Q) at step 4, so
@@ -17,7 +17,8 @@ import seqbayes
 from seqbayes import SEMC, SMC
 from seqbayes.engine.settings import SamplerConfig
 from seqbayes.core.likelihood import ValidatedLikelihood
-from seqbayes.core.state import PastStep, Problem, remedy_window
+from seqbayes.core.state import PastStep, Problem
+from seqbayes.predictive.lineage import remedy_window
 from seqbayes.predictive.lineage import ancestor_draws
 from seqbayes.predictive.paths import PathPrior, path_prior_logpdf
 
@@ -325,16 +326,16 @@ def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
     # random streams, whose trigger decisions near the threshold move with any change to the moves)
     from types import SimpleNamespace
 
-    from seqbayes.predictive import paths, transition
+    from seqbayes.predictive import transition
 
-    monkeypatch.setattr(paths, "PathStep", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
+    monkeypatch.setattr(transition, "PathStep", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
     config = SamplerConfig(1000)
     mixture = transition.TransitionMixture(SimpleNamespace(kernel=KERNEL), config, "transition")
     lagged = [0.0]
 
     def decide(ancestor_ess=500.0, conflict=1.0, n_found=1000, after_path_space=False, window=True):
         state = SimpleNamespace(memory=SimpleNamespace(window=(_past(2 if after_path_space else 0),) if window else ()))
-        info = SimpleNamespace(ancestor_ess=ancestor_ess, prior_data_conflict=conflict)
+        info = SimpleNamespace(conflict=SimpleNamespace(ancestor_ess=ancestor_ess, prior_data_conflict=conflict))
         outcome = SimpleNamespace(record=SimpleNamespace(info=info), weighed=SimpleNamespace(n_found=n_found),
                                   lagged_variance=lagged[0])
         decision = mixture.remedy(state, None, None, outcome)

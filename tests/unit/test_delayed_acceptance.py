@@ -12,7 +12,7 @@ from seqbayes.engine.settings import from_flat
 from seqbayes.moves import RandomWalk
 from seqbayes.moves import GaussianMove, StretchMove
 from seqbayes.moves.delayed import QuadraticScreen, Screening, pays, screened_sweep
-from seqbayes.core.state import SweepStats
+from seqbayes.moves.base import SweepStats
 
 
 def _standard_normal(points):

@@ -8,7 +8,7 @@ from scipy.special import logsumexp
 
 from seqbayes import SMC
 from seqbayes.predictive import mixture as density_module
-from seqbayes.predictive.ancestry import grouped_ancestor_variance
+from seqbayes.predictive.mixture import grouped_ancestor_variance
 from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 

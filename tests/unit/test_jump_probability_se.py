@@ -140,7 +140,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     jump probability's se carries its influence back through every step of ``deeper``."""
     from types import SimpleNamespace
 
-    from seqbayes.predictive.ancestry import AncestorSpread
+    from seqbayes.predictive.mixture import AncestorSpread
     from seqbayes.predictive.lineage import lagged_ancestor_variance
     from seqbayes.predictive.mixture import backward_masses
     from seqbayes.predictive.lineage import mixture_chain
@@ -154,7 +154,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     # the mixtures cache their centres in single precision (GaussianMixture._scaled_centres): ~1e-7 relative
     np.testing.assert_allclose(backward_masses(priors[2], clouds[2], weights),
                                weights @ _responsibilities(priors[2], clouds[2]), rtol=1e-6)
-    window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_space=False)
+    window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_states=0)
                    for p, c, w in zip(priors, clouds, logws))
     state = SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=window[-1].log_weights)
     assert lagged_ancestor_variance(state, AncestorSpread(1.0, 0.25, mass=None), 0.0) == 0.25   # no mass: lag 1 alone
@@ -170,7 +170,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     assert total == pytest.approx(expected, rel=1e-5)
     # a path-space step stops the sum behind it, and its particles' term is that of steps 4 and 5 together:
     # against their own weights, not step 4's posterior masses
-    window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_space": True}),) + window[3:]
+    window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_states": 2}),) + window[3:]
     cut = lagged_ancestor_variance(SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=state.posterior_log_weights),
                                    AncestorSpread(1.0, float(np.sum((mass - np.exp(window[-1].log_weights)) ** 2)),
                                                   mass=mass), 0.0)

@@ -86,7 +86,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     uninterrupted run bit for bit. A random walk (sd 0.05 per step) observed through 25 points of
     noise 0.5 jumps by 0.6 (12 kernel sds) at step 4, which runs on the path space (as in
     test_conflict_remedy). With ``remedy_lag = 3`` steps 5 and 6 reach back to step 4's first state (anchored
-    windows of 4 and 5 states, seqbayes.core.state.remedy_window) and step 7's window slides back to 2. Whether
+    windows of 4 and 5 states, seqbayes.predictive.lineage.remedy_window) and step 7's window slides back to 2. Whether
     step 6 takes the remedy again is the trigger's call on a random ancestor ESS: sampler seed 5 does (seeds 0-23 with
     the early remedy decision: 5, 7, 12, 13, 18 and 19; the rest remedy steps 5 and 7 instead); seed 0 did on the
     suffix moves alone, seed 6 on the half starts, seed 3 before them."""

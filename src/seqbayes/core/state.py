@@ -5,7 +5,6 @@ protocol of a step's predictive prior (:class:`Predictive`) that the pipeline go
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -13,11 +12,11 @@ import numpy as np
 
 from ..kernels import MarkovKernel
 from .errors import ZeroLikelihoodError
-from ..transforms import BoxTransform
+from ..priors import BoxTransform
 
-__all__ = ["SamplerState", "RemedyMemory", "Problem", "PastStep", "Cloud", "SweepStats", "MoveTally", "Weighed",
-           "Tempered", "Estimate", "Outcome", "Failure", "Reassimilate", "Assimilated", "Predictive", "kept_copy",
-           "variance_before"]
+__all__ = ["SamplerState", "RemedyMemory", "Problem", "PastStep", "Cloud", "Weighed",
+           "Tempered", "Estimate", "Outcome", "Failure", "Reassimilate", "Assimilated", "Predictive", "Storage",
+           "STORAGE", "stored_as"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,7 +165,6 @@ class Problem:
     loglike: object
     support: np.ndarray
     executor: object = None
-    n_chunks: int | None = None
     history: object = None
     inner_filter: object = None
 
@@ -186,48 +184,6 @@ class Cloud:
     log_weights: np.ndarray
     components: np.ndarray
     labels: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class SweepStats:
-    """Counts of one or more sweeps; the true acceptance rate is ``n_accepted / n_proposed``.
-
-    With delayed acceptance (:mod:`seqbayes.moves.delayed`) ``n_evaluations`` counts the expensive
-    evaluations only, ``n_screen_evaluations`` the cheap screen's and ``n_screened_out`` the proposals
-    it rejected before any expensive call."""
-
-    n_proposed: int = 0
-    n_accepted: int = 0
-    n_identical_partner: int = 0
-    n_evaluations: int = 0
-    n_screen_evaluations: int = 0
-    n_screened_out: int = 0
-
-    def __add__(self, other: "SweepStats") -> "SweepStats":
-        return SweepStats(self.n_proposed + other.n_proposed, self.n_accepted + other.n_accepted,
-                          self.n_identical_partner + other.n_identical_partner,
-                          self.n_evaluations + other.n_evaluations,
-                          self.n_screen_evaluations + other.n_screen_evaluations,
-                          self.n_screened_out + other.n_screened_out)
-
-    @property
-    def acceptance_rate(self) -> float:
-        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
-
-
-@dataclass(frozen=True)
-class MoveTally:
-    """What the moves of one step did: counts, SEMC's step size, virtual iterations."""
-
-    stats: SweepStats = SweepStats()
-    step_size: float = float("nan")
-    n_virtual: int = 0
-
-    def then(self, moved, moves) -> "MoveTally":
-        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; the ``moves``
-        component says whether the adapted step size carries on (SEMC's)."""
-        return MoveTally(self.stats + moved.stats, moves.step_size_after(moved.step_size, self.step_size),
-                         self.n_virtual + moved.n_virtual)
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,9 +262,9 @@ class Outcome:
     log_evidence : float
     step_size : float
         The record's step size (SEMC's adapted one; NaN where none is adapted).
-    fields : dict
-        The optional :class:`~seqbayes.results.StepInfo` fields the predictive fills (conflict, ancestor
-        ESS, standard errors, path steps, inner ESS, jumps).
+    records : dict
+        The :class:`~seqbayes.results.StepInfo` records the predictive fills (``evidence``, ``conflict``, ``jumps``,
+        ``nested``; the others take their defaults).
     moments : tuple of two (d,) arrays or None
         The posterior's mean and sd when the predictive knows them better than the draws do (SMC^2's
         Rao-Blackwellised drifting parameters); ``None``: from the weighted draws.
@@ -324,7 +280,7 @@ class Outcome:
     distinct: np.ndarray
     log_evidence: float
     step_size: float
-    fields: dict
+    records: dict
     moments: tuple | None = None
     lagged_variance: float = float("nan")
 
@@ -346,7 +302,7 @@ class PastStep:
         ``log p(D^s | D^{1:s-1})`` as estimated at the step.
     log_evidence_variance : float
         The cumulative log-evidence's variance before the step (``SamplerState.log_evidence_variance``);
-        a bridged step (:class:`~seqbayes.predictive.paths.PathSpace`) estimates the window's evidence afresh from it.
+        a bridged step (:class:`~seqbayes.predictive.transition.PathSpace`) estimates the window's evidence afresh from it.
     path_states : int
         A path-space step's number of states (``StepInfo.path_steps``; its window's first step is ``path_states - 1``
         steps back), 0 for a mixture step.
@@ -388,34 +344,53 @@ class Predictive(Protocol):
         :class:`Reassimilate` assimilates the step again through another predictive."""
 
 
-def remedy_window(window: tuple, remedy_lag: int) -> tuple:
-    """The past steps that the next path-space step's window takes: the last ``remedy_lag - 1``, or back to
-    the first step of the last path-space step's window, while that is stored and the path at most
-    ``2 remedy_lag`` states long.
+@dataclass(frozen=True)
+class Storage:
+    """How one kind of state is kept in the run store (:mod:`seqbayes.store.snapshot`), registered by its class
+    (:func:`stored_as`): a state's prior density (the mixtures, the history prior), whose arrays complete the
+    :class:`SamplerState`, or a whole state of its own (``whole``: SMC^2's).
 
-    A path-space step replaces the cumulative evidence from its window's first step on by its own estimate,
-    ``log Z_hat_{1:w-1} + log Z_hat_{w:s}``. A later window that starts inside it rests instead on the
-    mixture prior over a filtered cloud that the new data tilt (and on the increments the earlier step
-    superseded), whose error it brings back; consecutive remedies therefore share the earlier step's
-    first prior (docs/jump_kernels.md, "The window's first prior").
+    Attributes
+    ----------
+    kind : str
+        The kind's name (``"mixture"``, ``"history"``, ``"nested"``, ...).
+    prefix : str
+        What its array names (the run store's variable names) begin with.
+    to_arrays : callable
+        ``obj.<to_arrays>(log_prior) -> dict`` of float arrays (``obj`` the prior; a whole state takes no argument).
+    from_arrays : callable
+        ``from_arrays(arrays, context) -> (prior, log_prior)``; a whole state's
+        ``from_arrays(arrays_by_step, datasets) -> state``.
+    needs_datasets : bool
+        Resuming needs the assimilated datasets.
+    dims : dict
+        Dimension names (after ``step``) of its arrays whose axes have a meaning a NetCDF reader can use.
+    every_step : tuple or None
+        The arrays every later step needs (the others rebuild the state after their own step only: the store
+        keeps them for the last steps alone); ``None``: all of them.
+    fill : callable or None
+        ``fill(arrays, n_samples)`` adds (in place) what a store of an earlier version lacks.
     """
-    keep = remedy_lag - 1
-    for back, past in enumerate(reversed(window)):
-        if past.path_states:
-            anchored = back + past.path_states  # entries from that step's window start to the last one
-            if keep < anchored <= len(window) and anchored <= 2 * remedy_lag - 1:
-                keep = anchored
-            break
-    return window[-keep:]
+
+    kind: str
+    prefix: str
+    to_arrays: object
+    from_arrays: object
+    needs_datasets: bool = False
+    dims: dict = field(default_factory=dict)
+    every_step: tuple | None = None
+    fill: object = None
+    whole: bool = False
 
 
-def variance_before(state) -> float:
-    """:attr:`PastStep.log_evidence_variance` of the step after ``state``: its cumulative variance, as the square of
-    the se the last record reports, which is what a restored run rebuilds it from (:mod:`seqbayes.store.snapshot`), so that
-    resumed runs stay bit-identical."""
-    return float(np.sqrt(state.log_evidence_variance)) ** 2
+#: The registered kinds: class -> :class:`Storage` (:func:`stored_as`).
+STORAGE: dict = {}
 
 
-def kept_copy(dataset):
-    """A copy of a dataset that the sampler keeps (callers reuse their buffers): ``ndarray.copy``, else a deep copy."""
-    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)
+def stored_as(kind: str, prefix: str, **options):
+    """A class decorator: instances of the class are stored as ``kind`` (:class:`Storage`), through its methods
+    ``to_arrays`` and classmethod ``from_arrays``; ``options`` the other fields of :class:`Storage`."""
+    def register(cls):
+        STORAGE[cls] = Storage(kind, prefix, cls.to_arrays, cls.from_arrays, **options)
+        return cls
+    return register

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..resampling import SCHEMES
+from ..weights import SCHEMES
 from ..weights import logsumexp, normalise
 from .errors import TemperingLimitError, ZeroLikelihoodError, prior_name
 from .state import Failure
@@ -162,7 +162,7 @@ class Mutation(Protocol):
 @dataclass(frozen=True)
 class Tempering:
     """Where a step's stages resample and when they give up: the resampling ``scheme``
-    (:mod:`seqbayes.resampling`), the ESS fraction ``resample_below`` under which the last stage resamples,
+    (:mod:`seqbayes.weights`), the ESS fraction ``resample_below`` under which the last stage resamples,
     ``max_stages`` and ``min_valid_fraction`` (a step whose prior particles have fewer with a non-zero likelihood
     starts from the prior restricted to them, :func:`~seqbayes.predictive.particle.weigh`; 0: never). The rules
     (:class:`Adaptive`, :class:`Single`) say how far each stage goes."""

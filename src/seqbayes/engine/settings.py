@@ -7,7 +7,7 @@ A sampler is composed of objects, each owning its settings and their validation:
 (:class:`~seqbayes.predictive.evidence.Importance`, :class:`~seqbayes.predictive.evidence.PathEvidence`), the predictive
 prior (:class:`~seqbayes.predictive.base.Auto`, :class:`~seqbayes.predictive.transition.Transition`,
 :class:`~seqbayes.predictive.history.History`, :class:`~seqbayes.predictive.smc2.SMC2`, ...) and the conflict remedy
-(:class:`~seqbayes.predictive.paths.PathSpace`, :class:`~seqbayes.predictive.paths.Conflict`). Each setting is
+(:class:`~seqbayes.predictive.transition.PathSpace`, :class:`~seqbayes.predictive.transition.Conflict`). Each setting is
 declared once, as a field of its component; :data:`FLAT` names the component field each flat name maps to.
 """
 
@@ -22,7 +22,7 @@ from ..moves.stretch import Stretch
 from ..predictive.base import Auto, resolve_predictive
 from ..predictive.evidence import Importance, PathEvidence
 from ..predictive.history import History
-from ..predictive.paths import Conflict, PathSpace
+from ..predictive.transition import Conflict, PathSpace
 from ..predictive.smc2 import SMC2, ParticleInnerFilter
 from ..predictive.transition import KernelDensity, Transition
 

@@ -1,5 +1,6 @@
-"""The accept/reject step shared by every move (the sweeps count into :class:`~seqbayes.core.state.SweepStats`), and
-:class:`Moves`, the settings every move component shares: how many sweeps a stage makes and when they stop."""
+"""The accept/reject step shared by every move, the records of what the moves did (:class:`SweepStats`, a step's
+:class:`MoveTally`), and :class:`Moves`, the settings every move component shares: how many sweeps a stage makes and
+when they stop."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import numpy as np
 
 from ..priors import inside_support
 
-__all__ = ["metropolis_accept", "accepted", "evaluate_inside", "combine", "Moves", "HIGH_DIMENSION"]
+__all__ = ["metropolis_accept", "accepted", "evaluate_inside", "combine", "Moves", "SweepStats", "MoveTally",
+           "NoScreen", "HIGH_DIMENSION"]
 
 #: Above this many parameters the default moves are the scaled ones (:attr:`Moves.scaled`).
 HIGH_DIMENSION = 10
@@ -90,7 +92,7 @@ class Moves:
         Move at every tempering stage, also after a last stage that did not resample (``None``: the predictive's
         choice, True but for the exact history prior, which moves only after a resampling as IBIS does).
     transform : bool
-        Move in unconstrained coordinates (log / logit of bounded parameters, :mod:`seqbayes.transforms`);
+        Move in unconstrained coordinates (log / logit of bounded parameters, :mod:`seqbayes.priors`);
         ``False`` moves in the parameters' own coordinates, as the paper does.
     scaled : bool or None
         Moves that keep working as the dimension grows (:mod:`seqbayes.moves.scaled`): each round an
@@ -170,3 +172,58 @@ class Moves:
     def step_size_after(self, adapted: float, step_size: float) -> float:
         """The step size a step carries on after moves that ``adapted`` it (SEMC's); ``step_size`` unchanged here."""
         return step_size
+
+
+@dataclass(frozen=True)
+class SweepStats:
+    """Counts of one or more sweeps; the true acceptance rate is ``n_accepted / n_proposed``.
+
+    With delayed acceptance (:mod:`seqbayes.moves.delayed`) ``n_evaluations`` counts the expensive
+    evaluations only, ``n_screen_evaluations`` the cheap screen's and ``n_screened_out`` the proposals
+    it rejected before any expensive call."""
+
+    n_proposed: int = 0
+    n_accepted: int = 0
+    n_identical_partner: int = 0
+    n_evaluations: int = 0
+    n_screen_evaluations: int = 0
+    n_screened_out: int = 0
+
+    def __add__(self, other: "SweepStats") -> "SweepStats":
+        return SweepStats(self.n_proposed + other.n_proposed, self.n_accepted + other.n_accepted,
+                          self.n_identical_partner + other.n_identical_partner,
+                          self.n_evaluations + other.n_evaluations,
+                          self.n_screen_evaluations + other.n_screen_evaluations,
+                          self.n_screened_out + other.n_screened_out)
+
+    @property
+    def acceptance_rate(self) -> float:
+        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
+
+
+@dataclass(frozen=True)
+class MoveTally:
+    """What the moves of one step did: counts, SEMC's step size, virtual iterations."""
+
+    stats: SweepStats = SweepStats()
+    step_size: float = float("nan")
+    n_virtual: int = 0
+
+    def then(self, moved, moves) -> "MoveTally":
+        """The tally after one stage's :class:`~seqbayes.moves.schedule.StageMoves` ``moved``; the ``moves``
+        component says whether the adapted step size carries on (SEMC's)."""
+        return MoveTally(self.stats + moved.stats, moves.step_size_after(moved.step_size, self.step_size),
+                         self.n_virtual + moved.n_virtual)
+
+
+class NoScreen:
+    """A stage's delayed acceptance when the moves have no ``screen``: never active
+    (:class:`~seqbayes.moves.delayed.Screening` is the one that screens)."""
+
+    screen = None
+
+    def active(self) -> bool:
+        return False
+
+    def record(self, stats: SweepStats) -> None:
+        """Nothing to learn from a plain sweep."""

@@ -9,9 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.state import SweepStats
 from ..weights import normalise
-from .base import Moves, combine, evaluate_inside, metropolis_accept
+from .base import Moves, SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import screened_sweep
 
 __all__ = ["RandomWalk", "GaussianMove", "FittedMove", "weighted_covariance", "gaussian_sweep"]

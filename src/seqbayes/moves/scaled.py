@@ -29,8 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.state import SweepStats
-from .base import combine, evaluate_inside, metropolis_accept
+from .base import SweepStats, combine, evaluate_inside, metropolis_accept
 
 __all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "SuffixMove",
            "whitened_jumps"]

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..priors import inside_space
-from ..resampling import resample
-from ..core.state import Cloud, MoveTally, SweepStats
-from .base import HIGH_DIMENSION, combine, evaluate_inside, metropolis_accept
+from ..weights import resample
+from ..core.state import Cloud
+from .base import HIGH_DIMENSION, MoveTally, NoScreen, SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
@@ -112,7 +112,7 @@ def move_stage(problem, moves, state_step_size, walkers, components, beta, prior
     rounds of :func:`scaled_rounds`.
 
     With ``moves.transform`` the move works in unconstrained coordinates
-    (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
+    (:class:`~seqbayes.priors.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
     ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
     (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
@@ -150,9 +150,10 @@ def move_stage(problem, moves, state_step_size, walkers, components, beta, prior
             prior_share, path_states)
         step_size = moves.step_size_after(state_step_size, float("nan"))
     else:
-        screening = Screening(stage_screen(moves.screen, position, components, coefficients, beta, loglike,
-                                           None if transform is None else transform.inverse,
-                                           support if transform is None else None), moves.screen == "auto")
+        screening = NoScreen() if moves.screen is None else Screening(
+            stage_screen(moves.screen, position, components, coefficients, beta, loglike,
+                         None if transform is None else transform.inverse, support if transform is None else None),
+            moves.screen == "auto")
         position, components, stats, step_size, n_virtual = moves.stage(position, components, component_fn,
                                                                          coefficients, support, rng, screening,
                                                                          state_step_size)

@@ -15,8 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.state import SweepStats
-from .base import Moves, combine, evaluate_inside, metropolis_accept
+from .base import Moves, SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import screened_sweep
 
 __all__ = ["Stretch", "StretchMove", "stretch_sweep", "DifferentialMove", "differential_sweep",

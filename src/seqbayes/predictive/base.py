@@ -1,5 +1,5 @@
-"""Which predictive prior a run uses (:class:`Auto`, :func:`resolve_predictive`) and the one a step goes through
-(:func:`predictive_for`)."""
+"""Which predictive prior a run uses (:class:`Auto`, :func:`resolve_predictive`); each component's ``predictive(state,
+problem, config)`` gives the one a step goes through."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from .history import History
 from .smc2 import SMC2, nested_split
 from .transition import Transition
 
-__all__ = ["Auto", "resolve_predictive", "predictive_for"]
+__all__ = ["Auto", "resolve_predictive"]
 
 
 @dataclass(frozen=True)
@@ -46,10 +46,3 @@ def resolve_predictive(predictive, kernel):
         raise TypeError(f"predictive: expected a predictive component (Transition(), History(), SMC2(), ...), got "
                         f"{predictive!r}")
     return predictive.resolve(kernel)
-
-
-def predictive_for(state, problem, config):
-    """``(predictive, state)``: the predictive of the step after ``state`` (a
-    :class:`~seqbayes.core.state.Predictive`) and the state it starts from, as the run's predictive component says
-    (``config.predictive``, resolved: :func:`resolve_predictive`)."""
-    return config.predictive.predictive(state, problem, config)

@@ -10,7 +10,7 @@ right. This module estimates the same increment from the final posterior:
     Z = E_q[ L(theta(u)) p_s(theta(u)) |d theta / d u| / q(u) ]
 
 with ``q`` fitted to the posterior particles in unconstrained coordinates ``u``
-(:class:`~seqbayes.transforms.BoxTransform`): half a Gaussian kernel density of
+(:class:`~seqbayes.priors.BoxTransform`): half a Gaussian kernel density of
 the distinct particles (follows several modes; beyond ``MAX_PROPOSAL_COMPONENTS`` = 1000
 distinct particles, of 1000 of them chosen by systematic selection, so that the cost stays
 ``O(N)``: the proposal need not be exact, only the target), half a multivariate Student t
@@ -29,7 +29,7 @@ funnel that the local moves cross slowly. Why by hand: no library offers defensi
 against an arbitrary vectorised prior density.
 
 Two clouds of the same posterior (the conflict remedy's bridge and stored-path
-start, :func:`seqbayes.predictive.paths.PathSpace`) are pooled: :func:`clustered_parts`
+start, :func:`seqbayes.predictive.transition.PathSpace`) are pooled: :func:`clustered_parts`
 fits one defensive proposal per k-means cluster of each (SciPy's ``kmeans2``),
 :func:`pooled_start` gives each cluster its importance-sampling share of the mass,
 and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of them.
@@ -46,8 +46,8 @@ from ..core.state import Cloud
 from ..moves import metropolis_accept
 from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts, complement_halves
 from ..priors import inside_support
-from ..resampling import resample
-from ..transforms import BoxTransform
+from ..weights import resample
+from ..priors import BoxTransform
 from ..weights import logsumexp, normalise
 from ..moves.base import HIGH_DIMENSION
 
@@ -89,7 +89,7 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
 
     Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
     trapped in a minor one (on the path space: the bridge from the path prior and the start from the stored
-    paths, :func:`seqbayes.predictive.paths.PathSpace`). The share of each part of the
+    paths, :func:`seqbayes.predictive.transition.PathSpace`). The share of each part of the
     :class:`PooledProposal` ``q = sum_c alpha_c q_c`` fitted to the clusters of the clouds
     (:func:`clustered_parts`) is estimated by importance sampling: N draws of ``q``, weights ``w = pi / q``,
     and part ``c``'s share is ``sum w r_c / sum w`` with ``r_c`` the draw's responsibility, ``alpha_c q_c / q``

@@ -7,7 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.state import MoveTally, kept_copy
+from ..core.likelihood import kept_copy
+from ..core.state import stored_as
+from ..moves.base import MoveTally
 from .evidence import PathEvidence
 from .particle import ExactPrior, ParticlePredictive, rejuvenate_deferred
 
@@ -60,6 +62,7 @@ class RunningStatistics:
         return {key: summary[key] + new[key] for key in summary}
 
 
+@stored_as("history", "state_log_prior", needs_datasets=True, dims={"state_log_prior": ("sample",)})
 @dataclass(frozen=True, eq=False)
 class HistoryPrior:
     """The exact prior of step ``s`` for static parameters: ``p_0(theta) prod_{k<s} L_k(theta) / Z_{1:s-1}``.
@@ -96,6 +99,18 @@ class HistoryPrior:
         kept = kept_copy(dataset)
         summary = self.running.add(self.summary, kept) if self.running is not None else None
         return HistoryPrior(self.initial, self.datasets + (kept,), float(log_normaliser), self.running, summary)
+
+    def to_arrays(self, log_prior) -> dict:
+        """The run store's arrays: ``state_log_prior (N,)``, the prior's values at the particles (the density itself
+        is rebuilt from the initial prior and the datasets)."""
+        return {"state_log_prior": log_prior}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict):
+        """``(prior, log_prior)`` from :meth:`to_arrays` and ``context``: the ``initial_prior``, the ``datasets``
+        assimilated and the ``log_evidence`` after them."""
+        return (cls(context["initial_prior"], tuple(context["datasets"]), context["log_evidence"]),
+                np.array(arrays["state_log_prior"]))
 
     def logpdf(self, theta, loglike, summary_loglike=None) -> np.ndarray:
         """Log density at ``theta (m, d)``; returns ``(m,)``.

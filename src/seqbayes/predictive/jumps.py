@@ -9,7 +9,7 @@ import numpy as np
 from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import normalise
-from .ancestry import grouped_sums, label_groups
+from .mixture import grouped_sums, label_groups
 from .lineage import mixture_chain, posterior_labels
 from .mixture import GaussianMixture, MixtureSum, backward_masses
 

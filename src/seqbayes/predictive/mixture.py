@@ -39,13 +39,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from ..gaussian_sum import TREE_MIN_CENTRES, KernelMixture, silverman_bandwidth, weighted_moments
+from ..core.state import stored_as
+from ..moves.proposals import TREE_MIN_CENTRES, KernelMixture, silverman_bandwidth, weighted_moments
 from ..priors import as_samples
 from ..weights import logsumexp, normalise
-from .ancestry import AncestorSpread, grouped_sums, label_groups
 
 __all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection",
-           "backward_masses"]
+           "backward_masses", "AncestorSpread", "grouped_ancestor_variance",
+           "grouped_sums", "label_groups"]
 
 
 #: From this many centres on, :meth:`GaussianMixture.ancestor_ess` is estimated from this many rows
@@ -62,10 +63,94 @@ _BACKWARD_ROWS = 2048
 _GOLDEN = 0.6180339887498949
 
 
+def label_groups(labels, n):
+    """The ``(n, G)`` 0/1 membership matrix (sparse) of the ``G`` distinct ``labels (n,)`` and each column's group
+    index; ``None`` for ``labels=None`` or ``n`` distinct labels (every column its own group)."""
+    if labels is None:
+        return None
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or labels.dtype.kind not in "iu" or (n and labels.min() < 0):
+        raise ValueError(f"labels: expected ({n},) non-negative integers, got shape {labels.shape}, dtype {labels.dtype}")
+    _, inverse = np.unique(labels, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    n_groups = int(inverse.max()) + 1 if n else 0
+    if n_groups == n:
+        return None
+    return sparse.csr_matrix((np.ones(n), (np.arange(n), inverse)), shape=(n, n_groups)), inverse, n_groups
+
+
+def grouped_sums(values, groups):
+    """Sums of ``values`` (``(n,)`` or ``(k, n)``) over the groups of :func:`label_groups` along the last axis."""
+    if groups is None:
+        return values
+    membership, inverse, n_groups = groups
+    if values.ndim == 1:
+        return np.bincount(inverse, weights=values, minlength=n_groups)
+    # dense (k, n) @ sparse (n, G): ~10x faster than (membership.T @ values.T).T, which copies the transpose
+    return np.asarray(values @ membership.astype(values.dtype, copy=False))
+
+
+def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
+    """``sum_e (A_e - V_e)^2``: the relative variance of the evidence carried by dependent ancestors.
+
+    ``A_e = sum_{j: labels_j = e} mass_j`` is the later posterior's mass on the ancestors labelled ``e``
+    and ``V_e`` their weight (both sum to one). The label of an ancestor is the index of the initial draw
+    it descends from (:attr:`~seqbayes.core.state.RemedyMemory.lineage`), so ancestors that resampling
+    copied from one draw form one group (Chan & Lai 2013; Lee & Whiteley 2018). With distinct labels it
+    is ``sum_j (mass_j - W_j)^2``, ``1 / ESS_a - 1 / N`` for equal weights.
+
+    Parameters
+    ----------
+    mass, weights : (N,) arrays
+    labels : (N,) int array, optional
+        Distinct if omitted.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25)), 12)
+    0.13
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25), np.array([0, 0, 1, 1])), 12)
+    0.18
+    """
+    mass, weights = np.asarray(mass, dtype=float), np.asarray(weights, dtype=float)
+    groups = label_groups(labels, mass.shape[0])
+    difference = grouped_sums(mass, groups) - grouped_sums(weights, groups)
+    return float(np.dot(difference, difference))
+
+
+@dataclass(frozen=True, eq=False)
+class AncestorSpread:
+    """How a later posterior spreads over a mixture's components (:meth:`GaussianMixture.ancestor_spread`).
+
+    Attributes
+    ----------
+    ess : float
+        ``1 / sum_i a_i^2``, ``a_i`` the later posterior's mass on component ``i``.
+    variance : float
+        ``sum_e (A_e - V_e)^2`` over the components' labels (:func:`grouped_ancestor_variance`).
+    mass : (N,) array or None
+        ``a`` itself, when every row was summed.
+    draws : (K,) int array or None
+        Else one component per selected row, drawn (stratified, no random draw) from its
+        responsibilities: ``a`` is their empirical distribution in expectation.
+    """
+
+    ess: float
+    variance: float
+    mass: np.ndarray | None = None
+    draws: np.ndarray | None = None
+
+
+@stored_as("mixture", "mixture_", dims={"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
+                                        "mixture_log_weights": ("sample",)})
 @dataclass(frozen=True, eq=False)
 class GaussianMixture(KernelMixture):
     """``sum_i W_i N(theta; centres_i, diag(bandwidth^2))`` as the predictive prior of Eq. (A3): the density and
-    draws of :class:`~seqbayes.gaussian_sum.KernelMixture`, and how the components carry a weighted cloud (its
+    draws of :class:`~seqbayes.moves.proposals.KernelMixture`, and how the components carry a weighted cloud (its
     ancestors, for the evidence's standard error and the conflict remedy).
 
     Parameters
@@ -75,6 +160,24 @@ class GaussianMixture(KernelMixture):
     log_weights : (N,) array, optional
         Unnormalised log mixture weights (equal if omitted).
     """
+
+    def to_arrays(self, log_prior=None) -> dict:
+        """The run store's arrays: ``mixture_centres (N, d)``, ``mixture_bandwidth (d,)``, ``mixture_log_weights (N,)``."""
+        return {"mixture_centres": self.centres, "mixture_bandwidth": self.bandwidth,
+                "mixture_log_weights": self.log_weights}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict | None = None):
+        """``(mixture, None)`` from :meth:`to_arrays`, the stored normalised weights kept bit for bit (normalising
+        twice may move the last ulp)."""
+        return cls.exact(arrays["mixture_centres"], arrays["mixture_bandwidth"], arrays["mixture_log_weights"]), None
+
+    @classmethod
+    def exact(cls, centres, bandwidth, log_weights) -> "GaussianMixture":
+        """The mixture with these normalised ``log_weights`` as they are."""
+        mixture = cls(np.array(centres), np.array(bandwidth), log_weights)
+        object.__setattr__(mixture, "log_weights", np.array(log_weights, dtype=float))
+        return mixture
 
     def ancestor_ess(self, theta: np.ndarray, log_weights: np.ndarray | None = None) -> float:
         """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
@@ -452,6 +555,10 @@ def systematic_selection(log_weights, k):
     return np.searchsorted(cumulative, (np.arange(k) + 0.5) / k)
 
 
+@stored_as("mixture_sum", "mixsum_", dims={"mixsum_centres": ("branch", "sample", "parameter"),
+                                           "mixsum_bandwidth": ("branch", "parameter"),
+                                           "mixsum_component_log_weights": ("branch", "sample"),
+                                           "mixsum_log_weights": ("branch",)})
 @dataclass(frozen=True, eq=False)
 class MixtureSum:
     """``sum_c V_c p_c(theta)``: a weighted sum of :class:`GaussianMixture` s over the same ancestors.
@@ -490,6 +597,23 @@ class MixtureSum:
     @property
     def dim(self) -> int:
         return self.mixtures[0].dim
+
+    def to_arrays(self, log_prior=None) -> dict:
+        """The run store's arrays: ``mixsum_centres (C, N, d)``, ``mixsum_bandwidth (C, d)``,
+        ``mixsum_component_log_weights (C, N)``, ``mixsum_log_weights (C,)``."""
+        return {"mixsum_centres": np.stack([m.centres for m in self.mixtures]),
+                "mixsum_bandwidth": np.stack([m.bandwidth for m in self.mixtures]),
+                "mixsum_component_log_weights": np.stack([m.log_weights for m in self.mixtures]),
+                "mixsum_log_weights": self.log_weights}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict | None = None):
+        """``(prior, None)`` from :meth:`to_arrays`, the stored weights kept bit for bit."""
+        mixtures = tuple(GaussianMixture.exact(c, h, w) for c, h, w in zip(
+            arrays["mixsum_centres"], arrays["mixsum_bandwidth"], arrays["mixsum_component_log_weights"]))
+        prior = cls(mixtures, arrays["mixsum_log_weights"])
+        object.__setattr__(prior, "log_weights", np.array(arrays["mixsum_log_weights"], dtype=float))
+        return prior, None
 
     def component_logpdfs(self, theta: np.ndarray) -> np.ndarray:
         """``log V_c + log p_c(theta)`` for each branch, ``(m, d) -> (m, C)``."""

@@ -1,6 +1,6 @@
 """The particle predictives: :class:`ParticlePredictive`, the shared stages of the predictives whose particles are
 draws of the step's prior (the :class:`~seqbayes.core.state.Predictive` protocol that the pipeline,
-:func:`~seqbayes.engine.pipeline.run_step`, goes through), and the stages every particle predictive shares: weigh the
+:func:`~seqbayes.engine.drivers.run_step`, goes through), and the stages every particle predictive shares: weigh the
 prior particles by the likelihood (with a restart from the restricted prior), temper/resample/move through the one
 tempering loop (:func:`~seqbayes.core.tempering.temper`, :func:`temper_stages`).
 
@@ -16,19 +16,19 @@ import numpy as np
 
 from ..core.errors import ZeroLikelihoodError, prior_name, zero_likelihood_message
 from ..core.likelihood import row_hashes
-from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, Reassimilate, RemedyMemory, SamplerState, Tempered,
-                          Weighed)
+from ..core.state import Cloud, Estimate, Failure, Outcome, Reassimilate, RemedyMemory, SamplerState, Tempered, Weighed
+from ..moves.base import MoveTally
 from ..core.tempering import temper
 from ..moves.schedule import ResampleMove, Staged, move_stage
 from ..priors import inside_space
-from ..resampling import resample
-from ..results import prior_data_conflict
-from ..weights import ess
+from ..weights import resample
+from ..results import ConflictInfo, EvidenceInfo, JumpInfo
+from ..weights import ess, normalise
 from .evidence import step_standard_errors
 from .lineage import ancestor_terms, lineage_after
 
 __all__ = ["ParticlePredictive", "ExactPrior", "weigh", "restricted_draws", "rejuvenate_deferred", "temper_stages",
-           "count_distinct", "step_conflict"]
+           "count_distinct", "step_conflict", "prior_data_conflict"]
 
 
 class ParticlePredictive:
@@ -78,7 +78,7 @@ class ParticlePredictive:
 
     def ancestor_spread(self, state, cloud, rng):
         """The spread of the step's posterior over the previous posterior's particles, for the evidence's
-        standard error and the remedy (:class:`~seqbayes.predictive.ancestry.AncestorSpread` or None)."""
+        standard error and the remedy (:class:`~seqbayes.predictive.mixture.AncestorSpread` or None)."""
         return None
 
     def remedy_fields(self, state, cloud, log_increment, dataset, rng):
@@ -154,15 +154,16 @@ class ParticlePredictive:
                                  log_prior=next_log_prior,
                                  memory=RemedyMemory(window, paths, lineage_after(state, cloud.labels)),
                                  log_evidence_variance=evidence_variance, previous_prior=self.previous_prior(state))
-        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      ancestor_ess=ancestors, log_evidence_increment_se=increment_se, log_evidence_se=evidence_se,
-                      **self.jump_fields(state, cloud))
+        records = dict(evidence=EvidenceInfo(float(tempered.log_z), estimate.evidence_ess, estimate.n_independent,
+                                             increment_se, evidence_se),
+                       conflict=ConflictInfo(float(conflict.max()), int(conflict.argmax()), ancestors),
+                       jumps=JumpInfo(**self.jump_fields(state, cloud)))
         step_size = float(config.moves.step_size_after(moves.step_size, float("nan")))
         return Outcome(new_state, cloud.particles, cloud.log_weights, draws, cloud.particles, log_evidence, step_size,
-                       fields, lagged_variance=lagged)
+                       records, lagged_variance=lagged)
 
     def jump_fields(self, state, cloud) -> dict:
-        """The :class:`~seqbayes.results.StepInfo` fields of a jump kernel's posterior (none by default)."""
+        """The :class:`~seqbayes.results.JumpInfo` fields of a jump kernel's posterior (none by default)."""
         return {}
 
 
@@ -202,9 +203,25 @@ def count_distinct(samples) -> int:
     return 1 + int(np.count_nonzero(hashes[1:] != hashes[:-1]))
 
 
+def prior_data_conflict(prior: np.ndarray, prior_log_weights: np.ndarray, posterior: np.ndarray,
+                        posterior_log_weights: np.ndarray) -> np.ndarray:
+    """``|posterior mean - prior mean| / prior sd`` per parameter, ``(d,)``.
+
+    Parameters
+    ----------
+    prior, posterior : (N, d) arrays
+        The step's prior particles (before the likelihood) and its posterior particles.
+    prior_log_weights, posterior_log_weights : (N,) arrays
+    """
+    w0, w1 = np.exp(normalise(prior_log_weights)), np.exp(normalise(posterior_log_weights))
+    mean0 = w0 @ prior
+    sd0 = np.sqrt(np.maximum(w0 @ (prior - mean0) ** 2, 1e-300))
+    return np.abs(w1 @ posterior - mean0) / sd0
+
+
 def step_conflict(prior, prior_log_weights, posterior, posterior_log_weights, support) -> np.ndarray:
     """``StepInfo.prior_data_conflict`` per parameter, ``(d,)``: how many sds of the step's prior the
-    posterior mean lies from the prior mean (:func:`seqbayes.results.prior_data_conflict`).
+    posterior mean lies from the prior mean (:func:`prior_data_conflict`).
 
     The step's prior is the predictive restricted to the parameter space (the likelihood is zero
     outside, so that mass is lost, as in the samplers' steps and the exact grid references): its

@@ -1,5 +1,6 @@
-"""The path-space remedy for prior-data conflict: a step assimilated on the joint posterior of the last
-``L`` states, whose target is the model's exact one (:class:`PathSpace`; docs/prior_data_conflict.md)."""
+"""The path-space step of the conflict remedy (:class:`~seqbayes.predictive.transition.PathSpace`): a step assimilated
+on the joint posterior of the last ``L`` states, whose target is the model's exact one (:class:`PathStep`;
+docs/prior_data_conflict.md)."""
 
 from __future__ import annotations
 
@@ -7,153 +8,23 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.state import (Cloud, Estimate, Failure, MoveTally, Outcome, PastStep, Problem, Reassimilate, RemedyMemory,
-                          SamplerState, Tempered, Weighed, kept_copy, remedy_window, variance_before)
+from ..core.likelihood import kept_copy
+from ..core.state import (Cloud, Estimate, Failure, Outcome, PastStep, Problem, Reassimilate, RemedyMemory, SamplerState,
+                          Tempered, Weighed)
+from ..moves.base import MoveTally
 from ..kernels import MarkovKernel
 from ..priors import as_samples, inside_space
-from ..resampling import resample
+from ..weights import resample
+from ..results import ConflictInfo, EvidenceInfo, JumpInfo
 from ..weights import logsumexp
 from .jumps import jump_fields
-from .evidence import STARVED_RESTART, step_standard_errors
-from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
+from .evidence import step_standard_errors
+from .lineage import (ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread, remedy_window,
+                      variance_before)
 from .mixture import GaussianMixture
 from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
 
-__all__ = ["Conflict", "PathSpace", "PathStep", "PathPrior", "path_prior_logpdf", "REMEDY_ANCESTOR_SE"]
-
-
-#: A conflict costs accuracy when the earlier posteriors' finite samples alone would make the step's log-evidence
-#: uncertain by more than this (sd, nats): the tilt the new data give each earlier posterior the mixtures rest on,
-#: times that posterior's sampling error, summed over the lags (:func:`~seqbayes.predictive.lineage.
-#: lagged_ancestor_variance`; ``sqrt(1 / ancestor_ess - 1 / N)`` at lag 1 alone). The posterior inherits the same
-#: error and carries it into every later step (docs/jump_kernels.md, moderate damage).
-REMEDY_ANCESTOR_SE = 0.1
-
-
-@dataclass(frozen=True)
-class Conflict:
-    """Prior-data conflict detected and reported (``PriorDataConflictWarning``), not remedied: the remedy component
-    of a sampler without one (``remedy=None``).
-
-    Parameters
-    ----------
-    threshold : float
-        A step whose posterior mean lies more than this many prior sds from its prior's (``StepInfo.prior_data_conflict``)
-        is a conflict (4).
-    ancestor_ess : float
-        Or whose posterior fewer than this fraction of the previous posterior's particles carry
-        (``StepInfo.ancestor_ess``; 0.05; 0 turns that trigger off).
-    """
-
-    threshold: float = 4.0
-    ancestor_ess: float = 0.05
-
-    def __post_init__(self):
-        if not self.threshold > 0:
-            raise ValueError(f"threshold: must be positive, got {self.threshold}")
-        if not 0.0 <= self.ancestor_ess <= 1.0:
-            raise ValueError(f"ancestor_ess: must lie in [0, 1], got {self.ancestor_ess}")
-
-    def applies(self, method: str, kernel) -> bool:
-        """Whether the remedy can assimilate a step of the ``method`` predictive under ``kernel`` (never here)."""
-        return False
-
-    def stage_check(self, mixture, state, dataset, likelihood):
-        """A check of the mixture step's intermediate stages (none here)."""
-        return None
-
-    def decide(self, mixture, state, dataset, likelihood, outcome):
-        """What to do with the mixture step's ``outcome``: keep it (``None``, here always)."""
-        return None
-
-
-@dataclass(frozen=True)
-class PathSpace(Conflict):
-    """The exact remedy for prior-data conflict (docs/prior_data_conflict.md): a conflicted step is assimilated again
-    on the path space of the last ``lag`` states, whose target is the model's exact one (:class:`PathStep`).
-
-    Parameters
-    ----------
-    lag : int
-        Steps kept for the path-space target (10): exact when the run has at most that many steps, else the
-        window's first state takes the (mixture) prior that step used. After a path-space step the next ones reach
-        back to its window's first step, up to ``2 lag`` states (:func:`~seqbayes.core.state.remedy_window`).
-    bridge : bool
-        How the path-space step reaches its target. ``True`` (default): from the window's path prior, tempering
-        every likelihood of the window jointly, so that each mode of the path posterior is weighed afresh and the
-        window's evidence estimated directly. ``False``: from the stored paths of the previous posterior, tempering
-        only the new dataset (about half the cost; it cannot reach a mode whose earlier states the earlier steps
-        ruled out).
-    threshold, ancestor_ess
-        As :class:`Conflict`: the triggers.
-    """
-
-    lag: int = 10
-    bridge: bool = True
-
-    def __post_init__(self):
-        super().__post_init__()
-        if isinstance(self.lag, bool) or int(self.lag) != self.lag or self.lag < 2:
-            raise ValueError(f"lag: must be an integer >= 2, got {self.lag}")
-        if self.bridge not in (True, False):
-            raise ValueError(f"bridge: expected True or False, got {self.bridge!r}")
-
-    def applies(self, method: str, kernel) -> bool:
-        """The path-space remedy needs a transition density in every parameter (no static ones)."""
-        return method in ("transition", "kde") and not kernel.static_mask.any()
-
-    def threshold_of(self, state, n: int) -> float:
-        """The ancestor ESS below which :meth:`decide` takes the path space: ``ancestor_ess * N`` (five times that
-        right after a path-space step, whose mixture understates the conflict), at least so few that they alone
-        make the increment's log-evidence uncertain by :data:`REMEDY_ANCESTOR_SE` nats."""
-        threshold = self.ancestor_ess * (5.0 if state.memory.window[-1].path_space else 1.0) * n
-        if self.ancestor_ess > 0:   # 0 turns the ancestor trigger off
-            threshold = max(threshold, 1.0 / (REMEDY_ANCESTOR_SE**2 + 1.0 / n))
-        return threshold
-
-    def stage_check(self, mixture, state, dataset, likelihood):
-        """The ancestor trigger of :meth:`decide` on each intermediate stage's particles of the ``mixture`` step
-        (a :class:`~seqbayes.predictive.transition.TransitionMixture`): once they are below its threshold the step
-        goes to the path space (a :class:`~seqbayes.core.state.Reassimilate` that stops the tempering loop) without
-        its last stages, moves and evidence, which only serve the mixture step the remedy replaces; should the path
-        space find nothing, the mixture step runs to its end without the check. Tempering further towards the data
-        only concentrates the posterior on fewer ancestors (docs/benchmarks.md, "A decision before the ordinary
-        step")."""
-        if not (state.memory.window and self.ancestor_ess > 0 and self.applies(mixture.method, mixture.problem.kernel)):
-            return None
-        threshold = self.threshold_of(state, mixture.config.n_samples)
-
-        def check(particles):
-            n = particles.shape[0]
-            if mixture.spread_over(state, particles, np.full(n, -np.log(n)))[0].ess < threshold:
-                return Reassimilate(PathStep(state, dataset, mixture, likelihood, self.bridge),
-                                    type(mixture)(mixture.problem, mixture.config, mixture.method, check_stages=False))
-            return None
-
-        return check
-
-    def decide(self, mixture, state, dataset, likelihood, outcome):
-        """The path-space step (:class:`PathStep`) where the mixture step's posterior lies in the predictive's far
-        tail: fewer of the previous posterior's particles carry it than :meth:`threshold_of`, or so few at lag 1 or
-        summed over the earlier posteriors the mixtures rest on that they make the increment's log-evidence uncertain
-        by more than :data:`REMEDY_ANCESTOR_SE` nats (:func:`~seqbayes.predictive.lineage.lagged_ancestor_variance`),
-        its mean shifted by more than ``threshold`` prior sds, or its restart found fewer than
-        ``STARVED_RESTART * N`` draws inside ``{box, L > 0}`` (a posterior grown from copies of a few far-tail draws,
-        whose evidence misses the mass between them). Where no predictive draw had a non-zero likelihood (the
-        ``outcome`` a zero-likelihood :class:`~seqbayes.core.state.Failure`) only the bridge from the path prior can
-        find the paths. Should the path space find nothing, the step keeps the ``outcome``."""
-        if not (state.memory.window and self.applies(mixture.method, mixture.problem.kernel)):
-            return None
-        if isinstance(outcome, Failure):
-            bridge = outcome.zero_likelihood and self.bridge
-            return Reassimilate(PathStep(state, dataset, mixture, likelihood, True)) if bridge else None
-        n = mixture.config.n_samples
-        info, threshold = outcome.record.info, self.threshold_of(state, n)
-        starved = outcome.weighed.n_found < STARVED_RESTART * n
-        lagged = self.ancestor_ess > 0 and outcome.lagged_variance > REMEDY_ANCESTOR_SE**2
-        if info.ancestor_ess < threshold or lagged or info.prior_data_conflict > self.threshold or starved:
-            return Reassimilate(PathStep(state, dataset, mixture, likelihood, self.bridge))
-        return None
+__all__ = ["PathStep", "PathPrior", "path_prior_logpdf"]
 
 
 def _start_paths(state, kernel, length, rng):
@@ -330,7 +201,7 @@ class PathStep:
         self.window = remedy_window(state.memory.window, config.remedy.lag)
         self.length = length = len(self.window)
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
-                                    problem.executor, problem.n_chunks)
+                                    problem.executor)
         self.path_likelihood = likelihood.of_last_state(d)
         # the bridge's likelihood of every state of the window, each state's value kept: a redraw of a path's suffix
         # from the path prior, or a local move of it, keeps the earlier states, whose likelihoods are not computed
@@ -435,13 +306,14 @@ class PathStep:
                                                      lineage_after(state, cloud.labels)),
                                  log_evidence_variance=evidence_variance,
                                  previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
-        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
-                      log_evidence_se=evidence_se,
-                      # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
-                      **jump_fields(kernel, state, replace(cloud, particles=posterior), mixture_target=False))
+        records = dict(evidence=EvidenceInfo(float(tempered.log_z), estimate.evidence_ess, estimate.n_independent,
+                                             increment_se, evidence_se),
+                       conflict=ConflictInfo(float(conflict.max()), int(conflict.argmax()), spread.ess, self.length + 1),
+                       # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
+                       jumps=JumpInfo(**jump_fields(kernel, state, replace(cloud, particles=posterior),
+                                                    mixture_target=False)))
         step_size = float(config.moves.step_size_after(moves.step_size, float("nan")))
-        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
+        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, records)
 
     def _bridge_weigh(self, likelihood, moves, rng) -> Weighed | Failure:
         """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the

@@ -47,11 +47,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.state import SweepStats
-from ..moves import metropolis_accept
+from ..moves.base import SweepStats, metropolis_accept
 from ..moves.delayed import QuadraticScreen
 from ..priors import inside_support
-from ..transforms import BoxTransform
+from ..priors import BoxTransform
 
 __all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner",
            "outer_logpdf", "rerun_cost"]

@@ -47,13 +47,15 @@ from functools import partial
 import numpy as np
 
 from ..core.errors import InnerFilterWarning, ZeroLikelihoodError, prior_name, zero_likelihood_message
-from ..core.state import Cloud, Estimate, Failure, MoveTally, Outcome, SamplerState, Tempered, Weighed, kept_copy
+from ..core.likelihood import kept_copy
+from ..core.state import Cloud, Estimate, Failure, Outcome, SamplerState, Tempered, Weighed, stored_as
+from ..moves.base import MoveTally
 from ..priors import JointPrior
-from ..resampling import resample
-from ..results import prior_data_conflict
+from ..weights import resample
+from ..results import ConflictInfo, EvidenceInfo, NestedInfo
 from ..core.tempering import temper
 from .inner import KalmanInnerFilter, ParticleInnerFilter, joint_columns, nested_split
-from .particle import ParticlePredictive
+from .particle import ParticlePredictive, prior_data_conflict
 from .pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
 
 __all__ = ["SMC2", "ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
@@ -121,6 +123,18 @@ class SMC2:
                                                                        problem.prior, 0.0, state.step_size)
 
 
+def _fill_nested(arrays: dict, n_samples: int) -> None:
+    """Complete (in place) a full SMC^2 state of a store written before budgeted PMMH: nothing pending."""
+    if "nested_particles" in arrays and "nested_pmmh_queue" not in arrays:  # a full state (format 5 keeps two)
+        arrays["nested_pmmh_queue"] = np.full(n_samples, -1.0)
+        arrays["nested_pmmh_tally"] = np.zeros(4)
+        arrays["nested_pmmh_moved"] = np.zeros(n_samples)
+        arrays["nested_moments"] = np.vstack(nested_moments(arrays["nested_particles"],
+                                                            arrays["nested_log_weights"], None, []))
+
+
+@stored_as("nested", "nested_", needs_datasets=True, whole=True, fill=_fill_nested,
+           every_step=("nested_guide_used", "nested_guide_mean", "nested_guide_cov", "nested_moments"))
 @dataclass(frozen=True, eq=False)
 class NestedState:
     """Everything SMC^2 needs to assimilate the next dataset.
@@ -173,6 +187,19 @@ class NestedState:
     pending: Rejuvenation = field(default_factory=Rejuvenation)
     n_evals_total: int = 0
     moments: tuple | None = None
+
+    def to_arrays(self) -> dict:
+        """The run store's arrays: :func:`nested_state_arrays`, each name prefixed ``nested_``."""
+        return {"nested_" + key: value for key, value in nested_state_arrays(self).items()}
+
+    @classmethod
+    def from_arrays(cls, arrays_by_step, datasets) -> "NestedState":
+        """The state after step ``s`` from the :meth:`to_arrays` of steps ``1 .. s`` (the earlier steps' guides only)
+        and the datasets ``D^1 .. D^s``."""
+        def strip(arrays):
+            return {key[len("nested_"):]: value for key, value in arrays.items()}
+        guides = tuple(nested_guide(strip(a)) for a in arrays_by_step[:-1])
+        return nested_state_from_arrays(strip(arrays_by_step[-1]), tuple(datasets), guides)
 
     @property
     def prior_draws(self) -> np.ndarray:
@@ -357,12 +384,13 @@ class NestedPredictive:
         running = not np.isfinite(outer.concluded) and pending.n_proposed >= MIN_RUNNING_PROPOSALS
         warn_rejuvenation(step, pending.acceptance if running else outer.concluded, weighed.inner_ess,
                           len(weighed.datasets), int(getattr(self.inner, "n_inner", 0)), running)
-        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      inner_ess=weighed.inner_ess, amortised_evals=n_evals_total / step,
-                      pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
-                      pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))  # at most
+        records = dict(evidence=EvidenceInfo(float(tempered.log_z), estimate.evidence_ess, estimate.n_independent),
+                       conflict=ConflictInfo(float(conflict.max()), int(conflict.argmax())),
+                       nested=NestedInfo(weighed.inner_ess, n_evals_total / step,
+                                         pending.acceptance if pending.n_proposed else outer.concluded,
+                                         int(pending.queue.size + pending.sweeps_left * config.n_samples)))  # at most
         return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
-                       float(config.moves.step_size_after(step_size, float("nan"))), fields, moments=moments)
+                       float(config.moves.step_size_after(step_size, float("nan"))), records, moments=moments)
 
 
 #: A rejuvenation whose PMMH acceptance ends below this draws a warning: the inner likelihood estimates are too
@@ -426,8 +454,8 @@ class JointFirstStep(ParticlePredictive):
                                         outcome.log_evidence, outcome.state.step_size, cloud.particles,
                                         outcome.predictive, likelihood.n_evals)
         moments = nested_moments(outcome.posterior, outcome.log_weights, None, np.zeros(0, dtype=int))
-        fields = dict(outcome.fields, amortised_evals=float(likelihood.n_evals))
-        return replace(outcome, state=replace(nested, moments=moments), fields=fields, moments=moments)
+        records = dict(outcome.records, nested=NestedInfo(amortised_evals=float(likelihood.n_evals)))
+        return replace(outcome, state=replace(nested, moments=moments), records=records, moments=moments)
 
 
 def nested_state_arrays(state: NestedState) -> dict:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine.outputs import violation
+from ..engine.drivers import violation
 from . import files, registry
 from .datasets import read_datafile
 from .errors import DuplicateDatasetError, StoreError
@@ -91,12 +91,12 @@ def json_value(text, path, what):
         raise StoreError(f"{path}: damaged run store: {what} is not valid JSON ({err})") from None
 
 
-#: Run-store variables that hold an engine output under another name (:mod:`seqbayes.engine.outputs`).
+#: Run-store variables that hold an engine output under another name (:mod:`seqbayes.engine.drivers`).
 _OUTPUT_NAMES = {"initial_particles": "particles", "initial_log_weights": "log_weights", "dataset_values": "dataset"}
 
 
 def check_finite(path: Path, variables: dict, output_name=None) -> None:
-    """Refuse a non-finite value where the engine may not leave one (:data:`seqbayes.engine.outputs.OUTPUTS`,
+    """Refuse a non-finite value where the engine may not leave one (:data:`seqbayes.engine.drivers.OUTPUTS`,
     the rules of the engine's own check after every step): a store holding it cannot be resumed.
 
     ``output_name(variable)`` is the engine's name of a variable (default: the variable's own, or

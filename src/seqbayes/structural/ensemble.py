@@ -86,7 +86,7 @@ import time
 import numpy as np
 from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
-from ..resampling import resample
+from ..weights import resample
 from ..core.tempering import normalised_ess
 from ..weights import normalise
 from .filters.kalman import check_filter_inputs, measurement_covariance

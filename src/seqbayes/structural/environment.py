@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..resampling import resample
+from ..weights import resample
 from ..core.tempering import TargetESS, between_stages, temper
 from ..moves.base import metropolis_accept
 from ..weights import logsumexp, normalise

@@ -97,7 +97,7 @@ from functools import partial
 
 import numpy as np
 
-from ..resampling import resample
+from ..weights import resample
 from ..rng import as_generator, generator_from_state, generator_state
 from ..core.tempering import TargetESS, between_stages, blas_limit, normalised_ess, temper
 from ..moves.base import accepted
@@ -216,7 +216,7 @@ class SGEnMCMC:
         all members (default); the parent's state shifted along the fitted
         slope; or the parent's state unchanged (the paper's implicit choice).
     resampling : str
-        Scheme of :mod:`seqbayes.resampling` (the paper's is multinomial).
+        Scheme of :mod:`seqbayes.weights` (the paper's is multinomial).
     channels : str
         Measured channels (default floor absolute accelerations).
     """

@@ -89,7 +89,7 @@ from functools import partial
 
 import numpy as np
 
-from ..resampling import resample
+from ..weights import resample
 from ..rng import as_generator, generator_from_state, generator_state
 from ..selection import ModelBank
 from ..core.tempering import TargetESS, between_stages, blas_limit, temper

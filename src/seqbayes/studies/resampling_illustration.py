@@ -26,7 +26,7 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from ..priors import JointPrior
-from ..resampling import multinomial
+from ..weights import multinomial
 from ..rng import as_generator
 from ..weights import log_mean_exp, normalise
 
