@@ -143,9 +143,9 @@ def test_the_report_escapes_the_stored_sampler_and_a_store_cannot_name_an_unknow
 def test_the_sg_report_escapes_its_stored_settings():
     from seqbayes.store import sg_report
 
-    assert sg_report._e("<script>") == "&lt;script&gt;"
+    assert sg_report.text("<script>") == "&lt;script&gt;"
     source = Path(sg_report.__file__).read_text()
-    # every configuration field interpolated into the page goes through _e (or a number format)
+    # every configuration field interpolated into the page goes through text() (or a number format)
     assert "{cfg.settings['noise_parameters']}" not in source and "N = {cfg.n_members}" not in source
 
 
