@@ -58,8 +58,7 @@ def exact_shifts(args):
     nominals = [c.nominal for c in kernel.components]
     box = np.array([osc.PRIOR_BOUNDS["k"], osc.PRIOR_BOUNDS["c"]])
     steps = reference.grid_filter(problem.datasets, osc._grid_log_likelihood, box, nominals, kernel.noise_std, 201,
-                                  n_coarse=201, tail_mass=1e-100, points_per_sd=3.0, max_points=2001,
-                                  log_axes=(True, True))
+                                  resolution=reference.Resolution(201, 1e-100, 3.0, 2001, log_axes=(True, True)))
     shifts = []
     for prev, cur in zip(steps[:-1], steps[1:]):
         axes = []

@@ -128,6 +128,14 @@ def _inner(filter_) -> dict:
         return {"inner_filter": filter_}
 
 
+def _sg(sampler: str) -> dict:
+    """SG-EnMCMC's sampler keyword: the component of ``sg_from_flat``, or the flat ``sampler=``."""
+    try:
+        return _load("sg_from_flat", "seqbayes.structural.settings")(sampler=sampler)
+    except ImportError:
+        return {"sampler": sampler}
+
+
 def coulomb(h):
     model = importlib.import_module("seqbayes.models.coulomb")
     data = model.load_experiment()
@@ -187,7 +195,7 @@ def sg_enmcmc(h):
     for sampler in ("resample-move", "paper"):
         try:
             sg = sgenmcmc(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                          sampler=sampler)
+                          **_sg(sampler))
         except TypeError:
             continue
         run = sg.run(data["u"], data["y"], rng=2)

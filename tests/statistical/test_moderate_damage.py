@@ -35,14 +35,14 @@ _SPEC.loader.exec_module(bench)
 
 
 def test_exact_reference_is_converged_and_is_the_kalman_filter_where_linear():
-    from seqbayes.reference import kernel_grid_filter
+    from seqbayes.reference import Resolution, kernel_grid_filter
 
     _, data = bench.simulate(4.0, "frequency")
     loglike = bench.log_likelihood("frequency")
     kernel = bench.kernels()["jump"]
     coarse, jumps = kernel_grid_filter(data, lambda axes, y: loglike(axes[0][:, None], y), kernel, [[0.2, 1.8]],
                                        log_prior=lambda axes: stats.norm.logpdf(axes[0], 1.0, 0.1),
-                                       n_points=101, points_per_sd=3.0)
+                                       n_points=101, resolution=Resolution(tail_mass=1e-100, points_per_sd=3.0))
     fine = bench.exact(4.0, "frequency", "jump")
     np.testing.assert_allclose(np.cumsum([s.log_evidence_increment for s in coarse]), fine["log_evidence"],
                                rtol=0, atol=1e-8)

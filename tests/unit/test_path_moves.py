@@ -136,7 +136,7 @@ def test_path_stages_with_the_prior_redraws_keep_the_tempered_target_in_the_box_
     accepted = 0
     for _ in range(15):
         moved = schedule.move_stage(problem, config, 1.0, walkers, components, beta, path_prior.logpdf, rng, loglike,
-                                    kernel_density=True, prior_moves=path_prior)
+                                    target=schedule.PathTarget(kernel_density=True, prior_moves=path_prior))
         walkers, components, accepted = moved.walkers, moved.components, accepted + moved.stats.n_accepted
     np.testing.assert_allclose(components, np.column_stack([loglike(walkers), path_prior.logpdf(walkers)]),
                                rtol=1e-10, atol=1e-10)

@@ -9,7 +9,7 @@ from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC
 from seqbayes.core.likelihood import ValidatedLikelihood
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
-from seqbayes.predictive.pmmh import Rejuvenation, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import Budget, Refilter, Rejuvenation, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import KalmanInnerFilter, nested_split
 
 
@@ -32,9 +32,9 @@ def _rejuvenate_exact_draws(problem, data, strict, n, seed):
     likelihood = ValidatedLikelihood(problem.loglike, None, 1)
     past, last, cloud = run_inner(sampler.problem, inner, split, static, data, (None,) * len(data), likelihood, rng)
     components = np.column_stack([last, outer_logpdf(problem.prior, split[0], static), past])
-    out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static,
+    out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static,
                      np.full(n, -np.log(n)), cloud, components, 1.0, 2.0, Rejuvenation().restarted(30, n),
-                     10**9, likelihood, rng)
+                     Budget(10**9), likelihood, rng)
     return static, out, mean, np.sqrt(np.diag(cov))
 
 

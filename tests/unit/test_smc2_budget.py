@@ -9,7 +9,8 @@ from seqbayes import SMC
 from seqbayes.core.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
-from seqbayes.predictive.pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import (MOVE_BUDGET, RESTORE_LIMIT, Budget, Refilter, Rejuvenation, distinct_ess,
+                                     outer_logpdf, rejuvenate, run_inner)
 from seqbayes.predictive.smc2 import (KalmanInnerFilter, NestedState, ParticleInnerFilter, nested_moments,
                                       nested_split, nested_state_arrays, nested_state_from_arrays,
                                       warn_rejuvenation)
@@ -116,8 +117,8 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
     components = np.column_stack([last, prior, past])
     pending = Rejuvenation().restarted(1, n)
     budget = (n // 2) * len(data)          # half a sweep
-    out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights, cloud,
-                     components, 1.0, 1.0, pending, budget, likelihood, rng)
+    out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static, log_weights,
+                     cloud, components, 1.0, 1.0, pending, Budget(budget), likelihood, rng)
     moved_static, _, moved_components, stats, _, _, left = out
     assert isinstance(stats, SweepStats) and left.queue.size == n - stats.n_proposed and left.sweeps_left == 0
     assert 0.3 * n < stats.n_evaluations <= n // 2 and stats.n_accepted > 0.2 * stats.n_proposed   # the budget
@@ -170,8 +171,9 @@ def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
     budget = 20 * len(data)
     for restore in (0.0, 0.6):
         pending = Rejuvenation().restarted(config.moves.max_sweeps, 200)
-        out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights,
-                         cloud, components, 1.0, 1.0, pending, budget, likelihood, rng, restore=restore)
+        out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static,
+                         log_weights, cloud, components, 1.0, 1.0, pending, Budget(budget, restore=restore), likelihood,
+                         rng)
         moved, stats, left = out[0], out[3], out[6]
         if not restore:
             assert stats.n_proposed == 20

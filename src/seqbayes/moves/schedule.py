@@ -20,7 +20,8 @@ from .gaussian import weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
 from .scaled import FittedGaussian, SuffixMove, independence_sweep, whitened_jumps
 
-__all__ = ["move_stage", "scaled_rounds", "stage_screen", "StageMoves", "prior_sweep", "Staged", "ResampleMove"]
+__all__ = ["move_stage", "scaled_rounds", "stage_screen", "StageMoves", "prior_sweep", "Staged", "ResampleMove",
+           "PathTarget"]
 #: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
 JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
 #: ``economy``: the scaled moves stop once this fraction of the particles has moved (at most ``moved_fraction``).
@@ -59,21 +60,30 @@ class Staged:
     resampled: bool = False
 
 
+@dataclass(frozen=True)
+class PathTarget:
+    """How the scaled rounds move a target (:func:`move_stage`): ``kernel_density``, the independence proposal is
+    the kernel density at any dimension; ``prior_moves``, the target's prior when it can redraw part of a walker
+    given the rest; ``path_states``, the walkers are paths of that many states. The defaults: a state's target."""
+
+    kernel_density: bool = False
+    prior_moves: object = None
+    path_states: int = 1
+
+
 class ResampleMove:
     """The particle predictives' mutation (:class:`~seqbayes.core.tempering.Mutation`): after each stage,
     resample (always at an intermediate stage; at the last when the ESS is below ``resample_below * N`` and the
     schedule does not defer it, IBIS's ``deferred``) and move (:func:`move_stage`) at every stage that resampled,
     or at every stage with ``move_every_stage``, and with the moves' ``economy`` once more at the last stage of a tempered
     step. ``stage_check(particles)`` is called with each intermediate stage's resampled particles; what it returns
-    (``None`` to go on) stops the loop. ``kernel_density``, ``prior_moves``, ``path_states``: as
-    :func:`move_stage`."""
+    (``None`` to go on) stops the loop. ``target``: as :func:`move_stage`."""
 
     def __init__(self, problem, config, likelihood, prior_logpdf, move_every_stage: bool, deferred: bool, rng,
-                 kernel_density=False, prior_moves=None, path_states=1, stage_check=None):
+                 target: PathTarget = PathTarget(), stage_check=None):
         self.problem, self.config, self.likelihood, self.prior_logpdf = problem, config, likelihood, prior_logpdf
         self.move_every_stage, self.deferred, self.rng, self.stage_check = move_every_stage, deferred, rng, stage_check
-        self.options = (kernel_density, prior_moves)
-        self.path_states = path_states
+        self.target = target
 
     def __call__(self, staged: Staged, loglike, stage):
         config, rng, beta = self.config, self.rng, stage.beta
@@ -95,8 +105,7 @@ class ResampleMove:
                                  or (config.moves.economy and beta == 1.0 and stage.index > 1)):
             components = self.prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
             moved = move_stage(self.problem, config.moves, moves.step_size, particles, components, beta,
-                               self.prior_logpdf, rng, self.likelihood.loglike, *self.options, prior_share,
-                               self.path_states)
+                               self.prior_logpdf, rng, self.likelihood.loglike, prior_share, self.target)
             particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.moves)
             prior_share = moved.prior_share  # the prior's redraws only lose ground as beta grows
         staged = Staged(Cloud(particles, log_weights, components, labels), moves, prior_share, resampled)
@@ -104,8 +113,7 @@ class ResampleMove:
 
 
 def move_stage(problem, moves, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE,
-               path_states: int = 1):
+               prior_share: float = PRIOR_SHARE, target: PathTarget = PathTarget()):
     """The sampler's MCMC moves at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``): the
     ``moves`` component's stage (:meth:`~seqbayes.moves.stretch.Stretch.stage`,
     :meth:`~seqbayes.moves.gaussian.RandomWalk.stage`) or, for many parameters or with ``economy``, the scaled
@@ -114,14 +122,15 @@ def move_stage(problem, moves, state_step_size, walkers, components, beta, prior
     With ``moves.transform`` the move works in unconstrained coordinates
     (:class:`~seqbayes.priors.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
-    ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
-    (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
-    rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
+    ``target`` (:class:`PathTarget`): with ``kernel_density`` the scaled rounds' independence proposal is the kernel
+    density at any dimension (:func:`scaled_rounds`); ``prior_moves``, the target's prior, when it can redraw part
+    of a walker given the rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
     :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
     scaled rounds then mix in :func:`prior_sweep`, from ``prior_share`` (the last stage's
-    :attr:`StageMoves.prior_share`). ``path_states``: the walkers are paths of that many states, whose scaled
+    :attr:`StageMoves.prior_share`); ``path_states``, the walkers are paths of that many states, whose scaled
     rounds' local sweep moves a random suffix of each (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
     """
+    kernel_density, prior_moves, path_states = target.kernel_density, target.prior_moves, target.path_states
     transform = problem.transform if moves.transform else None
     if transform is None:
         position, support = walkers, problem.support if problem.bounded else None

@@ -51,7 +51,8 @@ from ..priors import BoxTransform
 from ..weights import logsumexp, normalise
 from ..moves.base import HIGH_DIMENSION
 
-__all__ = ["Importance", "PathEvidence", "importance_step", "pooled_start", "step_standard_errors", "STARVED_RESTART"]
+__all__ = ["Importance", "PathEvidence", "Precision", "importance_step", "pooled_start", "step_standard_errors",
+           "STARVED_RESTART"]
 
 #: ``economy``: the importance sweeps continue until the increment's standard error is below this.
 ECONOMY_EVIDENCE_SE = 0.02
@@ -139,9 +140,19 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
     return resample("systematic", weights / weights.sum(), rng, n), shares
 
 
+@dataclass(frozen=True)
+class Precision:
+    """Economy's evidence sweeps (``SamplerConfig.economy``; :func:`importance_step`): sweeps continue while the
+    pooled estimate's standard error exceeds ``se``, up to ``max_sweeps``, and while the pooled ESS is at least
+    ``min_fraction`` of the draws."""
+
+    se: float
+    max_sweeps: int | None = None
+    min_fraction: float = 0.0
+
+
 def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_sweeps: int = 1,
-                    gaussian: bool = False, se_target: float | None = None, max_sweeps: int | None = None,
-                    min_fraction: float = 0.0, other=None, pool_sweeps: bool = False):
+                    gaussian: bool = False, until: Precision | None = None, other=None, pool_sweeps: bool = False):
     """Evidence by defensive importance sampling, then independence-MH sweeps with the same proposal.
 
     Parameters
@@ -161,28 +172,29 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     n_sweeps : int
         Independence sweeps, each with N fresh draws, half from the proposal fitted to each half of the
         particles (:func:`~seqbayes.moves.proposals.complement_halves`); the first sweep's draws give the evidence
-        (every sweep's with ``pool_sweeps`` or ``se_target``).
+        (every sweep's with ``pool_sweeps`` or ``until``).
     gaussian : bool
         The proposal's first half is the fitted Gaussian instead of the kernel density (:func:`_proposal`).
-    se_target : float, optional
+    until : Precision, optional
         Economy (``SamplerConfig.economy``): every sweep's draws enter the evidence (one importance
         estimate over all of them, as they are independent draws of the same proposal), and sweeps continue
         after ``n_sweeps`` while the estimate's standard error ``sqrt(1 / ESS - 1 / M)`` (M draws)
-        exceeds ``se_target``, up to ``max_sweeps``, and while the pooled ESS is at least ``min_fraction``
-        of the draws (below it the caller refits the proposal rather than pool a poor one's draws).
+        exceeds ``until.se``, up to ``until.max_sweeps``, and while the pooled ESS is at least
+        ``until.min_fraction`` of the draws (below it the caller refits the proposal rather than pool a poor
+        one's draws).
     other : tuple of (M, d) array and (M,) array, optional
         Another cloud of the same posterior (points, log-weights), which may hold a mode ``posterior``
         lacks: the proposal is then the :class:`PooledProposal` of both (:func:`clustered_parts`).
     pool_sweeps : bool
-        Every sweep's draws enter the evidence, as with ``se_target`` but without sweeps beyond ``n_sweeps``
+        Every sweep's draws enter the evidence, as with ``until`` but without sweeps beyond ``n_sweeps``
         (each sweep's terms are unbiased given its proposal, which is fitted before its draws), and the ESS is
-        reported as with ``se_target``.
+        reported as with ``until``.
 
     Returns
     -------
     log_evidence : float
     ess : float
-        Effective sample size of the first sweep's importance weights (out of N); with ``se_target``,
+        Effective sample size of the first sweep's importance weights (out of N); with ``until``,
         the pooled estimate's equivalent for N draws, ``1 / (1 / ESS_M - 1 / M + 1 / N)``, which has the
         same variance ``1 / ESS - 1 / N``.
     posterior, components : arrays after the sweeps
@@ -190,6 +202,8 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
         Particle moves accepted over all sweeps.
     """
     n = posterior.shape[0]
+    se_target, max_sweeps, min_fraction = (None, None, 0.0) if until is None else (until.se, until.max_sweeps,
+                                                                                   until.min_fraction)
     transform = BoxTransform(support)
     u = transform.forward(posterior)
     other_u = None if other is None else (transform.forward(other[0]), other[1])
@@ -420,8 +434,7 @@ class Importance:
         if moves.uses_scaled(cloud.particles.shape[1]):
             scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
             if moves.economy:
-                scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=self.sweeps + 2 * self.max_refits,
-                              min_fraction=self.min_ess)
+                scaled["until"] = Precision(ECONOMY_EVIDENCE_SE, self.sweeps + 2 * self.max_refits, self.min_ess)
         # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
         # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
         if other is not None:

@@ -114,9 +114,9 @@ class ParticlePredictive:
         return None
 
     def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure | Reassimilate:
-        tempered = temper_stages(weighed.cloud, self.problem, self.config, likelihood, weighed.prior_logpdf,
-                                 weighed.moves, self.moves_every_stage(), self.deferred, rng,
-                                 stage_check=self.stage_check(state, dataset, likelihood))
+        tempered = temper_stages(weighed.cloud, weighed.moves, ResampleMove(
+            self.problem, self.config, likelihood, weighed.prior_logpdf, self.moves_every_stage(), self.deferred, rng,
+            stage_check=self.stage_check(state, dataset, likelihood)))
         if not isinstance(tempered, Tempered):
             return tempered
         # Z = P(inside, L > 0) E[L | inside, L > 0]
@@ -336,20 +336,17 @@ def _min_valid(config, particles) -> float:
     return min(threshold, particles.shape[1] + 1.0) if config.moves.economy else threshold
 
 
-def temper_stages(cloud, problem, config, likelihood, prior_logpdf, moves, move_every_stage, deferred, rng,
-                  kernel_density=False, prior_moves=None, path_states=1, stage_check=None) -> Tempered:
+def temper_stages(cloud, moves, mutate: ResampleMove) -> Tempered:
     """Stages 2-4: reweight by ``L^delta`` (Eq. A5, one stage or adaptive tempering), resample, move: the one
-    tempering loop (:func:`~seqbayes.core.tempering.temper`) with the particle predictives' mutation
-    (:class:`~seqbayes.moves.schedule.ResampleMove`; ``kernel_density``, ``prior_moves``, ``path_states`` and
-    ``stage_check``: as there).
+    tempering loop (:func:`~seqbayes.core.tempering.temper`) with the particle predictives' mutation ``mutate``
+    (:class:`~seqbayes.moves.schedule.ResampleMove`, which holds the configuration and the step's likelihood),
+    from ``cloud`` and the update's ``moves`` tally.
 
     Returns a :class:`~seqbayes.core.state.Tempered` whose ``log_z`` is the path's log-evidence (Eq. 1) without
     any restricted mass (the caller's), or what stopped the stages (a :class:`~seqbayes.core.state.Failure`, the
     stage check's decision)."""
-    mutate = ResampleMove(problem, config, likelihood, prior_logpdf, move_every_stage, deferred, rng, kernel_density,
-                          prior_moves, path_states, stage_check)
-    annealed = temper(Staged(cloud, moves), cloud.components[:, 0], cloud.log_weights, config.tempering,
-                      mutate, likelihood.step)
+    annealed = temper(Staged(cloud, moves), cloud.components[:, 0], cloud.log_weights, mutate.config.tempering,
+                      mutate, mutate.likelihood.step)
     if annealed.decision is not None:  # a Failure, or the stage check's decision
         return annealed.decision
     staged = annealed.particles

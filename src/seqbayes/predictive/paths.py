@@ -13,6 +13,7 @@ from ..core.state import (Cloud, Estimate, Failure, Outcome, PastStep, Problem, 
                           Tempered, Weighed)
 from ..moves.base import MoveTally
 from ..kernels import MarkovKernel
+from ..moves.schedule import PathTarget, ResampleMove
 from ..priors import as_samples, inside_space
 from ..weights import resample
 from ..results import ConflictInfo, EvidenceInfo, JumpInfo
@@ -354,9 +355,9 @@ class PathStep:
         config = replace(self.path_config, tempering=self.path_config.tempering.without_shortcut())
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
-        tempered = temper_stages(weighed.cloud, self.path_problem, config, self.window_likelihood,
-                                 weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                 prior_moves=self.path_prior, path_states=self.length + 1)
+        tempered = temper_stages(weighed.cloud, weighed.moves, ResampleMove(
+            self.path_problem, config, self.window_likelihood, weighed.prior_logpdf, True, False, rng,
+            PathTarget(kernel_density=True, prior_moves=self.path_prior, path_states=self.length + 1)))
         if isinstance(tempered, Failure):
             return tempered
         cloud = tempered.cloud
@@ -404,9 +405,9 @@ class PathStep:
 
     def _stored_temper(self, weighed, rng) -> Tempered | Failure:
         """The stored paths tempered in ``L_s`` (:func:`~seqbayes.predictive.particle.temper_stages`)."""
-        tempered = temper_stages(weighed.cloud, self.path_problem, self.path_config, self.path_likelihood,
-                                 weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                 path_states=self.length + 1)
+        tempered = temper_stages(weighed.cloud, weighed.moves, ResampleMove(
+            self.path_problem, self.path_config, self.path_likelihood, weighed.prior_logpdf, True, False, rng,
+            PathTarget(kernel_density=True, path_states=self.length + 1)))
         if isinstance(tempered, Failure):
             return tempered
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)

@@ -52,9 +52,8 @@ from ..moves.delayed import QuadraticScreen
 from ..priors import inside_support
 from ..priors import BoxTransform
 
-__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner",
-           "outer_logpdf", "rerun_cost"]
-
+__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "Refilter", "Budget", "distinct_ess",
+           "rejuvenate", "run_inner", "outer_logpdf", "rerun_cost"]
 
 
 #: SMC^2's PMMH budget per update, in units of ``N M`` (``SamplerConfig.move_budget``): with the advance itself an
@@ -103,6 +102,30 @@ class Rejuvenation:
         return Rejuvenation(np.zeros(0, dtype=int), int(n_sweeps), 0, 0, np.zeros(n, dtype=bool))
 
 
+@dataclass(frozen=True, eq=False)
+class Refilter:
+    """What a proposal's re-run needs: the problem, its inner filter, the split of the columns
+    (:func:`~seqbayes.predictive.inner.nested_split`), the datasets so far and each one's guide."""
+
+    problem: object
+    inner: object
+    split: tuple
+    datasets: object
+    guides: object
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The evaluations a rejuvenation may spend: ``limit`` (in re-run evaluations), the ESS to restore first
+    (``restore x N``, 0: none), what the update's earlier stages have ``spent`` and the restoring allowance
+    ``restore_limit`` in budgets (:func:`rejuvenate`)."""
+
+    limit: int
+    restore: float = 0.0
+    spent: int = 0
+    restore_limit: float = RESTORE_LIMIT
+
+
 def outer_logpdf(prior, columns, outer) -> np.ndarray:
     """``log p_0`` of outer particles ``outer (K, len(columns))`` under the independent marginals of ``prior``."""
     total = np.zeros(outer.shape[0])
@@ -143,9 +166,8 @@ def _pmmh_screen(config, static, components, coefficients, transform):
         return QuadraticScreen.fit(position, components @ coefficients + jacobian)
 
 
-def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
-               step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0, spent: int = 0,
-               restore_limit: float = RESTORE_LIMIT):
+def rejuvenate(refilter: Refilter, config, static, log_weights, cloud, components, beta, step_size,
+               pending: Rejuvenation, budget: Budget, likelihood, rng):
     """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``; the target
@@ -160,21 +182,24 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
     attempted all the same, so a rejuvenation always progresses.
 
-    The budget binds only once the copies a resampling left are diverse again: while :func:`distinct_ess` is below
-    ``restore x N`` (the ESS of the weights the cloud was resampled from), particles are attempted in batches of
-    :data:`RESTORE_BATCH` x N beyond the budget, up to :data:`RESTORE_LIMIT` times it, so that a resampling does not
-    leave the cloud less diverse than its weights were (late in a long stream, where one sweep costs more than
-    that, the rest of the restoring waits with the other deferred sweeps).
+    The budget (``budget.limit``) binds only once the copies a resampling left are diverse again: while
+    :func:`distinct_ess` is below ``budget.restore x N`` (the ESS of the weights the cloud was resampled from),
+    particles are attempted in batches of :data:`RESTORE_BATCH` x N beyond the budget, up to :data:`RESTORE_LIMIT`
+    times it, so that a resampling does not leave the cloud less diverse than its weights were (late in a long
+    stream, where one sweep costs more than that, the rest of the restoring waits with the other deferred sweeps).
 
-    ``spent`` is what the update's earlier stages have spent on moves and ``restore_limit`` the restoring allowance in
-    budgets (``SamplerConfig.strict_budget`` passes the former and 1: the update's stages share one budget, restoring
-    included).
+    ``budget.spent`` is what the update's earlier stages have spent on moves and ``budget.restore_limit`` the
+    restoring allowance in budgets (``SamplerConfig.strict_budget`` passes the former and 1: the update's stages
+    share one budget, restoring included).
 
     Returns
     -------
     static, cloud, components, SweepStats, step_size, n_batches, Rejuvenation
     """
     n = static.shape[0]
+    problem, inner, split, datasets, guides = (refilter.problem, refilter.inner, refilter.split, refilter.datasets,
+                                               refilter.guides)
+    restore, spent, restore_limit, budget = budget.restore, budget.spent, budget.restore_limit, budget.limit
     per_particle = rerun_cost(inner, datasets)
     columns = inner.outer_columns(split, problem.kernel.dim)
     support = problem.support[columns]

@@ -56,7 +56,7 @@ from ..results import ConflictInfo, EvidenceInfo, NestedInfo
 from ..core.tempering import temper
 from .inner import KalmanInnerFilter, ParticleInnerFilter, joint_columns, nested_split
 from .particle import ParticlePredictive, prior_data_conflict
-from .pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
+from .pmmh import MOVE_BUDGET, RESTORE_LIMIT, Budget, Refilter, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
 
 __all__ = ["SMC2", "ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
@@ -341,11 +341,12 @@ class NestedPredictive:
             # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
             tempered = beta < 1.0 or stage.index > 1
             allowed = sys.maxsize if tempered and not smc2.strict_budget else budget
+            allowance = Budget(allowed, restore=stage.ess / n if resampled else 0.0,
+                               spent=spent if smc2.strict_budget else 0,
+                               restore_limit=1.0 if smc2.strict_budget else RESTORE_LIMIT)
             static, cloud, components, sweep, step_size, batches, pending = rejuvenate(
-                self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
-                log_weights, cloud, components, beta, moves.step_size, pending, allowed, likelihood, rng,
-                restore=stage.ess / n if resampled else 0.0, spent=spent if smc2.strict_budget else 0,
-                restore_limit=1.0 if smc2.strict_budget else RESTORE_LIMIT)
+                Refilter(self.problem, self.inner, self.split, weighed.datasets, weighed.guides), config, static,
+                log_weights, cloud, components, beta, moves.step_size, pending, allowance, likelihood, rng)
             spent += sweep.n_evaluations * rerun_cost(self.inner, weighed.datasets)   # the budget's units: M s per re-run
             moves = MoveTally(moves.stats + sweep, config.moves.step_size_after(step_size, moves.step_size),
                               moves.n_virtual + batches)

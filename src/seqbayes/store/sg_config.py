@@ -58,7 +58,6 @@ configuration and its SHA-256 recorded), and the building it returns is recorded
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -76,10 +75,6 @@ _OWN_SAMPLER_KEYS = ("n_members", "seed")
 #: SGEnMCMC keywords a configuration may not set (the store decides them or they are not data).
 _FIXED_KEYWORDS = ("building", "dt", "lower", "upper", "measurement_noise", "process_noise_std", "channels",
                    "transition", "sampler", "blas_threads")
-#: [monitor] settings: StiffnessDropMonitor keywords (the building, noise and prior box are the run's).
-_MONITOR_KEYWORDS = ("n_particles", "drop_range", "change_rate", "change_every", "jump_proposal", "prior_no_change",
-                     "threshold", "prune_below", "prune_after", "ess_threshold", "moves_per_particle", "max_sweeps",
-                     "resampling")
 #: DropBlock fields that are NaN where a class has no dropped particle (stored as 0, restored from ``changed``).
 
 
@@ -119,9 +114,9 @@ def _check_stored(data, source) -> None:
                                             f"integer, got {value!r}")
     settings = data.get("settings", {})
     check_keys(settings, set(settings), source, "sampler")
-    from ..structural.sgenmcmc import SGEnMCMC
+    from ..structural.settings import flat_defaults
 
-    defaults = {k: v.default for k, v in inspect.signature(SGEnMCMC).parameters.items()}
+    defaults = flat_defaults()
     for key, value in settings.items():
         if key not in defaults or key in _FIXED_KEYWORDS:
             fail(source, f"sampler.{key}", "not a setting of SGEnMCMC")
@@ -248,22 +243,26 @@ class SGRunConfig(StoredConfig):
         """A fresh :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC` (``sampler="resample-move"``, the on-line one)."""
         from ..structural.sgenmcmc import SGEnMCMC
 
+        from ..structural.settings import sg_from_flat
+
         return SGEnMCMC(self.build_building(), self.dt, np.array(self.lower), np.array(self.upper),
                         np.array(self.measurement_std), process_noise_std=self.process_std,
-                        n_members=self.n_members, channels=self.build_sensors(), sampler="resample-move",
-                        **self.settings)
+                        n_members=self.n_members, channels=self.build_sensors(),
+                        **sg_from_flat(sampler="resample-move", **self.settings))
 
     def build_monitor(self):
         """A fresh :class:`~seqbayes.structural.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` (None without it)."""
         if self.monitor is None:
             return None
-        from ..structural.stiffness_drop import StiffnessDropMonitor
+        from ..structural.stiffness_drop import StiffnessDropMonitor, monitor_from_flat
 
         n = self.n_storeys
         settings = {k: (tuple(v) if isinstance(v, list) else v) for k, v in self.monitor.items() if k != "seed"}
+        size = {"n_particles": settings.pop("n_particles")} if "n_particles" in settings else {}
         return StiffnessDropMonitor(self.build_building(), self.dt, np.array(self.lower[:n]),
                                     np.array(self.upper[:n]), np.array(self.measurement_std),
-                                    process_noise_std=self.process_std, channels=self.build_sensors(), **settings)
+                                    process_noise_std=self.process_std, channels=self.build_sensors(), **size,
+                                    **monitor_from_flat(**settings))
 
     def to_dict(self) -> dict:
         """Plain JSON-able dict (stored in the run store)."""
@@ -415,9 +414,9 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     for key, value in (("n_members", n_members), ("seed", seed)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             fail(source, f"sampler.{key}", f"expected a non-negative integer, got {value!r}")
-    from ..structural.sgenmcmc import SGEnMCMC
+    from ..structural.settings import FLAT_SG
 
-    keywords = set(inspect.signature(SGEnMCMC).parameters) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
+    keywords = set(FLAT_SG) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
     for key in sampler:
         if key not in keywords:
             fail(source, f"sampler.{key}", f"unknown setting; expected one of "
@@ -447,7 +446,10 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
         config = dataclasses.replace(config, settings=settings, surrogate_choice=choice.reason)
     if "monitor" in raw:
         monitor = dict(raw["monitor"])
-        check_keys(monitor, set(_MONITOR_KEYWORDS) | {"seed"}, source, "monitor")
+        from ..structural.stiffness_drop import FLAT_MONITOR
+
+        # n_particles, the seed and the monitor's flat settings (the building, noise and prior box are the run's)
+        check_keys(monitor, {"n_particles", "seed", *FLAT_MONITOR}, source, "monitor")
         monitor_seed = monitor.setdefault("seed", seed + 1)
         if isinstance(monitor_seed, bool) or not isinstance(monitor_seed, int) or monitor_seed < 0:
             fail(source, "monitor.seed", f"expected a non-negative integer, got {monitor_seed!r}")

@@ -81,7 +81,7 @@ from ..prognostics import FirstPassage, time_to_threshold
 from ..results import Result, StepInfo, StepRecord
 from ..rng import generator_from_state
 from . import snapshot
-from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, check_finite, json_value, json_values
+from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, Provenance, check_finite, json_value, json_values
 from .config import RunConfig
 from .datasets import as_likelihood_data, check_table, dataset_digest
 from .errors import BoundWarning, ModelChangedError, StoreError, StoreWarning
@@ -151,11 +151,9 @@ class RunStore(BaseStore):
                             "report --data"})
     evaluates_likelihood = True
 
-    def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
-                 rng_states, result: Result, states, step_sizes, digests, sources, tables=(), created=None,
-                 module_hashes=None, record_hashes=None):
-        super().__init__(path, config, rng_states=rng_states, digests=digests, sources=sources, created=created,
-                         record_hashes=record_hashes)
+    def __init__(self, path, config: RunConfig, provenance: Provenance, *, initial_particles, initial_log_weights,
+                 initial_step_size, result: Result, states, step_sizes, tables=(), module_hashes=None):
+        super().__init__(path, config, provenance)
         self.initial_particles = initial_particles
         self.initial_log_weights = initial_log_weights
         self.initial_step_size = float(initial_step_size)
@@ -179,10 +177,9 @@ class RunStore(BaseStore):
             config = _replace(config, likelihood_file=located.file, likelihood_sha256=located.sha256)
         sampler = config.build_sampler(loglike=_likelihood_not_needed)  # drawing the prior runs no user code
         state, records, rng_state = sampler.snapshot()
-        return cls(path, config, initial_particles=np.array(state.particles),
+        return cls(path, config, Provenance([rng_state]), initial_particles=np.array(state.particles),
                    initial_log_weights=np.array(state.log_weights), initial_step_size=state.step_size,
-                   rng_states=[rng_state], result=Result(sampler.names, (), {}), states=[], step_sizes=[],
-                   digests=[], sources=[])
+                   result=Result(sampler.names, (), {}), states=[], step_sizes=[])
 
     # ------------------------------------------------------------------ reading
     @classmethod
@@ -269,12 +266,12 @@ class RunStore(BaseStore):
         if not 0.0 <= float(attrs["initial_step_size"]) < np.inf:
             raise StoreError(f"{path}: damaged run store: initial_step_size is {float(attrs['initial_step_size'])}; "
                              f"expected a finite number >= 0")
-        return cls(path, stored, initial_particles=variables["initial_particles"],
+        provenance = Provenance(rng_states, text["dataset_sha256"], text["dataset_source"], attrs.get("created"),
+                                record_hashes)
+        return cls(path, stored, provenance, initial_particles=variables["initial_particles"],
                    initial_log_weights=variables["initial_log_weights"],
-                   initial_step_size=float(attrs["initial_step_size"]), rng_states=rng_states, result=result,
-                   states=states, step_sizes=step_sizes, digests=text["dataset_sha256"],
-                   sources=text["dataset_source"], tables=tables, created=attrs.get("created"),
-                   module_hashes=text["likelihood_sha256"], record_hashes=record_hashes)
+                   initial_step_size=float(attrs["initial_step_size"]), result=result, states=states,
+                   step_sizes=step_sizes, tables=tables, module_hashes=text["likelihood_sha256"])
 
     # ------------------------------------------------------------------ writing
     def _step_texts(self, k: int) -> tuple:

@@ -1,4 +1,4 @@
-"""The paper's ensemble variant of SG-EnMCMC (``SGEnMCMC(..., sampler="paper")``), Lin et al. (2024).
+"""The paper's ensemble variant of SG-EnMCMC (``SGEnMCMC(..., sampler=Ensemble())``), Lin et al. (2024).
 
 The first implementation, kept as an option: one EnKF member per ``theta``,
 importance weights from the per-member EnKF likelihood, resampling and a

@@ -98,9 +98,10 @@ from ..moves.gaussian import FittedMove
 from ..weights import logsumexp, normalise
 from .drop_paths import effective_theta, path_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, measurement_covariance
+from .settings import ResampleMoveSettings
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 
-__all__ = ["StiffnessDropMonitor", "DropBlock"]
+__all__ = ["StiffnessDropMonitor", "DropBlock", "DropModel", "Detection", "monitor_from_flat", "FLAT_MONITOR"]
 
 
 @dataclass(frozen=True)
@@ -175,6 +176,72 @@ class _ClassState:
     events: int
 
 
+@dataclass(frozen=True)
+class DropModel:
+    """The change classes' model (module docstring): ``delta ~ U(drop_range)``, a prior rate of a drop per second
+    (``change_rate``, per change class) at change boundaries every ``change_every`` steps (the resolution of ``tau``),
+    the per-boundary probability with which a particle tries a drop (``jump_proposal``; ``None``:
+    ``max(h, 4 / n_particles)``, about four particles per boundary) and ``P(M_0) = prior_no_change``."""
+
+    drop_range: tuple = (0.02, 0.5)
+    change_rate: float = 0.01
+    change_every: int = 1
+    jump_proposal: float | None = None
+    prior_no_change: float = 0.5
+
+    def __post_init__(self):
+        lo, hi = (float(x) for x in self.drop_range)
+        if not 0 <= lo < hi < 1:
+            raise ValueError(f"drop_range: need 0 <= low < high < 1, got {self.drop_range}")
+        object.__setattr__(self, "drop_range", (lo, hi))
+        object.__setattr__(self, "change_rate", float(self.change_rate))
+        if not isinstance(self.change_every, (int, np.integer)) or self.change_every < 1:
+            raise ValueError(f"change_every: expected a positive integer, got {self.change_every!r}")
+        object.__setattr__(self, "change_every", int(self.change_every))
+        if not 0 < self.prior_no_change < 1:
+            raise ValueError(f"prior_no_change: must be in (0, 1), got {self.prior_no_change}")
+        object.__setattr__(self, "prior_no_change", float(self.prior_no_change))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """When a change is detected (``P(changed | y) > threshold`` at the end of a block) and which classes stop being
+    updated (module docstring: below ``prune_below`` for ``prune_after`` consecutive steps; 0: never)."""
+
+    threshold: float = 0.99
+    prune_below: float = 1e-10
+    prune_after: int = 25
+
+    def __post_init__(self):
+        if not 0 < self.threshold < 1:
+            raise ValueError(f"threshold: must be in (0, 1), got {self.threshold}")
+        if not isinstance(self.prune_after, (int, np.integer)) or self.prune_after < 1:
+            raise ValueError(f"prune_after: expected a positive integer, got {self.prune_after!r}")
+        object.__setattr__(self, "threshold", float(self.threshold))
+        object.__setattr__(self, "prune_below", float(self.prune_below))
+        object.__setattr__(self, "prune_after", int(self.prune_after))
+
+
+#: The monitor's flat keywords before its components (a TOML ``[monitor]`` table keeps them) -> component.
+FLAT_MONITOR = {**{name: "changes" for name in ("drop_range", "change_rate", "change_every", "jump_proposal",
+                                                 "prior_no_change")},
+                **{name: "detection" for name in ("threshold", "prune_below", "prune_after")},
+                **{name: "sampler" for name in ("ess_threshold", "moves_per_particle", "max_sweeps", "resampling")}}
+
+
+def monitor_from_flat(**flat) -> dict:
+    """The monitor's components of its flat settings, as its keywords:
+    ``StiffnessDropMonitor(building, dt, lower, upper, noise, **monitor_from_flat(threshold=0.95))``."""
+    unknown = sorted(set(flat) - set(FLAT_MONITOR))
+    if unknown:
+        raise TypeError(f"{unknown[0]}: not a setting of StiffnessDropMonitor ({', '.join(FLAT_MONITOR)})")
+    parts = {"changes": {}, "detection": {}, "sampler": {}}
+    for name, value in flat.items():
+        parts[FLAT_MONITOR[name]][name] = value
+    return {"changes": DropModel(**parts["changes"]), "detection": Detection(**parts["detection"]),
+            "sampler": ResampleMoveSettings(**parts["sampler"])}
+
+
 class StiffnessDropMonitor:
     """On-line stiffness-drop detection and storey attribution (module docstring).
 
@@ -190,35 +257,21 @@ class StiffnessDropMonitor:
         Std of the unmeasured ground-acceleration noise (m/s^2).
     n_particles : int
         Particles per class.
-    drop_range : (2,) tuple
-        Uniform prior of the drop fraction ``delta``.
-    change_rate : float
-        Prior rate of a drop per second (per change class).
-    change_every : int
-        Steps between change boundaries (the resolution of ``tau``).
-    jump_proposal : float or None
-        Per-boundary probability with which a particle tries a drop (default
-        ``max(h, 4 / n_particles)``: about four particles per boundary).
-    prior_no_change : float
+    changes : DropModel
+        The change classes' model: the drop's prior, the change boundaries and their rate, the jump proposal,
         ``P(M_0)``.
-    threshold : float
-        Detection threshold on ``P(changed | y)``.
-    prune_below : float
-        Classes below this posterior probability for ``prune_after`` consecutive
-        steps stop being updated (module docstring; 0: never).
-    prune_after : int
-        Steps (default 25 = 0.5 s at 50 Hz).
-    ess_threshold, moves_per_particle, max_sweeps, resampling, blas_threads
+    detection : Detection
+        The detection threshold and the pruning of improbable classes.
+    sampler : ResampleMoveSettings
+        Each class's resample-move schedule (as :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`'s exact sampler).
+    blas_threads : int or None
         As :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`.
     channels : str
     """
 
     def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
-                 process_noise_std: float = 0.0, n_particles: int = 200, drop_range=(0.02, 0.5),
-                 change_rate: float = 0.01, change_every: int = 1, jump_proposal: float | None = None,
-                 prior_no_change: float = 0.5, threshold: float = 0.99, prune_below: float = 1e-10, prune_after: int = 25,
-                 ess_threshold: float = 0.3,
-                 moves_per_particle: float = 1.0, max_sweeps: int = 10, resampling: str = "systematic",
+                 process_noise_std: float = 0.0, n_particles: int = 200, *, changes: DropModel = DropModel(),
+                 detection: Detection = Detection(), sampler: ResampleMoveSettings = ResampleMoveSettings(),
                  channels: str = "absolute_acceleration", blas_threads: int | None = 1):
         d = building.n_storeys
         self.building, self.dt, self.channels = building, float(dt), channels
@@ -228,43 +281,26 @@ class StiffnessDropMonitor:
             raise ValueError(f"lower, upper: need 0 < lower < upper, got {self.lower}, {self.upper}")
         if not isinstance(n_particles, (int, np.integer)) or n_particles < 4 * (d + 1):
             raise ValueError(f"n_particles: expected an integer >= {4 * (d + 1)}, got {n_particles!r}")
-        lo, hi = (float(x) for x in drop_range)
-        if not 0 <= lo < hi < 1:
-            raise ValueError(f"drop_range: need 0 <= low < high < 1, got {drop_range}")
-        if not isinstance(change_every, (int, np.integer)) or change_every < 1:
-            raise ValueError(f"change_every: expected a positive integer, got {change_every!r}")
-        hazard = float(change_rate) * int(change_every) * self.dt
+        hazard = changes.change_rate * changes.change_every * self.dt
         if not 0 < hazard < 1:
             raise ValueError(f"change_rate: change_rate * change_every * dt must be in (0, 1), got {hazard}")
-        q = max(hazard, 4.0 / n_particles) if jump_proposal is None else float(jump_proposal)
+        q = max(hazard, 4.0 / n_particles) if changes.jump_proposal is None else float(changes.jump_proposal)
         if not 0 < q < 1:
-            raise ValueError(f"jump_proposal: must be in (0, 1), got {jump_proposal}")
-        if not 0 < prior_no_change < 1:
-            raise ValueError(f"prior_no_change: must be in (0, 1), got {prior_no_change}")
-        if not 0 < threshold < 1:
-            raise ValueError(f"threshold: must be in (0, 1), got {threshold}")
-        if not 0 <= prune_below < 1 / (d + 1):
-            raise ValueError(f"prune_below: must be in [0, 1 / {d + 1}), got {prune_below}")
-        if not 0 < ess_threshold <= 1:
-            raise ValueError(f"ess_threshold: must be in (0, 1], got {ess_threshold}")
-        if not moves_per_particle > 0:
-            raise ValueError(f"moves_per_particle: must be positive, got {moves_per_particle}")
-        if not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
-            raise ValueError(f"max_sweeps: expected an integer >= 1, got {max_sweeps!r}")
+            raise ValueError(f"jump_proposal: must be in (0, 1), got {changes.jump_proposal}")
+        if not 0 <= detection.prune_below < 1 / (d + 1):
+            raise ValueError(f"prune_below: must be in [0, 1 / {d + 1}), got {detection.prune_below}")
         if process_noise_std < 0:
             raise ValueError(f"process_noise_std: must be non-negative, got {process_noise_std}")
         self.measurement_noise, self.process_noise_std = measurement_noise, float(process_noise_std)
-        self.n_particles, self.drop_range = int(n_particles), (lo, hi)
-        self.hazard, self.jump_proposal, self.change_every = hazard, q, int(change_every)
-        self.change_rate = float(change_rate)
-        self.prior_no_change, self.threshold = float(prior_no_change), float(threshold)
-        if not isinstance(prune_after, (int, np.integer)) or prune_after < 1:
-            raise ValueError(f"prune_after: expected a positive integer, got {prune_after!r}")
-        self.prune_below, self.prune_after = float(prune_below), int(prune_after)
-        self.ess_threshold, self.moves_per_particle, self.max_sweeps = float(ess_threshold), float(
-            moves_per_particle), int(max_sweeps)
-        self.resampling, self.blas_threads = resampling, blas_threads
-        self.log_prior_classes = np.log(np.concatenate([[prior_no_change], np.full(d, (1 - prior_no_change) / d)]))
+        self.n_particles, self.drop_range = int(n_particles), changes.drop_range
+        self.hazard, self.jump_proposal, self.change_every = hazard, q, changes.change_every
+        self.change_rate, self.prior_no_change = changes.change_rate, changes.prior_no_change
+        self.threshold, self.prune_below = detection.threshold, detection.prune_below
+        self.prune_after = detection.prune_after
+        self.ess_threshold, self.moves_per_particle = float(sampler.ess_threshold), float(sampler.moves_per_particle)
+        self.max_sweeps, self.resampling, self.blas_threads = int(sampler.max_sweeps), sampler.resampling, blas_threads
+        self.log_prior_classes = np.log(np.concatenate([[self.prior_no_change],
+                                                        np.full(d, (1 - self.prior_no_change) / d)]))
         self._run = None
 
     # ------------------------------------------------------------------ driver
