@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+
 __all__ = ["TruncatedSum", "DROPPED_LOG_FRACTION"]
 
 #: The terms dropped add up to less than ``exp(DROPPED_LOG_FRACTION)`` of the kept sum at every query.

@@ -4,7 +4,7 @@ Random streams of the linear model y = a + b t (15 points per dataset, noise sd 
 (the transition-mixture predictive) or may jump (a jump kernel: the mixture-sum predictive), with sudden
 changes of (a, b), outlier datasets and datasets fed out of order, through the run store with a fresh
 object opened from the file before every step (:meth:`RunStore.open` checks every stored value with the
-engine's own rules, :mod:`seqbayes.engine.outputs`). An abrupt change used to leave a NaN
+engine's own rules, :mod:`seqbayes.engine.drivers`). An abrupt change used to leave a NaN
 ``state_log_evidence_variance`` that the store then refused. Every tenth stream is also run uninterrupted
 in memory and must give the store's steps bit for bit.
 

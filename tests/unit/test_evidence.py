@@ -1,11 +1,11 @@
-"""The importance-sampling evidence (seqbayes.engine.evidence): its proposal at large N."""
+"""The importance-sampling evidence (seqbayes.predictive.evidence): its proposal at large N."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
 
-from seqbayes.engine.evidence import importance_step, pooled_start, step_standard_errors
+from seqbayes.predictive.evidence import importance_step, pooled_start, step_standard_errors
 from seqbayes.moves import proposals
 from seqbayes.moves.proposals import defensive_parts, thinned_components
 
@@ -195,7 +195,7 @@ def _two_modes(seed):
 
 def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
     # The particles hold only mode A of _two_modes; another cloud holds only B (the path-space remedy's stored-path
-    # start, seqbayes.predictive.paths.PathSpace). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
+    # start, seqbayes.predictive.transition.PathSpace). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
     # with the other cloud the fraction in B is 0.045 +- 0.007 (0.029-0.065) and the error of log Z
     # -0.005 +- 0.030 (ESS >= 486); without it the fraction is 0.0007 and the error's sd 0.16 (ESS down to 3).
     # Asserted: fraction in [0.02, 0.08] (4 sd), |error| < 0.15 (5 sd), and the fraction without it < 0.01

@@ -567,7 +567,8 @@ def exact_grid_reference(kernel_name: str, datasets=None, bounds="table3", *, n_
 
     steps = reference.grid_filter(datasets, log_likelihood_phase, box,
                                   [kern.components[0].nominal, kern.components[2].nominal],
-                                  [kern.noise_std[0], 0.0], n_points, hard=hard, tail_mass=tail_mass)
+                                  [kern.noise_std[0], 0.0], n_points, hard=hard,
+                                  resolution=reference.Resolution(tail_mass=tail_mass))
     n_steps = len(datasets)
     mean = np.full((n_steps, 4), np.nan)
     std = np.full((n_steps, 4), np.nan)

@@ -39,7 +39,7 @@ __all__ = ["SAMPLER_SETTINGS", "BOUNDED_COST", "PAPER", "PAPER_STD", "CoulombStu
 BOUNDED_COST = {"inner_filter": ParticleInnerFilter(8, n_pilot=500), "surrogate": "quadratic", "move_budget": 5,
                 "strict_budget": True}
 
-#: Settings passed to the samplers (fields of ``seqbayes.engine.settings.SamplerConfig``); empty: the core's
+#: Settings passed to the samplers (flat, :func:`seqbayes.engine.settings.from_flat`); empty: the core's
 #: defaults (tempering when one stage would leave ESS < 10 %, importance-sampling evidence
 #: refitted until its ESS reaches 30 %, log/logit moves until 90 % have moved, independence
 #: sweeps). An earlier core without the refits needed ``tempering_threshold=0.5`` here: in one
@@ -143,13 +143,14 @@ def _one_run(task):
     ``runs_dir`` is given (so the two processes share the ~0.2 s per file of h5netcdf).
     ``task = (sampler, kernel, run, seed, n_samples, settings, runs_dir)``."""
     import seqbayes
+    from seqbayes.engine.settings import from_flat
 
     sampler_name, kernel_name, run, seed, n_samples, settings, runs_dir = task
     cls = {"SEMC": seqbayes.SEMC, "SMC": seqbayes.SMC}[sampler_name]
     with single_blas_thread():
         start = time.perf_counter()
         sampler = cls(model.prior(), model.kernel(kernel_name), model.loglike, n_samples=n_samples,
-                      rng=np.random.default_rng(seed), **settings)
+                      rng=np.random.default_rng(seed), **from_flat(sampler_name, **settings))
         result = sampler.run(model.load_experiment())
         elapsed = time.perf_counter() - start
     if runs_dir is not None:

@@ -62,7 +62,9 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     independent sampler seed. Returns a dict of plain arrays (posterior summaries
     per step, forecast summaries, per-step diagnostics, wall time).
     """
-    from ..engine import drivers, errors
+    from ..core import errors
+    from ..engine import drivers
+    from ..engine.settings import from_flat
 
     problem = osc.make_problem(np.random.default_rng(problem_seed(seed, run)))
     ki, si = KERNELS.index(kernel), SAMPLERS.index(sampler)
@@ -79,7 +81,8 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     out.update({name: np.full(n_steps, np.nan) for name in _STEP_FIELDS[2:]})
     out["log_mass_inside"] = np.zeros(n_steps)
     start = time.perf_counter()
-    smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=n_samples, rng=rng, **opts)
+    smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=n_samples, rng=rng,
+              **from_flat(sampler, **opts))
     support = osc.prior().support
     for s, dataset in enumerate(problem.datasets):
         if s > 0:  # diagnostic only: the core's increment already accounts for mass outside the box
