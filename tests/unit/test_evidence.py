@@ -79,6 +79,7 @@ def _replicated_gaussian_evidence(n_sweeps=1, pool_sweeps=False, replications=20
     return np.array(errors), np.array(reported)
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_importance_standard_error_matches_the_spread_over_replications():
     # 200 replications of the importance step from N = 200 exact posterior draws: sd of the log-evidence
     # error 0.0198, reported se (rms) 0.0202 (measured, seed 0). The sd of 200 replicates is known to 5 %,
@@ -87,6 +88,7 @@ def test_importance_standard_error_matches_the_spread_over_replications():
     assert 0.8 < np.sqrt(np.mean(np.square(reported))) / np.std(errors, ddof=1) < 1.25
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_pooled_sweeps_lower_the_evidence_error_and_report_it():
     # as above, with 4 sweeps whose draws all enter the estimate (pool_sweeps, the path-space remedy's): sd of the
     # error 0.0117 and 0.0120, reported se (rms) 0.0115 and 0.0116 (seeds 0 and 1), against 0.0198 from the first
@@ -150,6 +152,7 @@ def test_weights_increment_variance_is_the_delta_method():
                                          "transition")[0])
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_sampler_reports_a_log_evidence_se_that_matches_the_spread_over_seeds():
     # drifting linear-Gaussian problem (transition mixture: importance + ancestor terms), N = 300, 10 seeds,
     # 3 datasets: reported 0.088 against an sd of 0.063 over the seeds (ratio 1.4, measured; at N = 1000
