@@ -93,7 +93,7 @@ class TruncatedSum:
         total = np.bincount(query, weights=terms, minlength=rows.size)
         with np.errstate(divide="ignore"):
             out[rows] = np.log(total) + ceiling
-        underflow = total == 0.0  # weights spread over more than ~700 nats: leave it to the dense sum
+        underflow = total == 0.0  # weights spread beyond float64's exp range: leave it to the dense sum
         rest = np.concatenate([np.flatnonzero(~served), rows[underflow]])
         if rest.size:
             out[rest] = dense(x[rest])

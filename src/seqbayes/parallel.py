@@ -42,7 +42,7 @@ from .core.likelihood import call_loglike, read_only
 __all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "Workers", "MIN_CHUNK_SECONDS", "make_executor"]
 
 #: A chunk expected to take less than this (seconds) is not worth a round trip: the batch is evaluated
-#: serially. 20 ms: a Dask round trip costs 5-20 ms, a local process pool's 0.5-2 ms (docs/parallel.md).
+#: serially (the round trips' costs, Dask's and a local process pool's: docs/parallel.md).
 MIN_CHUNK_SECONDS = 0.02
 
 #: Payloads (likelihood, dataset) kept per pool; the history prior's past datasets each need one.

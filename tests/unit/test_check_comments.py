@@ -12,9 +12,6 @@ import check_comments  # noqa: E402
 
 sys.path.remove(str(ROOT / "tools"))
 
-#: Comments flagged on src/ when the checker was written (before the comment clean-up, which waits for
-#: the src/ restructuring to merge). The count may only fall; the clean-up takes it to 0.
-FLAGGED_WHEN_WRITTEN = 18
 
 
 def _rules(source):
@@ -89,14 +86,6 @@ def src_flags():
     return check_comments.check_paths([ROOT / "src"])
 
 
-def test_src_flags_do_not_grow(src_flags):
-    """A new comment with a run's number fails here at once, before the clean-up is done."""
-    count = check_comments.flagged_comments(src_flags)
-    assert count <= FLAGGED_WHEN_WRITTEN, "\n".join(map(str, src_flags))
-
-
-@pytest.mark.xfail(strict=True, reason=f"{FLAGGED_WHEN_WRITTEN} comments in src/ are flagged until the clean-up "
-                                       "that follows the src/ restructuring; when it reaches 0 this XPASS fails: "
-                                       "remove the xfail mark")
 def test_src_comments_hold_no_run_results_or_history(src_flags):
+    """No comment in src/ carries a run's result, a seed, a run count, an issue number or a commit hash."""
     assert not src_flags, "\n".join(map(str, src_flags))

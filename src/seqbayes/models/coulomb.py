@@ -104,7 +104,7 @@ PARAMETER_NAMES = ("F_mu", "omega_n", "sigma_phi", "sigma_r")
 TABLE3_BOUNDS = {"F_mu": (0.01, 100.0), "omega_n": (0.01, 100.0), "sigma_phi": (0.001, 10.0),
                  "sigma_r": (0.001, 1.0)}
 #: The narrower boxes of the authors' code; they raise the log-evidence
-#: by log(volume ratio) = 4.895 nats when the posterior lies inside them.
+#: by log(volume ratio) (comment-ok: a closed-form constant) = 4.895 nats when the posterior lies inside them.
 AUTHORS_CODE_BOUNDS = {"F_mu": (0.01, 5.0), "omega_n": (0.01, 30.0), "sigma_phi": (0.001, 5.0),
                        "sigma_r": (0.001, 1.0)}
 #: Kernels of Eqs. (21)-(22) for F_mu: (kind, rate, process-noise std [N]).

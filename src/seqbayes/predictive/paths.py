@@ -218,9 +218,9 @@ class PathStep:
         # the path's moves are the scaled rounds (an independence sweep from the kernel density fitted to the stage's
         # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
         # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
-        # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md,
-        # "Oscillator at 300,000 evaluations"). With the importance evidence they stop as economy's do (half the
-        # travel, 70 % moved): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
+        # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md, the
+        # oscillator's path-space section). With the importance evidence they stop as economy's do (half the
+        # travel, 70 % moved; comment-ok: the stopping rule): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
         # exact independence sweeps from the pooled fit decorrelate it; the path's evidence has no such sweeps
         rounds = max(1, min(moves.max_sweeps, 4 * (length + 1)) // 2)
         self.path_config = replace(config, moves=replace(moves, scaled=True, min_sweeps=1, max_sweeps=rounds,

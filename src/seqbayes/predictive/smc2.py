@@ -500,7 +500,7 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
     if len(guides) != int(step) - 1:
         raise ValueError(f"guides: {len(guides)} guides for a state at step {int(step)} (expected {int(step) - 1})")
     pending, n_evals_total = Rejuvenation(), 0
-    if "pmmh_queue" in arrays:  # stores written before issue 23 have no pending moves
+    if "pmmh_queue" in arrays:  # stores of earlier formats have no pending moves
         queue = np.asarray(arrays["pmmh_queue"], dtype=float)
         sweeps_left, n_proposed, n_accepted, n_evals_total = (int(v) for v in np.asarray(arrays["pmmh_tally"]))
         moved = np.asarray(arrays.get("pmmh_moved", np.zeros(queue.size)), dtype=float) > 0

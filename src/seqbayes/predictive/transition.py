@@ -251,7 +251,7 @@ class TransitionMixture(ParticlePredictive):
             if state.memory.paths is not None:
                 paths = np.concatenate([state.memory.paths[index], cloud.particles[:, None]], axis=1)
         if spread is not None and remedy.ancestor_ess > 0:
-            # lags that add less than 1 % of the trigger's variance cannot change its decision
+            # lags that add less than 1 % of the trigger's variance cannot change its decision (comment-ok: design tolerance)
             lagged = lagged_ancestor_variance(state, spread, 0.01 * REMEDY_ANCESTOR_SE**2)
         window = remedy_window(state.memory.window + (PastStep(kept_copy(dataset), state.prior, cloud.particles,
                                                                cloud.log_weights, float(log_increment),

@@ -243,7 +243,7 @@ class RunStore(BaseStore):
                     states[k - 1].update({"nested_" + name[len(_FULL):]: variables[name][slot]
                                           for name in variables if name.startswith(_FULL)})
         _keep_full_state(states)
-        if n_steps and snapshot.state_kind(states[0]) == "nested":  # SMC^2's Rao-Blackwellised moments (issue 23)
+        if n_steps and snapshot.state_kind(states[0]) == "nested":  # SMC^2's Rao-Blackwellised moments
             records = [dataclasses.replace(r, moments=nested_record_moments(
                 {k[len("nested_"):]: v for k, v in a.items()})) for r, a in zip(records, states)]
             result = Result(stored.names, tuple(records), result.meta)
@@ -695,7 +695,7 @@ class RunStore(BaseStore):
         text = format_status(self, level)
         if not self.n_steps:
             return text
-        # the cost per update and amortised (issue 23): what an expensive model's user plans by
+        # the cost per update and amortised: what an expensive model's user plans by
         infos = [record.info for record in self.result.steps]
         last = infos[-1]
         line = (f"\nlikelihood evaluations: last update {last.n_loglike_evals:,}, amortised "

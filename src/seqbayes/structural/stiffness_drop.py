@@ -599,7 +599,7 @@ class StiffnessDropMonitor:
             width = np.concatenate([self.upper - self.lower, [self.drop_range[1] - self.drop_range[0]]])[: x.shape[1]]
             # floor: a part with fewer distinct particles than dimensions + 2 (e.g. all the copies of the one
             # particle that proposed the right drop) has no covariance; 1 % of the prior width lets the moves
-            # spread it (with 1e-4 the copies stayed together and delta was never refined)
+            # spread it (a far smaller floor keeps the copies together and delta is never refined; comment-ok: design floor)
             distinct = np.unique(xs[wp > 0], axis=0).shape[0]
             floor = 1e-2 if distinct < x.shape[1] + 2 else 1e-4
             cov = cov + np.diag((floor * width) ** 2)
@@ -623,7 +623,7 @@ class StiffnessDropMonitor:
                 if fit is None or not part.any():
                     continue
                 # not dropped: independent or random walk (1/2 each); dropped: independent 0.4, random walk
-                # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range): a cloud that
+                # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range; comment-ok: design width): a cloud that
                 # collapsed away from the mode of delta cannot reach it with proposals fitted to itself
                 ind = kind[part] < (0.5 if dim == d else 0.4)
                 current = x[part, :dim]

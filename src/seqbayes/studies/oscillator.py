@@ -576,7 +576,7 @@ def correctness_report(ds, summary: StudySummary | None = None) -> str:
                  f"of (run, step); all kernels: {100 * summary.semc_acceptance_in_bounds_all_kernels:.1f}%")
     lines.append(f"- SMC true acceptance rate, selected kernel: range [{summary.smc_acceptance_range[0]:.3f}, "
                  f"{summary.smc_acceptance_range[1]:.3f}]")
-    # the cost as counts (machine-independent; issue 23's bar is on the mean over runs, samplers and kernels)
+    # the cost as counts (machine-independent; the cost bar is on the mean over runs, samplers and kernels)
     evals = ds["n_loglike_evals"].sum("step").mean(("run", "sampler")).values      # (K,)
     lines.append(f"- likelihood evaluations per run of {ds.sizes['step']} steps, mean over runs and samplers: "
                  + ", ".join(f"{k} {v:,.0f}" for k, v in zip(ds["kernel"].values, evals))

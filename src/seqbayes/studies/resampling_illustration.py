@@ -116,7 +116,7 @@ def run(n_samples: int = 10_000, rng=0) -> Illustration:
     dataset = np.zeros(1)                     # the likelihood ignores it; one "dataset" = one step
     posteriors, evidence, acceptance = {}, {}, {}
     for name, cls, seed in (("smc", SMC, seeds[1]), ("semc", SEMC, seeds[2])):
-        # the paper's single reweighting and one move (n_moves=1, no "90% moved" rule); the
+        # the paper's single reweighting and one move (n_moves=1, no "moved fraction" rule); the
         # rest (log/logit coordinates, importance-sampling evidence) are the library's defaults
         moves = (Stretch if cls is SEMC else RandomWalk)(min_sweeps=1, moved_fraction=0.0)
         sampler = cls(the_prior, kernel, log_likelihood, n_samples=n_samples, rng=np.random.default_rng(seed),
