@@ -156,7 +156,8 @@ def from_flat(kind: str = "SEMC", **flat) -> dict:
     remedy = make(PathSpace, "remedy", "paths") if flat.get("conflict_remedy", True) else make(Conflict, "remedy")
     inner = flat.get("inner_filter", ParticleInnerFilter(flat["n_inner"]) if "n_inner" in flat else None)
     smc2 = make(SMC2, "smc2", **({} if inner is None else {"inner": inner}))
-    method = flat.get("predictive", "auto")
+    # an inner filter given means SMC^2: a kernel it does not apply to is refused, not run without it
+    method = flat.get("predictive", "smc2" if inner is not None else "auto")
     transition = make(KernelDensity if method == "kde" else Transition, "transition")
     choices = {"auto": Auto(transition=transition, history=History(flat.get("history")), smc2=smc2), "transition": transition, "kde": transition,
                "history": History(flat.get("history")), "smc2": smc2}
