@@ -55,7 +55,7 @@ from .files import fsync_dir, journal_path
 from .locks import NOFOLLOW, NONBLOCK, os_message, target
 
 __all__ = ["OutputError", "Output", "check_outputs", "refuse_inputs", "write_output", "starts_with", "json_with_keys",
-           "read_head", "html_page", "png_figure", "forecast_file"]
+           "read_head", "html_page", "png_figure", "forecast_file", "claim_output_folder", "FOLDER_MARK"]
 
 #: Bytes of an existing target read to recognise it as an earlier output of the command.
 HEAD_BYTES = 1 << 16
@@ -318,3 +318,52 @@ def write_output(path: str | os.PathLike, content: str | bytes, option: str | No
         raise OutputError(f"{where}: cannot write: {err.strerror or err}; nothing was written{kept}") from None
     fsync_dir(folder)
     return path
+
+
+#: The file that marks a folder as the output of ``seqbayes example NAME`` (its content: the study's name).
+FOLDER_MARK = ".seqbayes-output"
+
+
+def claim_output_folder(path: str | os.PathLike, owner: str, *, inputs: Iterable = (), force: bool = False,
+                        option: str = "--out") -> Path:
+    """Make ``path`` the output folder of ``owner`` (a study's name) before anything is written there.
+
+    A missing folder is created; an empty one, or one that an earlier run of the same ``owner`` wrote (it holds
+    :data:`FOLDER_MARK` naming it), is taken. A folder holding anything else is refused unless ``force``, since
+    the study would overwrite files of the same names in it; a file, a FIFO or a device is always refused, as is
+    a folder that holds one of ``inputs``. Returns the folder.
+
+    Raises
+    ------
+    OutputError
+        ``{option} {path}: ...`` saying why and what to do.
+    """
+    folder = Path(path)
+    where = f"{option} {printable(folder)}"
+    if str(folder) in ("", "."):
+        raise OutputError(f"{option}: give a folder of its own for the study's files, got {str(path)!r}")
+    try:
+        info = os.stat(folder)
+    except FileNotFoundError:
+        info = None
+    except OSError as err:
+        raise OutputError(f"{where}: cannot be checked: {os_message(err)}") from None
+    if info is not None and not stat.S_ISDIR(info.st_mode):
+        raise OutputError(f"{where}: is not a folder; give a folder for the study's files (it is created)")
+    for item in inputs:
+        if Path(os.path.realpath(item)).is_relative_to(os.path.realpath(folder)):
+            raise OutputError(f"{where}: holds the input {printable(Path(item))}; give another folder")
+    if info is not None and not force:
+        mark = folder / FOLDER_MARK
+        entries = sorted(entry.name for entry in folder.iterdir())
+        ours = mark.is_file() and mark.read_text(encoding="utf-8", errors="replace").strip() == owner
+        if entries and not ours:
+            shown = ", ".join(printable(Path(name)) for name in entries[:3]) + (", ..." if len(entries) > 3 else "")
+            raise OutputError(f"{where}: holds files that seqbayes {owner} did not write ({shown}); give a new or "
+                              f"empty folder, or --force to write over files of the same names")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{where}: cannot be created: {os_message(err)}") from None
+    write_output(folder / FOLDER_MARK, owner + "\n", option)
+    return folder

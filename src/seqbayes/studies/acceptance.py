@@ -61,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from ._runner import map_tasks
+from ..store.targets import claim_output_folder, write_output
 
 __all__ = ["TARGETS", "START_STEP_SIZES", "PAPER_SETTINGS", "SETTINGS", "identical_partner_acceptance", "authors_rate",
            "run_config", "run_study", "bounds_table", "plot", "main"]
@@ -305,7 +306,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default min(2, cores))")
     parser.add_argument("--out", type=Path, default=Path("seqbayes-output/acceptance"))
     parser.add_argument("--quick", action="store_true", help="N = 500 only, 2 seeds (a smoke test)")
+    parser.add_argument("--force", action="store_true", help="write into --out although it holds other files")
     args = parser.parse_args(argv)
+    # before the work: never over a user's files
+    claim_output_folder(args.out, "example acceptance", force=args.force, option="--out")
     configs, seeds = (QUICK_CONFIGS, 2) if args.quick else (CONFIGS, args.seeds)
     ds = run_study(configs, seeds, args.workers)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -313,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     report = (f"SEMC acceptance rates, {seeds} seeds per configuration and target; wall time "
               f"{ds.attrs['wall_time']:.1f} s on {ds.attrs['workers']} worker(s)\n\n"
               + overall_bounds(ds) + "\n\n" + bounds_table(ds))
-    (args.out / "report.md").write_text(report + "\n")
+    write_output(args.out / "report.md", report + "\n")
     print(report)
     figure = args.out / "acceptance_rates.png"
     plot(ds, figure)

@@ -28,6 +28,7 @@ import numpy as np
 from ._runner import map_tasks
 from ..models import coulomb as model
 from ..predictive.smc2 import ParticleInnerFilter
+from ..store.targets import claim_output_folder, write_output
 
 __all__ = ["SAMPLER_SETTINGS", "BOUNDED_COST", "PAPER", "PAPER_STD", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
 
@@ -342,9 +343,9 @@ def write_outputs(study: CoulombStudy, figures: bool = True, runs: bool = True) 
     ``runs=False``) into ``study.out_dir``."""
     out = study.out_dir
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tables.md").write_text(tables_markdown(study))
+    write_output(out / "tables.md", tables_markdown(study))
     _write_csv(study, out / "tables.csv")
-    (out / "summary.txt").write_text(summary(study))
+    write_output(out / "summary.txt", summary(study))
     if runs:
         (out / "runs").mkdir(exist_ok=True)
         for (s, k), results in study.results.items():
@@ -519,7 +520,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=2023, help="root seed (2023)")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: up to 2)")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("--force", action="store_true", help="write into --out although it holds other files")
     args = parser.parse_args(argv)
+    # before the work: never over a user's files
+    claim_output_folder(args.out, "example coulomb", force=args.force, option="--out")
     n_runs = 2 if args.quick else args.runs
     start = time.perf_counter()
     study = run_study(n_runs=n_runs, n_samples=args.samples, seed=args.seed, out_dir=args.out,

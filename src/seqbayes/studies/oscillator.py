@@ -31,6 +31,7 @@ import numpy as np
 
 from ._runner import map_tasks
 from ..models import oscillator as osc
+from ..store.targets import claim_output_folder, write_output
 
 __all__ = ["SAMPLERS", "KERNELS", "QUANTILES", "DEFAULT_OPTIONS", "problem_seed", "run_task", "run_study",
            "StudySummary", "selection_log_evidence", "exact_errors", "summarise", "make_figures", "format_report",
@@ -758,7 +759,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--evidence-check", action="store_true",
                         help="instead of the study: log-evidence error over --replicates sampler seeds on one run")
     parser.add_argument("--replicates", type=int, default=10, help="sampler seeds of --evidence-check (default 10)")
+    parser.add_argument("--force", action="store_true", help="write into --out although it holds other files")
     args = parser.parse_args(argv)
+    # before the work: never over a user's files
+    claim_output_folder(args.out, "example oscillator", force=args.force, option="--out")
     if args.evidence_check:
         check = evidence_check(0, "T1", args.replicates, 300 if args.quick else args.samples, args.seed,
                                workers=args.workers)
@@ -770,7 +774,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     ds.to_netcdf(args.out / "oscillator_study.nc", engine="h5netcdf")
     report = format_report(ds, summary)
-    (args.out / "report.md").write_text(report + "\n")
+    write_output(args.out / "report.md", report + "\n")
     print(report)
     if not args.no_figures:
         for path in make_figures(ds, args.out, summary):

@@ -29,6 +29,7 @@ from ..priors import JointPrior
 from ..weights import multinomial
 from ..rng import as_generator
 from ..weights import log_mean_exp, normalise
+from ..store.targets import claim_output_folder
 
 __all__ = ["MODES", "COVARIANCE", "BOX", "prior", "log_likelihood", "exact_log_evidence",
            "Illustration", "run", "plot", "main"]
@@ -168,7 +169,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("seqbayes-output/resampling"),
                         help="directory for the figure")
+    parser.add_argument("--force", action="store_true", help="write into --out although it holds other files")
     args = parser.parse_args(argv)
+    # before the work: never over a user's files
+    claim_output_folder(args.out, "example resampling", force=args.force, option="--out")
     result = run(args.samples, args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
     figure = args.out / "resampling_illustration.png"

@@ -56,6 +56,7 @@ from ..structural.structures import (
     simulate,
 )
 from ..core.tempering import normalised_ess
+from ..store.targets import claim_output_folder, write_output
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
            "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",
@@ -576,6 +577,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="reduced run: 8 s, 150 members, level 4, short reference chain")
     parser.add_argument("--no-figures", action="store_true")
+    parser.add_argument("--force", action="store_true", help="write into --output although it holds other files")
     args = parser.parse_args(argv)
     if args.quick:
         args.duration, args.members, args.ref_walkers, args.ref_steps = 8.0, 150, 12, 40
@@ -585,8 +587,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [c for c in names if c not in CASES]
     if unknown:
         parser.error(f"--cases: unknown {unknown}; choose from {sorted(CASES)}")
-    folder = Path(args.output)
-    folder.mkdir(parents=True, exist_ok=True)
+    # before the work: never over a user's files
+    folder = claim_output_folder(args.output, "example shake-table", force=args.force, option="--output")
     progress = sys.stderr.isatty()
     outs, summaries = {}, []
     for i, name in enumerate(names):
@@ -604,11 +606,11 @@ def main(argv: list[str] | None = None) -> int:
     rc = [s for s in summaries if s["case"] in ("wc1", "wc2")]
     nest = [s for s in summaries if s["case"] == "nest"]
     if rc:
-        (folder / "table2.md").write_text(table_markdown(rc, "Table 2 analogue: RC frame (synthetic replica)"))
+        write_output(folder / "table2.md", table_markdown(rc, "Table 2 analogue: RC frame (synthetic replica)"))
     if nest:
-        (folder / "table4.md").write_text(table_markdown(nest, "Table 4 analogue: NEST (synthetic replica)"))
+        write_output(folder / "table4.md", table_markdown(nest, "Table 4 analogue: NEST (synthetic replica)"))
     settings = {k: v for k, v in vars(args).items()}
-    (folder / "summary.json").write_text(json.dumps({"settings": settings, "cases": summaries}, indent=2))
+    write_output(folder / "summary.json", json.dumps({"settings": settings, "cases": summaries}, indent=2))
     if not args.no_figures:
         _figures(outs, folder)
     print(f"wrote {folder}")
