@@ -117,8 +117,10 @@ class MonitorState:
 
 @dataclass(frozen=True)
 class StepInfo:
-    """What one assimilation did: its chunks, tempering stages, sweeps (passes over the history), acceptance and
-    the ESS after it."""
+    """What one assimilation did: its chunks, tempering stages, sweeps (passes over the history), acceptance,
+    the ESS after it, and its work: ``filter_updates``, the per-particle chunk updates of the filters (the new
+    chunks for every particle, then each sweep's pass over the whole history for every proposal inside the
+    prior's box)."""
 
     n_chunks: int
     n_stages: int
@@ -126,6 +128,7 @@ class StepInfo:
     acceptance: float
     ess: float
     log_evidence_increment: float
+    filter_updates: int = 0
 
 
 # ------------------------------------------------------------------------------------ the likelihood
@@ -273,7 +276,7 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
                                                     settings.chunk_particles)
                 new_target[index_in] = (model.prior.logpdf(proposal[index_in], model.n_modes) + prev
                                         + beta * (end - prev))
-                tally["passes"] += index_in.size
+                tally["passes"] += index_in.size * history.n_chunks
             accept = metropolis_accept(target, new_target, log_hastings, rng)
             tally["sweeps"] += 1
             tally["proposed"] += u.shape[0]
@@ -301,5 +304,6 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
     w = new.weights
     acceptance = tally["accepted"] / tally["proposed"] if tally["proposed"] else float("nan")
     info = StepInfo(history.n_chunks - first, tally["stages"], tally["sweeps"], acceptance, float(1.0 / (w @ w)),
-                    float(log_evidence - state.log_evidence))
+                    float(log_evidence - state.log_evidence),
+                    int(parts.u.shape[0] * (history.n_chunks - first) + tally["passes"]))
     return new, info

@@ -50,6 +50,9 @@ class MonitorDay:
         Tempering stages with a resample-move, and their sweeps (passes over the history).
     acceptance : float
         Of the sweeps' proposals (NaN without sweeps).
+    filter_updates : int
+        The update's work: per-particle chunk updates of the filters (the new day's for every particle, and each
+        move sweep's pass over the whole history).
     cpu_seconds : float
         Process CPU time of the update.
     """
@@ -67,6 +70,7 @@ class MonitorDay:
     n_stages: int
     n_sweeps: int
     acceptance: float
+    filter_updates: int
     cpu_seconds: float
 
     def to_dict(self) -> dict:
@@ -137,7 +141,7 @@ class Monitor:
         return MonitorDay(day, float(history.times[-1]), int(arrays[0].size), damage.p_damage, days_above,
                           rule.raised(days_above), damage, environment_summary(state, self.model),
                           state.log_evidence, info.ess, info.n_stages, info.n_sweeps, info.acceptance,
-                          time.process_time() - started)
+                          info.filter_updates, time.process_time() - started)
 
 
 def table_days(table: dict) -> list:
