@@ -238,7 +238,7 @@ class MonitorRunStore(BaseStore):
         out = np.full((sets.size, len(c.columns)), np.nan)
         out[:, 0] = sets
         seen = np.zeros((sets.size, n), dtype=bool)
-        k = 3 if with_sf else 2
+        k = 4 if with_sf else 3                       # the first of temperature and the covariates
         r = len(c.covariates)
         for row, s in enumerate(index):
             m = int(mode[row]) - 1
@@ -279,12 +279,15 @@ class MonitorRunStore(BaseStore):
         if np.any(np.isinf(table[:, 2 + r:])):
             raise DataError(f"{source}: a frequency or standard error is infinite")
         reference = np.asarray(self.config.build_model().reference_frequencies)
-        with np.errstate(all="ignore"):
-            ratio = np.nanmedian(f, axis=0) / reference
+        observed = np.isfinite(f).any(axis=0)
+        median = np.full(n, np.nan)
+        median[observed] = np.median(np.where(np.isfinite(f[:, observed]), f[:, observed], np.nan), axis=0) \
+            if np.all(np.isfinite(f[:, observed])) else np.array([np.median(c[np.isfinite(c)]) for c in f[:, observed].T])
+        ratio = median / reference
         far = np.flatnonzero(np.isfinite(ratio) & ((ratio > MAX_FREQUENCY_RATIO) | (ratio < 1 / MAX_FREQUENCY_RATIO)))
         if far.size:
             i = int(far[0])
-            raise DataError(f"{source}: mode {i + 1}'s frequencies (median {np.nanmedian(f[:, i]):.4g} Hz) lie "
+            raise DataError(f"{source}: mode {i + 1}'s frequencies (median {median[i]:.4g} Hz) lie "
                             f"{ratio[i]:.3g} times its reference {reference[i]:.4g} Hz; check the units (Hz), the "
                             f"column order and the run's model")
         return table
