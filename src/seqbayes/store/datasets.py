@@ -261,8 +261,24 @@ def read_datafile(path, config) -> np.ndarray:
         except OSError as err:  # unreadable (permissions, I/O error)
             raise DataError(f"{path}: cannot read: {err.strerror or err}") from None
     else:
-        table, lines = _read_csv(path, read_regular(path), config)
+        raw = read_regular(path)
+        if _rule(config, "missing", ()):
+            _refuse_nan_text(path, raw)
+        table, lines = _read_csv(path, raw, config)
     return check_table(table, config, str(path), lines)
+
+
+_NAN_TEXT = re.compile(rb"(?:^|[,\n])[ \t]*[+-]?(?:nan|inf|infinity)[ \t]*(?=[,\r\n]|$)", re.IGNORECASE)
+
+
+def _refuse_nan_text(path, raw: bytes) -> None:
+    """Where an empty cell means "not observed" (:attr:`TableSpec.missing`), a cell spelt ``nan`` or ``inf`` is
+    refused: it is a value gone wrong, not a gap."""
+    found = _NAN_TEXT.search(raw)
+    if found:
+        line = raw[:found.start() + 1].count(b"\n") + 1
+        raise DataError(f"{path}: line {line}: a cell holds '{printable(found.group().strip(b', ').decode('ascii', 'replace'), 12)}'; "
+                        f"a value not observed is an empty cell, and every other cell a finite number")
 
 
 def check_table(table, config, source: str = "table", lines=None) -> np.ndarray:

@@ -42,7 +42,7 @@ from .errors import StoreError
 from .monitor_config import RUN_KIND, MonitorRunConfig
 from .registry import register
 
-__all__ = ["MonitorRunStore", "MONITOR_FORMAT_VERSION", "DAY_RANGE", "TEMPERATURE_RANGE", "FREQUENCY_RANGE",
+__all__ = ["MonitorRunStore", "check_memory", "MONITOR_FORMAT_VERSION", "DAY_RANGE", "TEMPERATURE_RANGE", "FREQUENCY_RANGE",
            "COVARIATE_RANGE", "MAX_FREQUENCY_RATIO"]
 
 MONITOR_FORMAT_VERSION = 5
@@ -85,6 +85,21 @@ def _restore(arrays: dict):
                         float(a["log_evidence"]))
 
 
+def check_memory(n_particles: int, n_modes: int, n_days: int, n_covariates: int = 0) -> None:
+    """Refuse particles whose state cannot fit in this machine's memory (numpy's MemoryError would come mid-run):
+    the change bank keeps ``particles x modes x (p + 2)`` values per candidate day (``p = 4 + covariates``), and
+    an update holds about four copies of it."""
+    p = 4 + n_covariates
+    need = 4 * 8 * n_particles * n_modes * ((p + 2) * max(n_days, 1) + 2 * p * p)
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not POSIX: no bound known
+        return
+    if need > have:
+        raise DataError(f"--particles {n_particles}: the monitor's state over {n_days} days needs about "
+                        f"{need / 2**30:.3g} GiB of memory; this machine has {have / 2**30:.3g} GiB")
+
+
 @register(RUN_KIND)
 class MonitorRunStore(BaseStore):
     """An on-line monitor kept in one NetCDF-4 file (module docstring)."""
@@ -104,6 +119,12 @@ class MonitorRunStore(BaseStore):
     @classmethod
     def _new(cls, path: Path, config: MonitorRunConfig) -> "MonitorRunStore":
         return cls(path, config, Provenance([generator_state(np.random.default_rng(config.seed))]))
+
+    @classmethod
+    def in_memory(cls, config: MonitorRunConfig, path="<in memory>") -> "MonitorRunStore":
+        """A new run that is never written unless :meth:`write` is called (the replay of ``seqbayes environment``
+        without ``--store``: the same updates, no file)."""
+        return cls._new(Path(path), config)
 
     @classmethod
     def _from_file(cls, path: Path, attrs: dict, variables: dict, config, version: int) -> "MonitorRunStore":
