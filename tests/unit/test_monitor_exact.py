@@ -225,3 +225,21 @@ def test_lag_and_knee():
     assert ts[1, 24] == pytest.approx(10.0)
     assert ts[0, 47] == pytest.approx(10 * (1 - math.exp(-24 / 6)))
     np.testing.assert_allclose(knee(np.array([-5.0, 5.0]), 0.0, 1e-3), [5.0, 0.0], atol=1e-9)
+
+
+def test_mixture_quantiles_invert_the_truncated_mixture_cdf():
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    from seqbayes.structural.monitor.summary import mixture_quantiles
+
+    rng = np.random.default_rng(1)
+    w = rng.dirichlet(np.ones(5))
+    mu, sd = rng.normal(0, 1, (5, 2)), rng.uniform(0.2, 1.0, (5, 2))
+    q = mixture_quantiles(w, mu, sd, [0.025, 0.5, 0.975], lower_bound=-0.3)
+    for c in range(2):
+        def cdf(x):
+            return np.sum(w * (norm.cdf(x, mu[:, c], sd[:, c]) - norm.cdf(-0.3, mu[:, c], sd[:, c]))
+                          / norm.sf(-0.3, mu[:, c], sd[:, c]))
+        for k, p in enumerate((0.025, 0.5, 0.975)):
+            assert q[c, k] == pytest.approx(brentq(lambda x: cdf(x) - p, -0.3, 20), abs=1e-9)

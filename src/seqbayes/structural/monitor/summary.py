@@ -83,32 +83,33 @@ class EnvironmentSummary:
     p_lag: float
 
 
-def mixture_quantiles(weights, means, sds, probs, lower_bound: float = -np.inf, iterations: int = 80) -> np.ndarray:
-    """Quantiles of ``sum_k w_k N(mean_k, sd_k^2)`` truncated each to ``>= lower_bound``, by bisection."""
+def mixture_quantiles(weights, means, sds, probs, lower_bound: float = -np.inf, iterations: int = 60) -> np.ndarray:
+    """Quantiles of ``sum_k w_k N(mean_k, sd_k^2)`` truncated each to ``>= lower_bound``, by bisection.
+
+    ``means`` and ``sds`` are ``(K,)`` (one mixture: returns ``(Q,)``) or ``(K, C)`` (``C`` mixtures with the same
+    weights, bisected together: returns ``(C, Q)``).
+    """
     w = np.asarray(weights, dtype=float).reshape(-1)
-    mu = np.asarray(means, dtype=float).reshape(-1)
-    sd = np.maximum(np.asarray(sds, dtype=float).reshape(-1), 1e-300)
+    mu = np.asarray(means, dtype=float)
+    single = mu.ndim == 1
+    mu = mu.reshape(w.size, -1)
+    sd = np.maximum(np.asarray(sds, dtype=float).reshape(mu.shape), 1e-300)
     keep = w > 1e-12 * w.max()
-    w, mu, sd = w[keep] / w[keep].sum(), mu[keep], sd[keep]
+    w, mu, sd = w[keep] / w[keep].sum(), mu[keep].T, sd[keep].T                 # (C, K)
     floor = ndtr((lower_bound - mu) / sd) if np.isfinite(lower_bound) else np.zeros_like(mu)
-    mass = 1.0 - floor
-
-    def cdf(x):
-        return np.sum(w * (ndtr((x - mu) / sd) - floor) / np.maximum(mass, 1e-300))
-
-    out = []
-    lo0 = max(lower_bound, float(np.min(mu - 12 * sd)))
-    hi0 = float(np.max(mu + 12 * sd))
-    for q in np.atleast_1d(probs):
-        lo, hi = lo0, max(hi0, lo0 + 1e-300)
-        for _ in range(iterations):
-            mid = 0.5 * (lo + hi)
-            if cdf(mid) < q:
-                lo = mid
-            else:
-                hi = mid
-        out.append(0.5 * (lo + hi))
-    return np.array(out)
+    mass = np.maximum(1.0 - floor, 1e-300)
+    probs = np.atleast_1d(np.asarray(probs, dtype=float))
+    lo = np.maximum(lower_bound, np.min(mu - 12 * sd, axis=1))[:, None] + np.zeros(probs.size)     # (C, Q)
+    hi = np.maximum(np.max(mu + 12 * sd, axis=1)[:, None], lo + 1e-300) + np.zeros(probs.size)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        cdf = np.einsum("k,cqk->cq", w, (ndtr((mid[:, :, None] - mu[:, None, :]) / sd[:, None, :])
+                                         - floor[:, None, :]) / mass[:, None, :])
+        below = cdf < probs[None, :]
+        lo = np.where(below, mid, lo)
+        hi = np.where(below, hi, mid)
+    out = 0.5 * (lo + hi)
+    return out[0] if single else out
 
 
 def _exp_mean(mu, sd, a):
@@ -201,12 +202,16 @@ def environment_summary(state, model) -> EnvironmentSummary:
         out[f"noise_sd_{i + 1}"] = _weighted_estimate(np.sqrt(static.noise_var[:, i]), w)
     names = COEFFICIENTS + model.covariates
     mean, cov = parts.cache.filters.mean, parts.cache.filters.cov
+    r = len(names)
+    index = np.arange(2, 2 + r)
+    mu = mean[:, :, 2:2 + r].reshape(mean.shape[0], -1)                          # (N, modes * r), mode-major
+    sd = np.sqrt(np.maximum(cov[:, :, index, index], 0.0)).reshape(mean.shape[0], -1)
+    bounds = mixture_quantiles(w, mu, sd, [(1 - _LEVEL) / 2, (1 + _LEVEL) / 2])
     coefficients = {}
     for i in range(model.n_modes):
         for j, name in enumerate(names):
-            mu, sd = mean[:, i, 2 + j], np.sqrt(np.maximum(cov[:, i, 2 + j, 2 + j], 0.0))
-            lo, hi = mixture_quantiles(w, mu, sd, [(1 - _LEVEL) / 2, (1 + _LEVEL) / 2])
-            coefficients[f"{name}_{i + 1}"] = Estimate(float(w @ mu), float(lo), float(hi))
+            c = i * r + j
+            coefficients[f"{name}_{i + 1}"] = Estimate(float(w @ mu[:, c]), float(bounds[c, 0]), float(bounds[c, 1]))
     return EnvironmentSummary(out, coefficients, float(w @ (static.tau_hours > 1.0)))
 
 
