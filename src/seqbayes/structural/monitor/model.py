@@ -152,11 +152,11 @@ class MonitorSettings:
         bytes).
     """
 
-    n_particles: int = 256
+    n_particles: int = 128
     ess: float = 0.5
-    min_sweeps: int = 2
+    min_sweeps: int = 1
     max_sweeps: int = 10
-    moved_fraction: float = 0.8
+    moved_fraction: float = 0.5
     hazard: float = 1.0 / 365.0
     alarm: AlarmRule = AlarmRule()
     chunk_particles: int = 128
