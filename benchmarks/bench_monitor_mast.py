@@ -117,9 +117,11 @@ def main(argv=None):
     for s in status["steps"]:
         print(f"{s['day']:>4} {s['n_sets']:>5} {s['p_damage']:>10.3g} {'YES' if s['alarm'] else 'no':>6} "
               f"{s['cpu_seconds']:>6.2f}")
-    print(f"alarm: {'RAISED' if status['alarm'] else 'none'} (days above: "
-          f"{sum(s['p_damage'] > 0.95 for s in status['steps'])}); max P(damage) "
-          f"{max(s['p_damage'] for s in status['steps']):.3g}")
+    raised = [s["day"] for s in status["steps"] if s["alarm"]]
+    print(f"alarm: {'raised on day(s) ' + ', '.join(map(str, raised)) if raised else 'never raised'} (days with "
+          f"P(damage) > 0.95: {sum(s['p_damage'] > 0.95 for s in status['steps'])}); max P(damage) "
+          f"{max(s['p_damage'] for s in status['steps']):.3g} on day "
+          f"{max(status['steps'], key=lambda s: s['p_damage'])['day']}")
     env = status["environment"]
     print("| mode | reference [Hz] | temperature coefficient [1e-4 / degC] | 95 % interval | set noise sd [%] |")
     print("|---|---|---|---|---|")
