@@ -4,11 +4,14 @@ The target after chunk ``K`` is ``p(u) p(data | u)`` with ``p(data | u) = p0(dat
 P(d) BF_d(u)]`` (:mod:`~seqbayes.structural.monitor.change`): the no-damage filters' likelihood times the change's
 factor, exact given the static parameters ``u`` (:mod:`~seqbayes.structural.monitor.law`). A new dataset's chunks
 advance every particle's filters and bank (:func:`advance`: a few operations per chunk); the increments of the log
-target are then taken in by the one tempering loop (:func:`seqbayes.tempering.temper`), which resamples and moves
-the particles whenever the ESS would fall below ``ess * N``. A move is a random-walk Metropolis sweep in ``u`` with
-the particles' covariance; a proposal is weighed by a pass over the whole history (:func:`history_pass`: the
-filters forward, the bank by one backward recursion), so a move costs one pass per sweep however many candidate
-days the bank holds.
+target are then taken in by the one tempering loop (:func:`seqbayes.core.tempering.temper` with
+:class:`~seqbayes.core.tempering.TargetESS` and :func:`~seqbayes.core.tempering.between_stages`), which resamples
+(:func:`seqbayes.weights.resample`) and moves the particles whenever the ESS would fall below ``ess * N``. A move
+sweep proposes, for half the particles at random, a fresh draw of the Gaussian fitted to them
+(:class:`seqbayes.moves.scaled.FittedGaussian`, an independence proposal) and for the others a random-walk step
+with its covariance scaled by ``2.38^2 / d``; the shared :func:`seqbayes.moves.base.metropolis_accept` decides. A
+proposal is weighed by a pass over the whole history (:func:`history_pass`: the filters forward, the bank by one
+backward recursion), so a move costs one pass per sweep however many candidate days the bank holds.
 """
 
 from __future__ import annotations
