@@ -58,6 +58,7 @@ class Command:
     refuses: frozenset | None = None     # None: every class but a BOM and CRLF
     outputs: tuple = ()
     base: Callable | None = None
+    accepts: frozenset = frozenset()       # classes that may end in a result (by default only BOM and CRLF)
 
 
 #: Classes every reader refuses whatever the command's rules.
@@ -70,7 +71,10 @@ COMMANDS = {
     "environment": Command(("day", "temperature", "f1", "f2"), True, (4.0, 10.0),
                            lambda c: ["environment", c.table, "--masses", MASSES, "--stiffness", STIFFNESS,
                                       "--particles", "10", "--json", c.folder / "out.json"], "alarm day:",
-                           outputs=("out.json",)),
+                           outputs=("out.json",),
+                           # an empty frequency cell is a mode not identified in that set (a valid table);
+                           # a cell spelt nan or inf is refused (tests/unit/test_monitor_cli.py)
+                           accepts=frozenset({"NaN/inf"})),
     # `oma` is one more entry, e.g. "oma": Command(("t", "a1", "a2"), False, (), lambda c: ["oma", c.table, "--out",
     #     c.folder / "modes.csv"], "modes", outputs=("modes.csv",), refuses=READER_REFUSES, base=record_table),
 }
@@ -121,10 +125,11 @@ def run_case(name: str, index: int, root: Path, pristine, capsys) -> tuple:
         assert command.result in out, what
         if store:
             assert RunStore.open(store).n_steps == 2, what
-    refuses = command.refuses if command.refuses is not None else set(table.classes) - {"BOM", "CRLF"}
+    refuses = (command.refuses if command.refuses is not None
+               else set(table.classes) - {"BOM", "CRLF"} - set(command.accepts))
     if set(table.classes) & refuses:
         assert code == 2, f"expected a refusal: {what}"
-    elif command.refuses is None:
+    elif command.refuses is None and not set(table.classes) & set(command.accepts):
         assert code == 0, f"expected a result: {what}"
     return table.families, code
 

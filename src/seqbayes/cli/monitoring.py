@@ -17,70 +17,130 @@ ENVIRONMENT_HINTS = {"day": " (days since the first monitored day; --max-day set
                      "extra": "; name the columns to read with --columns DAY,TEMPERATURE,F1,...,Fn",
                      "header": "; or name the file's columns with --columns DAY,TEMPERATURE,F1,...,Fn",
                      "ascending": " (mode 1 is the lowest; check the column order)"}
-def cmd_environment(args: argparse.Namespace) -> int:
-    """Damage against temperature on a year of identified frequencies (docs/environment.md)."""
-    import numpy as np
+def _numbers(text, name):
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise CommandError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+    if not all(0 < v < float("inf") for v in values):
+        raise CommandError(f"{name}: expected positive finite numbers, got {text!r}")
+    return values
 
-    from ..store.datasets import read_datafile
-    from ..store.environment_report import write_environment_report
-    from ..store.targets import html_page, json_with_keys, write_output
-    from ..structural.environment import monitor_year
-    from ..structural.structures import ShearBuilding
-    from ..studies.environment import check_against_building, check_days, check_memory, year_spec
 
-    def numbers(text, name):
-        try:
-            values = [float(v) for v in text.split(",")]
-        except ValueError:
-            raise CommandError(f"{name}: expected comma-separated numbers, got {text!r}") from None
-        if not all(0 < v < float("inf") for v in values):
-            raise CommandError(f"{name}: expected positive finite numbers, got {text!r}")
-        return values
+def _environment_config(args):
+    """The monitor configuration of the replay: a shear building (--masses, --stiffness) or the mode-level
+    model (--frequencies)."""
+    from ..store.monitor_config import MonitorRunConfig
 
-    masses, stiffness = numbers(args.masses, "--masses"), numbers(args.stiffness, "--stiffness")
+    if args.frequencies is not None:
+        if args.masses or args.stiffness:
+            raise CommandError("--frequencies: give either --frequencies (no structural model) or --masses and "
+                               "--stiffness (a shear building), not both")
+        frequencies = _numbers(args.frequencies, "--frequencies")
+        if any(b <= a for a, b in zip(frequencies, frequencies[1:])):
+            raise CommandError(f"--frequencies: expected increasing frequencies (mode 1 lowest), got {args.frequencies!r}")
+        return MonitorRunConfig("environment", "modes", frequencies=tuple(frequencies), n_particles=args.particles,
+                                seed=args.seed, threshold=args.threshold, consecutive=args.consecutive)
+    if not args.masses or not args.stiffness:
+        raise CommandError("--masses, --stiffness: the shear building's floor masses and storey stiffnesses are "
+                           "needed (or --frequencies for the mode-level model without a structure)")
+    masses, stiffness = _numbers(args.masses, "--masses"), _numbers(args.stiffness, "--stiffness")
     if len(stiffness) != len(masses):
         raise CommandError(f"--stiffness: expected {len(masses)} values (one per storey, as --masses), got "
                            f"{len(stiffness)}")
-    building = ShearBuilding(masses, stiffness)
-    n = building.n_storeys
+    return MonitorRunConfig("environment", "shear_building", masses=tuple(masses), stiffnesses=tuple(stiffness),
+                            n_particles=args.particles, seed=args.seed, threshold=args.threshold,
+                            consecutive=args.consecutive)
+
+
+def cmd_environment(args: argparse.Namespace) -> int:
+    """A year CSV of identified frequencies replayed day by day through a monitor run store (docs/environment.md):
+    a temporary store, or ``--store`` (created, kept)."""
+    import dataclasses
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..store.datasets import read_datafile
+    from ..store.monitor import MonitorRunStore, check_memory
+    from ..store.targets import html_page, json_with_keys, write_output
+    from ..studies.environment import check_against_building, year_spec
+
+    config = _environment_config(args)
+    n = config.n_modes
+    stores = [args.store] if args.store else []
     targets = check_targets([("--json", args.json, json_with_keys("alarm_day", "p_damage", "environment")),
-                              ("--report", args.report, html_page)], inputs=[args.data], force=args.force)
+                              ("--report", args.report, html_page)], inputs=[args.data], stores=stores,
+                             force=args.force, run=("--store", args.store) if args.store else None)
     columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
     if columns is not None and len(columns) != n + 2:
-        raise CommandError(f"--columns: expected {n + 2} names (time, temperature and {n} frequencies for a "
-                           f"{n}-storey building), got {len(columns)}")
+        what = f"for a {n}-storey building" if config.model == "shear_building" else f"of the {n} modes"
+        raise CommandError(f"--columns: expected {n + 2} names (time, temperature and {n} frequencies {what}), got "
+                           f"{len(columns)}")
     spec = year_spec(n, columns=columns, day_range=(0.0, args.max_day), temperature_range=args.temperature_range,
                      frequency_range=args.frequency_range, hints=ENVIRONMENT_HINTS)
+    spec = dataclasses.replace(spec, missing=spec.columns[2:])          # an empty cell: a mode not identified
     values = read_datafile(args.data, spec)
-    table = {name: values[:, i] for i, name in enumerate(["day", "temperature"] + [f"f{r + 1}" for r in range(n)])}
-    check_against_building(args.data, building, table, spec.columns[2:])
-    check_memory(n, args.particles, len(np.unique(np.floor(table["day"]))))
-    start = len(NUMERIC.messages) if NUMERIC.messages is not None else 0
-    summary, monitor, days, records = monitor_year(building, table, rng=np.random.default_rng(args.seed),
-                                                   n_particles=args.particles, threshold=args.threshold,
-                                                   consecutive=args.consecutive)
-    numeric = (NUMERIC.messages or [])[start:]
-    check_days(args.data, days, records, numeric_summary(numeric).split(" (numpy")[0] if numeric else "")
-    print(f"{'day':>5} {'P(damage)':>10} {'storey':>6} {'loss':>7}  P(M0), P(M1), ...")
+    calendar = np.floor(values[:, 0]).astype(int)
+    check_memory(args.particles, n, np.unique(calendar).size)
+    if config.model == "shear_building":
+        from ..structural.structures import ShearBuilding
+
+        frequencies = values[:, 2:]
+        check_against_building(args.data, ShearBuilding(list(config.masses), list(config.stiffnesses)),
+                               {f"f{r + 1}": frequencies[np.isfinite(frequencies[:, r]), r] for r in range(n)},
+                               spec.columns[2:])
+    path = Path(args.store) if args.store else None
+    store = (MonitorRunStore.create(path, config, overwrite=bool(args.force)) if path is not None
+             else MonitorRunStore.in_memory(config))
+    table = np.full((values.shape[0], len(config.columns)), np.nan)
+    table[:, :values.shape[1]] = values
+    infos = []
+    name = Path(args.data).name
+    print(f"{'day':>5} {'P(damage)':>10} {'where':>6} {'loss %':>16} {'first day':>14}")
     previous = None
-    for day, record in zip(days, records):
-        above = record.p_damage > args.threshold
-        changed = previous is not None and (above != (previous.p_damage > args.threshold)
-                                            or record.alarm != previous.alarm)
-        previous = record
-        if day % args.every == 0 or changed or day == days[-1]:  # and the days the rule's state changes
-            damaged = record.storey is not None and record.p_damage > 0.5  # storey and loss mean little below
-            storey, loss = (str(record.storey), f"{record.damage_size:.3f}") if damaged else ("-", "-")
-            print(f"{day:>5} {record.p_damage:>10.3g} {storey:>6} {loss:>7}  "
-                  f"{', '.join(f'{p:.3g}' for p in record.model_probabilities)}{'  ALARM' if record.alarm else ''}")
-    environment = summary["environment"]
-    print(f"alarm day: {summary['alarm_day']}, storey: {summary['storey']}; learned under M{environment['model']}: "
-          f"alpha = {environment['alpha']:.3e}, beta = {environment['beta']:.3e}, sigma = {environment['sigma']:.3e}")
+    for d in np.unique(calendar):
+        info = store.assimilate(table[calendar == d], f"{name} day {d}", write=False)
+        infos.append(info)
+        above = info["p_damage"] > args.threshold
+        changed = previous is not None and (above != (previous["p_damage"] > args.threshold)
+                                            or info["alarm"] != previous["alarm"])
+        previous = info
+        if d % args.every == 0 or changed or d == calendar[-1]:
+            damage = info["damage"]
+            likely = info["p_damage"] > 0.5 and damage["size"] is not None
+            where = (damage["location"] or ",".join(str(i + 1) for i, p in enumerate(damage["class_probabilities"])
+                                                    if p > 0.5)) if likely else "-"
+            loss = (f"{100 * damage['size']['mean']:.2f} [{100 * damage['size']['lower']:.2f}, "
+                    f"{100 * damage['size']['upper']:.2f}]") if likely else "-"
+            first = (f"{damage['day']['mean']:.1f} [{damage['day']['lower']:.0f}, {damage['day']['upper']:.0f}]"
+                     if likely else "-")
+            print(f"{d:>5} {info['p_damage']:>10.3g} {where or '-':>6} {loss:>16} {first:>14}"
+                  f"{'  ALARM' if info['alarm'] else ''}")
+    if path is not None:
+        store.write()
+    alarms = [i["day"] for i in infos if i["alarm"]]
+    first_alarm = alarms[0] if alarms else None
+    at = infos[[i["day"] for i in infos].index(first_alarm)] if alarms else infos[-1]
+    environment = infos[-1]["environment"]
+    coefficients = ", ".join(f"{e['mean']:.3e}" for k, e in environment["coefficients"].items()
+                             if k.startswith("temperature_"))
+    lag = environment["static"]["thermal_lag_h"]
+    print(f"alarm day: {first_alarm}, {'element' if config.model == 'shear_building' else 'modes'}: "
+          f"{at['damage']['location'] if alarms else None}; learned: thermal lag {lag['mean']:.3g} h "
+          f"[{lag['lower']:.3g}, {lag['upper']:.3g}], temperature coefficients {coefficients} per degC")
+    if args.store:
+        print(f"run store: {path} ({store.n_steps} days; seqbayes status / update / report take it)")
     if "--json" in targets:
+        summary = {"alarm_day": first_alarm, "alarm_days": alarms,
+                   "element": at["damage"]["location"] if alarms else None,
+                   "days": [i["day"] for i in infos], "p_damage": [i["p_damage"] for i in infos],
+                   "environment": environment, "store": str(path) if args.store else None,
+                   "daily": [{k: v for k, v in i.items() if k != "environment"} for i in infos]}
         write_output(targets["--json"], json.dumps(summary, indent=1) + "\n", "--json")
     if "--report" in targets:
-        out = write_environment_report(targets["--report"], monitor, table, days, records, summary, source=args.data)
-        print(f"report: {out}")
+        store.write_report(targets["--report"])
+        print(f"report: {targets['--report']}")
     return 0
 
 
@@ -113,13 +173,20 @@ def add_commands(sub) -> None:
     """Register this module's commands on the ``seqbayes`` subparsers."""
     from ..studies.environment import DAY_RANGE, FREQUENCY_RANGE, TEMPERATURE_RANGE
 
-    p = sub.add_parser("environment", help="damage against temperature on a CSV of identified frequencies "
-                                            "(day,temperature,f1,...,fn)")
-    p.add_argument("data", help="CSV with the header day,temperature,f1,...,fn; one update per whole day")
-    p.add_argument("--masses", required=True, help="floor masses [kg], bottom to top, comma-separated")
-    p.add_argument("--stiffness", required=True, help="nominal storey stiffnesses [N/m], comma-separated")
+    p = sub.add_parser("environment", help="damage under a learned environment: a CSV of identified frequencies "
+                                            "(day,temperature,f1,...,fn) replayed day by day through a monitor run "
+                                            "store")
+    p.add_argument("data", help="CSV with the header day,temperature,f1,...,fn (an empty cell: a mode not identified "
+                                "in that set); one update per whole day")
+    p.add_argument("--masses", help="floor masses [kg], bottom to top, comma-separated (a shear building)")
+    p.add_argument("--stiffness", help="nominal storey stiffnesses [N/m], comma-separated")
+    p.add_argument("--frequencies", metavar="F1,F2,...",
+                   help="no structural model: each mode's reference frequency [Hz] (a loss is a lasting drop of "
+                        "modes, not located)")
+    p.add_argument("--store", metavar="NC", help="keep the monitor run store here (default: a temporary one); "
+                                                 "seqbayes update continues it day by day")
     p.add_argument("--particles", type=bounded(int, 10, MAX_PARTICLES), default=128,
-                   help="particles per model (default 128)")
+                   help="particles over the environmental law's static parameters (default 128)")
     p.add_argument("--threshold", type=bounded(float, 0, 1, open_low=True, open_high=True), default=0.95,
                    help="alarm when P(damage) exceeds this ...")
     p.add_argument("--consecutive", type=bounded(int, 1, 100_000), default=2, help="... on this many days in a row")
