@@ -40,6 +40,9 @@ __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_f
 #: A mode is reported from its poles at its lowest stable orders, where the model has no more states than
 #: it needs and its standard errors are calibrated (docs/oma.md, "Calibration"), averaged over this many orders.
 REPORT_ORDERS = 3
+#: A pole is stable when one of this many lower orders holds a pole that matches it (docs/oma.md: with one,
+#: the poles of a weakly excited mode seen at two channels that miss a match at one order fall apart).
+LOOKBACK = 2
 TOLERANCES = {"frequency_tol": 0.01, "damping_tol": 0.3, "mac_tol": 0.95, "max_damping": 0.15,
               "cluster_frequency": 0.0075, "cluster_mac": 0.2, "min_stable_fraction": 0.3}
 
@@ -120,22 +123,23 @@ def diagram_from_svd(U: np.ndarray, p: int, settings: Settings, tolerances: dict
     from .core import poles_at_order
 
     lo, hi = settings.band
-    diagram, previous = [], None
+    diagram = []
     for order in range(2, settings.max_order + 1, 2):
         poles = poles_at_order(U, p, order, settings.dt)
         inside = ((poles.frequencies >= lo) & (poles.frequencies <= hi) & (poles.damping_ratios > 0)
                   & (poles.damping_ratios < tolerances["max_damping"]))
         poles = Poles(order, poles.frequencies[inside], poles.damping_ratios[inside], poles.shapes[:, inside],
                       np.zeros(int(inside.sum()), dtype=bool), poles.mpc[inside], poles.mpd[inside])
-        if previous is not None and previous.frequencies.size and poles.frequencies.size:
-            df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
-            dz = np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None]) / poles.damping_ratios[:, None]
-            match = ((df < tolerances["frequency_tol"]) & (dz < tolerances["damping_tol"])
-                     & (complex_mac(poles.shapes, previous.shapes) > tolerances["mac_tol"]))
-            poles = Poles(order, poles.frequencies, poles.damping_ratios, poles.shapes, match.any(axis=1),
-                          poles.mpc, poles.mpd)
-        diagram.append(poles)
-        previous = poles
+        stable = np.zeros(poles.frequencies.size, dtype=bool)
+        for previous in diagram[-LOOKBACK:]:
+            if previous.frequencies.size and poles.frequencies.size:
+                df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
+                dz = (np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None])
+                      / poles.damping_ratios[:, None])
+                stable |= ((df < tolerances["frequency_tol"]) & (dz < tolerances["damping_tol"])
+                           & (complex_mac(poles.shapes, previous.shapes) > tolerances["mac_tol"])).any(axis=1)
+        diagram.append(Poles(order, poles.frequencies, poles.damping_ratios, poles.shapes, stable, poles.mpc,
+                             poles.mpd))
     return diagram
 
 
@@ -150,6 +154,30 @@ def _split_doubles(members: np.ndarray, frequencies: np.ndarray, orders: np.ndar
     cut = f[int(np.argmin(costs)) + 1]
     low, high = members[frequencies[members] < cut], members[frequencies[members] >= cut]
     return [low, high] if low.size and high.size else [members]
+
+
+def _join_fragments(groups: list[np.ndarray], frequencies: np.ndarray, orders: np.ndarray,
+                    tolerance: float) -> list[np.ndarray]:
+    """Clusters that are one mode's poles at different orders, split by the shape term (a weakly excited mode
+    seen at few channels, whose shape wanders from order to order), joined: two clusters whose median
+    frequencies are within ``tolerance`` (relative) and that share at most one order, nearest pair first.
+    Two modes cannot share many orders, so close modes that coexist over the diagram stay apart."""
+    groups = list(groups)
+    while len(groups) > 1:
+        medians = np.array([np.median(frequencies[g]) for g in groups])
+        sets = [set(orders[g].tolist()) for g in groups]
+        best, pair = tolerance, None
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                gap = abs(medians[a] - medians[b]) / max(medians[a], medians[b])
+                if gap < best and len(sets[a] & sets[b]) <= 1:
+                    best, pair = gap, (a, b)
+        if pair is None:
+            return groups
+        a, b = pair
+        groups[a] = np.concatenate([groups[a], groups[b]])
+        del groups[b]
+    return groups
 
 
 def cluster_poles(diagram: list[Poles], tolerances: dict) -> list[dict]:
@@ -179,6 +207,7 @@ def cluster_poles(diagram: list[Poles], tolerances: dict) -> list[dict]:
     groups = []
     for label in np.unique(labels):
         groups += _split_doubles(np.flatnonzero(labels == label), f, orders)
+    groups = _join_fragments(groups, f, orders, tolerances["cluster_frequency"] / 2)
     clusters = []
     for members in groups:
         median = np.median(f[members])
@@ -308,6 +337,21 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
                  candidates=np.array([c["median"] for c in rejected]))
 
 
+def _settled(cluster: dict) -> np.ndarray:
+    """The cluster's poles in order of preference to report the mode: first its lowest orders among those
+    whose frequency lies within three robust standard deviations of the cluster's median (the orders below,
+    where the model has too few states for the modes, give a compromise pole that has not settled), then the
+    others nearest the median. The mode is the mean of the first ``REPORT_ORDERS``."""
+    members = cluster["indices"][np.argsort(cluster["orders"][cluster["indices"]])]
+    deviation = np.abs(cluster["frequencies"][members] - cluster["median"])
+    spread = max(3 * 1.4826 * np.median(deviation), 1e-4 * cluster["median"])
+    inside = deviation <= spread
+    if inside.sum() < min(REPORT_ORDERS, members.size):
+        return members[np.argsort(deviation, kind="stable")]
+    outside = np.flatnonzero(~inside)
+    return np.concatenate([members[inside], members[outside[np.argsort(deviation[outside], kind="stable")]]])
+
+
 def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings: Settings) -> dict:
     """Each chosen cluster as a mode: the means of its poles' frequencies, damping ratios and real shapes
     over its ``REPORT_ORDERS`` lowest stable orders (shapes normalised at the largest component of the one
@@ -320,7 +364,8 @@ def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings
            "mpd": np.zeros(k), "orders": np.zeros(k, dtype=int)}
     jobs = []
     for slot, c in enumerate(clusters):
-        members = c["indices"][np.argsort(c["orders"][c["indices"]])[:REPORT_ORDERS]]
+        preference = _settled(c)
+        members = preference[:REPORT_ORDERS]
         f, z, shapes = c["frequencies"][members], c["damping"][members], c["shapes"][:, members]
         best = int(np.argmin(np.abs(f - c["median"])))
         reference = int(np.argmax(np.abs(shapes[:, best])))
@@ -330,9 +375,9 @@ def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings
         poles = diagram[order // 2 - 1]
         out["mpc"][slot], out["mpd"][slot] = poles.mpc[index], poles.mpd[index]
         out["orders"][slot], out["n_stable"][slot] = order, c["n_orders"]
-        jobs.append((c["orders"][members], f, shapes, reference))
+        jobs.append((c["orders"][preference], c["frequencies"][preference], c["shapes"][:, preference], reference))
     if blocks.n_blocks >= 2 and jobs:
-        for slot, (sf, sz, sphi) in enumerate(jackknife_clusters(blocks, p, settings.dt, jobs)):
+        for slot, (sf, sz, sphi) in enumerate(jackknife_clusters(blocks, p, settings.dt, jobs, REPORT_ORDERS)):
             out["std_frequencies"][slot], out["std_damping_ratios"][slot], out["std_shapes"][:, slot] = sf, sz, sphi
     ascending = np.argsort(out["frequencies"])
     return {key: (value[:, ascending] if value.ndim == 2 else value[ascending]) for key, value in out.items()}
