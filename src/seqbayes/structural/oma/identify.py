@@ -32,7 +32,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 
 from .core import Poles, check_record, complex_mac, real_shapes
 from .settings import Settings, choose_settings, decimate, normalise, warn
-from .uncertainty import jackknife_clusters, toeplitz_blocks
+from .uncertainty import settled_standard_errors, toeplitz_blocks
 
 __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_from_svd", "cluster_poles", "TOLERANCES"]
 
@@ -40,6 +40,9 @@ __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_f
 #: A mode is reported from its poles at its lowest stable orders, where the model has no more states than
 #: it needs and its standard errors are calibrated (docs/oma.md, "Calibration"), averaged over this many orders.
 REPORT_ORDERS = 3
+#: The standard errors are the first-order ones at the least sensitive of the mode's this many lowest settled
+#: orders (:func:`~.uncertainty.settled_standard_errors`).
+ERROR_ORDERS = 8
 #: A pole is stable when one of this many lower orders holds a pole that matches it (docs/oma.md: with one,
 #: the poles of a weakly excited mode seen at two channels that miss a match at one order fall apart).
 LOOKBACK = 2
@@ -375,9 +378,10 @@ def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings
         poles = diagram[order // 2 - 1]
         out["mpc"][slot], out["mpd"][slot] = poles.mpc[index], poles.mpd[index]
         out["orders"][slot], out["n_stable"][slot] = order, c["n_orders"]
-        jobs.append((c["orders"][preference], c["frequencies"][preference], c["shapes"][:, preference], reference))
+        candidates = preference[:ERROR_ORDERS]
+        jobs.append((c["orders"][candidates], c["frequencies"][candidates]))
     if blocks.n_blocks >= 2 and jobs:
-        for slot, (sf, sz, sphi) in enumerate(jackknife_clusters(blocks, p, settings.dt, jobs, REPORT_ORDERS)):
+        for slot, (sf, sz, sphi, _) in enumerate(settled_standard_errors(blocks, p, settings.dt, jobs)):
             out["std_frequencies"][slot], out["std_damping_ratios"][slot], out["std_shapes"][:, slot] = sf, sz, sphi
     ascending = np.argsort(out["frequencies"])
     return {key: (value[:, ascending] if value.ndim == 2 else value[ascending]) for key, value in out.items()}

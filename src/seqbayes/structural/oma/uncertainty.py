@@ -32,7 +32,8 @@ import numpy as np
 
 from .core import complex_mac, output_covariances, poles_at_order, toeplitz
 
-__all__ = ["ToeplitzBlocks", "toeplitz_blocks", "pole_derivatives", "pole_standard_errors", "jackknife_clusters"]
+__all__ = ["ToeplitzBlocks", "toeplitz_blocks", "pole_derivatives", "pole_standard_errors", "settled_standard_errors",
+           "jackknife_clusters"]
 
 
 @dataclass(frozen=True)
@@ -46,9 +47,9 @@ class ToeplitzBlocks:
     left, right : (nb, m, q), (nb, q, m) arrays
         ``G_k[:, :q]`` and ``G_k[:q, :]`` with ``G_k = U^T (T_k - mean T) V``, ``q`` the highest order kept.
     n_blocks : int
-    jackknife : (nb, m, q) array
+    jackknife : (nb, m, q) array or None
         Leading left singular vectors of each delete-one-block Toeplitz matrix
-        ``(nb mean(T) - T_k) / (nb - 1)``.
+        ``T - (T_k - mean T) / (nb - 1)`` (centred on the whole record's ``T``), when asked for.
     """
 
     U: np.ndarray
@@ -59,10 +60,12 @@ class ToeplitzBlocks:
     jackknife: np.ndarray | None = None
 
 
-def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: int) -> ToeplitzBlocks:
+def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: int,
+                    jackknife: bool = False) -> ToeplitzBlocks:
     """The SVD of ``T_s`` from the whole record ``y (T, p)`` and the block deviations up to ``max_order``.
 
-    ``n_blocks < 2`` skips the blocks (no standard errors).
+    ``n_blocks < 2`` skips the blocks (no standard errors); ``jackknife`` also decomposes each
+    delete-one-block Toeplitz matrix (for :func:`jackknife_clusters`; ``nb`` more SVDs).
     """
     s = block_rows
     H = toeplitz(output_covariances(y, 2 * s - 1), s)
@@ -77,8 +80,51 @@ def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: in
     q = min(max_order + 1, U.shape[0])
     G_left = np.einsum("im,kmj->kij", U.T, deviation @ Vt[:q].T)     # U^T dT V[:, :q]
     G_right = U[:, :q].T @ deviation @ Vt.T                            # U[:, :q]^T dT V
-    jackknife = np.stack([np.linalg.svd(H - deviation[k] / (n_blocks - 1))[0][:, :q] for k in range(n_blocks)])
-    return ToeplitzBlocks(U, S, G_left, G_right, n_blocks, jackknife)
+    if jackknife:
+        jackknife = np.stack([np.linalg.svd(H - deviation[k] / (n_blocks - 1))[0][:, :q] for k in range(n_blocks)])
+    return ToeplitzBlocks(U, S, G_left, G_right, n_blocks, jackknife if jackknife is not False else None)
+
+
+def settled_standard_errors(blocks: ToeplitzBlocks, p: int, dt: float, modes: list) -> list:
+    """First-order standard errors of modes, each at the least sensitive of its candidate orders.
+
+    Parameters
+    ----------
+    blocks : ToeplitzBlocks
+    p : int
+        Channels.
+    dt : float
+    modes : list of (orders (c,), frequencies (c,))
+        Each mode's poles in the whole record at its candidate orders (its lowest settled orders).
+
+    Returns
+    -------
+    list of (std_f, std_zeta, std_shape (p,), order) per mode
+        The first-order standard errors (:func:`pole_standard_errors`) of the mode's pole at the candidate
+        order where its frequency's is smallest, and that order. The first-order error of a pole is the
+        sum of what the mode carries at every order and of the rotation of noise singular vectors across the
+        cut, which grows without bound where two of them nearly coincide (at some orders above the true
+        one) but is specific to its order; the mode, read from several orders that agree, does not carry it
+        (docs/oma.md, "Calibration").
+    """
+    wanted = {}
+    for m, (orders, frequencies) in enumerate(modes):
+        for order, f0 in zip(orders, frequencies):
+            wanted.setdefault(int(order), []).append((m, float(f0)))
+    results = [[] for _ in modes]
+    for order, items in sorted(wanted.items()):
+        poles = poles_at_order(blocks.U, p, order, dt)
+        if poles.frequencies.size == 0:
+            continue
+        index = np.array([int(np.argmin(np.abs(poles.frequencies - f0))) for _, f0 in items])
+        sf, sz, sphi = pole_standard_errors(blocks, p, order, dt, index)
+        for j, (m, _) in enumerate(items):
+            results[m].append((sf[j], sz[j], sphi[:, j], order))
+    out = []
+    for rows in results:
+        finite = [r for r in rows if np.isfinite(r[0])]
+        out.append(min(finite, key=lambda r: r[0]) if finite else (np.nan, np.nan, np.full(p, np.nan), 0))
+    return out
 
 
 def jackknife_clusters(blocks: ToeplitzBlocks, p: int, dt: float, clusters: list, used: int | None = None,
@@ -110,6 +156,8 @@ def jackknife_clusters(blocks: ToeplitzBlocks, p: int, dt: float, clusters: list
         would have taken another order; the mode's mean over ``used`` orders is recomputed, and the
         jackknife variance ``(nb - 1) / nb sum_k (g_k - mean g)^2`` taken (:func:`_jackknife_std`).
     """
+    if blocks.jackknife is None:
+        raise ValueError("blocks: no delete-one-block decompositions; build them with toeplitz_blocks(..., jackknife=True)")
     values = [[] for _ in clusters]
     for U in blocks.jackknife:
         cache = {}
