@@ -381,7 +381,7 @@ def test_warnings_are_one_line_each_and_point_at_documentation_that_ships(run, m
         warnings.warn("step 4: prior-data conflict\nsecond line", PriorDataConflictWarning)
         return 0
 
-    monkeypatch.setattr(cli, "cmd_status", warns)
+    monkeypatch.setattr(cli.runs, "cmd_status", warns)
     code, _, err = cli_run(capsys, "status", run)
     assert code == 0 and err == "seqbayes: warning: PriorDataConflictWarning: step 4: prior-data conflict\\nsecond line\n"
     pointer = documented("prior_data_conflict")

@@ -353,7 +353,7 @@ def test_numpy_warnings_become_one_line_of_our_own(tmp_path, capsys, monkeypatch
         print("result")
         return 0
 
-    monkeypatch.setattr(cli, "cmd_status", noisy)
+    monkeypatch.setattr(cli.runs, "cmd_status", noisy)
     assert cli.main(["status", "RUN"]) == 0
     out, err = capsys.readouterr()
     assert out == "result\n"
@@ -366,7 +366,7 @@ def test_any_exception_is_one_line_and_traceback_shows_it(capsys, monkeypatch):
     def bug(args):
         return 1 // 0
 
-    monkeypatch.setattr(cli, "cmd_status", bug)
+    monkeypatch.setattr(cli.runs, "cmd_status", bug)
     assert cli.main(["status", "RUN"]) == 2
     err = capsys.readouterr().err
     assert err == ("seqbayes status: error: ZeroDivisionError in seqbayes: integer division or modulo by zero (a bug: "
@@ -377,7 +377,7 @@ def test_any_exception_is_one_line_and_traceback_shows_it(capsys, monkeypatch):
     def memory(args):
         raise MemoryError()
 
-    monkeypatch.setattr(cli, "cmd_status", memory)
+    monkeypatch.setattr(cli.runs, "cmd_status", memory)
     assert cli.main(["status", "RUN"]) == 2
     assert capsys.readouterr().err.startswith("seqbayes status: error: not enough memory for this run")
 

@@ -72,6 +72,9 @@ KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",),
 #: Optional settings of a jump kernel entry (``tail``: "gaussian" or "heavy"; or explicit ``scales``).
 JUMP_OPTIONAL = ("tail", "scales", "scale_weights")
 EXECUTORS = ("serial", "processes", "dask")
+#: Top-level table -> ``parse(raw, source, base_dir=...)`` of the configurations it marks, registered by the
+#: configuration module of a run kind that subclasses RunConfig (``"modal"``: seqbayes.store.modal_config)
+SECTION_PARSERS: dict = {}
 #: RunConfig fields that do not define the model (not in :meth:`RunConfig.fingerprint`).
 NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "likelihood_file",
                      "likelihood_sha256", "predict", "observed")
@@ -639,7 +642,9 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
     """Read and validate a TOML run configuration (the likelihood's module may sit next to it).
 
     A configuration with a ``[building]`` section is an SG-EnMCMC run: it is validated by
-    :func:`seqbayes.store.sg_config.parse_sg_config` and returned as a :class:`~seqbayes.store.sg_config.SGRunConfig`.
+    :func:`seqbayes.store.sg_config.parse_sg_config` and returned as a :class:`~seqbayes.store.sg_config.SGRunConfig`;
+    one with a table named in :data:`SECTION_PARSERS` by that table's parser (``[modal]``: a modal run,
+    :func:`seqbayes.store.modal_config.parse_modal_config`).
     """
     path = Path(path)
     raw = read_toml(path)
@@ -647,6 +652,9 @@ def load_config(path: str | os.PathLike, check_likelihood: bool = True) -> RunCo
         from .sg_config import parse_sg_config
 
         return parse_sg_config(raw, str(path), base_dir=path.parent)
+    for section, parse in SECTION_PARSERS.items():   # e.g. [modal]: seqbayes.store.modal_config
+        if section in raw:
+            return parse(raw, str(path), base_dir=path.parent)
     return parse_config(raw, str(path), base_dir=path.parent, check_likelihood=check_likelihood)
 
 import typing as _typing  # noqa: E402

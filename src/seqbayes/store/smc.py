@@ -150,6 +150,8 @@ class RunStore(BaseStore):
     operations = frozenset({"predict", "compare", "replace_last", "report --compare", "report --threshold",
                             "report --data"})
     evaluates_likelihood = True
+    #: the configuration class a stored run is read back as (a subclass's: seqbayes.store.modal)
+    config_type = RunConfig
 
     def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
                  rng_states, result: Result, states, step_sizes, digests, sources, tables=(), created=None,
@@ -195,7 +197,7 @@ class RunStore(BaseStore):
             raise StoreError(f"{path}: damaged run store: the content hash of its configuration and records "
                              f"does not match (the file was edited or corrupted)")
         try:
-            stored = RunConfig.from_dict(json.loads(attrs["config"]))
+            stored = cls.config_type.from_dict(json.loads(attrs["config"]))
         except (json.JSONDecodeError, TypeError) as err:
             raise StoreError(f"{path}: damaged run store: unreadable config attribute ({err})") from None
         cls._check_config(path, attrs, stored, config)

@@ -20,7 +20,7 @@ Every ``--json``, ``--report``, ``--output``/``-o`` and ``--out`` target (and th
    through. The free space is checked first; a full disk or a read-only folder is one
    :class:`OutputError`, and the old file stays as it was. A replaced file keeps its permission bits.
 
-The OMA and fleet commands call them the same way (with ``--force`` as ``seqbayes.cli.FORCE_OPTION``)::
+The OMA and fleet commands call them the same way (with ``--force`` as ``seqbayes.cli.common.FORCE_OPTION``)::
 
     from seqbayes.store.targets import Output, check_outputs, json_with_keys, starts_with, write_output
 
