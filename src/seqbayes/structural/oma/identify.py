@@ -28,10 +28,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import signal
 from scipy.cluster.hierarchy import fcluster, linkage
 
 from .core import Poles, check_record, complex_mac, real_shapes
-from .settings import Settings, choose_settings, decimate, normalise, warn
+from .settings import Settings, choose_settings, decimate, normalise, spectrum, warn
 from .uncertainty import settled_standard_errors, toeplitz_blocks
 
 __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_from_svd", "cluster_poles", "TOLERANCES"]
@@ -46,6 +47,11 @@ ERROR_ORDERS = 8
 #: A pole is stable when one of this many lower orders holds a pole that matches it (docs/oma.md: with one,
 #: the poles of a weakly excited mode seen at two channels that miss a match at one order fall apart).
 LOOKBACK = 2
+#: With ``n_modes`` given, a cluster within this relative frequency gap of a more persistent one, with a MAC above
+#: ``FRAGMENT_MAC`` with it, is a fragment of that mode, not another mode (:func:`_most_persistent`).
+FRAGMENT_GAP, FRAGMENT_MAC = 0.02, 0.95
+#: Prominence [dB] of a spectral peak that marks a cluster as a mode the record excites (``n_modes`` given).
+PEAK_PROMINENCE_DB = 3.0
 TOLERANCES = {"frequency_tol": 0.01, "damping_tol": 0.3, "mac_tol": 0.95, "max_damping": 0.15,
               "cluster_frequency": 0.0075, "cluster_mac": 0.2, "min_stable_fraction": 0.3}
 
@@ -318,7 +324,11 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
         if len(clusters) < n_modes:
             raise ValueError(f"n_modes: the stabilisation diagram has {len(clusters)} stable modes, fewer than the "
                              f"{n_modes} asked for (a longer record or a higher max_order may help)")
-        chosen = np.sort(np.argsort(-counts, kind="stable")[:n_modes])
+        chosen = _most_persistent(clusters, n_modes, spectrum(y, settings.dt))
+        if chosen.size < n_modes:
+            raise ValueError(f"n_modes: the stabilisation diagram has {chosen.size} distinct stable modes (and "
+                             f"{len(clusters) - chosen.size} fragments of them), fewer than the {n_modes} asked for "
+                             f"(a longer record or a higher max_order may help)")
     # a cluster stable at half the orders a mode needs is a candidate worth telling the user about
     rejected = [c for i, c in enumerate(clusters) if i not in set(chosen) and c["n_orders"] >= max(3, needed / 2)]
     modes = _report([clusters[i] for i in chosen], diagram, blocks, p, settings)
@@ -338,6 +348,43 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
     warn(messages)
     return Modes(**modes, status=status, messages=tuple(messages), settings=settings, diagram=tuple(diagram),
                  candidates=np.array([c["median"] for c in rejected]))
+
+
+def _representative_shape(cluster: dict) -> np.ndarray:
+    members = cluster["indices"]
+    return cluster["shapes"][:, members[np.argmin(np.abs(cluster["frequencies"][members] - cluster["median"]))]]
+
+
+def _near_a_peak(clusters: list[dict], freqs: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """Whether each cluster's frequency lies within ``FRAGMENT_GAP`` (or two bins) of a peak of the record's spectrum
+    (a prominence of ``PEAK_PROMINENCE_DB``): a mode the record excites shows in its spectrum."""
+    peaks, _ = signal.find_peaks(10 * np.log10(np.maximum(total, 1e-300)), prominence=PEAK_PROMINENCE_DB)
+    bin_width = freqs[1] - freqs[0]
+    return np.array([peaks.size > 0 and np.min(np.abs(freqs[peaks] - c["median"]))
+                     <= max(FRAGMENT_GAP * c["median"], 2 * bin_width) for c in clusters], dtype=bool)
+
+
+def _most_persistent(clusters: list[dict], n_modes: int, spectrum_=None) -> np.ndarray:
+    """Indices (ascending) of the ``n_modes`` clusters stable at the most orders, those at a peak of the spectrum
+    (``spectrum_``: frequencies and levels, :func:`_near_a_peak`) first, leaving out fragments of a mode already
+    chosen: a cluster within ``FRAGMENT_GAP`` in frequency of a more persistent one whose shape it repeats (MAC
+    above ``FRAGMENT_MAC``). In a short record a noise pole can be stable at more orders than a true mode, and
+    one mode's poles can fall into two clusters about 1 % apart (docs/oma.md, "record_row"); close modes 1 % apart
+    have different shapes."""
+    counts = np.array([c["n_orders"] for c in clusters])
+    peaked = _near_a_peak(clusters, *spectrum_) if spectrum_ is not None else np.ones(len(clusters), dtype=bool)
+    order = np.lexsort((-counts, ~peaked))
+    chosen = []
+    for i in order:
+        shape = _representative_shape(clusters[i])
+        fragment = any(abs(clusters[i]["median"] / clusters[j]["median"] - 1) < FRAGMENT_GAP
+                       and complex_mac(shape[:, None], _representative_shape(clusters[j])[:, None])[0, 0] > FRAGMENT_MAC
+                       for j in chosen)
+        if not fragment:
+            chosen.append(int(i))
+        if len(chosen) == n_modes:
+            break
+    return np.sort(np.array(chosen, dtype=int))
 
 
 def _settled(cluster: dict) -> np.ndarray:
