@@ -16,9 +16,12 @@
    modes 1 % apart stay apart whatever their shapes); a cluster holding two poles at many orders is two
    modes and is split by frequency (Reynders, Houbrechts & De Roeck 2012 use the same one-pole-per-order
    rule);
-4. a cluster is a mode when it holds stable poles at ``min_stable_fraction`` of the orders; its
-   representative is its pole nearest the cluster's median frequency, reported with the standard
-   errors of :mod:`.uncertainty` at that pole's order;
+4. a cluster is a mode when it holds stable poles at ``min_stable_fraction`` of the orders; it is
+   reported as the mean of its poles at its ``REPORT_ORDERS`` lowest settled orders (those whose frequency
+   lies within three robust standard deviations of the cluster's median: the orders below, with too few
+   states, give compromise poles), with the first-order standard errors of :mod:`.uncertainty` at the
+   least sensitive of its ``ERROR_ORDERS`` lowest settled orders; with ``n_modes`` given, the clusters at a
+   peak of the record's spectrum come first, then the most persistent, fragments of a chosen mode left out;
 5. a result with no mode, or with further candidates that were stable at too few orders, says so
    (:class:`~.settings.OMAWarning`, and ``Modes.status`` / ``Modes.messages``).
 """
@@ -292,8 +295,9 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
     dt : float
         Sampling step [s].
     n_modes : int, optional
-        Return the ``n_modes`` most persistent clusters instead of those stable at
-        ``min_stable_fraction`` of the orders (``ValueError`` if the diagram has fewer).
+        Return ``n_modes`` clusters instead of those stable at ``min_stable_fraction`` of the orders: those
+        at a peak of the record's spectrum first, then by the orders they are stable at, a fragment of a
+        chosen mode left out (``ValueError`` if the diagram has fewer).
     max_order, block_rows : int, optional
         Default: chosen from the record (:mod:`.settings`).
     band : (float, float), optional
@@ -404,9 +408,9 @@ def _settled(cluster: dict) -> np.ndarray:
 
 def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings: Settings) -> dict:
     """Each chosen cluster as a mode: the means of its poles' frequencies, damping ratios and real shapes
-    over its ``REPORT_ORDERS`` lowest stable orders (shapes normalised at the largest component of the one
-    nearest the median frequency), with their delete-one-block jackknife standard errors
-    (:func:`~.uncertainty.jackknife_clusters`)."""
+    over its ``REPORT_ORDERS`` lowest settled orders (:func:`_settled`; shapes normalised at the largest
+    component of the one nearest the median frequency), with the first-order standard errors at the least
+    sensitive of its ``ERROR_ORDERS`` lowest settled orders (:func:`~.uncertainty.settled_standard_errors`)."""
     k = len(clusters)
     out = {"frequencies": np.zeros(k), "damping_ratios": np.zeros(k), "shapes": np.zeros((p, k)),
            "n_stable": np.zeros(k, dtype=int), "std_frequencies": np.full(k, np.nan),
