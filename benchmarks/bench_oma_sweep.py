@@ -22,6 +22,7 @@ Run::
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --seeds 20 --json sweep.json
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py roving --seeds 10
     .venv/bin/python benchmarks/bench_oma_sweep.py tables sweep.json     # the tables of docs/oma.md
+    .venv/bin/python benchmarks/bench_oma_sweep.py tower-csv tower_setup1.csv   # the tower's setup 1 as a CSV
 """
 
 from __future__ import annotations
@@ -193,13 +194,40 @@ def tables(report: dict) -> str:
 
         lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | {row('spread', 100)} | "
                      f"{row('median_reported_sd', 100)} | {row('ratio_median', 1, 2)} | {row('ratio_rms', 1, 2)} |")
+    if all("mean_damping" in m for c in report["cells"] for m in c["modes"]):
+        lines += ["", "| fs [Hz] | minutes | channels | damping % (true 1.00), mean over seeds | its spread % | bias / "
+                  "its standard error | reported damping sd, median / spread |", "|---|---|---|---|---|---|---|"]
+        for c in report["cells"]:
+            modes = c["modes"]
+            def cells(values, digits=2, sign=""):
+                return ", ".join(f"{v:{sign}.{digits}f}" for v in values)
+
+            lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | "
+                         f"{cells(100 * m['mean_damping'] for m in modes)} | "
+                         f"{cells(100 * m['damping_spread'] for m in modes)} | "
+                         f"{cells((_bias_in_se(m) for m in modes), 1, '+')} | "
+                         f"{cells(m['damping_ratio_median'] for m in modes)} |")
     return "\n".join(lines)
+
+
+def _bias_in_se(mode: dict) -> float:
+    """The damping's mean error over the seeds in standard errors of that mean."""
+    return mode["damping_bias"] / (mode["damping_spread"] / np.sqrt(mode["found"]))
+
+
+def tower_csv(path: str) -> None:
+    """Setup 1 of the roving tower's seed 0 (the record of ``roving``) as the CSV ``seqbayes oma`` reads."""
+    channels = REFERENCES + ROVING[0]
+    y = modal_record(tower_model().select(channels), 328.0, 1 / 40, rng=np.random.default_rng([42, 0, 0]),
+                     force_corner_hz=2.0, noise="floor")
+    np.savetxt(path, np.column_stack([np.arange(len(y)) / 40, y]), delimiter=",", header=",".join(["time", *channels]),
+               comments="", fmt="%.8g")
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=["sweep", "roving", "tables"])
-    parser.add_argument("report", nargs="?", help="tables: a saved sweep --json report")
+    parser.add_argument("what", choices=["sweep", "roving", "tables", "tower-csv"])
+    parser.add_argument("report", nargs="?", help="tables: a saved sweep --json report; tower-csv: the CSV to write")
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--cells", nargs="*", help="FS:MINUTES:CHANNELS (default: the ten of the docs)")
     parser.add_argument("--json")
@@ -207,6 +235,9 @@ def main(argv=None) -> dict:
     if args.what == "tables":
         with open(args.report) as fh:
             print(tables(json.load(fh)))
+        return {}
+    if args.what == "tower-csv":
+        tower_csv(args.report)
         return {}
     report = sweep(args) if args.what == "sweep" else roving(args)
     if args.json:

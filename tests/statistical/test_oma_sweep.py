@@ -34,6 +34,22 @@ def test_sweep_cell_every_mode_within_half_percent_and_calibrated():
 
 
 @pytest.mark.slow
+def test_the_hardest_cell_meets_both_bars_over_its_20_seeds():
+    """20 Hz, 5 minutes, 2 channels (two close pairs 1 % apart seen at two channels, sampled at 2.7 times the highest
+    mode, no decimation possible), all 20 seeds of the benchmark: every mode within 0.5 % in at least 19, each
+    mode's median and root-mean-square reported standard error within a factor 1.5 of the spread over the seeds,
+    and the damping unbiased within three standard errors of its mean (the earlier version's 7.358 Hz mode had
+    18 of 20, ratios 0.50-0.72, and its damping was biased high; docs/oma.md)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cell = bench.run_cell(20, 5, 2, 20)
+    for mode in cell["modes"]:
+        assert mode["within_half_percent"] >= 19, mode
+        assert 1 / 1.5 < mode["ratio_median"] < 1.5 and 1 / 1.5 < mode["ratio_rms"] < 1.5, mode
+        assert abs(mode["damping_bias"]) < 3 * mode["damping_spread"] / np.sqrt(mode["found"]), mode
+
+
+@pytest.mark.slow
 def test_roving_tower_merged_with_the_defaults():
     """The issue's situation (four roving setups of 6-8 channels, 328 s at 40 Hz, two reference channels,
     sensor noise 5 % of the top floor's RMS): every setup finds the six lowest modes with no option given, and
