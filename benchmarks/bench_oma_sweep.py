@@ -21,6 +21,7 @@ Run::
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --seeds 20 --json sweep.json
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py roving --seeds 10
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --cells 20:60:20 --per-seed
     .venv/bin/python benchmarks/bench_oma_sweep.py tables sweep.json     # the tables of docs/oma.md
     .venv/bin/python benchmarks/bench_oma_sweep.py tower-csv tower_setup1.csv   # the tower's setup 1 as a CSV
 """
@@ -121,7 +122,8 @@ def run_cell(fs, minutes, channels, seeds) -> dict:
             "modes": summarise(np.array(errors), np.array(sds), model.frequencies, np.array(zetas), np.array(szetas),
                                model.damping_ratios),
             "spurious_per_seed": spurious, "statuses": {s: statuses.count(s) for s in sorted(set(statuses))},
-            "cpu_seconds_per_record": seconds / seeds}
+            "cpu_seconds_per_record": seconds / seeds,
+            "errors_per_seed": np.array(errors).tolist(), "reported_sd_per_seed": np.array(sds).tolist()}
 
 
 def sweep(args) -> dict:
@@ -133,6 +135,10 @@ def sweep(args) -> dict:
     for fs, minutes, channels in cells:
         cell = run_cell(fs, minutes, channels, args.seeds)
         out.append(cell)
+        if args.per_seed:
+            for seed, (e, sd) in enumerate(zip(cell["errors_per_seed"], cell["reported_sd_per_seed"])):
+                print(f"seed {seed}: error % (reported sd %) " + " ".join(f"{100 * a:+.3f} ({100 * b:.3f})"
+                                                                         for a, b in zip(e, sd)))
         for j, m in enumerate(cell["modes"]):
             tail = (f" {sum(cell['spurious_per_seed'])} | {cell['statuses']} |" if j == 0 else " | |")
             print(f"| {fs} | {minutes} | {channels} | {m['frequency']:.3f} | {m['within_half_percent']}/{args.seeds} | "
@@ -231,6 +237,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--cells", nargs="*", help="FS:MINUTES:CHANNELS (default: the ten of the docs)")
     parser.add_argument("--json")
+    parser.add_argument("--per-seed", action="store_true", help="sweep: also each seed's errors and reported sds")
     args = parser.parse_args(argv)
     if args.what == "tables":
         with open(args.report) as fh:
