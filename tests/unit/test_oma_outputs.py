@@ -132,3 +132,19 @@ def test_track_refuses_a_fifo_without_waiting(tmp_path, capsys):
     os.mkfifo(fifo)
     code, err = _run(capsys, ["track", fifo, "--out", tmp_path / "out"])
     assert code == 2 and "FIFO" in err
+
+
+def test_track_removes_its_own_stale_datasets_and_refuses_a_foreign_one(tmp_path, capsys):
+    """A second run with fewer records: the first run's datasets beyond the new ones would be read by
+    ``seqbayes update DIR/record_*.csv``; they are removed (they are this command's), a foreign file of that
+    name is refused."""
+    out = tmp_path / "tracked"
+    assert _run(capsys, ["track", _poles(tmp_path / "long.csv", n_days=4), "--out", out])[0] == 0
+    before = sorted(p.name for p in out.glob("record_*.csv"))
+    assert _run(capsys, ["track", _poles(tmp_path / "short.csv", n_days=3), "--out", out])[0] == 0
+    after = sorted(p.name for p in out.glob("record_*.csv"))
+    assert len(after) < len(before) and after == before[:len(after)]
+    (out / "record_999.csv").write_text("my notes\n")
+    code, err = _run(capsys, ["track", tmp_path / "short.csv", "--out", out])
+    assert code == 2 and "record_999.csv: matches the datasets' names" in err
+    assert (out / "record_999.csv").read_text() == "my notes\n"

@@ -123,19 +123,44 @@ def track_to_folder(poles_path, out, *, covariates_path=None, prefix: str = "rec
     check_outputs([Output("--out", out / name, recognise.get(name, starts_with(b"time_start,day,slot,mode,")),
                           creates_folder=True) for name in contents],
                   inputs=[p for p in (poles_path, covariates_path) if p], force=force)
+    stale = _stale_datasets(out, prefix, contents, force)
     out.mkdir(parents=True, exist_ok=True)
     for name, text in contents.items():
         write_output(out / name, text, "--out")
+    for path in stale:          # an earlier run's datasets beyond this run's: `update DIR/prefix_*.csv` would read them
+        path.unlink(missing_ok=True)
     files = [out / name for name in contents if name.endswith(".csv") and name != "tracking.csv"]
     found = ", ".join(f"{f:.4g}" for f in reference.frequencies)
     total = poles.n_rows
     spurious = int(tracked.spurious.sum())
+    removed = f"; removed {len(stale)} datasets of an earlier run beyond these" if stale else ""
     lines = [f"{len(tracked.rows)} records, {total} poles: {reference.n_modes} modes tracked (starting at {found} Hz), "
              f"{spurious} poles ({100 * spurious / total:.0f} %) assigned to no mode",
              tracked.summary(),
              f"wrote {len(files)} datasets ({files[0].name} .. {files[-1].name}), tracking.csv and run.toml in {out}"
-             if files else f"no record holds a tracked mode: no dataset; wrote tracking.csv and run.toml in {out}"]
+             f"{removed}" if files else f"no record holds a tracked mode: no dataset; wrote tracking.csv and run.toml in {out}"]
     return "\n".join(lines)
+
+
+def _stale_datasets(out: Path, prefix: str, contents: dict, force: bool) -> list[Path]:
+    """``out``'s ``<prefix>_*.csv`` that this run does not write: earlier datasets of this command, to remove (a
+    later ``seqbayes update DIR/<prefix>_*.csv`` would read them as records); another file of that name is
+    refused unless ``force`` (then left alone)."""
+    if not out.is_dir():
+        return []
+    recognise = starts_with(b"time_start,day,slot,mode,")
+    stale = []
+    for path in sorted(out.glob(f"{prefix}_*.csv")):
+        if path.name in contents or not re.fullmatch(re.escape(prefix) + r"_\d+\.csv", path.name):
+            continue
+        head = read_head(path)
+        if head is not None and recognise(head):
+            stale.append(path)
+        elif not force:
+            raise ValueError(f"--out {printable(path)}: matches the datasets' names ({prefix}_NNN.csv) but is not one "
+                             f"this command wrote, and `seqbayes update {printable(out)}/{prefix}_*.csv` would read it; "
+                             f"move it, give another --prefix or --out, or --force to leave it")
+    return stale
 
 
 def _tracking_text(tracked, covariates) -> str:
