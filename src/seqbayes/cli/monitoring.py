@@ -113,7 +113,7 @@ def cmd_oma(args: argparse.Namespace) -> int:
                             ("--diagram", lambda: diagram_png(modes))):
         if option in targets:
             write_output(targets[option], content(), option)
-            print(f"{option[2:]}: {targets[option]}")
+            print(f"{ {'--out': 'modes'}.get(option, option[2:]) }: {targets[option]}")
     return 1 if modes.status == "empty" else 0
 
 
