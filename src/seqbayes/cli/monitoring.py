@@ -108,12 +108,12 @@ def cmd_oma(args: argparse.Namespace) -> int:
     modes = ssi_cov(y, dt, band=band)
     print("\n".join(summary_lines(Path(args.record).name, y.shape, dt, modes)))
     day = float("nan") if args.day is None else float(args.day)
-    for option, content in (("--out", lambda: modes_csv(modes, channels, day)),
-                            ("--json", lambda: modes_json(modes, channels, day, args.record)),
-                            ("--diagram", lambda: diagram_png(modes))):
+    for option, label, content in (("--out", "modes", lambda: modes_csv(modes, channels, day)),
+                                   ("--json", "json", lambda: modes_json(modes, channels, day, args.record)),
+                                   ("--diagram", "diagram", lambda: diagram_png(modes))):
         if option in targets:
             write_output(targets[option], content(), option)
-            print(f"{ {'--out': 'modes'}.get(option, option[2:]) }: {targets[option]}")
+            print(f"{label}: {targets[option]}")
     return 1 if modes.status == "empty" else 0
 
 
