@@ -41,6 +41,12 @@ def cases(folder: Path):
     nan[100, 2] = np.nan
     fifo = folder / "pipe.csv"
     os.mkfifo(fifo)
+    notes = folder / "notes.csv"
+    notes.write_text("the user's own notes\n")
+    headerless = folder / "headerless.csv"
+    np.savetxt(headerless, y, delimiter=",", fmt="%.8g")
+    semicolons = folder / "semicolons.csv"
+    semicolons.write_text("time;a;b\n0;1.5;2.5\n0.05;1.6;2.4\n")
     return [
         ("constant record", [npy("constant", np.full_like(y, 3.0)), "--fs", "20"]),
         ("one constant channel", [npy("flat", np.column_stack([y[:, :3], np.full(len(y), 2.0)])), "--fs", "20"]),
@@ -57,6 +63,9 @@ def cases(folder: Path):
                                        "--band", "1,6"]),
         ("a FIFO as the record", [str(fifo), "--fs", "20"]),
         ("the output is the record", [str(timed), "--fs", "20", "--out", str(timed)]),
+        ("the output is a file the command did not write", [str(timed), "--fs", "20", "--out", str(notes)]),
+        ("a CSV without a header row", [str(headerless), "--fs", "20"]),
+        ("a CSV separated by ';'", [str(semicolons), "--fs", "20"]),
     ]
 
 

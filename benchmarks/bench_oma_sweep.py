@@ -21,7 +21,9 @@ Run::
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --seeds 20 --json sweep.json
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py roving --seeds 10
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oma_sweep.py sweep --cells 20:60:20 --per-seed
     .venv/bin/python benchmarks/bench_oma_sweep.py tables sweep.json     # the tables of docs/oma.md
+    .venv/bin/python benchmarks/bench_oma_sweep.py tower-csv tower_setup1.csv   # the tower's setup 1 as a CSV
 """
 
 from __future__ import annotations
@@ -54,20 +56,28 @@ def tower_model():
     return building_3d(15, (1.23, 1.29, 1.45), damping=0.015, max_frequency=16.0, sensors=sensors)
 
 
-def score(found_f, found_sd, truth, tol=0.02):
+def score(found_f, found_sd, truth, tol=0.02, found_z=None, found_sz=None):
     """Per true mode: relative error and relative reported sd of the nearest identified mode (NaN if none
-    within ``tol``); and the number of identified modes more than ``tol`` from every true mode."""
+    within ``tol``), and its damping ratio and reported damping sd; and the number of identified modes more
+    than ``tol`` from every true mode."""
     err, sd = np.full(truth.size, np.nan), np.full(truth.size, np.nan)
+    zeta, szeta = np.full(truth.size, np.nan), np.full(truth.size, np.nan)
     for i, f in enumerate(truth):
         if found_f.size:
             j = int(np.argmin(np.abs(found_f - f)))
             if abs(found_f[j] / f - 1) < tol:
                 err[i], sd[i] = found_f[j] / f - 1, found_sd[j] / f
+                if found_z is not None:
+                    zeta[i], szeta[i] = found_z[j], found_sz[j]
     spurious = int(sum(np.min(np.abs(truth / f - 1)) >= tol for f in found_f))
-    return err, sd, spurious
+    return err, sd, spurious, zeta, szeta
 
 
-def summarise(errors, sds, truth) -> list[dict]:
+def summarise(errors, sds, truth, zetas=None, szetas=None, true_zeta=None) -> list[dict]:
+    """Per mode: accuracy (within 0.5 %, largest error), spread over seeds, the reported sd as its median and
+    root mean square over the seeds and their ratios to the spread, the rms of the standardised errors
+    ``e / sd``, the largest ratio of a seed's reported sd to the spread; and the same for the damping ratio
+    (its mean, bias against ``true_zeta`` and spread) when given."""
     rows = []
     for i, f in enumerate(truth):
         e, s = errors[:, i], sds[:, i]
@@ -75,16 +85,28 @@ def summarise(errors, sds, truth) -> list[dict]:
         spread = float(np.std(e[ok], ddof=1)) if ok.sum() > 2 else float("nan")
         rms = float(np.sqrt(np.nanmean(s[ok] ** 2))) if ok.any() else float("nan")
         median = float(np.nanmedian(s[ok])) if ok.any() else float("nan")
-        rows.append({"frequency": float(f), "found": int(ok.sum()), "within_half_percent": int(np.sum(np.abs(e[ok]) < 0.005)),
-                     "max_abs_error": float(np.max(np.abs(e[ok]))) if ok.any() else float("nan"), "spread": spread,
-                     "rms_reported_sd": rms, "median_reported_sd": median, "ratio_rms": rms / spread,
-                     "ratio_median": median / spread})
+        row = {"frequency": float(f), "found": int(ok.sum()),
+               "within_half_percent": int(np.sum(np.abs(e[ok]) < 0.005)),
+               "max_abs_error": float(np.max(np.abs(e[ok]))) if ok.any() else float("nan"), "spread": spread,
+               "rms_reported_sd": rms, "median_reported_sd": median, "ratio_rms": rms / spread,
+               "ratio_median": median / spread,
+               "ratio_max": float(np.nanmax(s[ok]) / spread) if ok.any() else float("nan"),
+               "rms_standardised_error": float(np.sqrt(np.nanmean((e[ok] / s[ok]) ** 2))) if ok.any() else float("nan")}
+        if zetas is not None:
+            z, sz = zetas[:, i], szetas[:, i]
+            okz = np.isfinite(z)
+            z_spread = float(np.std(z[okz], ddof=1)) if okz.sum() > 2 else float("nan")
+            row.update({"true_damping": float(true_zeta[i]), "mean_damping": float(np.mean(z[okz])),
+                        "damping_bias": float(np.mean(z[okz]) - true_zeta[i]), "damping_spread": z_spread,
+                        "damping_ratio_median": float(np.nanmedian(sz[okz]) / z_spread),
+                        "damping_ratio_rms": float(np.sqrt(np.nanmean(sz[okz] ** 2)) / z_spread)})
+        rows.append(row)
     return rows
 
 
 def run_cell(fs, minutes, channels, seeds) -> dict:
     model = sweep_model(channels)
-    errors, sds, spurious, statuses, seconds = [], [], [], [], 0.0
+    errors, sds, zetas, szetas, spurious, statuses, seconds = [], [], [], [], [], [], 0.0
     for seed in range(seeds):
         y = modal_record(model, 60.0 * minutes, 1.0 / fs, rng=np.random.default_rng([38, fs, minutes, channels, seed]))
         start = time.process_time()
@@ -92,13 +114,16 @@ def run_cell(fs, minutes, channels, seeds) -> dict:
             warnings.simplefilter("always")
             modes = ssi_cov(y, 1.0 / fs)
         seconds += time.process_time() - start
-        e, s, n = score(modes.frequencies, modes.std_frequencies, model.frequencies)
-        errors.append(e), sds.append(s), spurious.append(n)
+        e, s, n, z, sz = score(modes.frequencies, modes.std_frequencies, model.frequencies, found_z=modes.damping_ratios,
+                               found_sz=modes.std_damping_ratios)
+        errors.append(e), sds.append(s), spurious.append(n), zetas.append(z), szetas.append(sz)
         statuses.append(modes.status + ("+warned" if caught else ""))
     return {"fs": fs, "minutes": minutes, "channels": channels, "seeds": seeds,
-            "modes": summarise(np.array(errors), np.array(sds), model.frequencies),
+            "modes": summarise(np.array(errors), np.array(sds), model.frequencies, np.array(zetas), np.array(szetas),
+                               model.damping_ratios),
             "spurious_per_seed": spurious, "statuses": {s: statuses.count(s) for s in sorted(set(statuses))},
-            "cpu_seconds_per_record": seconds / seeds}
+            "cpu_seconds_per_record": seconds / seeds,
+            "errors_per_seed": np.array(errors).tolist(), "reported_sd_per_seed": np.array(sds).tolist()}
 
 
 def sweep(args) -> dict:
@@ -110,6 +135,10 @@ def sweep(args) -> dict:
     for fs, minutes, channels in cells:
         cell = run_cell(fs, minutes, channels, args.seeds)
         out.append(cell)
+        if args.per_seed:
+            for seed, (e, sd) in enumerate(zip(cell["errors_per_seed"], cell["reported_sd_per_seed"])):
+                print(f"seed {seed}: error % (reported sd %) " + " ".join(f"{100 * a:+.3f} ({100 * b:.3f})"
+                                                                         for a, b in zip(e, sd)))
         for j, m in enumerate(cell["modes"]):
             tail = (f" {sum(cell['spurious_per_seed'])} | {cell['statuses']} |" if j == 0 else " | |")
             print(f"| {fs} | {minutes} | {channels} | {m['frequency']:.3f} | {m['within_half_percent']}/{args.seeds} | "
@@ -122,7 +151,7 @@ def sweep(args) -> dict:
 def roving(args) -> dict:
     model = tower_model()
     truth = model.frequencies[:6]
-    errors, sds, found_all, per_setup, spurious = [], [], [], [], []
+    errors, sds, zetas, szetas, found_all, per_setup, spurious = [], [], [], [], [], [], []
     for seed in range(args.seeds):
         records, names = [], []
         for j, rover in enumerate(ROVING):
@@ -133,19 +162,23 @@ def roving(args) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             merged = ssi_cov_setups(records, 1 / 40, names, REFERENCES)
-        e, s, n = score(merged.frequencies, merged.std_frequencies, truth)
-        errors.append(e), sds.append(s), spurious.append(n)
+        e, s, n, z, sz = score(merged.frequencies, merged.std_frequencies, truth, found_z=merged.damping_ratios,
+                               found_sz=merged.std_damping_ratios)
+        errors.append(e), sds.append(s), spurious.append(n), zetas.append(z), szetas.append(sz)
         per_setup.append([int(sum(np.isfinite(score(m.frequencies, m.std_frequencies, truth)[0]))) for m in merged.setups])
         found_all.append(bool(np.all(np.isfinite(e))))
-    rows = summarise(np.array(errors), np.array(sds), truth)
+    rows = summarise(np.array(errors), np.array(sds), truth, np.array(zetas), np.array(szetas),
+                     model.damping_ratios[:6])
     print(f"roving tower, {args.seeds} seeds: all six lowest modes in the merged result in {sum(found_all)} seeds; "
           f"per setup (of 6): {per_setup if args.seeds <= 5 else np.mean(per_setup, axis=0).round(2).tolist()}")
-    print("| mode f [Hz] | found | within 0.5 % | max err % | spread % | reported sd % (rms / median) | ratio |")
-    print("|---|---|---|---|---|---|---|")
+    print("| mode f [Hz] | found | within 0.5 % | max err % | spread % | reported sd % (rms / median) | ratio "
+          "(rms / median) | damping % (true / mean, spread) |")
+    print("|---|---|---|---|---|---|---|---|")
     for m in rows:
         print(f"| {m['frequency']:.3f} | {m['found']} | {m['within_half_percent']} | {100 * m['max_abs_error']:.3f} | "
               f"{100 * m['spread']:.3f} | {100 * m['rms_reported_sd']:.3f} / {100 * m['median_reported_sd']:.3f} | "
-              f"{m['ratio_rms']:.2f} / {m['ratio_median']:.2f} |")
+              f"{m['ratio_rms']:.2f} / {m['ratio_median']:.2f} | {100 * m['true_damping']:.2f} / "
+              f"{100 * m['mean_damping']:.2f}, {100 * m['damping_spread']:.2f} |")
     return {"modes": rows, "all_six": found_all, "per_setup": per_setup, "spurious": spurious}
 
 
@@ -167,20 +200,51 @@ def tables(report: dict) -> str:
 
         lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | {row('spread', 100)} | "
                      f"{row('median_reported_sd', 100)} | {row('ratio_median', 1, 2)} | {row('ratio_rms', 1, 2)} |")
+    if all("mean_damping" in m for c in report["cells"] for m in c["modes"]):
+        lines += ["", "| fs [Hz] | minutes | channels | damping % (true 1.00), mean over seeds | its spread % | bias / "
+                  "its standard error | reported damping sd, median / spread |", "|---|---|---|---|---|---|---|"]
+        for c in report["cells"]:
+            modes = c["modes"]
+            def cells(values, digits=2, sign=""):
+                return ", ".join(f"{v:{sign}.{digits}f}" for v in values)
+
+            lines.append(f"| {c['fs']} | {c['minutes']} | {c['channels']} | "
+                         f"{cells(100 * m['mean_damping'] for m in modes)} | "
+                         f"{cells(100 * m['damping_spread'] for m in modes)} | "
+                         f"{cells((_bias_in_se(m) for m in modes), 1, '+')} | "
+                         f"{cells(m['damping_ratio_median'] for m in modes)} |")
     return "\n".join(lines)
+
+
+def _bias_in_se(mode: dict) -> float:
+    """The damping's mean error over the seeds in standard errors of that mean."""
+    return mode["damping_bias"] / (mode["damping_spread"] / np.sqrt(mode["found"]))
+
+
+def tower_csv(path: str) -> None:
+    """Setup 1 of the roving tower's seed 0 (the record of ``roving``) as the CSV ``seqbayes oma`` reads."""
+    channels = REFERENCES + ROVING[0]
+    y = modal_record(tower_model().select(channels), 328.0, 1 / 40, rng=np.random.default_rng([42, 0, 0]),
+                     force_corner_hz=2.0, noise="floor")
+    np.savetxt(path, np.column_stack([np.arange(len(y)) / 40, y]), delimiter=",", header=",".join(["time", *channels]),
+               comments="", fmt="%.8g")
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=["sweep", "roving", "tables"])
-    parser.add_argument("report", nargs="?", help="tables: a saved sweep --json report")
+    parser.add_argument("what", choices=["sweep", "roving", "tables", "tower-csv"])
+    parser.add_argument("report", nargs="?", help="tables: a saved sweep --json report; tower-csv: the CSV to write")
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--cells", nargs="*", help="FS:MINUTES:CHANNELS (default: the ten of the docs)")
     parser.add_argument("--json")
+    parser.add_argument("--per-seed", action="store_true", help="sweep: also each seed's errors and reported sds")
     args = parser.parse_args(argv)
     if args.what == "tables":
         with open(args.report) as fh:
             print(tables(json.load(fh)))
+        return {}
+    if args.what == "tower-csv":
+        tower_csv(args.report)
         return {}
     report = sweep(args) if args.what == "sweep" else roving(args)
     if args.json:

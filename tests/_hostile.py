@@ -70,7 +70,8 @@ def record_table(columns, rng, n_rows=512, dt=0.01, frequencies=(1.5, 4.0)) -> T
 
 def _set(table, row, col, value):
     rows = [list(r) for r in table.rows]
-    rows[row][col] = value
+    if col < len(rows[row]):          # a row a ragged-row class shortened keeps its length
+        rows[row][col] = value
     return tuple(tuple(r) for r in rows)
 
 

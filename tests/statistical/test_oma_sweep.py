@@ -22,8 +22,8 @@ def test_sweep_cell_every_mode_within_half_percent_and_calibrated():
     """100 Hz, 10 minutes, 4 channels, the first 10 of the benchmark's 20 seeds: each of the five modes (the two
     close pairs 1 % apart and the torsion) within 0.5 % in at least 9 of 10 seeds, no spurious mode, and each
     mode's median reported standard error within a factor 1.5 of the spread over the seeds (20 seeds,
-    docs/oma.md: 19-20 of 20 within 0.5 %, ratios 0.82-1.06). Not every cell of the sweep meets both bars:
-    docs/oma.md gives the ones that do not (20 Hz, 5 minutes, 2 channels above all)."""
+    docs/oma.md: 20 of 20 within 0.5 %, ratios 0.72-1.23). Every cell of the sweep meets the accuracy bar; the
+    calibration bar is missed in 1 (median) or 2 (rms) of its 50 mode-cells, which docs/oma.md names."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         cell = bench.run_cell(100, 10, 4, 10)
@@ -31,6 +31,22 @@ def test_sweep_cell_every_mode_within_half_percent_and_calibrated():
         assert mode["within_half_percent"] >= 9, mode
         assert 1 / 1.5 < mode["ratio_median"] < 1.5, mode
     assert sum(cell["spurious_per_seed"]) == 0
+
+
+@pytest.mark.slow
+def test_the_hardest_cell_meets_both_bars_over_its_20_seeds():
+    """20 Hz, 5 minutes, 2 channels (two close pairs 1 % apart seen at two channels, sampled at 2.7 times the highest
+    mode, no decimation possible), all 20 seeds of the benchmark: every mode within 0.5 % in at least 19, each
+    mode's median and root-mean-square reported standard error within a factor 1.5 of the spread over the seeds,
+    and the damping unbiased within three standard errors of its mean (the earlier version's 7.358 Hz mode had
+    18 of 20, ratios 0.50-0.72, and its damping was biased high; docs/oma.md)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cell = bench.run_cell(20, 5, 2, 20)
+    for mode in cell["modes"]:
+        assert mode["within_half_percent"] >= 19, mode
+        assert 1 / 1.5 < mode["ratio_median"] < 1.5 and 1 / 1.5 < mode["ratio_rms"] < 1.5, mode
+        assert abs(mode["damping_bias"]) < 3 * mode["damping_spread"] / np.sqrt(mode["found"]), mode
 
 
 @pytest.mark.slow

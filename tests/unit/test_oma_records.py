@@ -11,7 +11,8 @@ import pytest
 
 from seqbayes.cli import main
 from seqbayes.structural.oma import OMAWarning, building_3d, modal_record, ssi_cov
-from seqbayes.structural.oma.io import COLUMNS, read_record
+from seqbayes.store.modal_files import read_record
+from seqbayes.structural.oma.io import COLUMNS
 
 MODEL = building_3d(3, (2.6, 2.626, 3.6), damping=0.01, max_frequency=8.0,
                     sensors=[(3, "A", "X"), (3, "A", "Y"), (2, "B", "X"), (2, "A", "Y")])
@@ -110,8 +111,8 @@ def test_the_command_refuses_in_one_line(record, tmp_path, capsys):
     before = path.read_bytes()
     cases = [
         (["--fs", "40"], "time column steps by 0.05 s (20 Hz), not the 0.025 s (40 Hz) given: a wrong sampling rate"),
-        (["--fs", "20", "--out", str(path)], "that is the record being read"),
-        (["--fs", "20", "--json", str(tmp_path / "x"), "--out", str(tmp_path / "x")], "give each output its own file"),
+        (["--fs", "20", "--out", str(path)], "is the input"),
+        (["--fs", "20", "--json", str(tmp_path / "x"), "--out", str(tmp_path / "x")], "is also the target of --out"),
         (["--dt", "1e-300"], "outside the 0.01 Hz"),
         (["--fs", "20", "--band", "1"], "--band: expected LO,HI"),
     ]
@@ -126,7 +127,7 @@ def test_the_command_refuses_in_one_line(record, tmp_path, capsys):
     ragged = tmp_path / "ragged.csv"
     ragged.write_text("a,b\n1,2\n3\n")
     code, err = _one_line(capsys, ["oma", str(ragged), "--fs", "20"])
-    assert code == 2 and "line 3 has 1 fields, expected 2" in err
+    assert code == 2 and "line 3 has 1 fields, the header has 2" in err
 
 
 def test_a_fifo_or_device_is_not_read(tmp_path):

@@ -51,7 +51,7 @@ def test_jackknife_agrees_with_first_order_propagation_at_the_true_order(record)
     """At order 10 (the model's 5 modes and nothing else) both estimate the same standard errors: the
     frequencies' within 40 % (measured ratios 0.71-1.29: the jackknife takes the spread of its 20
     pseudo-values robustly, by their median absolute deviation, whose own relative error is about 25 %)."""
-    blocks = toeplitz_blocks(record, S, 40, NB)
+    blocks = toeplitz_blocks(record, S, 40, NB, jackknife=True)
     poles = poles_at_order(blocks.U, 3, 10, DT)
     assert poles.frequencies.size == 5
     linear = pole_standard_errors(blocks, 3, 10, DT, np.arange(5))[0]

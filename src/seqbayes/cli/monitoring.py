@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from .common import (FORCE_OPTION, MAX_PARTICLES, NUMERIC, CommandError, bounded, check_targets, numeric_summary,
                      range_option)
@@ -145,11 +146,37 @@ def cmd_environment(args: argparse.Namespace) -> int:
 
 
 def cmd_oma(args: argparse.Namespace) -> int:
-    """Operational modal analysis of one ambient record: modes with standard errors (docs/oma.md)."""
-    from ..structural.oma.io import run
+    """Operational modal analysis of one ambient record: modes with standard errors (docs/oma.md).
 
-    return run(args.record, dt=args.dt, fs=args.fs, band=args.band, out=args.out, json_path=args.json,
-               diagram=args.diagram, day=args.day)
+    Exit status 0 with modes, 1 when no mode was identified (after the line saying why), 2 on a bad record
+    or option. The outputs are checked before the record is read and written atomically."""
+    from ..store.modal_files import read_record
+    from ..store.targets import json_with_keys, png_figure, starts_with, write_output
+    from ..structural.oma import ssi_cov
+    from ..structural.oma.core import check_sampling_step
+    from ..structural.oma.io import diagram_png, modes_csv, modes_json, parse_band, summary_lines
+
+    targets = check_targets([("--out", args.out, starts_with(b"time_start,day,slot,")),
+                             ("--json", args.json, json_with_keys("settings", "modes", "candidates_hz")),
+                             ("--diagram", args.diagram, png_figure)], inputs=[args.record], force=args.force)
+    dt = check_sampling_step(1.0 / args.fs if args.fs is not None else args.dt)
+    band = parse_band(args.band)
+    y, channels, dt_time = read_record(args.record)
+    if dt_time is not None and abs(dt_time - dt) > 1e-3 * dt:
+        raise CommandError(f"--dt/--fs: the record's time column steps by {dt_time:g} s ({1 / dt_time:.6g} Hz), not "
+                           f"the {dt:g} s ({1 / dt:.6g} Hz) given: a wrong sampling rate")
+    modes = ssi_cov(y, dt, band=band)
+    print("\n".join(summary_lines(Path(args.record).name, y.shape, dt, modes)))
+    day = float("nan") if args.day is None else float(args.day)
+    for option, label, content in (("--out", "modes", lambda: modes_csv(modes, channels, day)),
+                                   ("--json", "json", lambda: modes_json(modes, channels, day, args.record)),
+                                   ("--diagram", "diagram", lambda: diagram_png(modes))):
+        if option in targets:
+            write_output(targets[option], content(), option)
+            print(f"{label}: {targets[option]}")
+    return 1 if modes.status == "empty" else 0
+
+
 def cmd_track(args: argparse.Namespace) -> int:
     """Poles of many records tracked into one modal dataset per record (docs/modal.md)."""
     from ..store.modal_files import track_to_folder
@@ -161,12 +188,12 @@ def cmd_track(args: argparse.Namespace) -> int:
             frequencies = [float(v) for v in args.reference.split(",")]
         except ValueError:
             raise CommandError(f"--reference: expected comma-separated frequencies [Hz], got {args.reference!r}") from None
+        if not all(0 < f < float("inf") for f in frequencies):
+            raise CommandError(f"--reference: expected positive finite frequencies [Hz], got {args.reference!r}")
     settings = TrackerSettings(gate=args.gate, initial_days=args.initial_days, min_presence=args.min_presence)
     print(track_to_folder(args.poles, args.out, covariates_path=args.temperature, prefix=args.prefix,
-                          settings=settings, frequencies=frequencies))
+                          settings=settings, frequencies=frequencies, force=args.force))
     return 0
-
-
 
 
 def add_commands(sub) -> None:
@@ -214,14 +241,15 @@ def add_commands(sub) -> None:
     p = sub.add_parser("oma", help="modes with standard errors from an ambient record (automated SSI-cov)")
     p.add_argument("record", help="CSV (header of channel names, optional time column) or .npy array (T, p)")
     rate = p.add_mutually_exclusive_group(required=True)
-    rate.add_argument("--dt", type=bounded(float), help="sampling step [s]")
-    rate.add_argument("--fs", type=bounded(float), help="sampling rate [Hz]")
+    rate.add_argument("--dt", type=bounded(float, 0, open_low=True), help="sampling step [s]")
+    rate.add_argument("--fs", type=bounded(float, 0, open_low=True), help="sampling rate [Hz]")
     p.add_argument("--band", metavar="LO,HI", help="frequencies sought [Hz] (default: derived from the spectrum)")
     p.add_argument("--out", metavar="CSV", help="write the modes table here (docs/oma.md: the mast poles' columns "
                                                 "and phi_<channel>, std_phi_<channel>)")
     p.add_argument("--json", metavar="JSON", help="write the modes, the settings chosen and the messages here")
     p.add_argument("--diagram", metavar="PNG", help="draw the stabilisation diagram here")
     p.add_argument("--day", type=bounded(float, 0, 1e8), help="the record's start in days (the table's day column)")
+    p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_oma)
 
     p = sub.add_parser("track", help="track the poles of many records into modes: one modal dataset per record")
@@ -237,4 +265,5 @@ def add_commands(sub) -> None:
     p.add_argument("--gate", type=bounded(float, 0, 100, open_low=True), default=3.5, help="a pole joins a mode within this many sds (3.5)")
     p.add_argument("--min-presence", type=bounded(float, 0, 1, open_low=True), default=0.25,
                    help="a mode must be seen in this share of the first days' records (0.25)")
+    p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_track)

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PoleTable", "read_modes_table", "write_modes_table", "read_covariates", "MODES_COLUMNS"]
+__all__ = ["PoleTable", "read_modes_table", "write_modes_table", "modes_table_text", "read_covariates", "MODES_COLUMNS"]
 
 #: The numeric columns of the modes table besides the shapes, in their order (``time_start`` comes first).
 MODES_COLUMNS = ("day", "slot", "mode", "frequency_hz", "damping_pct", "std_frequency_hz", "std_damping_pct",
@@ -171,11 +172,18 @@ class PoleTable:
                    std_shapes=None if shapes is None or std_shapes is None else np.asarray(std_shapes, float).T)
 
 
+#: A cell that is a number: ASCII digits only (``float`` also takes ``"1_0"`` and full-width digits, which no
+#: data logger writes), as the store's strict reader.
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+
+
 def _number(cell: str, path, line: int, column: str) -> float:
     cell = cell.strip()
     if not cell or cell.lower() == "nan":
         return math.nan
     try:
+        if not _NUMBER.fullmatch(cell):
+            raise ValueError(cell)
         value = float(cell)
     except ValueError:
         raise ValueError(f"{path}: line {line}, column {column!r}: not a number: {cell[:20]!r}") from None
@@ -253,6 +261,12 @@ def write_modes_table(path, table: PoleTable) -> Path:
     pathlib.Path
     """
     path = Path(path)
+    path.write_text(modes_table_text(table))
+    return path
+
+
+def modes_table_text(table: PoleTable) -> str:
+    """``table`` as the text of a modes table CSV (:func:`write_modes_table`)."""
     header = ["time_start", "day", "slot"] + (["mode"] if table.mode is not None else []) + [
         "frequency_hz", "damping_pct", "std_frequency_hz", "std_damping_pct", "mpc", "mpd", "model_order"]
     header += [f"phi_{c}" for c in table.channels] if table.shapes is not None else []
@@ -268,8 +282,7 @@ def write_modes_table(path, table: PoleTable) -> Path:
         cells += [_cell(v) for v in table.std_shapes[i]] if table.std_shapes is not None else []
         cells += [_cell(v[i]) for v in table.covariates.values()]
         lines.append(",".join(cells))
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return "\n".join(lines) + "\n"
 
 
 def read_covariates(path) -> tuple[np.ndarray, dict]:

@@ -12,11 +12,13 @@ The path (docs/oma.md has the measurements behind every rule):
    frequency and MAC (Magalhães, Cunha & Caetano 2009; Reynders, Houbrechts & De Roeck 2012), the
    modes (:func:`ssi_cov`), and what to tell the user when the result is empty or partial
    (:class:`OMAWarning`, ``Modes.status``, ``Modes.messages``);
-4. :mod:`.uncertainty`: standard errors of frequency, damping and shape by a delete-one-block
-   jackknife of the block Toeplitz matrix, and the exact first-order perturbation of Reynders,
-   Pintelon & De Roeck (2008) that it was checked against;
+4. :mod:`.uncertainty`: standard errors of frequency, damping and shape by the first-order perturbation of
+   Reynders, Pintelon & De Roeck (2008), the covariance of the block Toeplitz matrix from blocks of the
+   record, at the least sensitive of a mode's lowest settled orders (a delete-one-block jackknife is kept
+   as :func:`~.uncertainty.jackknife_clusters`);
 5. :mod:`.setups`: roving multi-setup tests merged through their reference channels (PoSER);
-6. :mod:`.io`: the ``seqbayes oma`` command's record reader, modes table, JSON and diagram;
+6. :mod:`.io`: the ``seqbayes oma`` command's record, modes table, JSON and diagram as values (the files are
+   read and written by :mod:`seqbayes.store.modal_files` and :mod:`seqbayes.store.targets`);
 7. :mod:`.simulate`: records with known modes (a 3-D shear building at named channels).
 
 Why our own implementation rather than pyoma-2 (1.4.3, MIT), measured on the same simulated records

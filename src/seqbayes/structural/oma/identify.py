@@ -16,9 +16,12 @@
    modes 1 % apart stay apart whatever their shapes); a cluster holding two poles at many orders is two
    modes and is split by frequency (Reynders, Houbrechts & De Roeck 2012 use the same one-pole-per-order
    rule);
-4. a cluster is a mode when it holds stable poles at ``min_stable_fraction`` of the orders; its
-   representative is its pole nearest the cluster's median frequency, reported with the standard
-   errors of :mod:`.uncertainty` at that pole's order;
+4. a cluster is a mode when it holds stable poles at ``min_stable_fraction`` of the orders; it is
+   reported as the mean of its poles at its ``REPORT_ORDERS`` lowest settled orders (those whose frequency
+   lies within three robust standard deviations of the cluster's median: the orders below, with too few
+   states, give compromise poles), with the first-order standard errors of :mod:`.uncertainty` at the
+   least sensitive of its ``ERROR_ORDERS`` lowest settled orders; with ``n_modes`` given, the clusters at a
+   peak of the record's spectrum come first, then the most persistent, fragments of a chosen mode left out;
 5. a result with no mode, or with further candidates that were stable at too few orders, says so
    (:class:`~.settings.OMAWarning`, and ``Modes.status`` / ``Modes.messages``).
 """
@@ -28,11 +31,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import signal
 from scipy.cluster.hierarchy import fcluster, linkage
 
 from .core import Poles, check_record, complex_mac, real_shapes
-from .settings import Settings, choose_settings, decimate, normalise, warn
-from .uncertainty import jackknife_clusters, toeplitz_blocks
+from .settings import Settings, choose_settings, decimate, normalise, spectrum, warn
+from .uncertainty import settled_standard_errors, toeplitz_blocks
 
 __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_from_svd", "cluster_poles", "TOLERANCES"]
 
@@ -40,6 +44,17 @@ __all__ = ["Modes", "ssi_cov", "record_row", "stabilisation_diagram", "diagram_f
 #: A mode is reported from its poles at its lowest stable orders, where the model has no more states than
 #: it needs and its standard errors are calibrated (docs/oma.md, "Calibration"), averaged over this many orders.
 REPORT_ORDERS = 3
+#: The standard errors are the first-order ones at the least sensitive of the mode's this many lowest settled
+#: orders (:func:`~.uncertainty.settled_standard_errors`).
+ERROR_ORDERS = 8
+#: A pole is stable when one of this many lower orders holds a pole that matches it (docs/oma.md: with one,
+#: the poles of a weakly excited mode seen at two channels that miss a match at one order fall apart).
+LOOKBACK = 2
+#: With ``n_modes`` given, a cluster within this relative frequency gap of a more persistent one, with a MAC above
+#: ``FRAGMENT_MAC`` with it, is a fragment of that mode, not another mode (:func:`_most_persistent`).
+FRAGMENT_GAP, FRAGMENT_MAC = 0.02, 0.95
+#: Prominence [dB] of a spectral peak that marks a cluster as a mode the record excites (``n_modes`` given).
+PEAK_PROMINENCE_DB = 3.0
 TOLERANCES = {"frequency_tol": 0.01, "damping_tol": 0.3, "mac_tol": 0.95, "max_damping": 0.15,
               "cluster_frequency": 0.0075, "cluster_mac": 0.2, "min_stable_fraction": 0.3}
 
@@ -120,22 +135,23 @@ def diagram_from_svd(U: np.ndarray, p: int, settings: Settings, tolerances: dict
     from .core import poles_at_order
 
     lo, hi = settings.band
-    diagram, previous = [], None
+    diagram = []
     for order in range(2, settings.max_order + 1, 2):
         poles = poles_at_order(U, p, order, settings.dt)
         inside = ((poles.frequencies >= lo) & (poles.frequencies <= hi) & (poles.damping_ratios > 0)
                   & (poles.damping_ratios < tolerances["max_damping"]))
         poles = Poles(order, poles.frequencies[inside], poles.damping_ratios[inside], poles.shapes[:, inside],
                       np.zeros(int(inside.sum()), dtype=bool), poles.mpc[inside], poles.mpd[inside])
-        if previous is not None and previous.frequencies.size and poles.frequencies.size:
-            df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
-            dz = np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None]) / poles.damping_ratios[:, None]
-            match = ((df < tolerances["frequency_tol"]) & (dz < tolerances["damping_tol"])
-                     & (complex_mac(poles.shapes, previous.shapes) > tolerances["mac_tol"]))
-            poles = Poles(order, poles.frequencies, poles.damping_ratios, poles.shapes, match.any(axis=1),
-                          poles.mpc, poles.mpd)
-        diagram.append(poles)
-        previous = poles
+        stable = np.zeros(poles.frequencies.size, dtype=bool)
+        for previous in diagram[-LOOKBACK:]:
+            if previous.frequencies.size and poles.frequencies.size:
+                df = np.abs(poles.frequencies[:, None] - previous.frequencies[None]) / poles.frequencies[:, None]
+                dz = (np.abs(poles.damping_ratios[:, None] - previous.damping_ratios[None])
+                      / poles.damping_ratios[:, None])
+                stable |= ((df < tolerances["frequency_tol"]) & (dz < tolerances["damping_tol"])
+                           & (complex_mac(poles.shapes, previous.shapes) > tolerances["mac_tol"])).any(axis=1)
+        diagram.append(Poles(order, poles.frequencies, poles.damping_ratios, poles.shapes, stable, poles.mpc,
+                             poles.mpd))
     return diagram
 
 
@@ -150,6 +166,30 @@ def _split_doubles(members: np.ndarray, frequencies: np.ndarray, orders: np.ndar
     cut = f[int(np.argmin(costs)) + 1]
     low, high = members[frequencies[members] < cut], members[frequencies[members] >= cut]
     return [low, high] if low.size and high.size else [members]
+
+
+def _join_fragments(groups: list[np.ndarray], frequencies: np.ndarray, orders: np.ndarray,
+                    tolerance: float) -> list[np.ndarray]:
+    """Clusters that are one mode's poles at different orders, split by the shape term (a weakly excited mode
+    seen at few channels, whose shape wanders from order to order), joined: two clusters whose median
+    frequencies are within ``tolerance`` (relative) and that share at most one order, nearest pair first.
+    Two modes cannot share many orders, so close modes that coexist over the diagram stay apart."""
+    groups = list(groups)
+    while len(groups) > 1:
+        medians = np.array([np.median(frequencies[g]) for g in groups])
+        sets = [set(orders[g].tolist()) for g in groups]
+        best, pair = tolerance, None
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                gap = abs(medians[a] - medians[b]) / max(medians[a], medians[b])
+                if gap < best and len(sets[a] & sets[b]) <= 1:
+                    best, pair = gap, (a, b)
+        if pair is None:
+            return groups
+        a, b = pair
+        groups[a] = np.concatenate([groups[a], groups[b]])
+        del groups[b]
+    return groups
 
 
 def cluster_poles(diagram: list[Poles], tolerances: dict) -> list[dict]:
@@ -179,6 +219,7 @@ def cluster_poles(diagram: list[Poles], tolerances: dict) -> list[dict]:
     groups = []
     for label in np.unique(labels):
         groups += _split_doubles(np.flatnonzero(labels == label), f, orders)
+    groups = _join_fragments(groups, f, orders, tolerances["cluster_frequency"] / 2)
     clusters = []
     for members in groups:
         median = np.median(f[members])
@@ -254,8 +295,9 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
     dt : float
         Sampling step [s].
     n_modes : int, optional
-        Return the ``n_modes`` most persistent clusters instead of those stable at
-        ``min_stable_fraction`` of the orders (``ValueError`` if the diagram has fewer).
+        Return ``n_modes`` clusters instead of those stable at ``min_stable_fraction`` of the orders: those
+        at a peak of the record's spectrum first, then by the orders they are stable at, a fragment of a
+        chosen mode left out (``ValueError`` if the diagram has fewer).
     max_order, block_rows : int, optional
         Default: chosen from the record (:mod:`.settings`).
     band : (float, float), optional
@@ -286,7 +328,11 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
         if len(clusters) < n_modes:
             raise ValueError(f"n_modes: the stabilisation diagram has {len(clusters)} stable modes, fewer than the "
                              f"{n_modes} asked for (a longer record or a higher max_order may help)")
-        chosen = np.sort(np.argsort(-counts, kind="stable")[:n_modes])
+        chosen = _most_persistent(clusters, n_modes, spectrum(y, settings.dt))
+        if chosen.size < n_modes:
+            raise ValueError(f"n_modes: the stabilisation diagram has {chosen.size} distinct stable modes (and "
+                             f"{len(clusters) - chosen.size} fragments of them), fewer than the {n_modes} asked for "
+                             f"(a longer record or a higher max_order may help)")
     # a cluster stable at half the orders a mode needs is a candidate worth telling the user about
     rejected = [c for i, c in enumerate(clusters) if i not in set(chosen) and c["n_orders"] >= max(3, needed / 2)]
     modes = _report([clusters[i] for i in chosen], diagram, blocks, p, settings)
@@ -308,11 +354,63 @@ def ssi_cov(y: ArrayLike, dt: float, n_modes: int | None = None, max_order: int 
                  candidates=np.array([c["median"] for c in rejected]))
 
 
+def _representative_shape(cluster: dict) -> np.ndarray:
+    members = cluster["indices"]
+    return cluster["shapes"][:, members[np.argmin(np.abs(cluster["frequencies"][members] - cluster["median"]))]]
+
+
+def _near_a_peak(clusters: list[dict], freqs: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """Whether each cluster's frequency lies within ``FRAGMENT_GAP`` (or two bins) of a peak of the record's spectrum
+    (a prominence of ``PEAK_PROMINENCE_DB``): a mode the record excites shows in its spectrum."""
+    peaks, _ = signal.find_peaks(10 * np.log10(np.maximum(total, 1e-300)), prominence=PEAK_PROMINENCE_DB)
+    bin_width = freqs[1] - freqs[0]
+    return np.array([peaks.size > 0 and np.min(np.abs(freqs[peaks] - c["median"]))
+                     <= max(FRAGMENT_GAP * c["median"], 2 * bin_width) for c in clusters], dtype=bool)
+
+
+def _most_persistent(clusters: list[dict], n_modes: int, spectrum_=None) -> np.ndarray:
+    """Indices (ascending) of the ``n_modes`` clusters stable at the most orders, those at a peak of the spectrum
+    (``spectrum_``: frequencies and levels, :func:`_near_a_peak`) first, leaving out fragments of a mode already
+    chosen: a cluster within ``FRAGMENT_GAP`` in frequency of a more persistent one whose shape it repeats (MAC
+    above ``FRAGMENT_MAC``). In a short record a noise pole can be stable at more orders than a true mode, and
+    one mode's poles can fall into two clusters about 1 % apart (docs/oma.md, "record_row"); close modes 1 % apart
+    have different shapes."""
+    counts = np.array([c["n_orders"] for c in clusters])
+    peaked = _near_a_peak(clusters, *spectrum_) if spectrum_ is not None else np.ones(len(clusters), dtype=bool)
+    order = np.lexsort((-counts, ~peaked))
+    chosen = []
+    for i in order:
+        shape = _representative_shape(clusters[i])
+        fragment = any(abs(clusters[i]["median"] / clusters[j]["median"] - 1) < FRAGMENT_GAP
+                       and complex_mac(shape[:, None], _representative_shape(clusters[j])[:, None])[0, 0] > FRAGMENT_MAC
+                       for j in chosen)
+        if not fragment:
+            chosen.append(int(i))
+        if len(chosen) == n_modes:
+            break
+    return np.sort(np.array(chosen, dtype=int))
+
+
+def _settled(cluster: dict) -> np.ndarray:
+    """The cluster's poles in order of preference to report the mode: first its lowest orders among those
+    whose frequency lies within three robust standard deviations of the cluster's median (the orders below,
+    where the model has too few states for the modes, give a compromise pole that has not settled), then the
+    others nearest the median. The mode is the mean of the first ``REPORT_ORDERS``."""
+    members = cluster["indices"][np.argsort(cluster["orders"][cluster["indices"]])]
+    deviation = np.abs(cluster["frequencies"][members] - cluster["median"])
+    spread = max(3 * 1.4826 * np.median(deviation), 1e-4 * cluster["median"])
+    inside = deviation <= spread
+    if inside.sum() < min(REPORT_ORDERS, members.size):
+        return members[np.argsort(deviation, kind="stable")]
+    outside = np.flatnonzero(~inside)
+    return np.concatenate([members[inside], members[outside[np.argsort(deviation[outside], kind="stable")]]])
+
+
 def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings: Settings) -> dict:
     """Each chosen cluster as a mode: the means of its poles' frequencies, damping ratios and real shapes
-    over its ``REPORT_ORDERS`` lowest stable orders (shapes normalised at the largest component of the one
-    nearest the median frequency), with their delete-one-block jackknife standard errors
-    (:func:`~.uncertainty.jackknife_clusters`)."""
+    over its ``REPORT_ORDERS`` lowest settled orders (:func:`_settled`; shapes normalised at the largest
+    component of the one nearest the median frequency), with the first-order standard errors at the least
+    sensitive of its ``ERROR_ORDERS`` lowest settled orders (:func:`~.uncertainty.settled_standard_errors`)."""
     k = len(clusters)
     out = {"frequencies": np.zeros(k), "damping_ratios": np.zeros(k), "shapes": np.zeros((p, k)),
            "n_stable": np.zeros(k, dtype=int), "std_frequencies": np.full(k, np.nan),
@@ -320,7 +418,8 @@ def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings
            "mpd": np.zeros(k), "orders": np.zeros(k, dtype=int)}
     jobs = []
     for slot, c in enumerate(clusters):
-        members = c["indices"][np.argsort(c["orders"][c["indices"]])[:REPORT_ORDERS]]
+        preference = _settled(c)
+        members = preference[:REPORT_ORDERS]
         f, z, shapes = c["frequencies"][members], c["damping"][members], c["shapes"][:, members]
         best = int(np.argmin(np.abs(f - c["median"])))
         reference = int(np.argmax(np.abs(shapes[:, best])))
@@ -330,9 +429,10 @@ def _report(clusters: list[dict], diagram: list[Poles], blocks, p: int, settings
         poles = diagram[order // 2 - 1]
         out["mpc"][slot], out["mpd"][slot] = poles.mpc[index], poles.mpd[index]
         out["orders"][slot], out["n_stable"][slot] = order, c["n_orders"]
-        jobs.append((c["orders"][members], f, shapes, reference))
+        candidates = preference[:ERROR_ORDERS]
+        jobs.append((c["orders"][candidates], c["frequencies"][candidates]))
     if blocks.n_blocks >= 2 and jobs:
-        for slot, (sf, sz, sphi) in enumerate(jackknife_clusters(blocks, p, settings.dt, jobs)):
+        for slot, (sf, sz, sphi, _) in enumerate(settled_standard_errors(blocks, p, settings.dt, jobs)):
             out["std_frequencies"][slot], out["std_damping_ratios"][slot], out["std_shapes"][:, slot] = sf, sz, sphi
     ascending = np.argsort(out["frequencies"])
     return {key: (value[:, ascending] if value.ndim == 2 else value[ascending]) for key, value in out.items()}

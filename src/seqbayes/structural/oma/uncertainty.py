@@ -32,7 +32,8 @@ import numpy as np
 
 from .core import complex_mac, output_covariances, poles_at_order, toeplitz
 
-__all__ = ["ToeplitzBlocks", "toeplitz_blocks", "pole_derivatives", "pole_standard_errors", "jackknife_clusters"]
+__all__ = ["ToeplitzBlocks", "toeplitz_blocks", "pole_derivatives", "pole_standard_errors", "settled_standard_errors",
+           "jackknife_clusters"]
 
 
 @dataclass(frozen=True)
@@ -46,9 +47,9 @@ class ToeplitzBlocks:
     left, right : (nb, m, q), (nb, q, m) arrays
         ``G_k[:, :q]`` and ``G_k[:q, :]`` with ``G_k = U^T (T_k - mean T) V``, ``q`` the highest order kept.
     n_blocks : int
-    jackknife : (nb, m, q) array
+    jackknife : (nb, m, q) array or None
         Leading left singular vectors of each delete-one-block Toeplitz matrix
-        ``(nb mean(T) - T_k) / (nb - 1)``.
+        ``T - (T_k - mean T) / (nb - 1)`` (centred on the whole record's ``T``), when asked for.
     """
 
     U: np.ndarray
@@ -59,10 +60,12 @@ class ToeplitzBlocks:
     jackknife: np.ndarray | None = None
 
 
-def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: int) -> ToeplitzBlocks:
+def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: int,
+                    jackknife: bool = False) -> ToeplitzBlocks:
     """The SVD of ``T_s`` from the whole record ``y (T, p)`` and the block deviations up to ``max_order``.
 
-    ``n_blocks < 2`` skips the blocks (no standard errors).
+    ``n_blocks < 2`` skips the blocks (no standard errors); ``jackknife`` also decomposes each
+    delete-one-block Toeplitz matrix (for :func:`jackknife_clusters`; ``nb`` more SVDs).
     """
     s = block_rows
     H = toeplitz(output_covariances(y, 2 * s - 1), s)
@@ -77,11 +80,55 @@ def toeplitz_blocks(y: np.ndarray, block_rows: int, max_order: int, n_blocks: in
     q = min(max_order + 1, U.shape[0])
     G_left = np.einsum("im,kmj->kij", U.T, deviation @ Vt[:q].T)     # U^T dT V[:, :q]
     G_right = U[:, :q].T @ deviation @ Vt.T                            # U[:, :q]^T dT V
-    jackknife = np.stack([np.linalg.svd(mean - deviation[k] / (n_blocks - 1))[0][:, :q] for k in range(n_blocks)])
-    return ToeplitzBlocks(U, S, G_left, G_right, n_blocks, jackknife)
+    if jackknife:
+        jackknife = np.stack([np.linalg.svd(H - deviation[k] / (n_blocks - 1))[0][:, :q] for k in range(n_blocks)])
+    return ToeplitzBlocks(U, S, G_left, G_right, n_blocks, jackknife if jackknife is not False else None)
 
 
-def jackknife_clusters(blocks: ToeplitzBlocks, p: int, dt: float, clusters: list) -> list:
+def settled_standard_errors(blocks: ToeplitzBlocks, p: int, dt: float, modes: list) -> list:
+    """First-order standard errors of modes, each at the least sensitive of its candidate orders.
+
+    Parameters
+    ----------
+    blocks : ToeplitzBlocks
+    p : int
+        Channels.
+    dt : float
+    modes : list of (orders (c,), frequencies (c,))
+        Each mode's poles in the whole record at its candidate orders (its lowest settled orders).
+
+    Returns
+    -------
+    list of (std_f, std_zeta, std_shape (p,), order) per mode
+        The first-order standard errors (:func:`pole_standard_errors`) of the mode's pole at the candidate
+        order where its frequency's is smallest, and that order. The first-order error of a pole is the
+        sum of what the mode carries at every order and of the rotation of noise singular vectors across the
+        cut, which grows without bound where two of them nearly coincide (at some orders above the true
+        one) but is specific to its order; the mode, read from several orders that agree, does not carry it
+        (docs/oma.md, "Calibration").
+    """
+    wanted = {}
+    for m, (orders, frequencies) in enumerate(modes):
+        for order, f0 in zip(orders, frequencies):
+            wanted.setdefault(int(order), []).append((m, float(f0)))
+    results = [[] for _ in modes]
+    for order, items in sorted(wanted.items()):
+        poles = poles_at_order(blocks.U, p, order, dt)
+        if poles.frequencies.size == 0:
+            continue
+        index = np.array([int(np.argmin(np.abs(poles.frequencies - f0))) for _, f0 in items])
+        sf, sz, sphi = pole_standard_errors(blocks, p, order, dt, index)
+        for j, (m, _) in enumerate(items):
+            results[m].append((sf[j], sz[j], sphi[:, j], order))
+    out = []
+    for rows in results:
+        finite = [r for r in rows if np.isfinite(r[0])]
+        out.append(min(finite, key=lambda r: r[0]) if finite else (np.nan, np.nan, np.full(p, np.nan), 0))
+    return out
+
+
+def jackknife_clusters(blocks: ToeplitzBlocks, p: int, dt: float, clusters: list, used: int | None = None,
+                       frequency_gate: float = 0.01, mac_gate: float = 0.9) -> list:
     """Delete-one-block jackknife of modes that are averages of poles over several orders.
 
     Parameters
@@ -91,48 +138,64 @@ def jackknife_clusters(blocks: ToeplitzBlocks, p: int, dt: float, clusters: list
         Channels.
     dt : float
     clusters : list of (orders (c,), frequencies (c,), shapes (p, c), reference)
-        Each mode's poles (one per order) in the whole record and the channel its shapes are normalised at.
+        Each mode's poles (one per order) in the whole record, in order of preference: the ``used`` poles the
+        mode averages first, then the orders that may stand in for one of them; and the channel its shapes
+        are normalised at.
+    used : int, optional
+        How many poles each mode averages (default: all given).
+    frequency_gate, mac_gate : float
+        A left-out block's pole is the mode's at an order when it lies within ``frequency_gate`` (relative)
+        of the whole record's pole and has a MAC above ``mac_gate`` with it.
 
     Returns
     -------
     list of (std_f, std_zeta, std_shape (p,)) per cluster
-        Each left-out block's model of every order is re-identified, each pole matched on
-        ``|df| / f + 1 - MAC``, the mode's mean over its orders recomputed, and the jackknife variance
-        ``(nb - 1) / nb sum_k (g_k - mean g)^2`` taken robustly (:func:`_jackknife_std`).
+        Each left-out block's model is re-identified at the mode's orders and each pole matched on
+        ``|df| / f + 1 - MAC``; where the mode's pole at one of its orders has left the gate (it swapped
+        with a noise pole), the next order of preference stands in, as the whole record's identification
+        would have taken another order; the mode's mean over ``used`` orders is recomputed, and the
+        jackknife variance ``(nb - 1) / nb sum_k (g_k - mean g)^2`` taken (:func:`_jackknife_std`).
     """
-    nb = blocks.n_blocks
-    needed = sorted({int(o) for orders, *_ in clusters for o in orders})
+    if blocks.jackknife is None:
+        raise ValueError("blocks: no delete-one-block decompositions; build them with toeplitz_blocks(..., jackknife=True)")
     values = [[] for _ in clusters]
     for U in blocks.jackknife:
-        per_order = {order: poles_at_order(U, p, order, dt) for order in needed}
+        cache = {}
         for c, (orders, frequencies, shapes, reference) in enumerate(clusters):
+            want = len(orders) if used is None else min(int(used), len(orders))
             f, z, phi = [], [], []
             for order, f0, shape in zip(orders, frequencies, shapes.T):
-                poles = per_order[int(order)]
+                order = int(order)
+                if order not in cache:
+                    cache[order] = poles_at_order(U, p, order, dt)
+                poles = cache[order]
                 if poles.frequencies.size == 0:
                     continue
-                cost = np.abs(poles.frequencies - f0) / f0 + 1 - complex_mac(poles.shapes, shape[:, None])[:, 0]
-                pick = int(np.argmin(cost))
+                mac = complex_mac(poles.shapes, shape[:, None])[:, 0]
+                pick = int(np.argmin(np.abs(poles.frequencies - f0) / f0 + 1 - mac))
+                if abs(poles.frequencies[pick] / f0 - 1) >= frequency_gate or mac[pick] <= mac_gate:
+                    continue
                 f.append(poles.frequencies[pick])
                 z.append(poles.damping_ratios[pick])
                 phi.append((poles.shapes[:, pick] / poles.shapes[reference, pick]).real)
-            values[c].append((np.mean(f), np.mean(z), np.mean(phi, axis=0)) if f else None)
+                if len(f) == want:
+                    break
+            values[c].append((np.mean(f), np.mean(z), np.mean(phi, axis=0)) if len(f) == want else None)
     out = []
     for rows in values:
-        if any(r is None for r in rows):
+        rows = [r for r in rows if r is not None]
+        if len(rows) < max(3, blocks.n_blocks // 2):
             out.append((np.nan, np.nan, np.full(p, np.nan)))
             continue
-        out.append(tuple(_jackknife_std(np.array([r[i] for r in rows])) for i in range(3)))
+        out.append(tuple(_jackknife_std(np.array([r[i] for r in rows]), blocks.n_blocks) for i in range(3)))
     return out
 
 
-def _jackknife_std(values: np.ndarray) -> np.ndarray:
-    """``sqrt((nb - 1) / nb sum_k (g_k - mean g)^2)`` with the spread of the pseudo-values taken robustly
-    (1.4826 times their median absolute deviation, so that a block whose removal swaps a pole with a
-    noise pole does not dominate): ``sqrt(nb - 1) * 1.4826 * MAD``."""
-    nb = values.shape[0]
-    mad = np.median(np.abs(values - np.median(values, axis=0)), axis=0)
-    return np.sqrt(nb - 1) * 1.4826 * mad
+def _jackknife_std(values: np.ndarray, n_blocks: int) -> np.ndarray:
+    """``sqrt((nb - 1) / nb sum_k (g_k - mean g)^2)`` over the left-out blocks that kept the mode (``values``
+    ``(k, ...)``, ``k <= nb``), the sum scaled up to ``nb`` terms."""
+    k = values.shape[0]
+    return np.sqrt((n_blocks - 1) / n_blocks * np.sum((values - values.mean(axis=0)) ** 2, axis=0) * n_blocks / k)
 
 
 def pole_derivatives(blocks: ToeplitzBlocks, p: int, order: int, dt: float, index: np.ndarray,
