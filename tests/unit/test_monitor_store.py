@@ -198,3 +198,53 @@ def test_a_damaged_store_is_refused(run):
     status = open_run(folder / "store.nc").status_json()
     assert status["kind"] == "monitor" and len(status["steps"]) == 2
     json.dumps(status)
+
+
+def test_a_flipped_bit_in_the_monitor_state_is_detected(one_day, tmp_path):
+    import h5py
+
+    run = tmp_path / "store.nc"
+    run.write_bytes(one_day)
+    with h5py.File(run, "r") as fh:
+        dataset = fh["monitor_filter_cov"]
+        assert dataset.fletcher32
+        offset = dataset.id.get_chunk_info(0).byte_offset + 24
+    raw = bytearray(run.read_bytes())
+    raw[offset] ^= 0x10                                  # one bit of one particle's filter covariance
+    run.write_bytes(bytes(raw))
+    with pytest.raises(StoreError, match="checksum"):
+        open_run(run)
+
+
+def test_a_full_disk_leaves_the_store_and_one_line(one_day, tmp_path, capsys, monkeypatch):
+    import seqbayes.store.files as store_files
+    from seqbayes import cli
+
+    run = tmp_path / "store.nc"
+    run.write_bytes(one_day)
+    day = write_days(tmp_path, year_table(n_days=2))[1]
+
+    def full(path, folder, needed):
+        raise StoreError(f"{path}: not enough free space in {folder}: about {needed // 1024} KiB needed, 0 KiB free "
+                         f"(No space left on device); the previous store is kept")
+    monkeypatch.setattr(store_files, "check_free_space", full)
+    assert cli.main(["update", str(run), str(day)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "not enough free space" in err
+    assert run.read_bytes() == one_day
+    assert [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name] == []
+
+
+def test_a_second_writer_takes_in_the_first_ones_day(one_day, tmp_path):
+    """Two store objects opened after day 0; each updates with another day: the second, under the lock, takes in
+    the first's day before its own; the first, given its day again, finds it stored."""
+    run = tmp_path / "store.nc"
+    run.write_bytes(one_day)
+    days = write_days(tmp_path, year_table(n_days=3))
+    a, b = open_run(run), open_run(run)
+    a.update(days[1])
+    b.update(days[2])                                    # reloads a's day 1 under the lock, then adds day 2
+    final = open_run(run)
+    assert final.n_steps == 3 and [i["day"] for i in final.infos] == [0, 1, 2]
+    with pytest.raises(DuplicateDatasetError):
+        a.update(days[1])

@@ -54,7 +54,8 @@ class DamageSummary:
         The loss in the most probable class given damage there: the stiffness lost (a fraction), or the mode's
         relative frequency drop. None when ``p_damage`` is 0.
     day : Estimate or None
-        The calendar day the loss began (0: the first monitored day).
+        The calendar day the loss began, counted from the first set's day (0); the
+        :class:`~seqbayes.structural.monitor.table.Monitor` reports it in the table's own calendar days.
     day_mode : int or None
         The most probable first day.
     location_index : int

@@ -18,7 +18,7 @@ import numpy as np
 from .history import History, prepare_sets
 from .model import MonitorModel, MonitorSettings
 from .sampler import MonitorState, assimilate, prior_state
-from .summary import DamageSummary, EnvironmentSummary, damage_summary, environment_summary
+from .summary import DamageSummary, EnvironmentSummary, Estimate, damage_summary, environment_summary
 
 __all__ = ["Monitor", "MonitorDay", "monitor_table", "table_days", "verdicts"]
 
@@ -30,7 +30,7 @@ class MonitorDay:
     Attributes
     ----------
     day : int
-        The calendar day of its last set (0: the first monitored day).
+        The calendar day of its last set (``floor`` of its time, as the table gives it).
     time : float
         Its last set's time [days].
     n_sets : int
@@ -129,8 +129,14 @@ class Monitor:
         history = self.history.extended(*arrays)
         first = self.history.n_chunks
         state, info = assimilate(self.state, self.model, self.settings, history, first, self.rng)
-        day = int(history.chunk_day[-1])
-        damage = damage_summary(state, self.model, self.settings, day)
+        damage = damage_summary(state, self.model, self.settings, int(history.chunk_day[-1]))
+        # the history counts days from the first set's; the user's days are the table's own calendar days
+        origin = int(history.origin)
+        day = origin + int(history.chunk_day[-1])
+        if origin and damage.day is not None:
+            shift = damage.day
+            damage = replace(damage, day=Estimate(shift.mean + origin, shift.lower + origin, shift.upper + origin),
+                             day_mode=damage.day_mode + origin)
         rule = self.settings.alarm
         # the rule counts days: a dataset later on the same day replaces that day's value
         above = (self.days_above - (self.last_p_damage > rule.threshold) if day == self.last_day
