@@ -48,7 +48,7 @@ from seqbayes import plotting
 from seqbayes.store.environment_report import environment_figure
 from seqbayes.structural.environment import monitor_year
 from seqbayes.structural.structures import ShearBuilding
-from seqbayes.studies.environment import MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_years
+from seqbayes.studies.environment import MASSES, STIFFNESSES, ThermalLaw, read_truth, read_year_csv, simulate_years
 
 
 def run_year(path, masses, stiffnesses, *, n_particles: int = 128, seed: int = 0, threshold: float = 0.95,
@@ -182,7 +182,8 @@ def simulate_main(argv) -> None:
                         help="a law the monitor lacks: the structure lags the recorded air temperature")
     args = parser.parse_args(argv)
     for path in simulate_years(args.out, args.years, args.seed, damage_size=args.damage_size,
-                               alpha_spread=args.alpha_spread, thermal_lag_hours=args.thermal_lag_hours):
+                               law=ThermalLaw(alpha_spread=args.alpha_spread,
+                                                                         thermal_lag_hours=args.thermal_lag_hours)):
         print(path)
 
 

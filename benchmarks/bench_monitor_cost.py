@@ -22,10 +22,10 @@ import numpy as np
 from seqbayes.structural.monitor.model import MonitorSettings
 from seqbayes.structural.monitor.table import monitor_table, verdicts
 from seqbayes.structural.structures import ShearBuilding
-from seqbayes.studies.environment import MASSES, STIFFNESSES, simulate_year
+from seqbayes.studies.environment import MASSES, STIFFNESSES, ThermalLaw, simulate_year
 
-YEARS = {"healthy, 6 h lag": dict(thermal_lag_hours=6.0),
-         "5 % loss storey 3 day 300, 6 h lag": dict(thermal_lag_hours=6.0, damage_day=300.0, damage_storey=3,
+YEARS = {"healthy, 6 h lag": dict(law=ThermalLaw(thermal_lag_hours=6.0)),
+         "5 % loss storey 3 day 300, 6 h lag": dict(law=ThermalLaw(thermal_lag_hours=6.0), damage_day=300.0, damage_storey=3,
                                                     damage_size=0.05)}
 
 

@@ -10,7 +10,7 @@ import pytest
 from seqbayes.structural.environment import (ChangeModelSampler, EnvironmentMonitor, EnvironmentPrior, alarm_days,
                                              split_days)
 from seqbayes.structural.structures import ShearBuilding
-from seqbayes.studies.environment import (MASSES, STIFFNESSES, read_truth, read_year_csv, simulate_year,
+from seqbayes.studies.environment import (MASSES, STIFFNESSES, ThermalLaw, read_truth, read_year_csv, simulate_year,
                                           stiffness_factor, write_year_csv)
 
 
@@ -204,7 +204,7 @@ def test_monitor_bad_input_names_the_argument():
 
 
 def test_mismatched_temperature_laws_are_the_eigenproblem_of_their_storeys():
-    lagged, _ = _year(alpha_spread=0.3, thermal_lag_hours=6.0, damage_day=2.0, damage_storey=1)
+    lagged, _ = _year(law=ThermalLaw(alpha_spread=0.3, thermal_lag_hours=6.0), damage_day=2.0, damage_storey=1)
     plain, _ = _year(damage_day=2.0, damage_storey=1)
     np.testing.assert_array_equal(lagged["temperature"], plain["temperature"])  # the same draws
     keep = np.exp(-6.0 / 6.0)  # 4 sets a day: 6 h apart, time constant 6 h
@@ -219,4 +219,4 @@ def test_mismatched_temperature_laws_are_the_eigenproblem_of_their_storeys():
     observed = np.column_stack([lagged[f"f{r}"] for r in range(1, 5)])
     np.testing.assert_allclose(observed, expected, rtol=1e-12)
     with pytest.raises(ValueError, match="thermal_lag_hours"):
-        _year(thermal_lag_hours=-1.0)
+        _year(law=ThermalLaw(thermal_lag_hours=-1.0))

@@ -38,7 +38,7 @@ import numpy as np
 from ..store.datasets import TableSpec, read_datafile, read_regular
 from ..structural.structures import ShearBuilding
 
-__all__ = ["MASSES", "STIFFNESSES", "TemperatureModel", "YearTruth", "stiffness_factor", "simulate_temperature",
+__all__ = ["MASSES", "STIFFNESSES", "TemperatureModel", "ThermalLaw", "YearTruth", "stiffness_factor", "simulate_temperature",
            "simulate_year", "write_year_csv", "year_spec", "read_year_csv", "read_truth", "simulate_years", "DAY_RANGE",
            "TEMPERATURE_RANGE", "FREQUENCY_RANGE", "check_against_building", "check_memory", "check_days"]
 
@@ -53,6 +53,21 @@ CSV_HEADER = "day,temperature,f1,f2,f3,f4"
 DAY_RANGE = (0.0, 36525.0)
 TEMPERATURE_RANGE = (-80.0, 80.0)
 FREQUENCY_RANGE = (0.01, 1000.0)
+
+
+@dataclass(frozen=True)
+class ThermalLaw:
+    """How a simulated structure's stiffness follows the temperature: the factor ``c(T)`` of
+    :func:`stiffness_factor` (``alpha``, ``beta``, ``reference_temperature``), and two departures from it that a
+    monitor with that law lacks: storey ``i`` softens with ``alpha (1 + alpha_spread s_i)``, ``s`` evenly spaced
+    from -1 (bottom) to 1 (top); and the structure follows the recorded air temperature through a first-order lag
+    of time constant ``thermal_lag_hours`` (the CSV holds the air temperature)."""
+
+    alpha: float = -0.0015
+    beta: float = -0.015
+    reference_temperature: float = 10.0
+    alpha_spread: float = 0.0
+    thermal_lag_hours: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -120,11 +135,9 @@ def simulate_temperature(times, rng: np.random.Generator, model: TemperatureMode
 
 
 def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFNESSES, damage_day: float | None = None,
-                  damage_storey: int | None = None, damage_size: float = 0.05, alpha: float = -0.0015,
-                  beta: float = -0.015, reference_temperature: float = 10.0,
+                  damage_storey: int | None = None, damage_size: float = 0.05, law: ThermalLaw = ThermalLaw(),
                   temperature: TemperatureModel = TemperatureModel(), frequency_noise: float = 0.004,
-                  sets_per_day: int = 24, n_days: int = 365, seed: int | None = None, alpha_spread: float = 0.0,
-                  thermal_lag_hours: float = 0.0) -> tuple[dict, YearTruth]:
+                  sets_per_day: int = 24, n_days: int = 365) -> tuple[dict, YearTruth]:
     """One year of hourly identified frequencies.
 
     Parameters
@@ -139,21 +152,13 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
         1-based storey of the damage (required with ``damage_day``).
     damage_size : float
         Fraction of the storey stiffness lost, in (0, 1).
-    alpha, beta, reference_temperature : float
-        The temperature factor ``c(T)`` (:func:`stiffness_factor`).
+    law : ThermalLaw
+        How the stiffness follows the temperature (and what of it a monitor may lack).
     temperature : TemperatureModel
     frequency_noise : float
         Relative standard deviation of an identified frequency.
     sets_per_day, n_days : int
         Frequency sets per day (equally spaced from 00:00) and days.
-    seed : int, optional
-        Recorded in the truth only.
-    alpha_spread : float
-        A temperature law the monitor does not have: storey ``i`` softens with
-        ``alpha (1 + alpha_spread s_i)``, ``s`` evenly spaced from -1 (bottom) to 1 (top).
-    thermal_lag_hours : float
-        Another: the structure follows the recorded air temperature through a first-order lag with
-        this time constant (the CSV holds the air temperature).
 
     Returns
     -------
@@ -163,6 +168,8 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
     """
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    alpha, beta, reference_temperature = law.alpha, law.beta, law.reference_temperature
+    alpha_spread, thermal_lag_hours = law.alpha_spread, law.thermal_lag_hours
     building = ShearBuilding(masses, stiffnesses)
     n = building.n_storeys
     for name, value in (("sets_per_day", sets_per_day), ("n_days", n_days)):
@@ -198,7 +205,7 @@ def simulate_year(rng: np.random.Generator, *, masses=MASSES, stiffnesses=STIFFN
     if alpha_spread or thermal_lag_hours:
         settings.update(alpha_spread=alpha_spread, thermal_lag_hours=thermal_lag_hours)
     truth = YearTruth(None if damage_day is None else float(damage_day),
-                      None if damage_storey is None else int(damage_storey), float(damage_size), seed, settings)
+                      None if damage_storey is None else int(damage_storey), float(damage_size), None, settings)
     return table, truth
 
 
@@ -286,7 +293,7 @@ def simulate_years(out_dir, n_years: int = 20, seed: int = 0, *, damage_size: fl
         if damaged:
             kwargs.update(damage_day=float(rng.integers(first_damage_day, last_damage_day + 1)),
                           damage_storey=int(rng.integers(1, n_storeys + 1)), damage_size=damage_size)
-        table, truth = simulate_year(rng, seed=seed, **kwargs)
+        table, truth = simulate_year(rng, **kwargs)
         truth = YearTruth(truth.damage_day, truth.damage_storey, truth.damage_size, seed,
                           {**truth.settings, "year": i})
         name = f"damaged_{i:02d}.csv" if damaged else f"healthy_{i - n_damaged:02d}.csv"
