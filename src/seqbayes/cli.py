@@ -10,6 +10,9 @@ Monitoring commands (a run is one NetCDF file, see :mod:`seqbayes.store`)::
     seqbayes predict RUN.nc --steps K --threshold "k<0.7"   # and the time to a threshold
     seqbayes compare RUN1.nc RUN2.nc ...      # model-class selection by evidence
     seqbayes report RUN.nc -o report.html     # HTML page with the figures
+    seqbayes update FLEET [--workers N]       # a fleet (a folder of stores or a manifest): each store's new
+                                              # datasets, one Dask task per store (seqbayes.fleet)
+    seqbayes status FLEET [--json]            # each store's last step, alarm and errors
 
 Paper studies live in :mod:`seqbayes.studies`; each module there has a
 ``main(argv) -> int`` and is reached as ``seqbayes example NAME [options]``
@@ -43,6 +46,9 @@ monitoring (a run is one NetCDF file):
       [--threshold "k<0.7"]                 ... and the distribution of the time to a threshold
   seqbayes compare RUN1.nc RUN2.nc ...      model-class selection by evidence
   seqbayes report RUN.nc -o report.html     HTML page with the figures
+  seqbayes update FLEET [--workers N]       a fleet (a folder of stores NAME.nc beside folders NAME/ of
+      [--scheduler ADDRESS] [--json OUT]    their new datasets, or a manifest): one Dask task per store
+  seqbayes status FLEET [--json]            each store's last step, alarm and errors
   seqbayes environment YEAR.csv --masses .. --stiffness ..
                                             damage against temperature on identified frequencies:
                                             P(damage) per day, its storey, the alarm
@@ -176,6 +182,11 @@ def cmd_update(args: argparse.Namespace) -> int:
     from .store.datasets import printable
     from .store.files import store_lock
 
+    if _fleet_given(args, "update"):   # a folder of stores or a manifest: one task per store (docs/fleet.md)
+        from .fleet import update_command
+
+        return update_command(args.run, workers=args.workers, scheduler=args.scheduler, json_path=args.json,
+                              lock_timeout=args.lock_timeout, accept_model_change=args.accept_model_change)
     show = _progress_enabled() and not args.quiet
     with store_lock(args.run, timeout=args.lock_timeout):
         store = open_run(args.run)
@@ -212,41 +223,39 @@ def cmd_update(args: argparse.Namespace) -> int:
     return 0
 
 
-def _raised_in(err, files) -> bool:
-    """Whether the exception passed through one of ``files`` (the user's likelihood module)."""
-    files = {str(Path(f).resolve()) for f in files if f}
-    return any(str(Path(frame.filename).resolve()) in files for frame in traceback.extract_tb(err.__traceback__))
-
-
 def _describe(err, store, done=()) -> str:
-    """One line for an update that failed, saying what the run store holds now."""
-    from .store import ConfigError, DataError, StoreError
+    """One line for an update that failed, saying what the run store holds now (shared with the fleet)."""
+    from .fleet import describe_failure
 
-    if done:
-        unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
-                     f"ones after it were not assimilated")
-    else:
-        unchanged = "the run store is unchanged"
-    text = str(err)
-    if isinstance(err, (StoreError, ConfigError, DataError)):
-        return text if "previous store is kept" in text else f"{text}; {unchanged}"
-    if isinstance(err, OSError):
-        where = f" ({err.filename})" if err.filename else ""
-        return f"{err.strerror or text}{where}; {unchanged}"
-    user = store.user_code()        # (module:function, file) of the user's likelihood, if the run has one
-    if user is not None and isinstance(err, ValueError) and text.startswith("loglike"):
-        return f"likelihood {user[0]}: {text}; {unchanged}"
-    if user is not None and _raised_in(err, [user[1]]):
-        return f"the likelihood {user[0]} raised {type(err).__name__}: {text}; {unchanged}"
-    if isinstance(err, ValueError) or type(err).__name__ in ("ZeroLikelihoodError", "TemperingLimitError"):
-        return f"{text}; {unchanged}"
-    return (f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); "
-            f"{unchanged}")
+    return describe_failure(err, store, done)
+
+
+def _fleet_given(args, command) -> bool:
+    """Whether RUN is a fleet (a folder or a .toml/.json manifest); refuses the options of the other form."""
+    from .fleet import is_fleet
+
+    fleet = is_fleet(args.run)
+    if command == "update" and fleet and (args.datafiles or args.replace_last):
+        raise CommandError(f"{args.run}: a fleet takes no {'DATAFILE' if args.datafiles else '--replace-last'}: "
+                           f"its stores' datasets come from its folders or its manifest (docs/fleet.md)")
+    if command == "update" and not fleet:
+        if not args.datafiles:
+            raise CommandError("update: give the data files to assimilate after RUN (or a fleet's folder or "
+                               "manifest as RUN)")
+        given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
+                                ("--json", args.json)) if v is not None]
+        if given:
+            raise CommandError(f"{given[0]}: only for a fleet update (RUN a folder of stores or a manifest)")
+    return fleet
 
 
 def cmd_status(args: argparse.Namespace) -> int:
     from .store import open_run
 
+    if _fleet_given(args, "status"):
+        from .fleet import status_command
+
+        return status_command(args.run, as_json=args.json)
     store = open_run(args.run)
     if args.json:
         print(_json(store.status_json(args.level)))
@@ -466,8 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_init)
 
     p = sub.add_parser("update", help="assimilate one or more datasets (CSV or NetCDF), one step each")
-    p.add_argument("run")
-    p.add_argument("datafiles", nargs="+", metavar="DATAFILE")
+    p.add_argument("run", help="run store, or a fleet: a folder of stores or a .toml/.json manifest")
+    p.add_argument("datafiles", nargs="*", metavar="DATAFILE")
     p.add_argument("--replace-last", action="store_true",
                    help="roll back the last step and assimilate the (first) dataset in its place")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
@@ -475,6 +484,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the likelihood module although its file changed since the run recorded it "
                         "(the new hash is recorded)")
     p.add_argument("--lock-timeout", **LOCK_TIMEOUT_OPTION)
+    p.add_argument("--workers", type=int, metavar="N", help="fleet: workers of the local Dask cluster (default: the "
+                   "cores); 0: the stores one after another in this process, without Dask")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="fleet: the Dask scheduler to run the stores' tasks on")
+    p.add_argument("--json", metavar="FILE", help="fleet: also write the update's outcome here (JSON)")
     p.set_defaults(func=cmd_update)
 
     p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")
