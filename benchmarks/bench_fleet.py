@@ -83,8 +83,15 @@ def copy_fleet(root: Path, names, target: Path, initial: Path | None = None) -> 
     return target
 
 
+def throughput_batches(args) -> list:
+    """The stores of each throughput round (the same batch for every worker count of a round)."""
+    names = [f"s{k}" for k in range(args.stores) if f"s{k}" != POISONED]
+    return [[names[(r * args.batch + i) % len(names)] for i in range(args.batch)] for r in range(args.rounds)]
+
+
 def setup(folder: Path, args) -> tuple[Path, Path, dict]:
-    """The fleet, the poisoned variants and their serial references; returns (root, poisoned root, fingerprints)."""
+    """The fleet, the poisoned variants and the serial references of the stores the run uses (every store, or
+    with ``--skip-poisoned`` those of the throughput rounds); returns (root, poisoned root, fingerprints)."""
     start = time.perf_counter()
     root = folder / "fleet-root"
     plan = make_fleet(root, args.stores, args.datasets, module="benchfleet", n_samples=args.samples)
@@ -102,6 +109,8 @@ def setup(folder: Path, args) -> tuple[Path, Path, dict]:
     serial = folder / "serial"
     serial.mkdir()
     jobs = []
+    needed = set(plan) if not args.skip_poisoned else {n for batch in throughput_batches(args) for n in batch}
+    plan = {name: paths for name, paths in plan.items() if name in needed}
     for name, paths in plan.items():
         shutil.copyfile(root / "initial" / f"{name}.nc", serial / f"{name}.nc")
         jobs.append((name, str(serial / f"{name}.nc"), [str(p) for p in paths]))
@@ -157,7 +166,6 @@ def poisoned_run(folder: Path, root: Path, raising_root: Path, fingerprints: dic
 
 def throughput(folder: Path, root: Path, fingerprints: dict, args) -> None:
     counts = (1, 2, 4)
-    names = [f"s{k}" for k in range(args.stores) if f"s{k}" != POISONED]
     rates = {w: [] for w in counts}
     with contextlib.ExitStack() as stack:
         clients = {}
@@ -167,7 +175,7 @@ def throughput(folder: Path, root: Path, fingerprints: dict, args) -> None:
             print(f"LocalCluster of {w} workers up in {time.perf_counter() - start:.1f} s", flush=True)
         for r in range(args.rounds):
             order = counts[r % 3:] + counts[:r % 3]
-            batch = [names[(r * args.batch + i) % len(names)] for i in range(args.batch)]
+            batch = throughput_batches(args)[r]
             for w in order:
                 fleet = copy_fleet(root, batch, folder / f"tp-{r}-{w}")
                 tasks = plan_fleet(fleet).tasks

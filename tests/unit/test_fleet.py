@@ -149,7 +149,7 @@ def test_the_command_line_updates_the_fleet_and_its_status_lists_the_errors(flee
     out, err = capsys.readouterr()
     assert code == 1                                     # some stores failed, the others completed
     assert "s0: 2 datasets assimilated (steps 1-2)" in out and "s3: FAILED: " in out
-    assert "4 stores, 2 updated (5 datasets), 0 up to date, 2 failed" in out
+    assert "4 stores of " + str(fleet) + ": 2 updated (5 datasets), 0 up to date, 2 failed" in out
     errors = [line for line in err.splitlines() if not line.startswith("seqbayes update: warning: ")]
     assert [line.split(": FAILED")[0] for line in errors] == ["seqbayes update: error: s2", "seqbayes update: error: s3"]
     assert {n: store_fingerprint(fleet / f"{n}.nc") for n in NAMES} == reference
@@ -191,7 +191,7 @@ def test_a_manifest_fleet_and_the_options_of_the_two_forms(fleet_root, reference
     manifest.write_text('[[store]]\npath = "fleet/s1.nc"\ndatasets = ["fleet/s1/d1.csv", "fleet/s1/d2.csv"]\n'
                         '[[store]]\npath = "fleet/s0.nc"\ndatasets = "fleet/s0"\n')
     assert cli.main(["update", str(manifest), "--workers", "0"]) == 0
-    assert "2 stores, 2 updated (4 datasets)" in capsys.readouterr().out
+    assert ": 2 updated (4 datasets)" in capsys.readouterr().out
     assert store_fingerprint(fleet / "s0.nc") == reference["s0"] and store_fingerprint(fleet / "s1.nc") == \
         reference["s1"]
     assert (tmp_path / ".fleet.toml.outcome.json").is_file()
@@ -306,3 +306,82 @@ def test_an_outcome_that_cannot_be_written_after_the_run_is_one_line(fleet_root,
     from seqbayes.store import RunStore
 
     assert RunStore.open(fleet / "s0.nc").n_steps == 3
+
+
+# ------------------------------------------------------------- full and read-only disks (a small tmpfs)
+from test_hardening import fill, small_disk  # noqa: E402,F401  (the store's own fixture: a 2 MiB tmpfs)
+
+
+def test_json_targets_on_a_full_or_read_only_disk_are_one_line_and_touch_no_store(fleet_root, tmp_path,
+                                                                                  small_disk, capsys):
+    import subprocess
+
+    fleet = fresh(fleet_root, tmp_path / "fleet")
+    before = {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()}
+    fill(small_disk, 4096)
+    assert cli.main(["update", str(fleet), "--workers", "0", "--json", str(small_disk / "out.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert f"--json {small_disk / 'out.json'}: cannot take" in err and "No space left on device" in err
+    assert "no store was touched" in err
+    (small_disk / "filler").unlink()
+    subprocess.run(["mount", "-o", "remount,ro", str(small_disk)], check=True)
+    assert cli.main(["update", str(fleet), "--workers", "0", "--json", str(small_disk / "out.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "cannot write in" in err and "Read-only file system" in err
+    assert {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()} == before   # nothing created either
+    assert list(small_disk.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_a_fleet_on_a_full_or_read_only_disk_refuses_before_touching_a_store(fleet_root, small_disk, capsys):
+    """The fleet's own record lies in its folder: no room or no write access there is one line up front."""
+    import subprocess
+
+    fleet = small_disk / "fleet"
+    fleet.mkdir()
+    for name in ("s0", "s1"):
+        shutil.copyfile(fleet_root / "fleet" / f"{name}.nc", fleet / f"{name}.nc")
+        shutil.copytree(fleet_root / "fleet" / name, fleet / name)
+    before = {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()}
+    fill(small_disk, 16 * 1024)                              # less than the record's room (64 KiB + per store)
+    assert cli.main(["update", str(fleet), "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "the fleet's record" in err and "No space left on device" in err
+    assert {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()} == before
+    (small_disk / "filler").unlink()
+    subprocess.run(["mount", "-o", "remount,ro", str(small_disk)], check=True)
+    assert cli.main(["update", str(fleet), "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Read-only file system" in err and "no store was touched" in err
+    assert cli.main(["status", str(fleet)]) == 0               # reading needs no write access
+    assert "0 stores with errors" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_an_sg_enmcmc_store_in_g_resumes_in_a_fleet_as_serial_updates(tmp_path):
+    """Another backend through the same task: an SG-EnMCMC store whose blocks are in g (its recorded digests are
+    of the SI blocks, BaseStore.digest_of as SGRunStore defines it), its first block assimilated before the
+    fleet runs; the fleet skips that block and ends with the store a serial update of all three gives."""
+    from test_sgstore import TOML, assert_same_store, record
+
+    from seqbayes.store import load_config
+    from seqbayes.structural.structures.records import UNITS
+
+    (tmp_path / "g.toml").write_text(TOML.replace('time = "t"', 'time = "t"\nunits = "g"'))
+    config = load_config(tmp_path / "g.toml")
+    t, ag, y = record(config)
+    table = np.column_stack([t, ag / UNITS["g"], y / UNITS["g"]])
+    fleet = tmp_path / "fleet"
+    (fleet / "bldg").mkdir(parents=True)
+    for k, block in enumerate(np.array_split(table, 3)):
+        np.savetxt(fleet / "bldg" / f"b{k + 1}.csv", block, delimiter=",", header="t,ag,a1,a2", comments="",
+                   fmt="%.17g")
+    blocks = [str(fleet / "bldg" / f"b{k}.csv") for k in (1, 2, 3)]
+    for run in (fleet / "bldg.nc", tmp_path / "serial.nc"):
+        assert cli.main(["init", str(tmp_path / "g.toml"), str(run)]) == 0
+    assert cli.main(["update", str(tmp_path / "serial.nc"), *blocks]) == 0
+    assert cli.main(["update", str(fleet / "bldg.nc"), blocks[0]]) == 0
+    (outcome,) = run_serial(plan_fleet(fleet).tasks)
+    assert outcome.status == "updated" and outcome.skipped == ("b1.csv",) and [s.step for s in outcome.steps] == [2, 3]
+    assert_same_store(fleet / "bldg.nc", tmp_path / "serial.nc")

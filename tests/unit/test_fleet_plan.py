@@ -175,7 +175,7 @@ def test_collect_orders_by_the_plan_and_reports_a_missing_outcome():
     assert "no outcome came back for it" in fleet.outcomes[1].error
     assert fleet.exit_code == 1 and [o.name for o in fleet.failed] == ["a", "b"]
     assert fleet.stores_per_minute() == 90.0
-    assert fleet.summary() == "fleet /f: 3 stores, 1 updated (2 datasets), 0 up to date, 2 failed; 2.0 s"
+    assert fleet.summary() == "3 stores of /f: 1 updated (2 datasets), 0 up to date, 2 failed; 2.0 s"
     content = json.loads(json.dumps(fleet.to_json()))
     assert content[OUTCOME_MARKER] == 1 and content["failed"] == ["a", "b"]
     assert content["stores"][2]["steps"][1] == {"source": "d2.csv", "step": 2, "summary": "step 2 from d2.csv: ...",

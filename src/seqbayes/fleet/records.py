@@ -158,8 +158,8 @@ class FleetOutcome:
         """One line: how many stores were updated, up to date and failed, and the time."""
         counts = {status: sum(o.status == status for o in self.outcomes) for status in (UPDATED, CURRENT, FAILED)}
         steps = sum(len(o.steps) for o in self.outcomes)
-        text = (f"fleet {self.source}: {len(self.outcomes)} stores, {counts[UPDATED]} updated ({steps} datasets), "
-                f"{counts[CURRENT]} up to date, {counts[FAILED]} failed; {self.seconds:.1f} s")
+        text = (f"{len(self.outcomes)} stores of {self.source}: {counts[UPDATED]} updated ({steps} dataset"
+                f"{'s' * (steps != 1)}), {counts[CURRENT]} up to date, {counts[FAILED]} failed; {self.seconds:.1f} s")
         if self.driver:
             text += f" ({self.driver})"
         return text

@@ -123,7 +123,7 @@ def format_status(plan, statuses, problem: str | None = None) -> str:
         rows.append((s.name, s.kind or "?", "?" if s.n_steps is None else str(s.n_steps), s.last_dataset or "-",
                      str(s.pending), _alarm_text(s.alarm), str(len(s.errors))))
     widths = [min(40, max(len(r[i]) for r in rows)) for i in range(len(rows[0]))]
-    lines = [f"fleet {printable(str(plan.source))} ({plan.kind}): {len(statuses)} stores"]
+    lines = [f"{printable(str(plan.source))} (a fleet {plan.kind}): {len(statuses)} stores"]
     lines += ["  ".join(cell[:40].ljust(w) if i in (0, 1, 3, 5) else cell.rjust(w)
                         for i, (cell, w) in enumerate(zip(row, widths))).rstrip() for row in rows]
     troubled = [s for s in statuses if s.errors or (s.alarm is not None and s.alarm.raised)]
