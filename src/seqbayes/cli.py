@@ -240,6 +240,8 @@ def _fleet_given(args, command) -> bool:
                            f"its stores' datasets come from its folders or its manifest (docs/fleet.md)")
     if command == "update" and not fleet:
         if not args.datafiles:
+            if not Path(args.run).exists():
+                raise CommandError(f"{args.run}: no such run store or fleet folder")
             raise CommandError("update: give the data files to assimilate after RUN (or a fleet's folder or "
                                "manifest as RUN)")
         given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),

@@ -215,6 +215,7 @@ def test_the_options_of_the_two_forms_are_refused_in_one_line(fleet_root, tmp_pa
          "--workers: the cluster at --scheduler has its own workers"),
         (["update", str(manifest), "--lock-timeout", "-3"], "lock timeout: expected a number of seconds >= 0"),
         (["update", str(tmp_path / "empty.json")], "no such fleet manifest"),
+        (["update", str(tmp_path / "nowhere")], "nowhere: no such run store or fleet folder"),
     ]:
         assert cli.main(args) == 2, args
         err = capsys.readouterr().err

@@ -222,3 +222,29 @@ def test_two_fleet_updates_at_once_assimilate_every_dataset_once(kill_root, tmp_
     for name in ("s0", "s1"):
         store = RunStore.open(fleet / f"{name}.nc")
         assert store.sources == [f"d{s}.csv" for s in range(1, N_DATASETS + 1)]
+
+
+@pytest.mark.slow
+def test_a_likelihood_that_kills_its_worker_fails_its_store_only(kill_root, tmp_path):
+    """A worker process dies under a task (here the likelihood ends its process on s1's third dataset): Dask runs
+    the task again on other workers, where it dies again, then reports it; that store keeps its committed steps,
+    the others complete bit for bit."""
+    fleet = tmp_path / "fleet"
+    shutil.copytree(kill_root / "fleet", fleet)
+    module = kill_root / "model" / "fleetkillmodel_dies.py"
+    third = float(np.loadtxt(fleet / "s1" / "d3.csv", delimiter=",", skiprows=1)[0, 1])
+    module.write_text((kill_root / "model" / "fleetkillmodel.py").read_text().replace("def loglike", "def _line")
+                      + f"\nimport os\ndef loglike(theta, data):\n    if abs(data[0, 1] - {third!r}) < 1e-12:\n"
+                        f"        os._exit(3)\n    return _line(theta, data)\n")
+    config = (kill_root / "model" / "s1.toml").read_text().replace("fleetkillmodel:", "fleetkillmodel_dies:")
+    (tmp_path / "s1.toml").write_text(config)
+    shutil.copyfile(module, tmp_path / "fleetkillmodel_dies.py")
+    assert cli.main(["init", str(tmp_path / "s1.toml"), str(fleet / "s1.nc"), "--force"]) == 0
+    proc = spawn_fleet(fleet, "--workers", "2")
+    assert proc.wait(timeout=900) == 1, proc.stderr.read()
+    outcome = {s["name"]: s for s in json.loads((fleet / ".seqbayes-fleet.json").read_text())["stores"]}
+    assert outcome["s1"]["status"] == "failed" and "did not complete on the cluster (KilledWorker" in \
+        outcome["s1"]["error"]
+    assert RunStore.open(fleet / "s1.nc").n_steps == 2             # the steps committed before the crash
+    assert outcome["s0"]["status"] == "updated"
+    assert store_fingerprint(fleet / "s0.nc") == store_fingerprint(kill_root / "serial" / "s0.nc")

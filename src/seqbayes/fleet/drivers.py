@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import logging
 import uuid
 
 from .plan import FleetError
@@ -98,7 +99,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         client.run(_import_store)      # every worker pays its imports now, not in its first store's time
         yield client
     finally:
-        close()
+        nanny = logging.getLogger("distributed.nanny")
+        level = nanny.level
+        nanny.setLevel(logging.ERROR)  # "still alive after 4 s, killing": a busy machine, not the user's concern
+        try:
+            close()
+        finally:
+            nanny.setLevel(level)
 
 
 def _import_store() -> None:
