@@ -109,12 +109,16 @@ def copy_initial(root: Path, target: Path) -> None:
 
 def serial_updates(root: Path, plan: dict, target: Path) -> dict:
     """Every store updated alone by ``seqbayes update STORE D1 ... Dn -q`` in this process (copies of the
-    created stores in ``target``); returns ``{name: exit code}``."""
+    created stores in ``target``; the lines it prints are discarded); returns ``{name: exit code}``."""
+    import contextlib
+    import io
+
     from seqbayes import cli
 
     copy_initial(root, target)
-    return {name: cli.main(["update", str(target / f"{name}.nc"), *map(str, paths), "-q"])
-            for name, paths in plan.items()}
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return {name: cli.main(["update", str(target / f"{name}.nc"), *map(str, paths), "-q"])
+                for name, paths in plan.items()}
 
 
 def store_fingerprint(path) -> str:

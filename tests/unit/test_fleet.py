@@ -96,6 +96,19 @@ def test_a_dask_local_cluster_equals_serial_updates_bit_for_bit(fleet_root, refe
 
 
 @pytest.mark.slow
+def test_the_command_line_on_a_running_scheduler_equals_serial_updates(fleet_root, reference, tmp_path, capsys):
+    """``--scheduler ADDRESS``: the tasks go to a cluster the command did not start (here one in this process)."""
+    from distributed import LocalCluster
+
+    fleet = fresh(fleet_root, tmp_path / "fleet")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        code = cli.main(["update", str(fleet), "--scheduler", cluster.scheduler_address])
+    out = capsys.readouterr().out
+    assert code == 1 and f"(dask scheduler {cluster.scheduler_address})" in out
+    assert {n: store_fingerprint(fleet / f"{n}.nc") for n in NAMES} == reference
+
+
+@pytest.mark.slow
 def test_a_locked_store_is_reported_with_its_holder_and_the_others_complete(fleet_root, reference, tmp_path):
     fleet = fresh(fleet_root, tmp_path / "fleet")
     before = sha(fleet / "s1.nc")
@@ -151,7 +164,7 @@ def test_the_command_line_updates_the_fleet_and_its_status_lists_the_errors(flee
     assert "s0: 2 datasets assimilated (steps 1-2)" in out and "s3: FAILED: " in out
     assert "4 stores of " + str(fleet) + ": 2 updated (5 datasets), 0 up to date, 2 failed" in out
     errors = [line for line in err.splitlines() if not line.startswith("seqbayes update: warning: ")]
-    assert [line.split(": FAILED")[0] for line in errors] == ["seqbayes update: error: s2", "seqbayes update: error: s3"]
+    assert [line.split(": FAILED")[0] for line in errors] == [f"seqbayes update: error: {n}" for n in ("s2", "s3")]
     assert {n: store_fingerprint(fleet / f"{n}.nc") for n in NAMES} == reference
     written = json.loads((tmp_path / "out.json").read_text())
     assert written == json.loads(record_path(plan_fleet(fleet)).read_text())
