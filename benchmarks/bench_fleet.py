@@ -218,7 +218,7 @@ def kill_mode(args) -> int:
             if counts["kills"] % 10 == 0:
                 print(f"{counts['kills']} kills, {counts['fleets']} fleets completed (load {load()})", flush=True)
         counts = kill_and_resume(root, Path(tmp), args.kills, np.random.default_rng(args.seed), duration,
-                                 str(args.workers), report)
+                                 str(args.workers), report, keep=Path(args.keep) if args.keep else None)
         total = args.stores * args.datasets - (args.datasets - 2)
         kept = counts["steps_kept"]
         print(f"{counts['kills']} SIGKILLs of the fleet update's process group; after each, every store loaded and "
@@ -241,6 +241,8 @@ def main(argv=None) -> int:
     parser.add_argument("--kills", type=int, default=50)
     parser.add_argument("--workers", type=int, default=2, help="kill: workers of the fleet update (default 2)")
     parser.add_argument("--seed", type=int, default=20261207)
+    parser.add_argument("--keep", metavar="DIR", help="kill: copy the fleet a kill left here (before and after the "
+                                                      "checks) when a check fails")
     parser.add_argument("--skip-poisoned", action="store_true", help="only the throughput rounds")
     args = parser.parse_args(argv)
     if args.mode == "kill":

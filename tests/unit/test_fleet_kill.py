@@ -159,12 +159,12 @@ def test_sigkill_at_each_write_stage_of_a_fleet_update_resumes_bit_for_bit(kill_
 
 
 def kill_and_resume(kill_root: Path, folder: Path, kills: int, rng, duration: float, workers: str = "2",
-                    report=None) -> dict:
+                    report=None, keep: Path | None = None) -> dict:
     """Fleet updates of fresh copies of the fleet, each killed (the whole process group) after a random delay of
     ``uniform(0, 1.1) * duration`` and rerun, until ``kills`` kills were made; every attempt that completes
     must leave the fleet as the serial reference, bit for bit (:func:`assert_complete`), and then a fresh copy
     follows. Returns counts: kills, completed fleets, kills that found stores part-way (some step stored, not
-    all), and the steps kept per kill."""
+    all), and the steps kept per kill. With ``keep``, a fleet that fails a check is copied there first."""
     refs = references(kill_root)
     counts = {"kills": 0, "fleets": 0, "part_way": 0, "steps_kept": []}
     total = sum(r.n_steps for r in refs.values())
@@ -179,7 +179,16 @@ def kill_and_resume(kill_root: Path, folder: Path, kills: int, rng, duration: fl
             code = kill_group(proc) if killing else proc.wait(timeout=900)
             if code == -signal.SIGKILL:
                 counts["kills"] += 1
-                steps = sum(check_fleet_after_kill(fleet, refs).values())
+                if keep is not None:
+                    snapshot = keep / "before-check"
+                    shutil.rmtree(snapshot, ignore_errors=True)
+                    shutil.copytree(fleet, snapshot)       # the fleet as the kill left it
+                try:
+                    steps = sum(check_fleet_after_kill(fleet, refs).values())
+                except BaseException:
+                    if keep is not None:
+                        shutil.copytree(fleet, keep / "after-check", dirs_exist_ok=True)
+                    raise
                 counts["steps_kept"].append(steps)
                 counts["part_way"] += 0 < steps < total
                 if report is not None:

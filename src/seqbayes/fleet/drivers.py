@@ -96,7 +96,11 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         where = f"the scheduler at {scheduler}" if scheduler else f"a local cluster of {workers} workers"
         raise FleetError(f"cannot reach {where}: {type(err).__name__}: {err}") from None
     try:
-        client.run(_import_store)      # every worker pays its imports now, not in its first store's time
+        try:
+            client.run(_import_store)  # every worker pays its imports now, not in its first store's time
+        except Exception as err:
+            raise FleetError(f"the cluster's workers cannot import seqbayes ({type(err).__name__}: {err}); install "
+                             f"it where they run") from None
         yield client
     finally:
         nanny = logging.getLogger("distributed.nanny")
