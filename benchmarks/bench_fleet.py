@@ -8,17 +8,17 @@ drifting, SEMC with N = ``--samples``, each fed ``--datasets`` datasets of 8 row
 
 1. **Serial reference.** Every store updated alone, ``seqbayes update STORE D1 ... Dn`` (``cli.main`` in two
    worker processes, stores independent).
-2. **Two fleet updates through the Dask path** (``seqbayes update FLEET --workers 2``, a LocalCluster), each with
-   one poisoned store, s57: a bad data file (its 12th dataset holds a cell that is not a number), then a
-   likelihood that raises on its 12th dataset. Every store must equal its serial reference bit for bit
-   (tests/_fleet_model.store_fingerprint: samples, weights, predictive draws, sampler and generator states,
-   every diagnostic but the wall time); the poisoned store fails with its one line (the serial update fails
-   the same way and leaves the same store), the other stores complete.
-3. **Throughput**, stores per minute with 1, 2 and 4 workers, measured interleaved in this one run: three local
+2. **Throughput**, stores per minute with 1, 2 and 4 workers, measured interleaved in this one run: three local
    clusters stay up, and each round updates fresh copies of ``--batch`` stores on each (the order rotates
    between rounds); the clock runs from the first task sent to the last outcome (the clusters' start-up and
    the workers' imports are not counted). The ratio to one worker is taken per round. Each store is checked
    against its serial reference too. The load average is printed before and after every measurement.
+3. **Two fleet updates of every store through the Dask path** (``seqbayes update FLEET --workers 2``, a
+   LocalCluster), each with one poisoned store, s57: a bad data file (its 12th dataset holds a cell that is
+   not a number), then a likelihood that raises on its 12th dataset. Every store must equal its serial
+   reference bit for bit (tests/_fleet_model.store_fingerprint: samples, weights, predictive draws, sampler
+   and generator states, every diagnostic but the wall time); the poisoned store fails with its one line
+   (the serial update fails the same way and leaves the same store), the other stores complete.
 
 ``kill`` SIGKILLs the whole process group of ``seqbayes update FLEET --workers 2`` (the driver and its cluster's
 workers) ``--kills`` times after random delays (``uniform(0, 1.1)`` times an uninterrupted update's duration) and
@@ -255,10 +255,10 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         root, raising_root, fingerprints = setup(folder, args)
+        throughput(folder, root, fingerprints, args)
         if not args.skip_poisoned:
             for variant in ("bad", "raising"):
                 poisoned_run(folder, root, raising_root, fingerprints, variant, args)
-        throughput(folder, root, fingerprints, args)
     print(f"{time.perf_counter() - start:.0f} s in all (load {load()})")
     return 0
 

@@ -29,7 +29,6 @@ import argparse
 import importlib
 import json
 import sys
-import traceback
 import warnings
 from pathlib import Path
 
