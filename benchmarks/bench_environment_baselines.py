@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seqbayes.structural.environment import read_frequency_csv
 from seqbayes.structural.structures import ShearBuilding
+from seqbayes.studies.environment import read_year_csv
 from seqbayes.studies.environment_baselines import ekf_tracking, novelty_detection
 
 MASSES = (2.0e5, 2.0e5, 2.0e5, 1.6e5)
@@ -51,9 +51,9 @@ WITHIN_DAYS = 7
 
 def read_year(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``day``, ``temperature`` and ``frequencies (R, n)`` of a ``day,temperature,f1,..,fn`` file, read as the
-    monitor reads it (:func:`seqbayes.structural.environment.read_frequency_csv`)."""
+    monitor reads it (:func:`seqbayes.studies.environment.read_year_csv`)."""
     try:
-        table = read_frequency_csv(path)
+        table = read_year_csv(path)
     except ValueError as error:
         raise SystemExit(f"--data: {error}") from None
     frequencies = np.column_stack([table[name] for name in table if name.startswith("f")])

@@ -13,6 +13,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -64,7 +65,7 @@ def assert_poisoned_outcomes(outcomes, fleet):
                                           f"raised RuntimeError: sensor model out of range; the run store keeps "
                                           f"the steps committed before it (d1.csv (step 1))")
     assert by_name["s3"].error == (f"{fleet / 's3' / 'd2.csv'}: column 'y' has 1 NaN/inf value(s), first at data "
-                                   f"row 2")
+                                   f"row 2 (line 3)")
     assert by_name["s0"].steps[1].summary.startswith("step 2 from d2.csv: log-evidence increment")
 
 
@@ -223,16 +224,22 @@ def test_the_options_of_the_two_forms_are_refused_in_one_line(fleet_root, tmp_pa
         (["update", str(fleet / "s0.nc")], "update: give the data files to assimilate after RUN"),
         (["update", str(fleet / "s0.nc"), str(fleet / "s0" / "d1.csv"), "--workers", "2"],
          "--workers: only for a fleet update"),
-        (["update", str(manifest), "--workers", "-1"], "--workers: expected 0"),
         (["update", str(manifest), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"],
          "--workers: the cluster at --scheduler has its own workers"),
-        (["update", str(manifest), "--lock-timeout", "-3"], "lock timeout: expected a number of seconds >= 0"),
-        (["update", str(tmp_path / "empty.json")], "no such fleet manifest"),
+        (["update", str(tmp_path / "empty.json")], "empty.json: no such file"),
         (["update", str(tmp_path / "nowhere")], "nowhere: no such run store or fleet folder"),
     ]:
         assert cli.main(args) == 2, args
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and message in err, (args, err)
+    for option, value, message in [("--workers", "-1", "argument --workers: expected an integer >= 0"),
+                                   ("--workers", "257", "argument --workers: expected an integer >= 0 and <= 256"),
+                                   ("--workers", "two", "argument --workers: expected an integer, got 'two'"),
+                                   ("--lock-timeout", "-3", "argument --lock-timeout: expected a number >= 0")]:
+        with pytest.raises(SystemExit) as stop:      # the parser's bounds: one line too
+            cli.main(["update", str(manifest), option, value])
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err, (value, err)
     assert {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()} == before
 
 
@@ -243,11 +250,15 @@ def test_an_output_target_that_is_an_input_or_a_foreign_file_is_refused_and_no_s
     before = {p: sha(p) for p in sorted(fleet.rglob("*")) if p.is_file()}
     foreign = tmp_path / "notes.json"
     foreign.write_text('{"mine": 1}\n')
+    pipe = tmp_path / "pipe.json"
+    os.mkfifo(pipe)
     for target, message in [
-        (fleet / "s0" / "d1.csv", "is one of the fleet's inputs"),
-        (fleet / "s1.nc", "is one of the fleet's inputs"),
-        (fleet / "s1.nc.lock", "is one of the fleet's inputs"),
-        (foreign, "exists and is not a fleet update's outcome, so it is not overwritten"),
+        (fleet / "s0" / "d1.csv", "is the input"),
+        (fleet / "s1.nc", "is the run store"),
+        (fleet / "s1.nc.lock", "is the run store's lock"),
+        (fleet / ".s1.nc.journal", "is the run store's journal"),
+        (pipe, "is not a regular file (a FIFO, a device or a socket)"),
+        (foreign, "exists and is not a file this command wrote; give another name, or --force"),
         (fleet / "s0", "is a folder"),
         (tmp_path / "missing" / "out.json", "does not exist"),
     ]:
@@ -258,6 +269,8 @@ def test_an_output_target_that_is_an_input_or_a_foreign_file_is_refused_and_no_s
         assert after == before, target                    # no store, lock or data file touched or created
     assert foreign.read_text() == '{"mine": 1}\n'
     assert not list(tmp_path.rglob("*.tmp-*"))
+    assert cli.main(["update", str(fleet), "--workers", "0", "--json", str(foreign), "--force"]) == 1   # s2, s3 fail
+    assert json.loads(foreign.read_text())["seqbayes_fleet_outcome"] == 1
 
 
 @pytest.mark.slow

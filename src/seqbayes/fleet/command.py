@@ -14,7 +14,7 @@ import sys
 import time
 
 from .drivers import dask_client, run_dask, run_serial
-from .outputs import outcome_size, read_record, record_path, reserve_output
+from .outputs import check_targets, outcome_size, read_record, reserve_room
 from .plan import FleetError, plan_fleet
 from .records import collect
 from .status import fleet_status, format_status, status_json
@@ -44,7 +44,7 @@ def _default_workers(n_tasks: int) -> int:
 
 
 def update_command(source, *, workers=None, scheduler=None, json_path=None, lock_timeout=None,
-                   accept_model_change=False, out=None, err=None) -> int:
+                   accept_model_change=False, force=False, out=None, err=None) -> int:
     """Update every store of the fleet at ``source`` (a folder or a manifest) with its new datasets.
 
     Parameters
@@ -61,6 +61,8 @@ def update_command(source, *, workers=None, scheduler=None, json_path=None, lock
         Seconds to wait for a store another update holds (:class:`~seqbayes.fleet.task.TaskOptions`).
     accept_model_change : bool
         As ``seqbayes update --accept-model-change``, for every store.
+    force : bool
+        ``--json`` may replace an existing file that is not a fleet outcome (never an input or a store).
     out, err : text streams
         Where the lines go (default: stdout and stderr).
 
@@ -71,10 +73,11 @@ def update_command(source, *, workers=None, scheduler=None, json_path=None, lock
 
     Raises
     ------
-    FleetError
+    FleetError, seqbayes.store.targets.OutputError
         The command refused to start; no store was touched.
     """
     from ..store.locks import lock_timeout as check_timeout, now
+    from ..store.targets import OutputError
 
     out, err = out or sys.stdout, err or sys.stderr
     workers = _check_workers(workers, scheduler)
@@ -86,16 +89,11 @@ def update_command(source, *, workers=None, scheduler=None, json_path=None, lock
                          f"a folder NAME/ of its new datasets; a manifest lists [[store]] entries; docs/fleet.md)")
     options = TaskOptions(lock_timeout=lock_timeout, accept_model_change=accept_model_change)
     size = outcome_size(plan)
-    targets = [(record_path(plan), "the fleet's record", True)]
-    if json_path is not None:
-        import os
-
-        if os.path.realpath(json_path) != os.path.realpath(targets[0][0]):
-            targets.append((json_path, "--json", False))
+    targets = check_targets(plan, json_path, force)
     reserved = []
     try:
-        for path, what, replace_any in targets:
-            reserved.append(reserve_output(path, size, plan.inputs, what, replace_any=replace_any))
+        for path, what in targets:
+            reserved.append(reserve_room(path, size, what))
         if workers is None and scheduler is None:
             workers = _default_workers(len(plan.tasks))
 
@@ -124,13 +122,13 @@ def update_command(source, *, workers=None, scheduler=None, json_path=None, lock
     for output in reserved:
         try:
             output.commit(text)
-        except OSError as error:
+        except OutputError as error:
             from ..store.datasets import printable
 
             for other in reserved:
                 other.abandon()
-            print(f"seqbayes update: error: {printable(str(output.path))}: cannot write the fleet's outcome: "
-                  f"{error.strerror or error}; the stores were updated as the lines above say", file=err)
+            print(f"seqbayes update: error: {printable(str(error))}; the stores were updated as the lines above "
+                  f"say", file=err)
             return 2
     print(fleet.summary(), file=out, flush=True)
     for outcome in fleet.failed:

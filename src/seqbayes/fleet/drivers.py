@@ -105,7 +105,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     finally:
         nanny = logging.getLogger("distributed.nanny")
         level = nanny.level
-        nanny.setLevel(logging.ERROR)  # "still alive after 4 s, killing": a busy machine, not the user's concern
+        nanny.setLevel(logging.ERROR)  # the nanny's "still alive, killing" at close: a busy machine, not the user's concern
         try:
             close()
         finally:

@@ -1,15 +1,20 @@
 """The files a fleet update writes: its record (read by the fleet's status) and its ``--json`` outcome.
 
-Both are JSON texts of the :class:`~seqbayes.fleet.records.FleetOutcome`, written the way the stores are:
-to a temporary file in the target's folder, ``fsync``-ed, then moved over the target with ``os.replace``
-(a reader sees the old file or the new one, never half of one). Their place and room are taken before any
-store is touched (:func:`reserve_output`): the target is checked against the fleet's inputs, the
-temporary file is created and the room it needs allocated (``posix_fallocate``), so a read-only folder,
-a full disk or a target that is an input gives one line and leaves every store as it was.
+Both are JSON texts of the :class:`~seqbayes.fleet.records.FleetOutcome` and go through the output guard
+of every command (:mod:`seqbayes.store.targets`), in three moves:
 
-A target is refused when it is a folder, one of the fleet's inputs (the manifest, a store, its lock or
-journal, a data file) or an existing file that is not a fleet outcome (a JSON object carrying
-:data:`~seqbayes.fleet.records.OUTCOME_MARKER`): those are the user's files, never overwritten.
+1. :func:`check_targets`, before any store is touched: :func:`~seqbayes.store.targets.check_outputs`
+   refuses a target that is one of the fleet's inputs (the manifest, a data file), a store or its lock or
+   journal (as files, through links too), a folder or a special file, and, unless ``--force``, an existing
+   file that is not a fleet outcome (a JSON object carrying :data:`~seqbayes.fleet.records.OUTCOME_MARKER`).
+   The record's own name (hidden, the fleet's) may hold anything: a damaged record must not stop the
+   next update.
+2. :func:`reserve_room`, still before any store is touched: a temporary file in the target's folder takes
+   the room the outcome needs (``posix_fallocate``), so a read-only folder or a full disk gives one line
+   and leaves every store as it was, rather than failing after the stores were updated.
+3. :meth:`ReservedOutput.commit`, at the end: the room is given back and the text written by
+   :func:`~seqbayes.store.targets.write_output` (a temporary file, ``fsync``, ``os.replace``: a reader sees
+   the old file or the new one, never half of one).
 
 The record lies in the fleet's folder (``FOLDER/.seqbayes-fleet.json``) or beside its manifest
 (``.MANIFEST.toml.outcome.json``); :func:`read_record` reads it back for ``seqbayes status``.
@@ -27,11 +32,14 @@ from pathlib import Path
 from .plan import FleetError
 from .records import OUTCOME_MARKER
 
-__all__ = ["ReservedOutput", "reserve_output", "record_path", "read_record", "outcome_size", "MAX_OUTCOME_BYTES"]
+__all__ = ["ReservedOutput", "check_targets", "reserve_room", "record_path", "read_record", "outcome_size",
+           "MAX_OUTCOME_BYTES", "RECORD"]
 
 #: An outcome file larger than this is not read back (a fleet of 10^4 stores of 30 steps writes about 20 MB).
 MAX_OUTCOME_BYTES = 256 * 2 ** 20
 _TMP = ".tmp-"
+#: How the record is named in messages.
+RECORD = "the fleet's record"
 
 
 def record_path(plan) -> Path:
@@ -47,39 +55,15 @@ def outcome_size(plan) -> int:
     return 64 * 1024 + sum(4096 + 1024 * len(task.datasets) for task in plan.tasks)
 
 
-def _read_limited(path: Path, limit: int) -> bytes | None:
-    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes (opened without following a link
-    or waiting on a FIFO), else None."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
-    except OSError:
-        return None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode) or info.st_size > limit:
-            return None
-        chunks, size = [], 0
-        while size <= limit:
-            chunk = os.read(fd, 1 << 20)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-        return b"".join(chunks) if size <= limit else None
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
-
-
 def _outcome_json(path: Path) -> dict | None:
-    """The outcome a fleet update wrote at ``path``, or None when it is not one."""
-    raw = _read_limited(path, MAX_OUTCOME_BYTES)
-    if raw is None:
-        return None
+    """The outcome a fleet update wrote at ``path`` (read by the store's strict reader), or None when it is
+    not one."""
+    from ..store.datasets import read_regular
+
     try:
+        raw = read_regular(path, "fleet record", MAX_OUTCOME_BYTES, error=FleetError)
         content = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
+    except (FleetError, UnicodeDecodeError, json.JSONDecodeError):
         return None
     return content if isinstance(content, dict) and content.get(OUTCOME_MARKER) == 1 else None
 
@@ -101,40 +85,59 @@ def read_record(plan) -> tuple[dict, str | None]:
     return found, None
 
 
-class ReservedOutput:
-    """An output file whose place and room are taken (:func:`reserve_output`); :meth:`commit` writes it."""
+def _is_outcome(head: bytes) -> bool:
+    """Recogniser of an earlier fleet outcome (:func:`~seqbayes.store.targets.check_outputs`): its JSON
+    carries the marker, or, past the bytes read, starts with it (:meth:`FleetOutcome.to_json` puts it first)."""
+    from ..store.targets import HEAD_BYTES
 
-    def __init__(self, path: Path, tmp: Path, fd: int, reserved: int):
-        self.path, self.tmp, self.fd, self.reserved = path, tmp, fd, reserved
+    if len(head) >= HEAD_BYTES:
+        return head.startswith(f'{{\n "{OUTCOME_MARKER}": 1'.encode())
+    try:
+        content = json.loads(head.decode("utf-8"))
+    except ValueError:
+        return False
+    return isinstance(content, dict) and content.get(OUTCOME_MARKER) == 1
+
+
+def check_targets(plan, json_path=None, force: bool = False) -> list:
+    """``[(path, what)]`` of the fleet's outputs (its record, and ``json_path`` when it is another file),
+    checked by :func:`~seqbayes.store.targets.check_outputs` against the fleet's inputs and stores.
+
+    Raises
+    ------
+    seqbayes.store.targets.OutputError
+        One line naming the option and the target.
+    """
+    from ..store.targets import Output, check_outputs
+
+    record = record_path(plan)
+    outputs = [Output(RECORD, record, lambda head: True)]
+    if json_path is not None and os.path.realpath(json_path) != os.path.realpath(record):
+        outputs.append(Output("--json", json_path, _is_outcome))
+    inputs = ([plan.source] if plan.kind == "manifest" else []) + [d for t in plan.tasks for d in t.datasets]
+    chosen = check_outputs(outputs, inputs=inputs, stores=[t.store for t in plan.tasks], force=force)
+    return [(chosen[o.option], o.option) for o in outputs]
+
+
+class ReservedOutput:
+    """An output file whose room is taken (:func:`reserve_room`); :meth:`commit` writes it."""
+
+    def __init__(self, path: Path, what: str, tmp: Path, fd: int, reserved: int):
+        self.path, self.what, self.tmp, self.fd, self.reserved = path, what, tmp, fd, reserved
 
     def commit(self, text: str) -> None:
-        """Write ``text`` into the reserved file, ``fsync`` it and move it over the target.
+        """Give the room back and write ``text`` to the target atomically
+        (:func:`~seqbayes.store.targets.write_output`).
 
         Raises
         ------
-        OSError
-            The write failed (the text outgrew the room reserved on a full disk, an I/O error); the target
-            is as it was and the temporary file is removed.
+        seqbayes.store.targets.OutputError
+            The write failed (a disk filled since the room was taken, an I/O error); the target is as it was.
         """
-        data = memoryview(text.encode())
-        try:
-            offset = 0
-            while offset < len(data):
-                offset += os.pwrite(self.fd, data[offset:], offset)
-            os.ftruncate(self.fd, len(data))
-            os.fsync(self.fd)
-            os.close(self.fd)
-            self.fd = -1
-            os.replace(self.tmp, self.path)
-        except BaseException:
-            self.abandon()
-            raise
-        with contextlib.suppress(OSError):
-            folder = os.open(self.path.parent, os.O_RDONLY)
-            try:
-                os.fsync(folder)
-            finally:
-                os.close(folder)
+        from ..store.targets import write_output
+
+        self.abandon()
+        write_output(self.path, text, self.what)
 
     def abandon(self) -> None:
         """Give the reservation up: the temporary file is removed, the target left as it was."""
@@ -161,44 +164,20 @@ def _remove_stale(folder: Path, prefix: str) -> None:
                     pass
 
 
-def reserve_output(path, size: int, inputs, what: str, *, replace_any: bool = False) -> ReservedOutput:
-    """Check the output target ``path`` and take its place and ``size`` bytes of room (module docstring).
-
-    Parameters
-    ----------
-    path : path-like
-    size : int
-        Bytes to allocate now (:func:`outcome_size`).
-    inputs : set of str
-        Real paths of the fleet's inputs (:attr:`seqbayes.fleet.plan.FleetPlan.inputs`).
-    what : str
-        What the target is, for messages (``"--json"``, ``"the fleet's record"``).
-    replace_any : bool
-        The target may replace a regular file that is not a fleet outcome (the record, whose name is the
-        fleet's: a damaged record must not stop the next update).
+def reserve_room(path, size: int, what: str) -> ReservedOutput:
+    """Take ``size`` bytes of room in the folder of the (checked) target ``path``, before any store is touched.
 
     Raises
     ------
     FleetError
-        One line naming the target: a folder, an input, an existing file that is not a fleet outcome, a
-        missing or read-only folder, no room.
+        One line naming the target: a read-only folder, no room.
     """
     from ..store.datasets import printable
 
     path = Path(path)
     shown = printable(str(path))
     untouched = "no store was touched"
-    if path.is_dir():
-        raise FleetError(f"{what} {shown}: is a folder; give a file name, e.g. {printable(str(path / 'fleet.json'))}")
-    if os.path.realpath(path) in inputs:
-        raise FleetError(f"{what} {shown}: is one of the fleet's inputs (its manifest, a store or a data file), "
-                         f"which is never overwritten; give another file; {untouched}")
-    if os.path.lexists(path) and not (replace_any and path.is_file()) and _outcome_json(path) is None:
-        raise FleetError(f"{what} {shown}: exists and is not a fleet update's outcome, so it is not overwritten; "
-                         f"remove it or give another file; {untouched}")
-    folder = path.parent
-    if not folder.is_dir():
-        raise FleetError(f"{what} {shown}: the folder {printable(str(folder))} does not exist; {untouched}")
+    folder = path.parent if str(path.parent) else Path(".")
     prefix = f".{path.name}{_TMP}"
     _remove_stale(folder, prefix)
     tmp = folder / f"{prefix}{os.getpid()}"
@@ -222,4 +201,4 @@ def reserve_output(path, size: int, inputs, what: str, *, replace_any: bool = Fa
             os.remove(tmp)
         raise FleetError(f"{what} {shown}: cannot take {size // 1024} KiB for it in {printable(str(folder))}: "
                          f"{err.strerror or err}; {untouched}") from None
-    return ReservedOutput(path, tmp, fd, size)
+    return ReservedOutput(path, what, tmp, fd, size)

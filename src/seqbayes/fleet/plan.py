@@ -29,7 +29,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,37 +204,21 @@ def _folder_task(name: str, store: Path, datasets: Path) -> StoreTask:
 
 
 def _read_manifest(path: Path):
-    """The manifest's parsed content: a regular file of at most :data:`MAX_MANIFEST_BYTES`, TOML or JSON."""
+    """The manifest's parsed content: read by the store's strict reader (a regular file of at most
+    :data:`MAX_MANIFEST_BYTES`, no FIFO waited on, no device read), then TOML or JSON."""
     import tomllib
 
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))   # a FIFO is not waited on
-    except FileNotFoundError:
-        raise FleetError(f"{path}: no such fleet manifest") from None
-    except OSError as err:
-        raise FleetError(f"{path}: cannot read the fleet manifest: {err.strerror or err}") from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise FleetError(f"{path}: the fleet manifest is not a regular file")
-        if info.st_size > MAX_MANIFEST_BYTES:
-            raise FleetError(f"{path}: the fleet manifest has {info.st_size:,} bytes; at most "
-                             f"{MAX_MANIFEST_BYTES:,} are read")
-        with os.fdopen(os.dup(fd), "rb") as fh:
-            raw = fh.read(MAX_MANIFEST_BYTES + 1)
-    except OSError as err:
-        raise FleetError(f"{path}: cannot read the fleet manifest: {err.strerror or err}") from None
-    finally:
-        os.close(fd)
+    from ..store.datasets import printable, read_regular
+
+    raw = read_regular(path, "fleet manifest", MAX_MANIFEST_BYTES, error=FleetError)
     try:
         text = raw.decode("utf-8-sig")
         return json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
     except UnicodeDecodeError:
-        raise FleetError(f"{path}: the fleet manifest is not UTF-8 text") from None
+        raise FleetError(f"{printable(str(path))}: the fleet manifest is not UTF-8 text") from None
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
-        from ..store.datasets import printable
-
-        raise FleetError(f"{path}: the fleet manifest does not parse: {printable(str(err))[:200]}") from None
+        raise FleetError(f"{printable(str(path))}: the fleet manifest does not parse: "
+                         f"{printable(str(err))[:200]}") from None
 
 
 def _plan_manifest(path: Path) -> FleetPlan:

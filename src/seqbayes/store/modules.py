@@ -40,16 +40,15 @@ class ConfigError(ValueError):
 def read_toml(path) -> dict:
     """The TOML run configuration at ``path`` as a dict; a missing or unreadable file, a folder or
     invalid TOML is a one-line :class:`ConfigError` naming the file."""
+    from .datasets import read_regular
+
     path = Path(path)
+    # a regular file of at most 16 MiB, read once (a FIFO or /dev/zero given as the configuration is refused)
+    raw = read_regular(path, "TOML run configuration", limit=16 << 20, error=ConfigError)
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a folder, not a TOML run configuration") from None
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from None
+        return tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: invalid TOML: byte {err.start} is not UTF-8 text") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: invalid TOML: {err}") from None
 

@@ -19,10 +19,18 @@ Subpackages and modules, lowest layer first:
   :mod:`~seqbayes.structural.drop_paths`.
 - :mod:`~seqbayes.structural.environment`: damage against temperature on identified natural
   frequencies, as model selection between no damage and a loss in each storey.
+- The modal path (docs/modal.md): :mod:`~seqbayes.structural.modes_table` (poles and modes as CSV),
+  :mod:`~seqbayes.structural.tracking` (poles of many records tracked into modes),
+  :mod:`~seqbayes.structural.modal_likelihood` (identified modes as the measurement of a model of
+  :mod:`~seqbayes.structural.structures.linear`) and :mod:`~seqbayes.structural.modal_references` (its
+  exact references).
 """
 
 from . import filters, sparsegrid, structures
 from .environment import EnvironmentMonitor, FrequencyLikelihood
+from .modal_likelihood import ModalLikelihood
+from .modes_table import PoleTable, read_modes_table
+from .tracking import track_poles
 from .sgenmcmc import SGEnMCMC
 from .stiffness_drop import DropBlock, StiffnessDropMonitor
 from .structures import DiscreteModel, GroundMotion, Sensors, ShearBuilding, discretise, kanai_tajimi, simulate
@@ -37,4 +45,5 @@ __all__ = [
     "kanai_tajimi",
     "ExactTransition", "SparseGridTransition", "SurrogateChoice", "choose_transition",
     "SGEnMCMC", "SGEnMCMCResult", "StiffnessDropMonitor", "DropBlock", "EnvironmentMonitor", "FrequencyLikelihood",
+    "ModalLikelihood", "PoleTable", "read_modes_table", "track_poles",
 ]

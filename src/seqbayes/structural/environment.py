@@ -25,7 +25,7 @@ identified set ``y_h`` (log frequencies, ascending) is::
   ``P(tau <= t | phi, data)`` is its first part over ``Z_t`` (Rao-Blackwellised).
 
 Each model is sampled by IBIS (resample-move SMC over a growing history, one update per day,
-tempered within a day by :func:`seqbayes.tempering.temper`) with random-walk Metropolis moves on
+tempered within a day by :func:`seqbayes.core.tempering.temper`) with random-walk Metropolis moves on
 the full history. Per day the likelihood needs only per-day sums of the data and of
 ``g_h = 0.5 log c(T_h)`` (``Sigma g``, ``Sigma g^2``, ``Sigma g Y``), so a move costs one pass over the
 hourly temperatures per particle and one 4x4 eigenproblem (two under ``Mj``).
@@ -40,17 +40,17 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..resampling import resample
-from ..tempering import temper
+from ..weights import resample
+from ..core.tempering import TargetESS, between_stages, temper
+from ..moves.base import metropolis_accept
 from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
 __all__ = ["EnvironmentPrior", "ModelDay", "MonitorDay", "ChangeModelSampler", "EnvironmentMonitor", "alarm_days",
-           "split_days", "FrequencyLikelihood", "read_frequency_csv", "monitor_year", "held_for"]
+           "split_days", "FrequencyLikelihood", "monitor_year", "held_for"]
 
 _FLOOR = -1e250  # stands in for -inf in the tempering increments, which must be finite
 
@@ -438,9 +438,9 @@ class ChangeModelSampler:
         increments = np.maximum(np.nan_to_num(current - previous, nan=_FLOOR, neginf=_FLOOR), _FLOOR)
         self._stages = 0
         self._moves = []
-        self.log_weights, _, _, self.log_evidence = temper(
-            self.log_weights, increments, self.target_ess * self.n_particles, self._resample_move, None,
-            self.log_evidence)
+        annealed = temper(None, increments, self.log_weights, TargetESS(self.target_ess * self.n_particles),
+                          between_stages(self._resample_move), log_z=self.log_evidence)
+        self.log_weights, self.log_evidence = annealed.log_weights, annealed.log_z
         return self.summary(day)
 
     def start_from(self, no_damage: "ChangeModelSampler") -> ModelDay:
@@ -495,8 +495,7 @@ class ChangeModelSampler:
                 cur_new, _ = self.log_marginal(new0, new1)
                 prev_new = self._previous(new0, new1)
                 target_new = prior + (1 - exponent) * prev_new + exponent * cur_new
-                log_ratio = np.where(inside, target_new - log_target, -np.inf)
-            accept = np.log(self.rng.uniform(size=self.n_particles)) < log_ratio
+            accept = metropolis_accept(log_target, np.where(inside, target_new, -np.inf), 0.0, self.rng)
             self.phi[accept] = proposal[accept]
             self.loglike0[accept] = new0[accept]
             if loglike1 is not None:
@@ -622,24 +621,6 @@ class EnvironmentMonitor:
         return record
 
 
-def read_frequency_csv(path) -> dict:
-    """A CSV with the header ``day,temperature,f1,...,fn`` as a dict of ``(S,)`` columns.
-
-    A wrong header or row raises ``ValueError`` naming the file.
-    """
-    path = Path(path)
-    with open(path) as handle:
-        header = [h.strip() for h in handle.readline().strip().split(",")]
-    n_modes = len(header) - 2
-    expected = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
-    if n_modes < 1 or header != expected:
-        raise ValueError(f"{path}: expected the header 'day,temperature,f1,...,fn', got {','.join(header)!r}")
-    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if values.shape[1] != len(expected) or values.shape[0] == 0:
-        raise ValueError(f"{path}: expected rows of {len(expected)} values, got shape {values.shape}")
-    return {name: values[:, i] for i, name in enumerate(expected)}
-
-
 def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generator, damage_day: float | None = None,
                  truth_known: bool = False, **options) -> tuple[dict, EnvironmentMonitor, list, list]:
     """Run an :class:`EnvironmentMonitor` over a table (``day``, ``temperature``, ``f1..fn``), one update per whole day.
@@ -648,7 +629,8 @@ def monitor_year(building: ShearBuilding, table: dict, *, rng: np.random.Generat
     ----------
     building : ShearBuilding
     table : dict
-        Columns as :func:`read_frequency_csv` returns them.
+        Columns ``day``, ``temperature``, ``f1..fn`` of ``(S,)`` arrays (a year CSV as
+        :func:`seqbayes.studies.environment.read_year_csv` reads it).
     rng : numpy.random.Generator
     damage_day, truth_known : float or None, bool
         The true damage day (``None``: no damage) when the truth is known, to sort the alarms.

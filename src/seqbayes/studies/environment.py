@@ -28,20 +28,31 @@ loss changes them by up to 1.3 %, with a different pattern in each storey.
 from __future__ import annotations
 
 import json
+import os
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..structural.environment import read_frequency_csv
+from ..store.datasets import TableSpec, read_datafile, read_regular
 from ..structural.structures import ShearBuilding
 
 __all__ = ["MASSES", "STIFFNESSES", "TemperatureModel", "YearTruth", "stiffness_factor", "simulate_temperature",
-           "simulate_year", "write_year_csv", "read_year_csv", "read_truth", "simulate_years"]
+           "simulate_year", "write_year_csv", "year_spec", "read_year_csv", "read_truth", "simulate_years", "DAY_RANGE",
+           "TEMPERATURE_RANGE", "FREQUENCY_RANGE", "check_against_building", "check_memory", "check_days"]
 
 MASSES = (2.0e5, 2.0e5, 2.0e5, 1.6e5)
 STIFFNESSES = (3.0e8, 2.6e8, 2.2e8, 1.8e8)
 CSV_HEADER = "day,temperature,f1,f2,f3,f4"
+
+#: Default bounds of a year CSV's columns (``seqbayes environment --max-day``, ``--temperature-range`` and
+#: ``--frequency-range`` change them): days since the first monitored day, at most 100 years; air and surface
+#: temperatures a structure meets, in degC (the records are -89 and +57 in air; a deck in the sun reaches
+#: about +70); natural frequencies in Hz of structures and machines.
+DAY_RANGE = (0.0, 36525.0)
+TEMPERATURE_RANGE = (-80.0, 80.0)
+FREQUENCY_RANGE = (0.01, 1000.0)
 
 
 @dataclass(frozen=True)
@@ -284,4 +295,103 @@ def simulate_years(out_dir, n_years: int = 20, seed: int = 0, *, damage_size: fl
     return paths
 
 
-read_year_csv = read_frequency_csv  # the CSV of a year: header day,temperature,f1,...,fn
+def year_spec(n_modes: int, *, columns=None, day_range=DAY_RANGE, temperature_range=TEMPERATURE_RANGE,
+              frequency_range=FREQUENCY_RANGE, hints: dict | None = None) -> TableSpec:
+    """The rules of a year CSV (:class:`~seqbayes.store.datasets.TableSpec`) of ``n_modes`` frequencies.
+
+    ``columns`` (``n_modes + 2`` names: time, temperature, frequencies) replaces the header
+    ``day,temperature,f1,...,fn``; other columns are then ignored, while without it extra columns are
+    refused. The days must increase from row to row (one identified set per row: a repeated or late
+    set is refused) and lie in ``day_range``; temperatures lie in ``temperature_range`` [degC];
+    frequencies lie in ``frequency_range`` [Hz] and increase along each row. ``hints`` maps
+    ``"day"``, ``"temperature"``, ``"frequency"``, ``"extra"``, ``"header"`` and ``"ascending"`` to text
+    appended to the messages (the command's options).
+    """
+    if int(n_modes) != n_modes or n_modes < 1:
+        raise ValueError(f"n_modes: expected a positive integer, got {n_modes}")
+    n_modes = int(n_modes)
+    default = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
+    names = list(default if columns is None else columns)
+    if len(names) != n_modes + 2:
+        raise ValueError(f"columns: expected {n_modes + 2} names (time, temperature, {n_modes} frequencies), got "
+                         f"{len(names)}")
+    hints = dict(hints or {})
+    frequencies = names[2:]
+    by_column = {names[0]: hints.get("day", ""), names[1]: hints.get("temperature", ""),
+                 **{f: hints.get("frequency", "") for f in frequencies}}
+    by_column.update({key: hints[key] for key in ("extra", "header", "ascending") if key in hints})
+    describe = f"the header {','.join(default)}" if columns is None else f"the columns {', '.join(names)}"
+    return TableSpec(tuple(names), time=names[0], time_range=tuple(day_range), time_order="increasing",
+                     ranges={names[1]: tuple(temperature_range), **{f: tuple(frequency_range) for f in frequencies}},
+                     positive=tuple(frequencies), ascending=tuple(frequencies),
+                     extra="refuse" if columns is None else "ignore", describe=describe, hints=by_column)
+
+
+def read_year_csv(path, n_modes: int | None = None, **options) -> dict:
+    """A year CSV (header ``day,temperature,f1,...,fn``) as a dict of ``(S,)`` columns under those names.
+
+    Read by the run store's reader (:func:`~seqbayes.store.datasets.read_datafile`) with the rules of
+    :func:`year_spec` (``options`` are its keywords); ``n_modes=None`` takes as many frequencies as
+    the header has ``f1, f2, ...`` columns.
+
+    Raises
+    ------
+    DataError
+        A ``ValueError`` naming the file, the line and what was expected (see :func:`year_spec`).
+    """
+    if n_modes is None:
+        first = read_regular(path).split(b"\n", 1)[0].decode("utf-8-sig", "replace")
+        n_modes = max(1, sum(bool(re.fullmatch(r"f\d+", h.strip())) for h in first.split(",")))
+    spec = year_spec(n_modes, **options)
+    values = read_datafile(path, spec)
+    canonical = ["day", "temperature"] + [f"f{r + 1}" for r in range(n_modes)]
+    return {name: values[:, i] for i, name in enumerate(canonical)}
+
+
+#: The data's frequencies may lie at most this factor from the building's nominal ones (the prior sd of a log
+#: frequency is 0.05): beyond it the building, the units or the column order is wrong, and the monitor's numbers
+#: break down (at a factor of 1000 its model probabilities no longer sum to 1).
+MAX_FREQUENCY_RATIO = 10.0
+
+
+def check_against_building(path, building, table, names) -> None:
+    """Refuse frequencies whose median lies more than :data:`MAX_FREQUENCY_RATIO` from the building's nominal
+    ones: the monitor cannot explain them (its numbers break down), and they mean a wrong building or unit."""
+    nominal = building.modes(np.ones((1, building.n_storeys)))[0][0]
+    for r, name in enumerate(names):
+        median = float(np.median(table[f"f{r + 1}"]))
+        ratio = median / nominal[r]
+        if not 1 / MAX_FREQUENCY_RATIO <= ratio <= MAX_FREQUENCY_RATIO:
+            raise ValueError(f"{path}: the median of column {name!r} is {median:.4g} Hz, {ratio:.3g} times the "
+                             f"building's natural frequency {r + 1} of {nominal[r]:.4g} Hz (from --masses and "
+                             f"--stiffness); the monitor needs them within a factor of {MAX_FREQUENCY_RATIO:g}: "
+                             f"check the building, the units (Hz) and the column order")
+
+
+def check_memory(n_storeys: int, n_particles: int, n_days: int) -> None:
+    """Refuse ``--particles`` whose arrays cannot fit in this machine's memory (numpy's MemoryError would come
+    mid-run, as a traceback). Each of the ``n + 1`` models keeps about ``12 * days + 20 (n + 4) + 3 n^2``
+    float64 values per particle alive (its per-day likelihoods under both states and their moves: 16.4 kB per
+    particle measured on 60 days of a 2-storey building, 20 kB by this count)."""
+    need = (n_storeys + 1) * n_particles * (12 * n_days + 20 * (n_storeys + 4) + 3 * n_storeys ** 2) * 8
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not POSIX: no bound known
+        return
+    if need > have:
+        raise ValueError(f"--particles {n_particles}: {n_storeys + 1} models over {n_days} days need about "
+                         f"{need / 2**30:.3g} GiB of memory; this machine has {have / 2**30:.3g} GiB")
+
+
+def check_days(path, days, records, trouble: str = "") -> None:
+    """Refuse a year whose day table is not a set of probabilities (a numeric breakdown): ``records`` are the
+    :class:`~seqbayes.structural.environment.MonitorDay` of ``days``; ``trouble`` says what numpy met."""
+    for day, record in zip(days, records):
+        p = np.asarray(record.model_probabilities)
+        if not (np.all(np.isfinite(p)) and abs(p.sum() - 1) < 1e-6
+                and -1e-9 <= record.p_damage <= 1 + 1e-9):
+            probabilities = ", ".join(f"{q:.3g}" for q in p)
+            raise ValueError(f"{path}: the monitor's numbers broke down on day {day} (model probabilities "
+                             f"{probabilities}){'; ' + trouble if trouble else ''}: the data lie outside what this "
+                             f"building's model can produce; check --masses, --stiffness, the units and the "
+                             f"bounds; nothing was written")
