@@ -308,11 +308,6 @@ def test_an_outcome_that_cannot_be_written_after_the_run_is_one_line(fleet_root,
                                                                      monkeypatch):
     """The room was taken before the run; should the write fail anyway, the line says the stores were
     updated, and the previous record stays whole."""
-    import errno
-    import os
-
-    from seqbayes.fleet import outputs
-
     fleet = fresh(fleet_root, tmp_path / "fleet")
     for name in ("s2", "s3"):
         (fleet / f"{name}.nc").unlink()
@@ -322,13 +317,19 @@ def test_an_outcome_that_cannot_be_written_after_the_run_is_one_line(fleet_root,
     kept = record.read_bytes()
     write_table(fleet / "s0" / "d3.csv", np.column_stack([np.linspace(0, 1, 8), np.ones(8)]))
 
-    def no_room(*args):
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-    monkeypatch.setattr(outputs.os, "pwrite", no_room)
+    from types import SimpleNamespace
+
+    from seqbayes.store import targets
+
+    def no_room(path):    # the disk filled after the room was taken: write_output's own check sees it
+        return SimpleNamespace(total=1 << 30, used=1 << 30, free=0)
+    monkeypatch.setattr(targets, "shutil", SimpleNamespace(disk_usage=no_room))
     assert cli.main(["update", str(fleet), "--workers", "0"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if " warning: " not in line]
-    assert len(errors) == 1 and errors[0].endswith("cannot write the fleet's outcome: No space left on device; the "
-                                                   "stores were updated as the lines above say")
+    assert len(errors) == 1 and errors[0].startswith(f"seqbayes update: error: the fleet's record {record}: not "
+                                                     f"enough free space in {fleet}")
+    assert errors[0].endswith("(No space left on device); nothing was written; the stores "
+                              "were updated as the lines above say"), errors[0]
     assert record.read_bytes() == kept and not list(fleet.glob(".*.tmp-*"))
     from seqbayes.store import RunStore
 
