@@ -188,6 +188,7 @@ def kill_and_resume(kill_root: Path, folder: Path, kills: int, rng, duration: fl
                 except BaseException:
                     if keep is not None:
                         shutil.copytree(fleet, keep / "after-check", dirs_exist_ok=True)
+                        fresh_reads(keep)
                     raise
                 counts["steps_kept"].append(steps)
                 counts["part_way"] += 0 < steps < total
@@ -200,6 +201,27 @@ def kill_and_resume(kill_root: Path, folder: Path, kills: int, rng, duration: fl
             shutil.rmtree(fleet)
             break
     return counts
+
+
+#: Reads every store of a kept fleet with xarray in a fresh interpreter: whether a failed xarray check is the
+#: file's (the fresh read fails too) or the checking process's (it passes).
+_FRESH_READ = """import sys, glob, xarray as xr
+for path in sorted(glob.glob(sys.argv[1] + '/*/*.nc')):
+    try:
+        with xr.open_dataset(path, engine='h5netcdf') as ds:
+            ds.load()
+            print(path, 'read whole:', {k: ds[k].dims for k in ('dataset_sha256',) if k in ds})
+    except Exception as err:
+        print(path, 'fails:', type(err).__name__, str(err)[:300])
+"""
+
+
+def fresh_reads(keep: Path) -> None:
+    """Write ``keep/fresh-reads.txt``: each kept store read by xarray in a fresh interpreter (:data:`_FRESH_READ`)."""
+    result = subprocess.run([sys.executable, "-c", _FRESH_READ, str(keep)], capture_output=True, text=True,
+                            timeout=600)
+    (keep / "fresh-reads.txt").write_text(result.stdout + result.stderr)
+    print(f"fresh reads of the kept fleet:\n{result.stdout}{result.stderr}", flush=True)
 
 
 def uninterrupted_duration(kill_root: Path, folder: Path, workers: str = "2") -> float:
