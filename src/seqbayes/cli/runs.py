@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import traceback
 import warnings
 from pathlib import Path
 
@@ -39,6 +38,12 @@ def cmd_update(args: argparse.Namespace) -> int:
     from ..store.datasets import printable
     from ..store.files import store_lock
 
+    if fleet_given(args, "update"):   # a folder of stores or a manifest: one task per store (docs/fleet.md)
+        from ..fleet import update_command
+
+        return update_command(args.run, workers=args.workers, scheduler=args.scheduler, json_path=args.json,
+                              lock_timeout=args.lock_timeout, accept_model_change=args.accept_model_change,
+                              force=args.force)
     show = progress_enabled() and not args.quiet
     with store_lock(args.run, timeout=args.lock_timeout):
         store = open_run(args.run)
@@ -81,41 +86,41 @@ def cmd_update(args: argparse.Namespace) -> int:
     return 0
 
 
-def raised_in(err, files) -> bool:
-    """Whether the exception passed through one of ``files`` (the user's likelihood module)."""
-    files = {str(Path(f).resolve()) for f in files if f}
-    return any(str(Path(frame.filename).resolve()) in files for frame in traceback.extract_tb(err.__traceback__))
-
-
 def describe_failure(err, store, done=()) -> str:
-    """One line for an update that failed, saying what the run store holds now."""
-    from ..store import ConfigError, DataError, StoreError
+    """One line for an update that failed, saying what the run store holds now (shared with the fleet)."""
+    from ..fleet import describe_failure as describe
 
-    if done:
-        unchanged = (f"the run store keeps the steps committed before it ({', '.join(done)}); this file and the "
-                     f"ones after it were not assimilated")
-    else:
-        unchanged = "the run store is unchanged"
-    text = str(err)
-    if isinstance(err, (StoreError, ConfigError, DataError)):
-        return text if "previous store is kept" in text else f"{text}; {unchanged}"
-    if isinstance(err, OSError):
-        where = f" ({err.filename})" if err.filename else ""
-        return f"{err.strerror or text}{where}; {unchanged}"
-    user = store.user_code()        # (module:function, file) of the user's likelihood, if the run has one
-    if user is not None and isinstance(err, ValueError) and text.startswith("loglike"):
-        return f"likelihood {user[0]}: {text}; {unchanged}"
-    if user is not None and raised_in(err, [user[1]]):
-        return f"the likelihood {user[0]} raised {type(err).__name__}: {text}; {unchanged}"
-    if isinstance(err, ValueError) or type(err).__name__ in ("ZeroLikelihoodError", "TemperingLimitError"):
-        return f"{text}; {unchanged}"
-    return (f"{type(err).__name__} in seqbayes: {text} (a bug: please report it with --traceback); "
-            f"{unchanged}")
+    return describe(err, store, done)
+
+
+def fleet_given(args, command) -> bool:
+    """Whether RUN is a fleet (a folder or a .toml/.json manifest); refuses the options of the other form."""
+    from ..fleet import is_fleet
+
+    fleet = is_fleet(args.run)
+    if command == "update" and fleet and (args.datafiles or args.replace_last):
+        raise CommandError(f"{args.run}: a fleet takes no {'DATAFILE' if args.datafiles else '--replace-last'}: "
+                           f"its stores' datasets come from its folders or its manifest (docs/fleet.md)")
+    if command == "update" and not fleet:
+        if not args.datafiles:
+            if not Path(args.run).exists():
+                raise CommandError(f"{args.run}: no such run store or fleet folder")
+            raise CommandError("update: give the data files to assimilate after RUN (or a fleet's folder or "
+                               "manifest as RUN)")
+        given = [o for o, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
+                                ("--json", args.json)) if v is not None]
+        if given:
+            raise CommandError(f"{given[0]}: only for a fleet update (RUN a folder of stores or a manifest)")
+    return fleet
 
 
 def cmd_status(args: argparse.Namespace) -> int:
     from ..store import open_run
 
+    if fleet_given(args, "status"):
+        from ..fleet import status_command
+
+        return status_command(args.run, as_json=args.json)
     store = open_run(args.run)
     if args.json:
         print(json_text(store.status_json(args.level)))
@@ -303,8 +308,8 @@ def add_commands(sub) -> None:
     p.set_defaults(func=cmd_init)
 
     p = sub.add_parser("update", help="assimilate one or more datasets (CSV or NetCDF), one step each")
-    p.add_argument("run")
-    p.add_argument("datafiles", nargs="+", metavar="DATAFILE")
+    p.add_argument("run", help="run store, or a fleet: a folder of stores or a .toml/.json manifest")
+    p.add_argument("datafiles", nargs="*", metavar="DATAFILE")
     p.add_argument("--replace-last", action="store_true",
                    help="roll back the last step and assimilate the (first) dataset in its place")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
@@ -312,6 +317,12 @@ def add_commands(sub) -> None:
                    help="run the likelihood module although its file changed since the run recorded it "
                         "(the new hash is recorded)")
     p.add_argument("--lock-timeout", **LOCK_TIMEOUT_OPTION)
+    p.add_argument("--workers", type=bounded(int, 0, 256), metavar="N",
+                   help="fleet: workers of the local Dask cluster (default: the cores); 0: the stores one after "
+                        "another in this process, without Dask")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="fleet: the Dask scheduler to run the stores' tasks on")
+    p.add_argument("--json", metavar="FILE", help="fleet: also write the update's outcome here (JSON)")
+    p.add_argument("--force", **FORCE_OPTION)
     p.set_defaults(func=cmd_update)
 
     p = sub.add_parser("status", help="table of steps: posterior mean, sd, credible intervals, diagnostics")

@@ -30,11 +30,11 @@ import numpy as np
 
 from ..engine.drivers import violation
 from . import files, registry
-from .datasets import read_datafile
+from .datasets import check_table, dataset_digest, read_datafile
 from .errors import DuplicateDatasetError, StoreError
 
-__all__ = ["BaseStore", "Provenance", "RECORD_TEXT", "record_hash", "content_hash", "rehash", "json_value",
-           "json_values", "check_finite"]
+__all__ = ["BaseStore", "Provenance", "AlarmState", "RECORD_TEXT", "record_hash", "content_hash", "rehash",
+           "json_value", "json_values", "check_finite"]
 
 #: Attributes covered by the store's content hash (the numeric arrays carry HDF5 Fletcher-32 checksums).
 HASHED_ATTRS = ("config", "model_fingerprint", "n_steps", "initial_step_size", "result_meta")
@@ -107,6 +107,25 @@ def check_finite(path: Path, variables: dict, output_name=None) -> None:
         message = violation(name, values, rule_name)
         if message is not None:
             raise StoreError(f"{path}: damaged run store: {message}")
+
+
+@dataclass(frozen=True)
+class AlarmState:
+    """A run's alarm as its backend sees it after the last step (:meth:`BaseStore.alarm_state`).
+
+    Attributes
+    ----------
+    raised : bool
+        Whether the alarm is on.
+    step : int or None
+        The step at which it was raised (None when it is off).
+    text : str
+        One line saying what the alarm is about (e.g. which storey, which probability).
+    """
+
+    raised: bool
+    step: int | None = None
+    text: str = ""
 
 
 def _encoding(ds, growing: dict) -> dict:
@@ -366,6 +385,11 @@ class BaseStore:
         (:func:`~seqbayes.store.datasets.read_datafile`)."""
         return read_datafile(datafile, self.config)
 
+    def digest_of(self, table) -> str:
+        """The SHA-256 this run records for ``table`` (as :meth:`read_datafile` returns it) when it assimilates
+        it, the one :meth:`check_new_dataset` compares, without assimilating anything."""
+        return dataset_digest(check_table(table, self.config), self.config.columns)
+
     def update(self, datafile: str | os.PathLike, **options):
         """Read a CSV/NetCDF data file (:meth:`read_datafile`) and assimilate it (``options``: the
         backend's ``assimilate`` keywords)."""
@@ -606,6 +630,11 @@ class BaseStore:
 
     def user_code(self) -> tuple | None:
         """``(module:function, file)`` of the user's code an update runs, or None (for error messages)."""
+        return None
+
+    def alarm_state(self) -> AlarmState | None:
+        """The run's alarm after its last step, or None when runs of this kind have no alarm (the default);
+        ``seqbayes status`` of a fleet lists it per store."""
         return None
 
     def describe(self) -> str:

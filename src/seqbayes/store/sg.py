@@ -288,6 +288,10 @@ class SGRunStore(BaseStore):
                                     f"must start at {expected:g} s (blocks are assimilated in order)")
         return table
 
+    def digest_of(self, table) -> str:
+        """The SHA-256 this run records for ``table``: that of its SI table (:meth:`_si_block`)."""
+        return dataset_digest(self._si_block(table, "table"), self.config.columns)
+
     def assimilate(self, table: ArrayLike, source: str = "<array>", *, replace_last: bool = False,
                    executor: Any = None, loglike: Any = None, write: bool = True,
                    accept_model_change: bool = False) -> dict:
