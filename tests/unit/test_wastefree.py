@@ -26,7 +26,7 @@ def target_components(points):
 @pytest.mark.parametrize("moves", [RandomWalk(), Stretch()])
 def test_chains_keep_every_state_and_its_components(moves):
     """N states chain by chain, each chain starting at its resampled ancestor, every state's components those of
-    the target at it, (P - 1) evaluations per chain, and the same numbers for the same seed."""
+    the target at it, 2 (P - 1) evaluations per chain, and the same numbers for the same seed."""
     rng = np.random.default_rng(3)
     n, length = 203, 10  # not a multiple of P: the last chain is cut
     position = rng.multivariate_normal(MEAN, 2.0 * COV, size=n)
@@ -40,7 +40,7 @@ def test_chains_keep_every_state_and_its_components(moves):
     assert chained.shape == (n, 3) and chained_components.shape == (n, 1) and index.shape == (n,)
     assert n_steps == length - 1
     n_chains = -(-n // length)
-    assert sum(CALLS) == stats_.n_evaluations == n_chains * (length - 1)
+    assert sum(CALLS) == stats_.n_evaluations == 2 * n_chains * (length - 1)  # two kernels a step
     np.testing.assert_array_equal(chained[::length], position[index[::length]])
     np.testing.assert_array_equal(index, np.repeat(index[::length], length)[:n])
     np.testing.assert_allclose(chained_components, target_components(chained), rtol=1e-12)
@@ -75,8 +75,9 @@ def test_chains_leave_the_target_invariant():
 def test_economy_evidence_and_means_at_d5(cls):
     """Economy's first update of the 5-D correlated Gaussian (waste-free stages, then the importance evidence):
     log Z within 0.05 nats and every mean within 0.2 posterior sd of the closed form, at N = 1000 and fewer than
-    12,000 calls. Over 20 seeds (``rng=[2024, seed]``) the log Z error's sd was 0.007 nats, the worst mean error
-    0.084 sd and the calls 9,880-9,925 (docs/benchmarks.md, "Waste-free economy"): 0.05 is 7 sd."""
+    16,000 calls. Over 20 seeds (``rng=[2024, seed]``) the log Z error's sd was 0.006 nats, the worst mean error
+    0.090 sd and the calls 12,760 on average (the scaled rounds before: 0.0085 nats, 13,100 calls); these two
+    seeds take 12,400 and 14,200. 0.05 nats is 8 sd."""
     gauss = CorrelatedGaussian(5)
     kernel = seqbayes.MarkovKernel([seqbayes.Static()] * 5)
     for seed in (0, 1):
@@ -88,4 +89,4 @@ def test_economy_evidence_and_means_at_d5(cls):
         z_err, mean_err = gauss.errors(sampler.result.steps[0])
         assert abs(z_err) < 0.05, z_err
         assert mean_err < 0.2, mean_err
-        assert info.n_loglike_evals < 12000, info.n_loglike_evals
+        assert info.n_loglike_evals < 16000, info.n_loglike_evals

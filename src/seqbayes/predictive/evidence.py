@@ -55,7 +55,7 @@ __all__ = ["Importance", "PathEvidence", "Precision", "importance_step", "pooled
            "STARVED_RESTART"]
 
 #: ``economy``: the importance sweeps continue until the increment's standard error is below this.
-ECONOMY_EVIDENCE_SE = 0.012
+ECONOMY_EVIDENCE_SE = 0.015
 #: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
 #: step's evidence and posterior rest on a handful of draws of the prior's far tail.
 STARVED_RESTART = 0.1
