@@ -42,8 +42,8 @@ BOUNDED_COST = {"inner_filter": ParticleInnerFilter(8, n_pilot=500), "surrogate"
 #: Settings passed to the samplers (flat, :func:`seqbayes.engine.settings.from_flat`) on top of the core's
 #: defaults. F_mu drifts and the other three are static, so the defaults run SMC^2
 #: (:mod:`seqbayes.predictive.smc2`) at the bounded cost above. The static first step runs economy's waste-free
-#: stages (:mod:`seqbayes.moves.wastefree`) and twelve independence-MH sweeps of the evidence (fewer left one
-#: SMC run of ten with a posterior sd 24 % off the exact one); SMC^2 uses them only at s = 1. Their accuracy
+#: stages (:mod:`seqbayes.moves.wastefree`) and twelve independence-MH sweeps of the evidence (with fewer, SMC's
+#: first posterior sd missed the exact one's tolerance); SMC^2 uses them only at s = 1. Their accuracy
 #: against the exact grid and their cost: docs/coulomb_friction.md and docs/benchmarks.md (the Coulomb sections,
 #: "Waste-free economy").
 SAMPLER_SETTINGS = {"SEMC": {"n_independent": 12, "economy": True, **BOUNDED_COST},
