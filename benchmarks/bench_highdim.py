@@ -26,6 +26,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import seqbayes  # noqa: E402
+from seqbayes.engine.settings import from_flat  # noqa: E402
 from seqbayes.models.correlated_gaussian import CorrelatedGaussian  # noqa: E402
 
 
@@ -34,7 +35,7 @@ def one_run(cls, gauss, n, seed, settings):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sampler = cls(gauss.prior(), kernel, gauss.loglike, n_samples=n, rng=np.random.default_rng([7, seed]),
-                      **settings)
+                      **from_flat(cls.__name__, **settings))
         start = time.perf_counter()
         info = sampler.update(gauss.data)
     z_err, mean_err = gauss.errors(sampler.result.steps[0])

@@ -101,10 +101,13 @@ class Moves:
         ``moved_fraction`` of them have moved. ``None``: on above :data:`HIGH_DIMENSION` parameters or with
         ``economy``.
     economy : bool
-        Fewer likelihood calls for expensive models (docs/core.md, "Economy of likelihood calls"): the scaled
-        moves stopped at half the travel and 70 % moved, one more move at a tempered step's last stage, no restart
-        from the restricted prior while ``d + 1`` particles have a non-zero likelihood, and the importance evidence
-        refitted once to the swept particles and swept until its standard error is small.
+        Fewer likelihood calls for expensive models (docs/core.md, "Economy of likelihood calls"): up to
+        :data:`HIGH_DIMENSION` parameters each resampling stage is waste-free (:mod:`seqbayes.moves.wastefree`:
+        N / 10 starts, every state of their chains kept), above it the scaled moves stopped at half the travel and
+        70 % moved; one more move at a tempered step's last stage, no restart from the restricted prior while
+        ``d + 1`` particles have a non-zero likelihood, and the importance evidence refitted once to the swept
+        particles (both fits' draws entering it after waste-free stages) and swept until its standard error is
+        small.
     screen : None, "quadratic", "auto" or callable
         Exact delayed acceptance (:mod:`seqbayes.moves.delayed`; Christen and Fox 2005): a cheap log target
         screens every proposal and only the survivors are evaluated. ``"quadratic"``: a quadratic fitted to the
@@ -146,6 +149,14 @@ class Moves:
         if self.scaled is not None:
             return bool(self.scaled)
         return self.economy or dim > HIGH_DIMENSION
+
+    def waste_free(self, dim: int) -> bool:
+        """Whether a state's target of ``dim`` parameters is resampled and moved with waste-free chains
+        (:mod:`seqbayes.moves.wastefree`): with ``economy``, where the scaled moves run, up to
+        :data:`HIGH_DIMENSION` parameters. Above it chains from the fitted Gaussian do not mix in a few steps (at
+        d = 50 the log-evidence was 75 nats off; docs/benchmarks.md, "Waste-free economy") and the scaled rounds
+        stay."""
+        return bool(self.economy and self.uses_scaled(dim) and dim <= HIGH_DIMENSION)
 
     def resolved(self, n_samples: int, dim: int) -> "Moves":
         """These moves for ``n_samples`` particles of ``dim`` parameters, their defaults that depend on them filled

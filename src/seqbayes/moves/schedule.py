@@ -19,6 +19,7 @@ from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
 from .gaussian import weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
 from .scaled import FittedGaussian, SuffixMove, independence_sweep, whitened_jumps
+from .wastefree import waste_free_chains
 
 __all__ = ["move_stage", "scaled_rounds", "stage_screen", "StageMoves", "prior_sweep", "Staged", "ResampleMove",
            "PathTarget"]
@@ -74,7 +75,8 @@ class PathTarget:
 class ResampleMove:
     """The particle predictives' mutation (:class:`~seqbayes.core.tempering.Mutation`): after each stage,
     resample (always at an intermediate stage; at the last when the ESS is below ``resample_below * N`` and the
-    schedule does not defer it, IBIS's ``deferred``) and move (:func:`move_stage`) at every stage that resampled,
+    schedule does not defer it, IBIS's ``deferred``) and move (:func:`move_stage`) at every stage that resampled
+    (with the moves' ``waste_free``, on a state's target, both at once: :func:`_waste_free_stage`),
     or at every stage with ``move_every_stage``, and with the moves' ``economy`` once more at the last stage of a tempered
     step. ``stage_check(particles)`` is called with each intermediate stage's resampled particles; what it returns
     (``None`` to go on) stops the loop. ``target``: as :func:`move_stage`."""
@@ -84,6 +86,8 @@ class ResampleMove:
         self.problem, self.config, self.likelihood, self.prior_logpdf = problem, config, likelihood, prior_logpdf
         self.move_every_stage, self.deferred, self.rng, self.stage_check = move_every_stage, deferred, rng, stage_check
         self.target = target
+        # economy on a state's target: waste-free chains instead of resampling N and moving each (moves/wastefree.py)
+        self.waste_free = target == PathTarget() and config.moves.waste_free(problem.support.shape[0])
 
     def __call__(self, staged: Staged, loglike, stage):
         config, rng, beta = self.config, self.rng, stage.beta
@@ -92,6 +96,17 @@ class ResampleMove:
         particles, components, labels, log_weights = cloud.particles, cloud.components, cloud.labels, stage.log_weights
         decision = None
         resampled = beta < 1.0 or (stage.ess < config.tempering.resample_below * n and not self.deferred)
+        if resampled and self.waste_free:
+            components = self.prior_logpdf.refreshed(particles, components)
+            moved, index = _waste_free_stage(self.problem, config.moves, particles, components, log_weights, beta,
+                                            self.prior_logpdf, rng, self.likelihood.loglike, config.tempering.scheme,
+                                            staged.moves.step_size)
+            labels = None if labels is None else labels[index]
+            log_weights = np.full(n, -np.log(n))
+            decision = None if self.stage_check is None or beta >= 1.0 else self.stage_check(moved.walkers)
+            cloud = Cloud(moved.walkers, log_weights, moved.components, labels)
+            staged = Staged(cloud, staged.moves.then(moved, config.moves), staged.prior_share, True)
+            return staged, moved.components[:, 0], log_weights, decision
         if resampled:
             index = resample(config.tempering.scheme, stage.weights, rng, n)
             particles, components = particles[index], components[index]
@@ -131,26 +146,8 @@ def move_stage(problem, moves, state_step_size, walkers, components, beta, prior
     rounds' local sweep moves a random suffix of each (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
     """
     kernel_density, prior_moves, path_states = target.kernel_density, target.prior_moves, target.path_states
-    transform = problem.transform if moves.transform else None
-    if transform is None:
-        position, support = walkers, problem.support if problem.bounded else None
-        coefficients = np.array([beta, 1.0])
-
-        def component_fn(points):
-            return np.column_stack([loglike(points), prior_logpdf(points)])
-    else:
-        position, support = transform.forward(walkers), None
-        components = np.column_stack([components, transform.log_jacobian(position)])
-        coefficients = np.array([beta, 1.0, 1.0])
-
-        def component_fn(points):
-            theta = transform.inverse(points)
-            inside = inside_space(theta, problem.support)  # round-off can land on a bound
-            out = np.full((points.shape[0], 3), -np.inf)
-            out[inside] = np.column_stack([loglike(theta[inside]), prior_logpdf(theta[inside]),
-                                           transform.log_jacobian(points[inside])])
-            return out
-
+    transform, position, components, component_fn, coefficients, support = _coordinates(
+        problem, moves, walkers, components, beta, prior_logpdf, loglike)
     start = position
     if moves.uses_scaled(walkers.shape[1]):
         resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
@@ -166,15 +163,57 @@ def move_stage(problem, moves, state_step_size, walkers, components, beta, prior
         position, components, stats, step_size, n_virtual = moves.stage(position, components, component_fn,
                                                                          coefficients, support, rng, screening,
                                                                          state_step_size)
-    if transform is not None:
-        moved = np.any(position != start, axis=1)
-        walkers = walkers.copy()
-        walkers[moved] = transform.inverse(position[moved])
-        components = components[:, :2]
-    else:
-        walkers = position
+    walkers, components = _back(transform, walkers, position, start, components)
     return StageMoves(walkers, components, stats, step_size, n_virtual,
                       prior_share if prior_moves is not None else float("nan"))
+
+
+def _coordinates(problem, moves, walkers, components, beta, prior_logpdf, loglike):
+    """The moves' coordinates of a stage targeting ``L^beta p_s``: ``(transform or None, position (N, d),
+    components (N, k), component_fn, coefficients (k,), support or None)``; with ``moves.transform`` the
+    unconstrained coordinates of :class:`~seqbayes.priors.BoxTransform`, the log-Jacobian a third component."""
+    transform = problem.transform if moves.transform else None
+    if transform is None:
+        def component_fn(points):
+            return np.column_stack([loglike(points), prior_logpdf(points)])
+        return None, walkers, components, component_fn, np.array([beta, 1.0]), (
+            problem.support if problem.bounded else None)
+    position = transform.forward(walkers)
+
+    def component_fn(points):
+        theta = transform.inverse(points)
+        inside = inside_space(theta, problem.support)  # round-off can land on a bound
+        out = np.full((points.shape[0], 3), -np.inf)
+        out[inside] = np.column_stack([loglike(theta[inside]), prior_logpdf(theta[inside]),
+                                       transform.log_jacobian(points[inside])])
+        return out
+    return (transform, position, np.column_stack([components, transform.log_jacobian(position)]), component_fn,
+            np.array([beta, 1.0, 1.0]), None)
+
+
+def _back(transform, walkers, position, start, components):
+    """``(walkers, components (N, 2))`` in the parameters' coordinates after moves from ``start`` to ``position``;
+    walkers that did not move keep their exact coordinates."""
+    if transform is None:
+        return position, components
+    moved = np.any(position != start, axis=1)
+    walkers = walkers.copy()
+    walkers[moved] = transform.inverse(position[moved])
+    return walkers, components[:, :2]
+
+
+def _waste_free_stage(problem, moves, walkers, components, log_weights, beta, prior_logpdf, rng, loglike,
+                     scheme: str, state_step_size: float):
+    """Economy's resample-move of a state's target at one stage: :func:`~seqbayes.moves.wastefree.waste_free_chains`
+    in the moves' coordinates (as :func:`move_stage`). Returns ``(StageMoves, index (N,))``, the particles'
+    ancestors among ``walkers``."""
+    transform, position, components, component_fn, coefficients, support = _coordinates(
+        problem, moves, walkers, components, beta, prior_logpdf, loglike)
+    chained, chained_components, index, stats, n_steps = waste_free_chains(
+        moves, position, components, log_weights, component_fn, coefficients, support, rng, scheme)
+    walkers, chained_components = _back(transform, walkers[index], chained, position[index], chained_components)
+    return StageMoves(walkers, chained_components, stats, moves.step_size_after(state_step_size, float("nan")),
+                      n_steps), index
 
 
 def stage_screen(setting, position, components, coefficients, beta, loglike, to_theta, support):

@@ -55,7 +55,7 @@ __all__ = ["Importance", "PathEvidence", "Precision", "importance_step", "pooled
            "STARVED_RESTART"]
 
 #: ``economy``: the importance sweeps continue until the increment's standard error is below this.
-ECONOMY_EVIDENCE_SE = 0.02
+ECONOMY_EVIDENCE_SE = 0.015
 #: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
 #: step's evidence and posterior rest on a handful of draws of the prior's far tail.
 STARVED_RESTART = 0.1
@@ -259,6 +259,17 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
 
 
 
+def combined(estimates, n: int) -> tuple[float, float]:
+    """Independent estimates ``(log Z_k, ESS_k)`` of one evidence (each ESS the N draws' equivalent: variance
+    ``1 / ESS_k - 1 / N``) combined by their inverse variances: ``(log Z, ESS)`` with the combined variance
+    ``1 / ESS - 1 / N``."""
+    log_z = np.array([z for z, _ in estimates], dtype=float)
+    variance = np.array([max(1.0 / e - 1.0 / n, 1e-12) for _, e in estimates])
+    log_w = -np.log(variance)
+    total = float(1.0 / np.exp(logsumexp(log_w)))
+    return float(logsumexp(log_z + log_w) - logsumexp(log_w)), 1.0 / (total + 1.0 / n)
+
+
 def step_standard_errors(previous_variance: float, n_samples: int, importance: bool, evidence_ess: float,
                          weights_before, log_weights_after, n_stages: int, resampled: bool, ancestor_variance: float,
                          method: str, ancestor_covariance: float = 0.0) -> tuple[float, float, float]:
@@ -455,10 +466,12 @@ class Importance:
             # them and estimate again (each q is independent of its own draws, so every estimate is valid)
             log_increment, evidence_ess, particles, components, accepted = importance_step(
                 particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
-                self.sweeps, other=also_fit, pool_sweeps=pool_sweeps,
+                self.sweeps, other=also_fit, pool_sweeps=pool_sweeps or attempt < warm_up,
                 **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
             n_independent += accepted
-            if attempt >= warm_up:
+            if attempt < warm_up:
+                warm = (log_increment, evidence_ess)
+            else:
                 if evidence_ess >= self.min_ess * n:
                     break
                 estimates.append((log_increment, evidence_ess))
@@ -472,6 +485,11 @@ class Importance:
                 log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
                 # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
                 evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
+        if warm_up and moves.waste_free(cloud.particles.shape[1]) and np.isfinite(warm[0]) and warm[1] >= reliable \
+                and np.isfinite(log_increment) and evidence_ess >= reliable:
+            # the warm-up's draws are as valid as the estimate's (each q fitted before its draws); after waste-free
+            # stages its fit is to a mixed cloud, so its estimate joins the final one
+            log_increment, evidence_ess = combined([warm, (log_increment, evidence_ess)], n)
         # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
         # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
         if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
