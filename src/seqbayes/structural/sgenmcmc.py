@@ -152,6 +152,8 @@ class SGEnMCMC:
         BLAS threads while running (``threadpoolctl``; ``None``: no limit). Default 1: the products here are batches of
         small matrices, where a second thread costs CPU and gains no wall time (docs/shake_table.md).
 
+    Notes
+    -----
     The flat settings of earlier versions and of a TOML ``[sampler]`` table map onto the components with
     :func:`sg_from_flat`.
     """
