@@ -152,7 +152,7 @@ def test_a_few_hostile_tables_end_in_a_result_or_one_line(tmp_path, pristine_sto
 def test_many_hostile_tables_per_command_end_in_a_result_or_one_line(tmp_path, pristine_store, capsys):
     """120 tables per command (``SEQBAYES_HOSTILE_TABLES=240`` runs the 240 of issue 42): the first tables of
     the same seeded sequence, in which every class is met at least 6 times for update and 5 for environment
-    (12 and 17 in 240), so each class still meets each command several times in different combinations."""
+    (17 and 12 in 240), so each class still meets each command several times in different combinations."""
     from _hostile import CLASSES
 
     outcomes = _run_all(COMMANDS, N_TABLES, tmp_path, pristine_store, capsys)
