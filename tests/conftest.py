@@ -11,23 +11,22 @@ total. Wall durations (``--durations``) on a shared machine measure the load as 
 CPU time does not. ``make test`` prints both.
 
 **A long run shared by several tests** (a study, a long stream, a docs page's run): compute it once
-per test run, in a session fixture through :func:`_shared_runs.shared_run`, and list the fixture in
-:data:`SHARED_RUN_FIXTURES` here. Every test that uses the fixture then gets the pytest-xdist group of
-that name, and ``make test`` runs with ``--dist loadgroup``, so the readers of one run share one
-worker and the run is computed once, not once per worker (a session fixture runs once per worker).
-``shared_run`` also keeps the result in a file keyed by the code's hash, under a lock, so a second
-worker that does need it waits for the first one's file instead of recomputing it::
+per test run. A fixture of a test module with ``scope="module"`` (or class) is enough when only that
+module reads it: under pytest-xdist its readers form one work unit, sent whole to one worker, so the
+fixture runs once (``tests/_work_units.py``, which ``make test``'s ``--dist loadgroup`` selects). A run
+read by several modules is a session fixture here, through :func:`_shared_runs.shared_run`, named in
+:data:`SHARED_RUN_FIXTURES`: its readers in every module form one unit as well. ``shared_run`` also keeps
+the result in a file keyed by the code's hash, under a lock, so a worker that needs it while another
+computes it waits for the file instead of recomputing it::
 
-    # tests/conftest.py (or the one test module that reads it)
+    # tests/conftest.py
     @pytest.fixture(scope="session")
     def oma_campaign_study():
         return shared_run("oma-campaign", oma_study.run, n_records=12, seed=3)
 
     SHARED_RUN_FIXTURES = {..., "oma_campaign_study"}
 
-A run read by the tests of one module only can stay a module fixture; list it here as well, so
-that the module's tests stay on one worker. A result must pickle (xarray Datasets, dataclasses of
-arrays and the samplers' results do).
+A result must pickle (xarray Datasets, dataclasses of arrays and the samplers' results do).
 """
 
 from __future__ import annotations
@@ -48,12 +47,12 @@ if str(Path(__file__).parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).parent))
 
 import _shared_runs  # noqa: E402
+import _work_units  # noqa: E402
 from _shared_runs import shared_run  # noqa: E402
 
-#: Fixtures that are long runs read by several tests: their readers get one pytest-xdist group
-#: (``--dist loadgroup``), named after the fixture. A session fixture (defined here) by its name; a
-#: module's own fixture as ``path::name``.
-SHARED_RUN_FIXTURES = {"oscillator_reduced_study", "tests/studies/test_coulomb_study.py::study"}
+#: Session fixtures defined here that are long runs read by several test modules: their readers form one
+#: pytest-xdist work unit (``tests/_work_units.py``). A test module's own module fixtures need no entry.
+SHARED_RUN_FIXTURES = {"oscillator_reduced_study"}
 
 
 # ---------------------------------------------------------------- shared long runs
@@ -86,14 +85,12 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(config, items):
-    root = Path(__file__).resolve().parents[1]
-    for item in items:
-        names = set(getattr(item, "fixturenames", ()))
-        module = Path(str(item.fspath)).resolve().relative_to(root).as_posix() if item.fspath else ""
-        names |= {f"{module}::{name}" for name in names}
-        for group in sorted(SHARED_RUN_FIXTURES & names):
-            item.add_marker(pytest.mark.xdist_group(group))
-            break
+    _work_units.write_units(config, items, Path(__file__).resolve().parents[1], SHARED_RUN_FIXTURES)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    return _work_units.make_scheduler(config, log)
 
 
 # ---------------------------------------------------------------- CPU time per test

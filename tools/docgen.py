@@ -44,6 +44,11 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import cli_forks  # noqa: E402
+
+sys.path.pop(0)
+
 ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "guide.md"
 
@@ -327,24 +332,34 @@ def _numbered(p_line: str, a_line: str):
         yield p_num, a_num, marked, 1 + sum(end <= p_num.start() for end in fields)
 
 
-def _command(line: str, folder: Path) -> str:
-    """Run one shell line in ``folder`` with this interpreter's ``seqbayes`` first on the PATH;
-    stdout and stderr together, as a terminal shows them."""
+def _environment() -> dict:
     env = dict(os.environ, PYTHONUNBUFFERED="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg",
                COLUMNS="100", NO_COLOR="1")
     env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
-    done = subprocess.run(["bash", "-c", line], cwd=folder, env=env, stdin=subprocess.DEVNULL,
+    return env
+
+
+def _command(line: str, folder: Path, commands: cli_forks.Commands | None = None) -> str:
+    """Run one shell line in ``folder`` with this interpreter's ``seqbayes`` first on the PATH;
+    stdout and stderr together, as a terminal shows them. A plain ``seqbayes ...`` line goes to
+    ``commands`` (a forked process that skips the package's import, tools/cli_forks.py) when given."""
+    argv = cli_forks.plain_argv(line) if commands is not None else None
+    if argv is not None:
+        done = commands.run(argv, folder)
+        if done is not None:
+            return done[0]
+    done = subprocess.run(["bash", "-c", line], cwd=folder, env=_environment(), stdin=subprocess.DEVNULL,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=600)
     return done.stdout
 
 
-def _console(block: Block, folder: Path) -> list[str]:
+def _console(block: Block, folder: Path, commands: cli_forks.Commands | None = None) -> list[str]:
     """Run a console block; return it with the current outputs in place of the page's."""
     out: list[str] = []
     for line in block.body:
         if line.startswith("$ "):
             out.append(line)
-            out.extend(_command(line[2:], folder).rstrip("\n").splitlines())
+            out.extend(_command(line[2:], folder, commands).rstrip("\n").splitlines())
     return out
 
 
@@ -371,13 +386,18 @@ def run_page(path: Path, folder: Path | None = None, text: str | None = None) ->
         import matplotlib
 
         matplotlib.use("Agg")
+        commands = None
+        if os.environ.get("SEQBAYES_DOCS_FORK", "1") != "0":   # SEQBAYES_DOCS_FORK=0: every line through bash
+            commands = cli_forks.Commands(_environment(), folder)
+        if commands is not None:
+            stack.callback(commands.close)
         namespace: dict = {"__name__": "__guide__"}
         sys.path.insert(0, str(folder))  # `from beam import loglike` in the guide's API section
         stack.callback(sys.path.remove, str(folder))
         last_printed = None
         for item in items:
             if isinstance(item, tuple):
-                _command(item[1], folder)
+                _command(item[1], folder, commands)
                 continue
             kind = item.directive[0] if item.directive else None
             if kind == "file":
@@ -390,7 +410,7 @@ def run_page(path: Path, folder: Path | None = None, text: str | None = None) ->
                     raise ValueError(f"{path.name}:{item.start}: an output block must follow a run block")
                 results.append((item, last_printed.rstrip("\n").splitlines()))
             elif item.lang == "console" and kind != "norun":
-                results.append((item, _console(item, folder)))
+                results.append((item, _console(item, folder, commands)))
             last_printed = None
     return results
 

@@ -11,6 +11,10 @@ either way (SMC^2 reports no se for it), so the worst step of a run is a random 
 0.16-1.17 nats, median 0.51 (seeds 0-4: 0.47-1.17, median 0.85), and over ten seeds of the code before the importance
 sweeps were fitted to the other half 0.04-1.00, median 0.36. The bar, a median over five seeds below 1.0 nats, sits
 between the degenerate runs (all above 1.3) and the healthy ones (15 % of single runs above 1.0).
+
+The median of five is below 1.0 exactly when three of the five are, so the seeds run in order and stop once
+three are below the bar (or three above it): the same assertion, at three or four runs instead of five when
+the sampler is healthy.
 """
 
 import warnings
@@ -54,4 +58,7 @@ def test_smc2_keeps_the_evidence_of_a_contradicted_drift():
             sampler = seqbayes.SEMC(problem.prior, kernel, problem.loglike, n_samples=1000, rng=seed)
             log_z = np.array([sampler.update(d).log_evidence for d in datasets])
             worst.append(np.max(np.abs(log_z - exact)))
-    assert np.median(worst) < 1.0, np.round(worst, 3)
+            below = sum(w < 1.0 for w in worst)
+            if below == 3 or len(worst) - below == 3:   # the median of the five is decided
+                break
+    assert sum(w < 1.0 for w in worst) == 3, np.round(worst, 3)

@@ -14,6 +14,7 @@ A new command is one line in :data:`COMMANDS` (the columns of its valid table an
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections import Counter
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ from seqbayes.store import RunStore, load_config
 from seqbayes.store.datasets import MAX_FILE_BYTES
 
 MASSES, STIFFNESS = "2e5,2e5", "3e8,2.6e8"   # natural frequencies 3.98 and 10.06 Hz
+N_TABLES = int(os.environ.get("SEQBAYES_HOSTILE_TABLES", "120"))
 
 
 @dataclass(frozen=True)
@@ -172,17 +174,20 @@ def test_a_few_hostile_tables_end_in_a_result_or_one_line(tmp_path, pristine_sto
     assert all(outcomes[name, 2] > 0 for name in COMMANDS), outcomes
 
 
-@pytest.mark.slow   # 2 x 240 tables: about 80 s of CPU
-def test_240_hostile_tables_per_command_end_in_a_result_or_one_line(tmp_path, pristine_store, capsys):
+@pytest.mark.slow
+def test_many_hostile_tables_per_command_end_in_a_result_or_one_line(tmp_path, pristine_store, capsys):
+    """120 tables per command (``SEQBAYES_HOSTILE_TABLES=240`` runs the 240 of issue 42): the first tables of
+    the same seeded sequence, in which every class is met at least 6 times for update and 5 for environment
+    (17 and 12 in 240), so each class still meets each command several times in different combinations."""
     from _hostile import CLASSES
 
-    outcomes = _run_all(COMMANDS, 240, tmp_path, pristine_store, capsys)
+    outcomes = _run_all(COMMANDS, N_TABLES, tmp_path, pristine_store, capsys)
     for name in COMMANDS:
-        # every class met at least 10 times per command (the covariate's only where there is one), and both
-        # outcomes: some tables are refused and some (a BOM, CRLF; for update more) give a result
+        # every class met at least 5 times per 120 tables of a command (the covariate's only where there is
+        # one), and both outcomes: some tables are refused and some (a BOM, CRLF; for update more) give a result
         met = {f.__name__: outcomes[name, f.__name__] for f in CLASSES
                if COMMANDS[name].covariate or f.__name__ != "extreme_temperatures"}
-        assert min(met.values()) >= 10, (name, met)
+        assert min(met.values()) >= 5 * N_TABLES // 120, (name, met)
         assert outcomes[name, 2] > 0 and outcomes[name, 0] > 0, outcomes
     print(sorted(outcomes.items(), key=str))
 

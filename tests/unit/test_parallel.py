@@ -4,6 +4,7 @@ and the work really runs in the workers."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
@@ -16,7 +17,10 @@ from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
 from seqbayes import parallel
 from seqbayes.parallel import ProcessWorkers
 
-distributed = pytest.importorskip("distributed")
+# found, not imported: importing distributed costs about 1.5 CPU-s on each worker's collection, and only the
+# cluster fixture needs it
+if importlib.util.find_spec("distributed") is None:
+    pytest.skip("could not import 'distributed'", allow_module_level=True)
 
 
 @pytest.fixture(autouse=True)
@@ -63,6 +67,8 @@ def assert_identical(a, b):
 
 @pytest.fixture(scope="module")
 def client():
+    import distributed
+
     cluster = distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=":0")
     client = distributed.Client(cluster)
     yield client
