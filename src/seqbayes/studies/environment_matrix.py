@@ -1,0 +1,261 @@
+"""The misspecification matrix of issue 40: the methods on a year, the plan of years, the one table.
+
+``benchmarks/bench_environment_matrix.py`` is the driver (simulation cache, parallel runs, resumable JSON lines,
+calibration); this module holds what it composes, so that the tests can call it:
+
+- :data:`METHODS` maps a method's name to a function ``(table, building, seed) -> (DailyVerdict, info)``:
+  ``"monitor"`` (the new monitor's ``monitor_table``, when this code has it), ``"monitor_v1"`` (the old
+  :func:`seqbayes.structural.environment.monitor_year`, which the cells are known to break), and the
+  baselines ``"regression"``, ``"pca"`` and ``"ekf"`` (:mod:`seqbayes.studies.environment_baselines`, each
+  with ``train_days`` of training; their score is the day's statistic over its training threshold);
+- :class:`MatrixPlan` says which years (cells, kinds, counts, length, damage window, seeds), for the matrix and
+  for the separate calibration set;
+- :func:`summarise` scores a method's years of one cell under a rule against the issue's bars, and
+  :func:`matrix_table` writes the one table.
+
+The bars (issue 40, in every cell): no alarm in any healthy year; a 5 % loss found within 7 days at the right
+element in at least 9 of 10 years; a 2 % loss found within 30 days in at least 8 of 10; the loss's size and its
+day inside their 95 % intervals (read at that detection) in at least 9 of 10 years, for the 5 % and the 2 %
+losses each. A detection counts only if the rule did not already hold the day before the damage.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..structural.structures import ShearBuilding
+from .environment_alarms import AlarmRule, DailyVerdict, rate_interval, score_year
+from .environment_baselines import ekf_tracking, novelty_detection
+from .environment_cells import CELLS, KINDS, YearBase
+
+__all__ = ["MatrixPlan", "FULL_PLAN", "REDUCED_PLAN", "METHODS", "DEFAULT_RULES", "BARS", "year_rows",
+           "run_method", "summarise", "matrix_table", "monitor_available", "frequency_columns"]
+
+
+@dataclass(frozen=True)
+class MatrixPlan:
+    """Which years: ``years_per_kind`` of each kind of :data:`~seqbayes.studies.environment_cells.KINDS` in each
+    of ``cells``, ``n_days`` long, the loss from a whole day in ``damage_window``; baselines train on
+    ``train_days``; the calibration set has ``calibration_years`` of each kind per cell (its own seeds)."""
+
+    cells: tuple = tuple(CELLS)
+    years_per_kind: int = 10
+    n_days: int = 365
+    damage_window: tuple = (183, 335)
+    train_days: float = 180.0
+    seed: int = 0
+    calibration_years: tuple = (("healthy", 4), ("loss5", 1), ("loss2", 1))
+
+    def __post_init__(self):
+        unknown = [c for c in self.cells if c not in CELLS]
+        if unknown:
+            raise ValueError(f"cells: unknown cell {unknown[0]!r}; expected some of {', '.join(CELLS)}")
+        if not self.train_days < self.damage_window[0] <= self.damage_window[1] < self.n_days:
+            raise ValueError("train_days, damage_window, n_days: expected train_days < first damage day <= last "
+                             "damage day < n_days")
+
+    @property
+    def base(self) -> YearBase:
+        return YearBase(n_days=int(self.n_days))
+
+    def years(self, purpose: int = 0) -> list:
+        """``(cell, kind, index, purpose)`` of every year (purpose 0: the matrix, 1: the calibration set)."""
+        counts = ({kind: self.years_per_kind for kind in KINDS} if purpose == 0 else dict(self.calibration_years))
+        return [(cell, kind, i, purpose) for cell in self.cells for kind in KINDS for i in range(counts.get(kind, 0))]
+
+
+#: The issue's matrix: 8 cells x 30 years (10 healthy, 10 with a 5 % loss, 10 with a 2 % loss), and 48
+#: calibration years (4 healthy, one of each loss per cell).
+FULL_PLAN = MatrixPlan()
+#: The reduced form the slow test runs: 2 cells x 3 years of 120 days, the loss on a day in 70..90.
+REDUCED_PLAN = MatrixPlan(cells=("lag0", "lag6"), years_per_kind=1, n_days=120, damage_window=(70, 90),
+                          train_days=60.0, calibration_years=(("healthy", 2), ("loss2", 1)))
+
+#: Each method's rule before calibration: the old monitor's 0.95 on 2 days; a baseline's training threshold.
+DEFAULT_RULES = {"monitor": AlarmRule(0.95, 2), "monitor_v1": AlarmRule(0.95, 2), "regression": AlarmRule(1.0, 2),
+                 "pca": AlarmRule(1.0, 2), "ekf": AlarmRule(1.0, 2)}
+
+
+def frequency_columns(table: dict) -> tuple[np.ndarray, np.ndarray | None]:
+    """``f1..fn (S, n)`` and ``sf1..sfn (S, n)`` (None when absent) of a year table."""
+    n = sum(1 for k in table if k.startswith("f") and k[1:].isdigit())
+    frequencies = np.column_stack([table[f"f{r + 1}"] for r in range(n)])
+    std = np.column_stack([table[f"sf{r + 1}"] for r in range(n)]) if "sf1" in table else None
+    return frequencies, std
+
+
+def _baseline_verdict(result, train_days) -> DailyVerdict:
+    D = result.days.size
+    nan = np.full((D, 3), np.nan)
+    return DailyVerdict(result.days, result.statistic / result.threshold, result.elements, nan, nan,
+                        float(result.days[0]) + float(train_days))
+
+
+def _regression(table, building, seed, *, train_days):
+    frequencies, _ = frequency_columns(table)
+    result = novelty_detection(table["day"], table["temperature"], frequencies, building, method="regression",
+                               train_days=train_days)
+    return _baseline_verdict(result, train_days), {"threshold": result.threshold}
+
+
+def _pca(table, building, seed, *, train_days):
+    frequencies, _ = frequency_columns(table)
+    result = novelty_detection(table["day"], table["temperature"], frequencies, building, method="pca",
+                               train_days=train_days)
+    return _baseline_verdict(result, train_days), {"threshold": result.threshold}
+
+
+#: The EKF's random walk per set for the matrix (with the temperature law in its state).
+EKF_PROCESS_STD = 1e-4
+
+
+def _ekf(table, building, seed, *, train_days):
+    frequencies, std = frequency_columns(table)
+    result = ekf_tracking(table["day"], table["temperature"], frequencies, building, train_days=train_days,
+                          temperature_law=True, process_std=EKF_PROCESS_STD, std_frequencies=std)
+    return _baseline_verdict(result, train_days), {"process_std": EKF_PROCESS_STD}
+
+
+def _monitor_v1(table, building, seed, *, train_days):
+    """The old monitor (structural/environment.py): it takes complete sets only, and temperature only; the day of
+    the loss has a posterior mean but no interval (the onset interval is NaN), the size a normal 95 % interval."""
+    from ..structural.environment import monitor_year
+
+    frequencies, _ = frequency_columns(table)
+    complete = ~np.isnan(frequencies).any(axis=1)
+    old = {"day": table["day"][complete], "temperature": table["temperature"][complete]}
+    old.update({f"f{r + 1}": frequencies[complete, r] for r in range(frequencies.shape[1])})
+    summary, monitor, days, records = monitor_year(building, old, rng=np.random.default_rng(seed))
+    D = len(days)
+    size, onset = np.full((D, 3), np.nan), np.full((D, 3), np.nan)
+    element = np.zeros(D, int)
+    for i, record in enumerate(records):
+        if record.storey is None:
+            continue
+        model = record.models[record.storey]
+        element[i] = record.storey
+        mean, sd = float(model.mean[-1]), float(model.sd[-1])
+        size[i] = (mean, mean - 1.959964 * sd, mean + 1.959964 * sd)
+        onset[i, 0] = model.damage_day
+    verdict = DailyVerdict(np.asarray(days, int), np.array([r.p_damage for r in records]), element, size, onset, 0.0)
+    return verdict, {"environment": summary["environment"], "sets_used": int(complete.sum()),
+                     "n_particle_evaluations": summary["n_particle_evaluations"]}
+
+
+def monitor_available() -> bool:
+    """Whether this code has the new monitor's entry point ``monitor_table``."""
+    return _find_monitor_table() is not None
+
+
+def _find_monitor_table():
+    import importlib
+
+    for name in ("seqbayes.structural.monitor", "seqbayes.structural.monitor.replay", "seqbayes.structural.environment"):
+        try:
+            module = importlib.import_module(name)
+        except ImportError:
+            continue
+        if hasattr(module, "monitor_table"):
+            return module.monitor_table
+    return None
+
+
+def _monitor(table, building, seed, *, train_days):
+    monitor_table = _find_monitor_table()
+    if monitor_table is None:
+        raise RuntimeError("the new monitor (monitor_table) is not in this code: merge main once it has it, or run "
+                           "--methods monitor_v1")
+    raise NotImplementedError("the adapter to monitor_table is written when its signature is on main")
+
+
+METHODS = {"monitor": _monitor, "monitor_v1": _monitor_v1, "regression": _regression, "pca": _pca, "ekf": _ekf}
+
+
+def run_method(name: str, table: dict, building: ShearBuilding, *, seed: int, train_days: float) -> dict:
+    """One method on one year: ``{"verdict": DailyVerdict.to_json(), "info", "cpu_seconds", "wall_seconds"}``."""
+    if name not in METHODS:
+        raise ValueError(f"name: unknown method {name!r}; expected one of {', '.join(METHODS)}")
+    start, cpu = time.perf_counter(), time.process_time()
+    verdict, info = METHODS[name](table, building, seed, train_days=train_days)
+    return {"verdict": verdict.to_json(), "info": info, "cpu_seconds": time.process_time() - cpu,
+            "wall_seconds": time.perf_counter() - start}
+
+
+#: The issue's bars: (kind, what, at least how many of 10).
+BARS = {"healthy": 10, "loss5": 9, "loss2": 8, "intervals": 9}
+
+
+def summarise(records: list, rule: AlarmRule | None) -> dict:
+    """Score one method's year records of one cell (dicts with ``kind``, ``truth``, ``verdict``, ``cpu_seconds``)
+    under ``rule`` (None: no rule, every year counts as failed) against the bars (:data:`BARS`)."""
+    by_kind = {kind: [r for r in records if r["kind"] == kind] for kind in KINDS}
+    out = {"years": {kind: len(rs) for kind, rs in by_kind.items()}, "rule": None if rule is None else asdict(rule)}
+    scores = {kind: [score_year(DailyVerdict.from_json(r["verdict"]), r["truth"], rule) for r in rs] if rule else []
+              for kind, rs in by_kind.items()}
+    out["healthy_with_alarm"] = sum(s.false_alarms > 0 for s in scores["healthy"]) if rule else len(by_kind["healthy"])
+    all_scores = [s for kind in KINDS for s in scores[kind]]
+    count = sum(s.false_alarms for s in all_scores)
+    exposure = sum(s.exposure_days for s in all_scores) / 365.0
+    out["false_alarms"] = count
+    out["exposure_years"] = exposure
+    if exposure > 0:
+        out["rate"], out["rate_se"], out["rate_upper"] = rate_interval(count, exposure)
+    for kind, window in (("loss5", 7), ("loss2", 30)):
+        ss, rs = scores[kind], by_kind[kind]
+        news = [s for s in ss if s.delay is not None and not s.in_alarm_at_damage]
+        found = [s for s, r in zip(ss, rs) if s.delay is not None and not s.in_alarm_at_damage and s.delay <= window
+                 and (kind != "loss5" or s.element == r["truth"]["damage_storey"])]
+        delays = [s.delay for s in news]
+        out[kind] = {"found": len(found), "window": window, "median_delay": float(np.median(delays)) if delays else None,
+                     "size_covered": sum(bool(s.size_covered) for s in news),
+                     "onset_covered": sum(bool(s.onset_covered) for s in news),
+                     "both_covered": sum(bool(s.size_covered and s.onset_covered) for s in news),
+                     "has_intervals": any(s.size_covered is not None for s in news)}
+    out["cpu_seconds"] = float(np.mean([r["cpu_seconds"] for r in records])) if records else None
+    n = {kind: len(rs) for kind, rs in by_kind.items()}
+    out["bars"] = {"healthy": n["healthy"] > 0 and out["healthy_with_alarm"] == 0,
+                   "loss5": n["loss5"] > 0 and out["loss5"]["found"] >= np.ceil(BARS["loss5"] / 10 * n["loss5"]),
+                   "loss2": n["loss2"] > 0 and out["loss2"]["found"] >= np.ceil(BARS["loss2"] / 10 * n["loss2"]),
+                   "intervals": all(n[k] > 0 and out[k]["both_covered"] >= np.ceil(BARS["intervals"] / 10 * n[k])
+                                    for k in ("loss5", "loss2"))}
+    return out
+
+
+def year_rows(plan: MatrixPlan, purpose: int = 0) -> list:
+    """The year identifiers of ``plan`` as dicts (``cell``, ``kind``, ``index``, ``purpose``)."""
+    return [dict(zip(("cell", "kind", "index", "purpose"), y)) for y in plan.years(purpose)]
+
+
+def _fmt(value, spec=".0f", missing="-"):
+    return missing if value is None else format(value, spec)
+
+
+def matrix_table(summaries: dict, methods) -> list:
+    """Markdown lines: one row per cell and method (``summaries[cell][method]`` from :func:`summarise`)."""
+    rows = ["| cell | method | rule (threshold, days) | healthy years with an alarm | false alarms per year "
+            "(95 % upper) | 5 %: found in 7 days at the element | 5 %: median delay [d] | 2 %: found in 30 days "
+            "| 2 %: median delay [d] | size and day in their 95 % intervals (5 % / 2 %) | CPU s per year | bars met |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for cell, by_method in summaries.items():
+        for method in methods:
+            s = by_method.get(method)
+            if s is None:
+                continue
+            n = s["years"]
+            rule = "none" if s["rule"] is None else f"{s['rule']['threshold']:.4g}, {s['rule']['consecutive']}"
+            rate = ("-" if "rate" not in s else
+                    f"{s['rate']:.2f} +- {s['rate_se']:.2f} ({s['rate_upper']:.2f})")
+            coverage = " / ".join(
+                (f"{s[k]['both_covered']} of {n[k]}" if s[k]["has_intervals"] else "no interval")
+                for k in ("loss5", "loss2"))
+            met = sum(bool(v) for v in s["bars"].values())
+            failing = [k for k, v in s["bars"].items() if not v]
+            rows.append(f"| {cell} | {method} | {rule} | {s['healthy_with_alarm']} of {n['healthy']} | {rate} "
+                        f"| {s['loss5']['found']} of {n['loss5']} | {_fmt(s['loss5']['median_delay'])} "
+                        f"| {s['loss2']['found']} of {n['loss2']} | {_fmt(s['loss2']['median_delay'])} "
+                        f"| {coverage} | {_fmt(s['cpu_seconds'])} "
+                        f"| {met} of 4{'' if not failing else ' (not: ' + ', '.join(failing) + ')'} |")
+    return rows
