@@ -136,7 +136,7 @@ def _record(kind, score, truth, cpu=1.0):
 def test_the_cell_summary_applies_the_bars():
     quiet = np.zeros(100)
     caught = np.where(np.arange(100) >= 50, 1.0, 0.0)
-    late = np.where(np.arange(100) >= 75, 1.0, 0.0)
+    late = np.where(np.arange(100) >= 90, 1.0, 0.0)  # found on day 92: 42 days, past the 30
     loss5 = {"damage_day": 50.0, "damage_storey": 2, "damage_size": 0.05}
     loss2 = {"damage_day": 50.0, "damage_storey": 2, "damage_size": 0.02}
     records = ([_record("healthy", quiet, {"damage_day": None})] * 10 + [_record("loss5", caught, loss5)] * 10
