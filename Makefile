@@ -6,8 +6,13 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 # pytest workers: the machine's cores (2 here); WORKERS=0 runs in one process
 WORKERS ?= auto
+# one BLAS thread per process: the pytest workers (or the studies' worker processes) use the cores, and
+# OpenBLAS's own threads would compete with them and spin (tests/conftest.py sets the same for a bare pytest)
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
+export MKL_NUM_THREADS ?= 1
 
-.PHONY: run test check layers bench docs docs-regen docs-check check-install lock clean
+.PHONY: run test check layers comments bench docs docs-regen docs-check check-install lock clean
 
 $(STAMP): pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
@@ -18,11 +23,14 @@ $(STAMP): pyproject.toml $(LOCK)
 run: $(STAMP)        ## the main job: the Coulomb-friction study on the bundled real data (quick variant)
 	$(VENV)/bin/seqbayes example coulomb --quick --out coulomb_results
 
-test: $(STAMP) layers ## the whole test suite (every tier), in parallel over the cores
-	$(PY) -m pytest -q -n $(WORKERS) --durations=25
+test: $(STAMP) layers ## the whole test suite (every tier), in parallel over the cores; prints the slowest tests (wall and CPU)
+	$(PY) -m pytest -q -n $(WORKERS) --durations=15 --cpu-durations=15
 
-check: $(STAMP) layers ## the fast tier for the working loop: unit tests, under a minute
+check: $(STAMP) layers ## the fast tier for the working loop: unit tests not marked slow, under 45 s on 2 idle cores
 	$(PY) -m pytest -q -n $(WORKERS) -m "not slow" tests/unit
+
+comments: $(STAMP)   ## source comments holding run results or history (tests/unit/test_check_comments.py runs it in CI)
+	$(PY) tools/check_comments.py
 
 layers: $(STAMP)     ## the import-layers contract (.importlinter): no cycles, no upward imports
 	$(VENV)/bin/lint-imports --no-cache

@@ -38,6 +38,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from seqbayes.engine.settings import from_flat
 import seqbayes  # noqa: E402
 from seqbayes import SMC, ZeroLikelihoodError  # noqa: E402
 from seqbayes.kernels import Decay, MarkovKernel  # noqa: E402
@@ -79,7 +80,7 @@ def task(args):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         smp = cls(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed,
-                  **SAMPLER_OPTIONS[sampler], **settings)
+                  **from_flat(sampler, **SAMPLER_OPTIONS[sampler], **settings))
         failed = None
         for dataset in datasets:  # a step that raises (ZeroLikelihoodError) ends the run: its steps are NaN
             try:
@@ -112,8 +113,7 @@ def mixture_target_error(n_samples: int, seed: int = 1) -> float:
     ref = reference("run9-T2")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        smp = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed,
-                             conflict_remedy=False)
+        smp = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=n_samples, rng=seed, **from_flat("SMC", conflict_remedy=False))
         smp.run(datasets[:2])
     k, c = np.linspace(0.8, 2.0, 601), np.linspace(0.01, 0.6, 401)
     grid = np.column_stack([a.ravel() for a in np.meshgrid(k, c, indexing="ij")])
@@ -130,7 +130,7 @@ def main():
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--problems", default="run9-T2,drop")
     parser.add_argument("--off", action="store_true", help="conflict_remedy=False")
-    parser.add_argument("--settings", default="{}", help="JSON of extra SamplerConfig settings")
+    parser.add_argument("--settings", default="{}", help="JSON of extra flat sampler settings (seqbayes.engine.settings.FLAT)")
     parser.add_argument("--samplers", default="SEMC,SMC")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--per-seed", action="store_true",

@@ -38,6 +38,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
+from seqbayes.engine.settings import from_flat  # noqa: E402
 import seqbayes  # noqa: E402
 from seqbayes.models import coulomb  # noqa: E402
 from seqbayes.models.correlated_gaussian import CorrelatedGaussian  # noqa: E402
@@ -94,7 +95,7 @@ def run_ours(name, method, seed, n_samples):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sampler = cls(prior, kernel, lambda theta, _: loglike(theta), n_samples=n_samples,
-                      rng=np.random.default_rng([2024, seed]), **settings)
+                      rng=np.random.default_rng([2024, seed]), **from_flat(cls.__name__, **settings))
         info = sampler.update(0)  # the dataset is bound in loglike
     return {"error": info.log_evidence - exact, "se": info.log_evidence_se, "calls": info.n_loglike_evals,
             "time": time.perf_counter() - start}
@@ -118,7 +119,7 @@ def study_calls(seeds):
                     warnings.simplefilter("ignore")
                     sampler = getattr(seqbayes, name)(coulomb.prior(), coulomb.kernel("T1"), coulomb.loglike,
                                                       n_samples=1000, rng=np.random.default_rng([2024, seed]),
-                                                      **settings)
+                                                      **from_flat(name, **settings))
                     result = sampler.run(data)
                 calls.append([rec.info.n_loglike_evals for rec in result.steps])
                 errors.append([rec.info.log_evidence - exact.log_evidence[s] for s, rec in enumerate(result.steps)])

@@ -29,10 +29,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from seqbayes.engine.settings import SamplerConfig  # noqa: E402
+from seqbayes.predictive.transition import PathSpace  # noqa: E402
 from seqbayes.studies import oscillator as study  # noqa: E402
 
-REMEDY_ESS = SamplerConfig(move="gaussian").remedy_ess
+REMEDY_ESS = PathSpace().ancestor_ess
 #: ``--off``: the remedy's bookkeeping on (so the mixture step's ancestor ESS is recorded) but never triggered:
 #: the same draws as ``conflict_remedy=False``, whose steps record no ancestor ESS
 NEVER_REMEDY = {"remedy_ess": 0.0, "conflict_threshold": 1e300}
@@ -58,8 +58,7 @@ def exact_shifts(args):
     nominals = [c.nominal for c in kernel.components]
     box = np.array([osc.PRIOR_BOUNDS["k"], osc.PRIOR_BOUNDS["c"]])
     steps = reference.grid_filter(problem.datasets, osc._grid_log_likelihood, box, nominals, kernel.noise_std, 201,
-                                  n_coarse=201, tail_mass=1e-100, points_per_sd=3.0, max_points=2001,
-                                  log_axes=(True, True))
+                                  resolution=reference.Resolution(201, 1e-100, 3.0, 2001, log_axes=(True, True)))
     shifts = []
     for prev, cur in zip(steps[:-1], steps[1:]):
         axes = []

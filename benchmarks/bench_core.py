@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from seqbayes.engine.settings import from_flat  # noqa: E402
 import seqbayes
 from seqbayes.models.linear_gaussian import LinearGaussianProblem, kalman_filter
 
@@ -104,7 +105,8 @@ def bench_particles(n=1000, seeds=20):
     exact = kalman_filter(problem, data)[-1].log_evidence
 
     def ours(cls, **settings):
-        return lambda s: cls(prior, kernel, problem.loglike, n, rng=s, **settings).run(data).log_evidence[-1]
+        return lambda s: cls(prior, kernel, problem.loglike, n, rng=s,
+                             **from_flat(cls.__name__, **settings)).run(data).log_evidence[-1]
 
     variants = {
         "particles IBIS (1 MH step per resampling)": lambda s: _particles_ibis(problem, data, n, s),
@@ -161,7 +163,8 @@ def _spread(problem, data, seeds, **settings):
     kernel = problem.kernel if problem.drift_std > 0 else seqbayes.MarkovKernel([seqbayes.Static()] * 2)
     out = {}
     for cls in (seqbayes.SEMC, seqbayes.SMC):
-        errs = np.array([_errors(cls(problem.prior, kernel, problem.loglike, 2000, rng=s, **settings)
+        errs = np.array([_errors(cls(problem.prior, kernel, problem.loglike, 2000, rng=s,
+                                     **from_flat(cls.__name__, **settings))
                                  .run(data), exact) for s in range(seeds)])
         out[cls.__name__] = errs
     return out

@@ -34,6 +34,7 @@ import timeit
 
 import numpy as np
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes.models import coulomb as cf
 from seqbayes.studies import coulomb as study_mod
@@ -119,8 +120,7 @@ def threshold_scan(k, data):
             for name in ("SEMC", "SMC"):
                 z, err, ess = [], [], []
                 for seed in seeds:
-                    smp = getattr(seqbayes, name)(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000,
-                                                  rng=np.random.default_rng(seed), tempering_threshold=threshold)
+                    smp = getattr(seqbayes, name)(cf.prior(), cf.kernel("T1"), cf.loglike, n_samples=1000, rng=np.random.default_rng(seed), **from_flat(name, tempering_threshold=threshold))
                     info = smp.update(d)
                     z.append(info.log_evidence)
                     ess.append(info.evidence_ess)

@@ -36,6 +36,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from seqbayes.engine.settings import from_flat
 import seqbayes  # noqa: E402
 from seqbayes.models import coulomb as model  # noqa: E402
 from seqbayes.predictive.smc2 import ParticleInnerFilter  # noqa: E402
@@ -62,7 +63,7 @@ def run(args):
                     settings["inner_filter"] = ParticleInnerFilter(args.inner, n_pilot=args.pilot)
                 start = time.perf_counter()
                 sampler = cls(model.prior(), model.kernel(kernel), model.loglike, n_samples=args.n,
-                              rng=np.random.default_rng([args.seed, run_index]), **settings)
+                              rng=np.random.default_rng([args.seed, run_index]), **from_flat(cls.__name__, **settings))
                 result = sampler.run(data)
                 times.append(time.perf_counter() - start)
                 calls.append([(rec.info.n_loglike_evals, rec.info.n_screen_evaluations) for rec in result.steps])
@@ -89,7 +90,7 @@ def run(args):
 
 
 def inner_sd(args):
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
     from seqbayes.predictive.pmmh import run_inner
     from seqbayes.predictive.smc2 import nested_split
 
@@ -98,9 +99,7 @@ def inner_sd(args):
     print("| sampler | kernel | step | " + " | ".join(f"M = {m}" for m in sizes) + " |")
     print("|---|---|---|" + "---|" * len(sizes))
     for name, kernel in (("SMC", "T1"), ("SEMC", "T2")):
-        sampler = getattr(seqbayes, name)(model.prior(), model.kernel(kernel), model.loglike, n_samples=args.n,
-                                          rng=np.random.default_rng(args.seed), n_independent=6,
-                                          inner_filter=ParticleInnerFilter(30), surrogate="quadratic")
+        sampler = getattr(seqbayes, name)(model.prior(), model.kernel(kernel), model.loglike, n_samples=args.n, rng=np.random.default_rng(args.seed), **from_flat(name, n_independent=6, inner_filter=ParticleInnerFilter(30), surrogate="quadratic"))
         split, likelihood = nested_split(sampler.problem.kernel), ValidatedLikelihood(model.loglike)
         rng = np.random.default_rng([args.seed, 1])
         for step, dataset in enumerate(data, start=1):
@@ -135,7 +134,7 @@ def pmmh_jumps(args):
 
     from seqbayes.predictive import smc2
     from seqbayes.predictive.pmmh import rerun_cost
-    from seqbayes.transforms import BoxTransform
+    from seqbayes.priors import BoxTransform
 
     data = model.load_experiment()
     original = smc2.rejuvenate
@@ -190,7 +189,8 @@ def first_step_bias(args):
             settings["virtual_tolerance"] = args.virtual_tolerance
         for run_index in range(args.runs):
             sampler = getattr(seqbayes, name)(model.prior(), model.kernel("T2"), model.loglike, n_samples=args.n,
-                                              rng=np.random.default_rng([args.seed, run_index]), **settings)
+                                              rng=np.random.default_rng([args.seed, run_index]),
+                                              **from_flat(name, **settings))
             sampler.update(data[0])
             record = sampler.result.steps[0]
             errors.append(np.concatenate([(record.mean() - exact.mean[0]) / exact.std[0],

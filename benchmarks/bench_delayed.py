@@ -25,6 +25,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
+from seqbayes.engine.settings import from_flat  # noqa: E402
 from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static  # noqa: E402
 from seqbayes.models import coulomb  # noqa: E402
 
@@ -83,7 +84,8 @@ def main() -> None:
             for surrogate in settings:
                 calls, cheap, out, mean_err, sd_err, z_err = [], [], [], [], [], []
                 for seed in range(args.seeds):
-                    run = sampler(prior, kernel, loglike, n_samples=args.n, rng=seed, surrogate=surrogate)
+                    run = sampler(prior, kernel, loglike, n_samples=args.n, rng=seed,
+                                  **from_flat(sampler.__name__, surrogate=surrogate))
                     for data in datasets:
                         run.update(data)
                     infos = [r.info for r in run.result.steps]

@@ -40,7 +40,7 @@ import time
 import numpy as np
 
 from seqbayes.structural.drop_paths import grid_log_evidence, simulate_drop
-from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor, monitor_from_flat
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
 
 DT = 0.02
@@ -64,7 +64,7 @@ def drop_record(seed: int, fraction: float, storey: int = 2, seconds: float = 20
 
 def monitor(data: dict, seed: int, block: int, **options) -> dict:
     mon = StiffnessDropMonitor(data["building"], DT, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                               **options)
+                               **monitor_from_flat(**options))
     mon.reset(rng=np.random.default_rng([13, seed]))
     t0, c0 = time.perf_counter(), time.process_time()
     u, y = data["u"], data["y"]
@@ -141,14 +141,14 @@ def bench_evidence(seeds: int, particles: int = 200) -> dict:
     t0 = time.perf_counter()
     exact = np.column_stack(grid_log_evidence(building, DT, u, y, std, sw, ends, change_every=25, hazard=0.1))
     fine = np.column_stack(grid_log_evidence(building, DT, u, y, std, sw, ends, change_every=25, hazard=0.1,
-                                             n_theta=301, n_delta=201))
+                                             grid=(301, 201)))
     print(f"exact evidence: {time.perf_counter() - t0:.1f} s (both grids); grid error (vs twice as fine) "
           f"{np.abs(exact - fine).max():.1e}; exact log Z (no change / drop) at the block ends:\n"
           f"{np.round(fine.T, 2).tolist()}", flush=True)
     errors = []
     for seed in range(seeds):
-        mon = StiffnessDropMonitor(building, DT, 0.7, 1.0, std, sw, n_particles=particles, change_every=25,
-                                   change_rate=0.2, prune_below=0)
+        mon = StiffnessDropMonitor(building, DT, 0.7, 1.0, std, sw, n_particles=particles,
+                                   **monitor_from_flat(change_every=25, change_rate=0.2, prune_below=0))
         mon.reset(rng=seed)
         for start in range(0, T, 25):
             mon.update(u[start : start + 25], y[start : start + 25])

@@ -47,6 +47,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from seqbayes.engine.settings import from_flat
 import seqbayes  # noqa: E402
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace  # noqa: E402
 from seqbayes.models.sine_phase import SinePhase  # noqa: E402
@@ -101,8 +102,7 @@ def mixed(args):
             data, _ = problem.simulate(args.steps, rng=1000 + seed)
             exact = problem.exact(data)
             inner = KalmanInnerFilter(problem.observe) if args.inner == "kalman" else ParticleInnerFilter(args.m)
-            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
-                          inner_filter=inner)
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed, **from_flat(cls.__name__, inner_filter=inner))
             start = time.perf_counter()
             errs, times, evals = run_stream(sampler, data, exact, checkpoints)
             rows[label].append(errs)
@@ -125,8 +125,7 @@ def static(args):
             for seed in range(args.seeds):
                 data, _ = problem.simulate(args.steps, rng=2000 + seed)
                 exact = problem.exact(data)
-                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
-                              history=problem.running_statistics() if running else None)
+                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed, **from_flat(cls.__name__, history=problem.running_statistics() if running else None))
                 errs, times, evals = run_stream(sampler, data, exact, checkpoints)
                 rows[label].append(errs)
                 ratio_t = times[late].mean() / times[early].mean()
@@ -160,8 +159,7 @@ def predictive(args):
             for seed in range(args.seeds):
                 data, _ = problem.simulate(args.steps, rng=1000 + seed)
                 exact = problem.exact(data)
-                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
-                              predictive=method)
+                sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed, **from_flat(cls.__name__, predictive=method))
                 try:
                     errs, _, _ = run_stream(sampler, data, exact, checkpoints)
                 except Exception as error:  # a collapsed run is itself the measurement
@@ -229,8 +227,7 @@ def particles_comparison(args):
             mean = pf.W @ theta
             record_errors(label, mean, np.sqrt(pf.W @ (theta - mean) ** 2), pf.logLt, final)
         for label, (cls, n) in ours.items():
-            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=seed,
-                          inner_filter=ParticleInnerFilter(args.m))
+            sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=seed, **from_flat(cls.__name__, inner_filter=ParticleInnerFilter(args.m)))
             start = time.perf_counter()
             last = sampler.run(data).steps[-1]
             times[label].append(time.perf_counter() - start)
@@ -315,8 +312,7 @@ def drifting(args):
                 data, _ = problem.simulate(args.steps, rng=5000 + seed)
                 exact = problem.exact(data)
                 inner = KalmanInnerFilter(problem.observe) if name == "kalman" else ParticleInnerFilter(args.m)
-                result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed,
-                             inner_filter=inner).run(data)
+                result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=args.n, rng=seed, **from_flat(cls.__name__, inner_filter=inner)).run(data)
                 for record, e in zip(result.steps, exact):
                     sd = np.sqrt(np.diag(e.cov))[split[1]]
                     w = np.exp(record.log_weights - np.logaddexp.reduce(record.log_weights))

@@ -30,6 +30,7 @@ import time
 import numpy as np
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat  # noqa: E402
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
 from seqbayes.parallel import ProcessWorkers
 
@@ -52,7 +53,8 @@ def run(cls, executor, args):
     kernel = MarkovKernel([Drift(-0.1, noise_std=0.05), Static()])
     settings = dict(tempering=False, n_moves=args.moves, predictive="transition")
     settings["max_virtual" if cls is SEMC else "max_moves"] = args.moves
-    sampler = cls(prior, kernel, slow_loglike, n_samples=args.n, rng=1, executor=executor, **settings)
+    sampler = cls(prior, kernel, slow_loglike, n_samples=args.n, rng=1, executor=executor,
+                  **from_flat(cls.__name__, **settings))
     rng = np.random.default_rng(0)
     x = np.linspace(-1, 1, 10)
     data = (x, 0.5 + 1.2 * x + 0.2 * rng.standard_normal(x.size), args.cost, args.mode)

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC
 from seqbayes.predictive import pseudo_marginal as density
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
@@ -49,8 +50,7 @@ def run_errors(model, data, exact, sampler, n, seed, pseudo_marginal_from):
     density.SubsampledPrior.start = start
     try:
         cls = SMC if sampler == "smc" else SEMC
-        s = cls(model.prior, model.kernel, model.loglike, n_samples=n, rng=seed,
-                pseudo_marginal_from=pseudo_marginal_from)
+        s = cls(model.prior, model.kernel, model.loglike, n_samples=n, rng=seed, **from_flat(cls.__name__, pseudo_marginal_from=pseudo_marginal_from))
         rows = []
         for k, (y, e) in enumerate(zip(data, exact)):
             n_used = len(used)
@@ -77,9 +77,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sampler", choices=("smc", "semc"), default="smc")
     parser.add_argument("--no-exact", action="store_true", help="skip the exact-evaluation runs")
     args = parser.parse_args(argv)
-    from seqbayes.engine.settings import SamplerConfig
+    from seqbayes.predictive.transition import Transition
 
-    start = SamplerConfig(move="gaussian").pseudo_marginal_from if args.start is None else args.start
+    start = Transition().pseudo_marginal_from if args.start is None else args.start
     model = problem(args.dim)
     variants = [("pseudo-marginal", start)] + ([] if args.no_exact else [("exact", 0)])
     results = {name: [] for name, _ in variants}

@@ -19,6 +19,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from seqbayes.engine.settings import from_flat
 from seqbayes.models import oscillator as osc  # noqa: E402
 from seqbayes import SMC  # noqa: E402
 
@@ -37,8 +38,7 @@ def main():
         for pair in range(args.pairs):
             for remedy in (True, False):
                 start = time.process_time()
-                result = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=pair,
-                             conflict_remedy=remedy).run(problem.datasets)
+                result = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=pair, **from_flat("SMC", conflict_remedy=remedy)).run(problem.datasets)
                 times[remedy].append(time.process_time() - start)
                 if args.run == 0 and args.kernel == "T1":
                     assert all(r.info.path_steps == 0 for r in result.steps)

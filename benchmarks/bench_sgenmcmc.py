@@ -45,6 +45,7 @@ import time
 import numpy as np
 from scipy.linalg import expm
 
+from seqbayes.structural.settings import sg_from_flat
 from seqbayes.structural.filters.enkf import forecast, perturbed_observation_update, predictive_log_likelihood
 from seqbayes.structural.sgenmcmc import SGEnMCMC
 from seqbayes.structural.transitions import SparseGridTransition
@@ -85,16 +86,16 @@ def _load_previous(commit: str):
 def bench_sgenmcmc(previous: str | None = "b2352ed"):
     data = make_data(CASES["wc1"], duration=40.0, rng=0)
     print(f"load average (1, 5, 15 min): {os.getloadavg()}")
-    kwargs = dict(n_members=500, level=6, sampler="paper")
     t0 = time.perf_counter()
-    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"], **kwargs)
+    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"], n_members=500,
+                  **sg_from_flat(level=6, sampler="paper"))
     build = time.perf_counter() - t0
     variants = [("current", sg)]
     old = _load_previous(previous) if previous else None
     if old is not None:
         variants.append((f"commit {previous} (before profiling)",
-                         old.SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"],
-                                      data["process_noise_std"], n_members=500, level=6)))
+                         old.SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
+                                     n_members=500, level=6)))
     times = {label: [] for label, _ in variants}
     for seed in range(2):  # interleaved, so both see the same load
         for label, identifier in variants:
@@ -239,7 +240,7 @@ def bench_exact_reference(cases, seeds: int, paper: bool = True) -> dict:
             variants = [("resample-move", {})] + ([("paper", {"sampler": "paper"})] if paper else [])
             for label, kwargs in variants:
                 sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                              **kwargs)
+                              **sg_from_flat(**kwargs))
                 run = sg.run(data["u"], data["y"], rng=np.random.default_rng([11, seed]))
                 row[label] = _summary(run, ref, truth)
                 if label == "resample-move":

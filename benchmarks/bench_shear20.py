@@ -52,6 +52,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy import optimize, special, stats  # noqa: E402
 
+from seqbayes.engine.settings import from_flat
 import seqbayes  # noqa: E402
 from seqbayes.structural.filters.kalman import kalman_log_likelihood  # noqa: E402
 from seqbayes.structural.structures import Sensors, ShearBuilding, add_measurement_noise, discretise, simulate  # noqa: E402
@@ -261,8 +262,7 @@ def one_run(name: str, problem: Shear20, ref: dict, n: int, seed: int, economy: 
     cls = getattr(seqbayes, name)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sampler = cls(problem.prior(), kernel, problem.loglike, n_samples=n, rng=np.random.default_rng([7, seed]),
-                      economy=economy)
+        sampler = cls(problem.prior(), kernel, problem.loglike, n_samples=n, rng=np.random.default_rng([7, seed]), **from_flat(cls.__name__, economy=economy))
         start = time.perf_counter()
         info = sampler.update(problem.data)
         elapsed = time.perf_counter() - start

@@ -41,7 +41,7 @@ from seqbayes.structural.filters.kalman import kalman_log_likelihood
 from seqbayes.structural.transitions import ExactTransition, SparseGridTransition
 from seqbayes.structural.structures import ShearBuilding, discretise, simulate
 from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4, simulate_bouc_wen
-from seqbayes.structural.surrogate import choose_transition
+from seqbayes.structural.surrogate import Measurement, choose_transition
 
 DT = 0.02
 
@@ -116,7 +116,7 @@ def linear_case(n, tol, pairs, max_points, rng):
             ll_exact = kalman_log_likelihood(discretise(b, th, DT), u, y, std, 0.05)
             ll_grid = kalman_log_likelihood(grid(th), u, y, std, 0.05)
             row["max_abs_dloglik"] = float(np.abs(ll_grid - ll_exact).max())
-    choice = choose_transition(b, DT, 0.7, 1.0, 500, tol=tol, max_points=max_points)
+    choice = choose_transition(b, DT, 0.7, 1.0, 500, measurement=Measurement(tol=tol, max_points=max_points))
     row["auto"] = choice.kind if choice.level is None else f"{choice.kind} {choice.level}"
     row["auto_reason"] = choice.reason
     return row

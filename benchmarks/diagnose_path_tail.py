@@ -44,20 +44,20 @@ def tail(theta, lw):
 
 record = {}
 STASH = {}
-orig_init_s = P.PathSpace.__init__
+orig_init_s = P.PathStep.__init__
 def init_s(self, state, *a, **kw):
     orig_init_s(self, state, *a, **kw)
     STASH["p"] = self.window[0].prior
     STASH["ds_ok"] = all(np.array_equal(np.asarray(w.dataset), datasets[STEP - 10 + i]) for i, w in enumerate(self.window))
-P.PathSpace.__init__ = init_s
-orig_estimate = P.PathSpace.estimate
+P.PathStep.__init__ = init_s
+orig_estimate = P.PathStep.estimate
 def estimate(self, tempered, weighed, likelihood, rng):
     c = tempered.cloud
     record.setdefault("bridge", []).append(tail(c.particles[:, -1], c.log_weights) + [wmean(rjump(c.particles), c.log_weights)])
     out = orig_estimate(self, tempered, weighed, likelihood, rng)
     return out
-P.PathSpace.estimate = estimate
-orig_stored = P.PathSpace._stored_temper
+P.PathStep.estimate = estimate
+orig_stored = P.PathStep._stored_temper
 def stored(self, weighed, rng):
     c = weighed.cloud
     lw_ = c.log_weights + np.where(np.isfinite(c.components[:, 0]), c.components[:, 0], -np.inf)
@@ -65,14 +65,14 @@ def stored(self, weighed, rng):
     t = orig_stored(self, weighed, rng)
     record.setdefault("stored", []).append(tail(t.cloud.particles[:, -1], t.cloud.log_weights) + [wmean(rjump(t.cloud.particles), t.cloud.log_weights)])
     return t
-P.PathSpace._stored_temper = stored
+P.PathStep._stored_temper = stored
 
-import seqbayes.engine.evidence as E
+import seqbayes.predictive.evidence as E
 orig_is = E.importance_step
 def importance_step(posterior, log_weights, *a, **kw):
     record.setdefault("is_in", []).append(tail(posterior[:, -1], log_weights))
     if posterior.shape[1] == 10 and kw.get("other") is not None:   # the path step's proposal: its tail against pi's
-        from seqbayes.transforms import BoxTransform
+        from seqbayes.priors import BoxTransform
         from seqbayes.moves.proposals import PooledProposal, clustered_parts
         prior_logpdf, loglike, support = a[1], a[2], a[3]
         tr = BoxTransform(support); oth = kw["other"]
@@ -108,18 +108,18 @@ if "widet" in variant:   # the defensive t with 4x (not 2x) the covariance in ev
 if "nostop" in variant:      # the rounds' stop rule off: every stage makes its max rounds
     S.JUMP_TARGET = float("inf")
 if variant == "nobridge":
-    orig_init0 = P.PathSpace.__init__
+    orig_init0 = P.PathStep.__init__
     def init0(self, state, dataset, mixture, likelihood, bridge):
         orig_init0(self, state, dataset, mixture, likelihood, False)
-    P.PathSpace.__init__ = init0
+    P.PathStep.__init__ = init0
 if variant.startswith("indep"):   # more independence sweeps in the estimate
     k = int(variant[5:])
-    orig_init = P.PathSpace.__init__
+    orig_init = P.PathStep.__init__
     from dataclasses import replace
     def init(self, *a, **kw):
         orig_init(self, *a, **kw)
-        self.config = replace(self.config, n_independent=k)
-    P.PathSpace.__init__ = init
+        self.config = replace(self.config, evidence=replace(self.config.evidence, sweeps=k))
+    P.PathStep.__init__ = init
 
 for seed in seeds:
     record.clear()

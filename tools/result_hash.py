@@ -29,6 +29,17 @@ import numpy as np  # noqa: E402
 
 _TIME_FIELDS = {"wall_time", "elapsed", "seconds"}  # plus --skip-fields: diagnostics a commit added
 
+#: StepInfo's diagnostics in the order and under the names its flat record had before they moved into the
+#: components' records (moves, evidence, conflict, jumps, nested): a step is hashed as that flat record was, so
+#: hashes of code before and after compare.
+_STEP_INFO = ("step", "log_evidence_increment", "log_evidence", "ess", "resampled", "acceptance_rate", "step_size",
+              "n_virtual", "n_stages", "temperatures", "n_loglike_evals", "n_nan", "n_distinct", "n_proposed",
+              "n_accepted", "n_identical_partner", "log_evidence_increment_path", "evidence_ess",
+              "n_independent_accepted", "n_move_evaluations", "wall_time", "prior_data_conflict",
+              "conflict_parameter", "inner_ess", "ancestor_ess", "path_steps", "jump_probability", "jump_parameter",
+              "jump_size", "jump_size_sd", "log_evidence_increment_se", "log_evidence_se", "n_screen_evaluations",
+              "n_screened_out", "amortised_evals", "pmmh_acceptance", "pending_moves", "jump_probability_se")
+
 
 def _load(name: str, *modules: str):
     """``name`` from the first of ``modules`` that defines it."""
@@ -77,8 +88,19 @@ class _Hasher:
             self.add(record.posterior, f"{label}.{i}.posterior")
             self.add(record.log_weights, f"{label}.{i}.log_weights")
             self.add(record.predictive, f"{label}.{i}.predictive")
-            self.add(record.info, f"{label}.{i}.info")
+            self.info(record.info, f"{label}.{i}.info")
         self.add(smp.rng.bit_generator.state, f"{label}.rng")
+
+    def info(self, info, label):
+        """A StepInfo, field by field in the flat order of :data:`_STEP_INFO` (the records' fields read as
+        attributes of the step); a flat record of older code, field by field as it is."""
+        if not hasattr(info, "to_dict"):
+            self.add(info, label)
+            return
+        self._h.update(label.encode())   # as add() does for a dataclass, before its fields
+        for name in _STEP_INFO:
+            if name not in _TIME_FIELDS:
+                self.add(getattr(info, name), f"{label}.{name}")
 
     def hexdigest(self):
         return self._h.hexdigest()
@@ -86,6 +108,32 @@ class _Hasher:
 
 def _samplers():
     return (_load("SEMC", "seqbayes"), _load("SMC", "seqbayes"))
+
+
+def _options(cls, flat: dict) -> dict:
+    """Flat settings as the sampler ``cls`` takes them: its components (``engine.settings.from_flat``), or the flat
+    keywords themselves on code before the components."""
+    try:
+        from_flat = _load("from_flat", "seqbayes.engine.settings")
+    except ImportError:
+        return flat
+    return from_flat(cls.__name__, **flat)
+
+
+def _inner(filter_) -> dict:
+    """The keyword that gives a sampler SMC^2's inner filter: ``predictive=SMC2(inner=...)``, or ``inner_filter``."""
+    try:
+        return {"predictive": _load("SMC2", "seqbayes.predictive.smc2")(inner=filter_)}
+    except ImportError:
+        return {"inner_filter": filter_}
+
+
+def _sg(sampler: str) -> dict:
+    """SG-EnMCMC's sampler keyword: the component of ``sg_from_flat``, or the flat ``sampler=``."""
+    try:
+        return _load("sg_from_flat", "seqbayes.structural.settings")(sampler=sampler)
+    except ImportError:
+        return {"sampler": sampler}
 
 
 def coulomb(h):
@@ -106,7 +154,7 @@ def oscillator(h):
         problem = osc.make_problem(np.random.default_rng(getattr(study, "problem_seed", getattr(study, "_problem_seed", None))(0, run)))
         for cls in _samplers():
             smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=300,
-                      rng=np.random.default_rng(7), **study.DEFAULT_OPTIONS[cls.__name__])
+                      rng=np.random.default_rng(7), **_options(cls, study.DEFAULT_OPTIONS[cls.__name__]))
             try:
                 smp.run(problem.datasets)
                 h.add(smp.predict(3), f"osc.{run}.{kernel}.{cls.__name__}.forecast")
@@ -135,7 +183,7 @@ def smc2(h):
     data, _ = problem.simulate(10, rng=11)
     for cls in _samplers():
         for name, inner in (("kalman", kalman_inner(problem.observe)), ("particle", particle_inner(20))):
-            smp = cls(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=4, inner_filter=inner)
+            smp = cls(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=4, **_inner(inner))
             smp.run(data[:6] if name == "particle" else data)
             h.sampler(smp, f"smc2.{name}.{cls.__name__}")
 
@@ -147,7 +195,7 @@ def sg_enmcmc(h):
     for sampler in ("resample-move", "paper"):
         try:
             sg = sgenmcmc(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                          sampler=sampler)
+                          **_sg(sampler))
         except TypeError:
             continue
         run = sg.run(data["u"], data["y"], rng=2)

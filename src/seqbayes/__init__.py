@@ -10,7 +10,7 @@ studies and example models.
 """
 
 from .engine.drivers import SEMC, SMC
-from .engine.errors import InnerFilterWarning, PriorDataConflictWarning, TemperingLimitError, ZeroLikelihoodError
+from .core.errors import InnerFilterWarning, PriorDataConflictWarning, TemperingLimitError, ZeroLikelihoodError
 from .kernels import Custom, Decay, Drift, Jump, MarkovKernel, Static, jump_posterior
 from .predictive.history import RunningStatistics
 from .predictive.smc2 import KalmanInnerFilter, ParticleInnerFilter

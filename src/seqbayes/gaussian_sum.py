@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+
 __all__ = ["TruncatedSum", "DROPPED_LOG_FRACTION"]
 
 #: The terms dropped add up to less than ``exp(DROPPED_LOG_FRACTION)`` of the kept sum at every query.
@@ -92,7 +93,7 @@ class TruncatedSum:
         total = np.bincount(query, weights=terms, minlength=rows.size)
         with np.errstate(divide="ignore"):
             out[rows] = np.log(total) + ceiling
-        underflow = total == 0.0  # weights spread over more than ~700 nats: leave it to the dense sum
+        underflow = total == 0.0  # weights spread beyond float64's exp range: leave it to the dense sum
         rest = np.concatenate([np.flatnonzero(~served), rows[underflow]])
         if rest.size:
             out[rest] = dense(x[rest])

@@ -31,7 +31,7 @@ __all__ = ["Static", "Drift", "Decay", "Custom", "Jump", "MarkovKernel", "Branch
            "jump_posterior", "HEAVY_TAIL_SCALES", "HEAVY_TAIL_WEIGHTS"]
 
 #: The heavy-tailed slab of :meth:`Jump.heavy_tailed`: the drop fraction is
-#: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)``, a discrete scale mixture of
+#: ``f ~ 0.6 N(m, s^2) + 0.3 N(m, (3 s)^2) + 0.1 N(m, (10 s)^2)`` (comment-ok: the mixture's formula), a discrete scale mixture of
 #: normals: sd ``sqrt(0.6 + 0.3 * 9 + 0.1 * 100) s = 3.65 s``, kurtosis 17.4 (a normal's is 3).
 HEAVY_TAIL_SCALES = (1.0, 3.0, 10.0)
 HEAVY_TAIL_WEIGHTS = (0.6, 0.3, 0.1)

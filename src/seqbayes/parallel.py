@@ -32,51 +32,34 @@ import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "MIN_CHUNK_SECONDS", "make_executor"]
+from .core.likelihood import call_loglike, read_only
+
+__all__ = ["evaluate_loglike", "read_only", "ProcessWorkers", "Workers", "MIN_CHUNK_SECONDS", "make_executor"]
 
 #: A chunk expected to take less than this (seconds) is not worth a round trip: the batch is evaluated
-#: serially. 20 ms: a Dask round trip costs 5-20 ms, a local process pool's 0.5-2 ms (docs/parallel.md).
+#: serially (the round trips' costs, Dask's and a local process pool's: docs/parallel.md).
 MIN_CHUNK_SECONDS = 0.02
 
 #: Payloads (likelihood, dataset) kept per pool; the history prior's past datasets each need one.
 _KEPT_PAYLOADS = 16
 
 
-def read_only(value):
-    """``value`` as user code may see it: arrays as read-only views, dicts, lists and tuples rebuilt
-    around read-only views (so the caller's containers cannot be changed either); others as they are.
+@dataclass(frozen=True)
+class Workers:
+    """An executor and the number of chunks each batch is split into (``None``: one per worker), as a sampler's
+    ``executor``: ``SEMC(..., executor=Workers(client, n_chunks=8))``."""
 
-    >>> a = np.zeros(2)
-    >>> read_only(a).flags.writeable, a.flags.writeable
-    (False, True)
-    """
-    if isinstance(value, np.ndarray):
-        view = value.view()
-        view.flags.writeable = False
-        return view
-    if isinstance(value, dict):
-        return {key: read_only(item) for key, item in value.items()}
-    if type(value) in (list, tuple):
-        return type(value)(read_only(item) for item in value)
-    return value
+    executor: Any
+    n_chunks: int | None = None
 
-
-def _call(loglike, theta, dataset):
-    """The user's ``loglike`` on read-only views; its values as a new float array."""
-    try:
-        values = loglike(read_only(theta), read_only(dataset))
-    except ValueError as err:
-        if "read-only" not in str(err):
-            raise
-        raise ValueError(f"loglike: wrote into its input theta or data ({err}); they are read-only so that "
-                         f"the run cannot be corrupted: copy them first (np.array(theta)) to change them") from err
-    if np.iscomplexobj(values):
-        raise ValueError("loglike: returned complex values; a log-likelihood is real")
-    return np.array(values, dtype=float)  # a copy: never a view of theta
+    def evaluate(self, loglike, theta, dataset) -> np.ndarray:
+        """``loglike(theta, dataset)`` for ``theta (N, d)`` on the workers (:func:`evaluate_loglike`), ``(N,)``."""
+        return evaluate_loglike(loglike, theta, dataset, self.executor, self.n_chunks)
 
 
 # ---------------------------------------------------------------- worker side: payloads kept by key
@@ -93,7 +76,7 @@ def _store(key, payload: bytes) -> None:
 def _timed(loglike, theta, dataset):
     """In a worker: ``(values, seconds spent in the likelihood)``: the cost without the round trip."""
     start = time.perf_counter()
-    values = _call(loglike, theta, dataset)
+    values = call_loglike(loglike, theta, dataset)
     return values, time.perf_counter() - start
 
 
@@ -254,14 +237,14 @@ def evaluate_loglike(loglike, theta, dataset, executor=None, n_chunks: int | Non
     """
     n = theta.shape[0]
     if executor is None or n < 2:
-        return _call(loglike, theta, dataset)
+        return call_loglike(loglike, theta, dataset)
     n_chunks = min(n_chunks or _default_chunks(executor), n)
     plan = _plan(executor)
     cost = plan.seconds_per_row.get(id(loglike))
     head = None
     if cost is None and MIN_CHUNK_SECONDS > 0:  # first call: time one sample here (it is needed anyway)
         start = time.perf_counter()
-        head = _call(loglike, theta[:1], dataset)
+        head = call_loglike(loglike, theta[:1], dataset)
         cost = plan.seconds_per_row[id(loglike)] = time.perf_counter() - start
         theta = theta[1:]
         n_chunks = min(n_chunks, theta.shape[0])

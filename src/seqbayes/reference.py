@@ -2,7 +2,7 @@
 cumulative log-evidence, on a tensor grid with quadrature instead of samples.
 
 The target is the samplers' (Eqs. A2-A3 of Lye et al. 2023 with the box convention of
-:mod:`seqbayes.engine.pipeline`): the parameter space is the prior's box and the likelihood
+:mod:`seqbayes.engine.drivers`): the parameter space is the prior's box and the likelihood
 is zero outside it, so at step ``s``
 
     p_s(theta) = L_s(theta) pi_s(theta) 1_box(theta) / Z_s,
@@ -46,7 +46,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 __all__ = ["simpson_weights", "log_integral", "marginal_moments", "adaptive_axes", "propagate",
-           "GridStep", "grid_update", "GridReference", "grid_filter", "reference_from_steps",
+           "GridStep", "grid_update", "GridReference", "Resolution", "grid_filter", "reference_from_steps",
            "reference_table", "read_reference_table", "component_transition", "kernel_grid_filter"]
 
 
@@ -469,11 +469,26 @@ class GridReference:
         return out
 
 
+@dataclass(frozen=True)
+class Resolution:
+    """How finely the grid filters resolve each step's density: :func:`adaptive_axes`'s ``n_coarse``,
+    ``tail_mass``, ``points_per_sd``, ``max_points`` and ``log_axes``."""
+
+    n_coarse: int = 201
+    tail_mass: float = 1e-40
+    points_per_sd: float | None = None
+    max_points: int = 2001
+    log_axes: Sequence[bool] | None = None
+
+    def keywords(self) -> dict:
+        return {"n_coarse": self.n_coarse, "tail_mass": self.tail_mass, "points_per_sd": self.points_per_sd,
+                "max_points": self.max_points, "log_axes": self.log_axes}
+
+
 def grid_filter(datasets: Sequence, log_likelihood: Callable, box: ArrayLike, nominals: Sequence[Callable],
                 noise_stds: ArrayLike, n_points: int | Sequence[int], *, first_window: ArrayLike | None = None,
-                hard: ArrayLike | None = None, n_coarse: int = 201, tail_mass: float = 1e-40, widen: float = 20.0,
-                points_per_sd: float | None = None, max_points: int = 2001,
-                log_axes: Sequence[bool] | None = None) -> list[GridStep]:
+                hard: ArrayLike | None = None, widen: float = 20.0,
+                resolution: Resolution = Resolution()) -> list[GridStep]:
     """Grid filter under a uniform box prior and a per-parameter Gaussian kernel.
 
     Parameters
@@ -497,12 +512,10 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box: ArrayLike, no
     hard : callable ``(step_index, dataset) -> (d, 2)``, optional
         Hard bounds per step (default: the box); for likelihoods that drop to zero
         beyond a known value, so that the discontinuity is a grid end point.
-    n_coarse, tail_mass
-        As :func:`adaptive_axes`.
     widen : float
         The step-``s > 1`` window is the previous grid carried through ``Gamma`` and
         widened by ``widen`` noise stds each side.
-    points_per_sd, max_points, log_axes
+    resolution : Resolution
         As :func:`adaptive_axes`; the transition's width in the previous step's
         coordinates, ``q_j / |dGamma_j/dtheta_j|``, is a length to resolve too.
 
@@ -549,9 +562,8 @@ def grid_filter(datasets: Sequence, log_likelihood: Callable, box: ArrayLike, no
                 window[j] = ends.min() - widen * noise[j], ends.max() + widen * noise[j]
             fixed = [prev.axes[j] if noise[j] == 0 else None for j in range(d)]
         try:
-            step = grid_update(log_target, window, n_points, hard=bounds, fixed=fixed, n_coarse=n_coarse,
-                               tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
-                               max_points=max_points, log_axes=log_axes)
+            step = grid_update(log_target, window, n_points, hard=bounds, fixed=fixed, scales=scales,
+                               **resolution.keywords())
         except ValueError as err:
             if "zero everywhere" in str(err):
                 break
@@ -600,9 +612,8 @@ def component_transition(new_axis: np.ndarray, old_axis: np.ndarray, component: 
 
 def kernel_grid_filter(datasets: Sequence, log_likelihood: Callable, kernel: Any, first_window: ArrayLike, *,
                        log_prior: Callable | None = None, box: ArrayLike | None = None, n_points: int = 201,
-                       points_per_sd: float = 5.0, tail_mass: float = 1e-100, n_coarse: int = 201,
-                       max_points: int = 2001, widen: float = 20.0,
-                       log_axes: Sequence[bool] | None = None) -> tuple[list[GridStep], np.ndarray]:
+                       widen: float = 20.0, resolution: Resolution = Resolution(tail_mass=1e-100, points_per_sd=5.0)
+                       ) -> tuple[list[GridStep], np.ndarray]:
     """Grid filter under any prior density and a :class:`~seqbayes.kernels.MarkovKernel` whose components act
     on one parameter each, :class:`~seqbayes.kernels.Jump` included: the posterior of every step and the
     probability that each jump parameter jumped into it.
@@ -626,11 +637,13 @@ def kernel_grid_filter(datasets: Sequence, log_likelihood: Callable, kernel: Any
         Log prior density on the grid (default: uniform on ``box``, which must then be finite).
     box : array_like, shape (d, 2), optional
         The parameter space (hard bounds; default unbounded).
-    n_points, points_per_sd, tail_mass, n_coarse, max_points, log_axes
+    n_points
         As :func:`adaptive_axes`.
     widen : float
         A later step's window is the previous grid carried through each branch, widened by ``widen``
         of that branch's sds.
+    resolution : Resolution
+        As :func:`adaptive_axes` (``tail_mass`` 1e-100 and ``points_per_sd`` 5 by default).
 
     Returns
     -------
@@ -659,8 +672,7 @@ def kernel_grid_filter(datasets: Sequence, log_likelihood: Callable, kernel: Any
     for j, c in enumerate(components):
         ends = np.asarray(c.nominal(first_window[j]), dtype=float)
         scales[j] = c.noise_std * (first_window[j, 1] - first_window[j, 0]) / abs(ends[1] - ends[0])
-    settings = dict(n_coarse=n_coarse, tail_mass=tail_mass, points_per_sd=points_per_sd, scales=scales,
-                    max_points=max_points, log_axes=log_axes)
+    settings = dict(scales=scales, **resolution.keywords())
     branches = [c.branches() if isinstance(c, Jump) else (np.zeros(1), np.zeros(1), np.array([c.noise_std]))
                 for c in components]
 

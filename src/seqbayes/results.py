@@ -24,109 +24,182 @@ if TYPE_CHECKING:
     import arviz as az
     import xarray as xr
 
-__all__ = ["StepInfo", "StepRecord", "Result", "weighted_quantile", "prior_data_conflict"]
+__all__ = ["StepInfo", "MoveInfo", "EvidenceInfo", "ConflictInfo", "JumpInfo", "NestedInfo", "StepRecord", "Result",
+           "weighted_quantile"]
 
 
 @dataclass(frozen=True)
-class StepInfo:
-    """Diagnostics of one on-line step (one dataset).
+class MoveInfo:
+    """What the step's moves did (the ``moves`` component's diagnostics).
 
     Attributes
     ----------
-    step : int
-        1-based index of the dataset.
-    log_evidence_increment : float
-        ``log p(D^s | D^{1:s-1})``, summed over tempering stages (Eq. 1).
-    log_evidence : float
-        Cumulative ``log p(D^{1:s})``.
-    ess : float
-        Effective sample size after the last reweighting, before resampling.
-    resampled : bool
-        Whether the last stage resampled (with the IBIS schedule, ``move_every_stage=False`` and
-        a static kernel: whether the step began with the deferred resample-move).
     acceptance_rate : float
         True rate over the step's moves: accepted proposals / proposals made.
     step_size : float
         Stretch-move step size ``u`` after the step (NaN for SMC).
     n_virtual : int
         Virtual iterations (SEMC sweeps) in the step, all stages.
-    n_stages : int
-        Tempering stages (1 without tempering).
+    n_proposed, n_accepted, n_identical_partner : int
+        Move counts; ``n_identical_partner`` are stretch proposals whose partner was an identical copy of the walker.
+    n_move_evaluations : int
+        Likelihood evaluations made by the moves (part of ``StepInfo.n_loglike_evals``).
+    n_screen_evaluations, n_screened_out : int
+        Delayed acceptance (the moves' ``screen``): the cheap screen's evaluations and the proposals it rejected
+        without a likelihood call.
+    """
+
+    acceptance_rate: float = float("nan")
+    step_size: float = float("nan")
+    n_virtual: int = 0
+    n_proposed: int = 0
+    n_accepted: int = 0
+    n_identical_partner: int = 0
+    n_move_evaluations: int = 0
+    n_screen_evaluations: int = 0
+    n_screened_out: int = 0
+
+
+@dataclass(frozen=True)
+class EvidenceInfo:
+    """The evidence increment's diagnostics (the ``evidence`` component's).
+
+    Attributes
+    ----------
+    log_evidence_increment_path : float
+        The tempering path's estimate of the increment (Eq. 1); equals ``StepInfo.log_evidence_increment`` with
+        ``PathEvidence``.
+    evidence_ess : float
+        Effective sample size of the importance-sampling evidence (NaN for the path's); small values (say below
+        N / 10) flag an unreliable increment.
+    n_independent_accepted : int
+        Particles moved by the independence-MH sweeps that reuse the importance draws.
+    log_evidence_increment_se, log_evidence_se : float
+        Standard errors of the increment and of the cumulative log-evidence
+        (:func:`~seqbayes.predictive.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
+    """
+
+    log_evidence_increment_path: float = float("nan")
+    evidence_ess: float = float("nan")
+    n_independent_accepted: int = 0
+    log_evidence_increment_se: float = float("nan")
+    log_evidence_se: float = float("nan")
+
+
+@dataclass(frozen=True)
+class ConflictInfo:
+    """Prior-data conflict and its remedy (the ``remedy`` component's diagnostics).
+
+    Attributes
+    ----------
+    prior_data_conflict : float
+        How far the step's posterior lies in the tail of its prior (the predictive distribution restricted to the
+        parameter space for ``s > 1``): the largest over parameters of ``|posterior mean - prior mean| / prior sd``
+        (:func:`~seqbayes.predictive.particle.prior_data_conflict`). Under the model this exceeds 4 with probability below ~1e-4 per parameter;
+        larger values flag an abrupt change or a kernel too narrow for the data.
+    conflict_parameter : int
+        The parameter (column) where it is largest.
+    ancestor_ess : float
+        How many of the predictive mixture's components (Eq. A3) carry this step's posterior, ``1 / sum_j a_j^2``
+        (:meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_ess`; NaN at step 1 and where the remedy does
+        not apply). Small values mean the posterior lies in the far tail of the mixture.
+    path_steps : int
+        0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the remedy assimilated it on the path
+        space of the last ``L`` states (:class:`~seqbayes.predictive.paths.PathStep`).
+    """
+
+    prior_data_conflict: float = float("nan")
+    conflict_parameter: int = 0
+    ancestor_ess: float = float("nan")
+    path_steps: int = 0
+
+
+@dataclass(frozen=True)
+class JumpInfo:
+    """A jump kernel's posterior (:class:`~seqbayes.kernels.Jump` components; NaN at step 1 and without jumps).
+
+    Attributes
+    ----------
+    jump_probability : float
+        The posterior probability that some parameter jumped between the previous step and this one
+        (:func:`~seqbayes.kernels.jump_posterior`).
+    jump_parameter : int
+        The jump parameter (column) most likely to have jumped.
+    jump_size, jump_size_sd : float
+        Posterior mean and sd of its drop fraction given that it jumped (the drop is ``jump_size * reference``).
+    jump_probability_se : float
+        Monte Carlo standard error of ``jump_probability`` (:func:`~seqbayes.predictive.jumps.jump_probability_se`).
+    """
+
+    jump_probability: float = float("nan")
+    jump_parameter: int = 0
+    jump_size: float = float("nan")
+    jump_size_sd: float = float("nan")
+    jump_probability_se: float = float("nan")
+
+
+@dataclass(frozen=True)
+class NestedInfo:
+    """SMC^2's diagnostics (the ``SMC2`` predictive's; NaN and 0 otherwise).
+
+    Attributes
+    ----------
+    inner_ess : float
+        The particle inner filters' mean ESS after weighting, as a fraction of their size. Below ~0.02 the
+        likelihood estimates are too noisy for the PMMH moves (raise ``n_inner``; see docs/core.md).
+    amortised_evals : float
+        Likelihood evaluations per update so far, ``sum of n_loglike_evals / step``.
+    pmmh_acceptance : float
+        PMMH acceptance of the current rejuvenation so far, or of the one that ended in this step (NaN when none has
+        run). Below ~0.2 the moves cost more than they diversify (raise ``n_inner``).
+    pending_moves : int
+        At most this many PMMH attempts are still scheduled for later updates (:mod:`seqbayes.predictive.pmmh`).
+    """
+
+    inner_ess: float = float("nan")
+    amortised_evals: float = float("nan")
+    pmmh_acceptance: float = float("nan")
+    pending_moves: int = 0
+
+
+#: StepInfo's records: its field -> the record's class.
+RECORDS = {"moves": MoveInfo, "evidence": EvidenceInfo, "conflict": ConflictInfo, "jumps": JumpInfo,
+           "nested": NestedInfo}
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """Diagnostics of one on-line step (one dataset): the step's own, and one record per component.
+
+    The records' fields are read as attributes of the step too (``info.acceptance_rate`` is
+    ``info.moves.acceptance_rate``), as stores and scripts of earlier versions name them; :meth:`to_dict` and
+    :meth:`from_dict` are the flat form the run store keeps, derived from the records' fields.
+
+    Attributes
+    ----------
+    step : int
+        1-based index of the dataset.
+    log_evidence_increment : float
+        ``log p(D^s | D^{1:s-1})``, summed over tempering stages (Eq. 1) or estimated by importance sampling.
+    log_evidence : float
+        Cumulative ``log p(D^{1:s})``.
+    ess : float
+        Effective sample size after the last reweighting, before resampling.
+    resampled : bool
+        Whether the last stage resampled (with the IBIS schedule, the moves' ``every_stage=False`` and a static
+        kernel: whether the step began with the deferred resample-move).
     temperatures : tuple of float
-        Tempering exponents reached, ending with 1.0.
+        Tempering exponents reached, ending with 1.0 (``n_stages`` of them).
     n_loglike_evals : int
         Likelihood evaluations (samples) in the step.
     n_nan : int
         Likelihood values that were NaN (counted as zero likelihood).
     n_distinct : int
         Distinct posterior samples at the end of the step.
-    n_proposed, n_accepted, n_identical_partner : int
-        Move counts; ``n_identical_partner`` are stretch proposals whose partner
-        was an identical copy of the walker.
-    log_evidence_increment_path : float
-        The tempering path's estimate of the increment (Eq. 1); equals
-        ``log_evidence_increment`` when ``evidence="path"``.
-    evidence_ess : float
-        Effective sample size of the importance-sampling evidence (NaN for ``"path"``);
-        small values (say below N / 10) flag an unreliable increment.
-    n_independent_accepted : int
-        Particles moved by the independence-MH sweep that reuses the importance draws
-        (not counted in ``acceptance_rate``, which is the sampler's own move).
-    n_move_evaluations : int
-        Likelihood evaluations made by the sampler's own moves (part of ``n_loglike_evals``,
-        which also counts the initial, restart and importance evaluations).
     wall_time : float
         Seconds spent in the step.
-    prior_data_conflict : float
-        How far the step's posterior lies in the tail of its prior (the predictive distribution
-        restricted to the parameter space for ``s > 1``): the largest over parameters of
-        ``|posterior mean - prior mean| / prior sd`` (``seqbayes.engine.stages.step_conflict``).
-        Under the model this exceeds 4 with probability below ~1e-4 per parameter; larger values
-        flag an abrupt change or a kernel too narrow for the data (see :func:`prior_data_conflict`).
-    conflict_parameter : int
-        The parameter (column) where it is largest.
-    inner_ess : float
-        SMC^2 with a particle inner filter: the inner filters' mean ESS after weighting, as a
-        fraction of their size (NaN otherwise). Below ~0.02 the likelihood estimates are too
-        noisy for the PMMH moves (raise ``n_inner``; see docs/core.md).
-    ancestor_ess : float
-        How many of the predictive mixture's components (Eq. A3: the previous posterior's
-        particles through the exact transition with ``"transition"``) carry this step's posterior,
-        ``1 / sum_j a_j^2`` (:meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_ess`, or
-        :func:`~seqbayes.predictive.lineage.ancestor_draws` once paths are carried; NaN at step 1 and where
-        the conflict remedy does not apply). Small values mean the posterior lies in the far tail
-        of the mixture, which N particles do not represent.
-    path_steps : int
-        0: the step's target was the predictive mixture (Eq. A3). ``L > 0``: the conflict remedy
-        assimilated it on the path space of the last ``L`` states (the exact target;
-        :func:`~seqbayes.predictive.paths.PathSpace`).
-    jump_probability : float
-        With a kernel with :class:`~seqbayes.kernels.Jump` components: the posterior probability
-        that some parameter jumped between the previous step and this one (NaN at step 1 and
-        without jumps; :func:`~seqbayes.kernels.jump_posterior`).
-    jump_parameter : int
-        The jump parameter (column) most likely to have jumped.
-    jump_size, jump_size_sd : float
-        Posterior mean and sd of its drop fraction given that it jumped (the drop is
-        ``jump_size * reference``).
-    log_evidence_increment_se, log_evidence_se : float
-        Standard errors of ``log_evidence_increment`` and of the cumulative ``log_evidence``
-        (:func:`~seqbayes.engine.evidence.step_standard_errors`; NaN for SMC^2 and multi-stage path estimates).
-    n_screen_evaluations, n_screened_out : int
-        Delayed acceptance (``SamplerConfig.surrogate``): the cheap screen's evaluations and the proposals it
-        rejected without a likelihood call. The expensive calls are ``n_loglike_evals`` (of which the moves'
-        are ``n_move_evaluations``).
-    amortised_evals : float
-        SMC^2: likelihood evaluations per update so far, ``sum of n_loglike_evals / step`` (NaN otherwise).
-    pmmh_acceptance : float
-        SMC^2: PMMH acceptance of the current rejuvenation so far, or of the one that ended in this step
-        (NaN when none has run). Below ~0.2 the moves cost more than they diversify (raise ``n_inner``).
-    pending_moves : int
-        SMC^2: at most this many PMMH attempts are still scheduled for later updates (a rejuvenation
-        spreads its sweeps over updates within a budget, :mod:`seqbayes.predictive.pmmh`).
-    jump_probability_se : float
-        Monte Carlo standard error of ``jump_probability``
-        (:func:`~seqbayes.predictive.jumps.jump_probability_se`; NaN where that is).
+    moves, evidence, conflict, jumps, nested : MoveInfo, EvidenceInfo, ConflictInfo, JumpInfo, NestedInfo
+        The components' diagnostics.
     """
 
     step: int
@@ -134,68 +207,68 @@ class StepInfo:
     log_evidence: float
     ess: float
     resampled: bool
-    acceptance_rate: float
-    step_size: float
-    n_virtual: int
-    n_stages: int
     temperatures: tuple
     n_loglike_evals: int
     n_nan: int
     n_distinct: int
-    n_proposed: int
-    n_accepted: int
-    n_identical_partner: int
-    log_evidence_increment_path: float
-    evidence_ess: float
-    n_independent_accepted: int
-    n_move_evaluations: int
     wall_time: float
-    prior_data_conflict: float = float("nan")
-    conflict_parameter: int = 0
-    inner_ess: float = float("nan")
-    ancestor_ess: float = float("nan")
-    path_steps: int = 0
-    jump_probability: float = float("nan")
-    jump_parameter: int = 0
-    jump_size: float = float("nan")
-    jump_size_sd: float = float("nan")
-    log_evidence_increment_se: float = float("nan")
-    log_evidence_se: float = float("nan")
-    n_screen_evaluations: int = 0
-    n_screened_out: int = 0
-    amortised_evals: float = float("nan")
-    pmmh_acceptance: float = float("nan")
-    pending_moves: int = 0
-    jump_probability_se: float = float("nan")
+    moves: MoveInfo = MoveInfo()
+    evidence: EvidenceInfo = EvidenceInfo()
+    conflict: ConflictInfo = ConflictInfo()
+    jumps: JumpInfo = JumpInfo()
+    nested: NestedInfo = NestedInfo()
+
+    @property
+    def n_stages(self) -> int:
+        """Tempering stages (1 without tempering)."""
+        return len(self.temperatures)
+
+    def __getattr__(self, name: str):
+        owner = _OWNER.get(name)   # only for names missing on the step itself: a record's field
+        if owner is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return getattr(self.__dict__[owner], name)
+
+    @classmethod
+    def of(cls, **values) -> "StepInfo":
+        """A record from flat values (the step's own and any record's fields, by name), as they are; missing record
+        fields take their defaults."""
+        parts = {name: {} for name in RECORDS}
+        own = {}
+        for name, value in values.items():
+            owner = _OWNER.get(name)
+            (own if owner is None else parts[owner])[name] = value
+        return cls(**own, **{name: RECORDS[name](**part) for name, part in parts.items()})
+
+    def to_dict(self) -> dict:
+        """The flat form: the step's own fields (and ``n_stages``), then every record's fields."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in RECORDS}
+        out["n_stages"] = self.n_stages
+        for name in RECORDS:
+            out.update(dataclasses.asdict(getattr(self, name)))
+        return out
 
     @classmethod
     def from_dict(cls, values: dict) -> "StepInfo":
-        """A record from stored values, tolerant of diagnostics added or removed since it was
+        """A record from stored flat values (:meth:`to_dict`), tolerant of diagnostics added or removed since it was
         written: a missing field becomes NaN, 0, False or ``()``; an unknown one is dropped."""
         defaults = {"float": float("nan"), "int": 0, "bool": False, "tuple": ()}
         kwargs = {}
-        for f in dataclasses.fields(cls):
-            type_name = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "float")
-            value = values.get(f.name, defaults.get(type_name, float("nan")))
-            kwargs[f.name] = (tuple(value) if type_name == "tuple" else bool(value) if type_name == "bool"
-                              else int(value) if type_name == "int" else float(value))
-        return cls(**kwargs)
+        for name, kind in _TYPES.items():
+            value = values.get(name, defaults.get(kind, float("nan")))
+            kwargs[name] = (tuple(value) if kind == "tuple" else bool(value) if kind == "bool"
+                            else int(value) if kind == "int" else float(value))
+        return cls.of(**kwargs)
 
 
-def prior_data_conflict(prior: np.ndarray, prior_log_weights: np.ndarray, posterior: np.ndarray,
-                        posterior_log_weights: np.ndarray) -> np.ndarray:
-    """``|posterior mean - prior mean| / prior sd`` per parameter, ``(d,)``.
+def _type_name(f) -> str:
+    return f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "float")
 
-    Parameters
-    ----------
-    prior, posterior : (N, d) arrays
-        The step's prior particles (before the likelihood) and its posterior particles.
-    prior_log_weights, posterior_log_weights : (N,) arrays
-    """
-    w0, w1 = np.exp(normalise(prior_log_weights)), np.exp(normalise(posterior_log_weights))
-    mean0 = w0 @ prior
-    sd0 = np.sqrt(np.maximum(w0 @ (prior - mean0) ** 2, 1e-300))
-    return np.abs(w1 @ posterior - mean0) / sd0
+
+#: Each record field -> the StepInfo field of its record; each flat field -> its type's name.
+_OWNER = {f.name: name for name, record in RECORDS.items() for f in dataclasses.fields(record)}
+_TYPES = {**{f.name: _type_name(f) for f in dataclasses.fields(StepInfo) if f.name not in RECORDS},
+          **{f.name: _type_name(f) for record in RECORDS.values() for f in dataclasses.fields(record)}}
 
 
 def weighted_quantile(samples: ArrayLike, log_weights: ArrayLike, q: ArrayLike) -> np.ndarray:
@@ -259,7 +332,7 @@ class StepRecord:
 
     def equal_weight_samples(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
         """Resampled (systematic) equal-weight posterior samples, ``(n, d)``."""
-        from .resampling import systematic
+        from .weights import systematic
 
         return self.posterior[systematic(self._w(), rng, n)]
 
@@ -321,11 +394,11 @@ class Result:
             "log_weights": (("step", "sample"), np.stack([r.log_weights for r in self.steps])),
             "predictive": (("step", "sample", "parameter"), np.stack([r.predictive for r in self.steps])),
         }
-        for f in dataclasses.fields(StepInfo):
-            if f.name in ("step", "temperatures"):
+        for name in self.steps[0].info.to_dict():
+            if name in ("step", "temperatures"):
                 continue
-            values = np.array([getattr(r.info, f.name) for r in self.steps])
-            data[f.name] = (("step",), values.astype(np.int8) if values.dtype == bool else values)
+            values = np.array([getattr(r.info, name) for r in self.steps])
+            data[name] = (("step",), values.astype(np.int8) if values.dtype == bool else values)
         ds = xr.Dataset(data, coords=coords)
         ds.attrs["temperatures"] = json.dumps([list(r.info.temperatures) for r in self.steps])
         ds.attrs["meta"] = json.dumps(self.meta, default=str)

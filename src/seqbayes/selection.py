@@ -1,6 +1,10 @@
 """Model-class selection from log-evidence: each candidate Markov kernel (or
 model) is a class ``M_j``; with equal prior model probabilities,
 ``P(M_j | D^{1:s}) = exp(log Z_j) / sum_k exp(log Z_k)`` (log-sum-exp).
+
+One bank of model classes (:class:`ModelBank`: prior probabilities, evidences, the classes still running) serves
+the comparison of finished runs (:func:`compare`) and the on-line damage monitors, which prune classes that stay
+improbable (:class:`~seqbayes.structural.stiffness_drop.StiffnessDropMonitor`).
 """
 
 from __future__ import annotations
@@ -9,9 +13,53 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .weights import logsumexp
+from .weights import normalise
 
-__all__ = ["compare", "ModelComparison"]
+__all__ = ["compare", "ModelComparison", "ModelBank"]
+
+
+@dataclass(frozen=True, eq=False)
+class ModelBank:
+    """Model classes compared by their evidence, on-line.
+
+    Attributes
+    ----------
+    log_prior : (C,) array
+        Log prior probabilities of the classes.
+    log_evidence : (C,) array
+        Each class's cumulative log-evidence.
+    active : (C,) bool array
+        The classes still updated (the others were pruned and have probability 0).
+    low_steps : (C,) int array
+        Consecutive updates each class has spent below the pruning threshold.
+    """
+
+    log_prior: np.ndarray
+    log_evidence: np.ndarray
+    active: np.ndarray
+    low_steps: np.ndarray
+
+    @classmethod
+    def start(cls, prior_probabilities) -> "ModelBank":
+        """Every class active, with no evidence yet."""
+        log_prior = np.log(np.asarray(prior_probabilities, dtype=float))
+        c = log_prior.size
+        return cls(log_prior, np.zeros(c), np.ones(c, bool), np.zeros(c, int))
+
+    def log_probabilities(self) -> np.ndarray:
+        """``log P(M_c | data)`` among the active classes (``-inf`` for pruned ones), ``(C,)``."""
+        return normalise(np.where(self.active, self.log_prior + self.log_evidence, -np.inf))
+
+    def updated(self, log_evidence, prune_below: float = 0.0, prune_after: int = 1) -> "ModelBank":
+        """The bank with the classes' new ``log_evidence``; with ``prune_below > 0`` a class whose probability stays
+        below it for ``prune_after`` consecutive updates stops being active (the beam pruning of multiple-model
+        trackers)."""
+        bank = ModelBank(self.log_prior, np.asarray(log_evidence, dtype=float), self.active, self.low_steps)
+        if prune_below <= 0:
+            return bank
+        low = np.exp(bank.log_probabilities()) < prune_below
+        low_steps = np.where(low, self.low_steps + 1, 0)
+        return ModelBank(self.log_prior, bank.log_evidence, self.active & (low_steps < prune_after), low_steps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,14 +135,13 @@ def compare(results: Mapping[str, Any], prior_probabilities: ArrayLike | None = 
         raise ValueError(f"results: models have different numbers of steps {sorted(lengths)}")
     log_z = np.column_stack(columns)
     increments = np.diff(np.vstack([np.zeros(len(names)), log_z]), axis=0)
-    log_prior = np.zeros(len(names)) - np.log(len(names))
+    prior = np.full(len(names), 1.0 / len(names))
     if prior_probabilities is not None:
-        p = np.array([float(prior_probabilities[n]) for n in names])
-        if np.any(p <= 0):
+        prior = np.array([float(prior_probabilities[n]) for n in names])
+        if np.any(prior <= 0):
             raise ValueError("prior_probabilities: must be positive")
-        log_prior = np.log(p / p.sum())
-    log_post = log_z + log_prior
-    probabilities = np.exp(log_post - logsumexp(log_post, axis=1)[:, None])
+    bank = ModelBank.start(prior / prior.sum())
+    probabilities = np.array([np.exp(bank.updated(row).log_probabilities()) for row in log_z])
     return ModelComparison(names, log_z, increments, probabilities)
 
 import typing as _typing  # noqa: E402

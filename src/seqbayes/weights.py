@@ -1,14 +1,18 @@
 """Importance weights in the log domain: normalisation, effective sample size
-and the evidence increment of Eq. (1) of Lye et al. (2023).
+and the evidence increment of Eq. (1) of Lye et al. (2023); and resampling.
 
-All functions take log-weights of shape ``(N,)``; ``-inf`` means zero weight.
+The weight functions take log-weights of shape ``(N,)``; ``-inf`` means zero weight. The resampling schemes draw
+ancestor indices with probabilities proportional to normalised weights: all are unbiased (expected offspring count
+``n * w_i``) and vectorised, each with an explicit :class:`numpy.random.Generator`. The paper uses multinomial
+resampling; systematic is our default because it has the lowest variance of the four and costs one uniform draw.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["logsumexp", "normalise", "ess", "log_mean_exp", "log_evidence_increment"]
+__all__ = ["logsumexp", "normalise", "ess", "log_mean_exp", "log_evidence_increment", "multinomial", "systematic",
+           "stratified", "residual", "resample", "SCHEMES"]
 
 
 def logsumexp(values, axis=None):
@@ -91,3 +95,72 @@ def log_evidence_increment(log_weights_prev: np.ndarray, log_increments: np.ndar
         Incremental log-weights (e.g. tempered log-likelihoods).
     """
     return float(logsumexp(normalise(log_weights_prev) + log_increments))
+
+
+def _checked_weights(weights, n):
+    weights = np.asarray(weights, dtype=float)
+    if weights.ndim != 1 or weights.size == 0:
+        raise ValueError(f"weights: expected a non-empty 1-D array, got shape {weights.shape}")
+    if not np.all(np.isfinite(weights)) or np.any(weights < 0):
+        raise ValueError("weights: must be finite and non-negative")
+    total = weights.sum()
+    if total <= 0:
+        raise ValueError("weights: all weights are zero")
+    n = weights.size if n is None else int(n)
+    if n < 1:
+        raise ValueError(f"n: must be at least 1, got {n}")
+    return weights / total, n
+
+
+def _inverse_cdf(weights, uniforms_sorted):
+    cdf = np.cumsum(weights)
+    cdf[-1] = 1.0  # guard against round-off
+    return np.searchsorted(cdf, uniforms_sorted, side="right").clip(max=weights.size - 1)
+
+
+def multinomial(weights, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Independent draws from the categorical distribution (the paper's scheme)."""
+    weights, n = _checked_weights(weights, n)
+    return _inverse_cdf(weights, np.sort(rng.random(n)))
+
+
+def systematic(weights, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """One uniform offset, ``n`` evenly spaced points."""
+    weights, n = _checked_weights(weights, n)
+    return _inverse_cdf(weights, (rng.random() + np.arange(n)) / n)
+
+
+def stratified(weights, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """One uniform draw in each of ``n`` equal strata."""
+    weights, n = _checked_weights(weights, n)
+    return _inverse_cdf(weights, (rng.random(n) + np.arange(n)) / n)
+
+
+def residual(weights, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """``floor(n w_i)`` copies of each, the remainder multinomially on the residuals."""
+    weights, n = _checked_weights(weights, n)
+    expected = n * weights
+    copies = np.floor(expected).astype(np.int64)
+    indices = np.repeat(np.arange(weights.size), copies)
+    remaining = n - copies.sum()
+    if remaining > 0:
+        residuals = expected - copies
+        indices = np.concatenate([indices, multinomial(residuals, rng, remaining)])
+    return indices
+
+
+SCHEMES = {
+    "multinomial": multinomial,
+    "systematic": systematic,
+    "stratified": stratified,
+    "residual": residual,
+}
+
+
+def resample(scheme: str, weights, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Dispatch to a scheme by name (``"multinomial"``, ``"systematic"``, ...)."""
+    try:
+        function = SCHEMES[scheme]
+    except KeyError:
+        raise ValueError(f"resampling: unknown scheme {scheme!r}; choose from {sorted(SCHEMES)}") from None
+    return function(weights, rng, n)

@@ -9,6 +9,7 @@ within 1.5 posterior sd. Tolerance: error <= 0.01 and within 3.5 sd.
 
 import numpy as np
 
+from seqbayes.structural.settings import sg_from_flat
 from seqbayes import SGEnMCMC
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise
 from seqbayes.structural.structures.bouc_wen import BoucWenBuilding, BoucWenRK4, simulate_bouc_wen
@@ -26,7 +27,7 @@ def test_enkf_sgenmcmc_recovers_bouc_wen_stiffness():
     peak = np.abs(np.diff(X[0, :, :2], axis=-1, prepend=0.0)).max()
     assert peak > 2 * 0.004  # the storeys yield
     noisy, std = add_measurement_noise(y[0], 0.05, rng)
-    sg = SGEnMCMC(building, 0.02, 0.7, 1.0, std, sw, n_members=40, likelihood="enkf", enkf_members=20)
+    sg = SGEnMCMC(building, 0.02, 0.7, 1.0, std, sw, n_members=40, **sg_from_flat(likelihood="enkf", enkf_members=20))
     result = sg.run(u, noisy, rng=0)
     mean, sd = result.theta_mean[-1], np.sqrt(result.theta_var[-1])
     assert np.all(np.abs(mean - truth) <= 0.01)

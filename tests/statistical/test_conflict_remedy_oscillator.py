@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 
+from seqbayes.engine.settings import from_flat
 from seqbayes.models import oscillator as osc
 from seqbayes import SMC, PriorDataConflictWarning
 
@@ -45,8 +46,7 @@ def test_run_9_under_a_losing_kernel_reaches_the_major_mode_of_the_path_posterio
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PriorDataConflictWarning)
         bridged = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=0).run(problem.datasets)
-        stored = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=0,
-                     remedy_bridge=False).run(problem.datasets)
+        stored = SMC(osc.prior(), kernel, osc.log_likelihood, n_samples=1000, rng=0, **from_flat("SMC", remedy_bridge=False)).run(problem.datasets)
     evidence = [r.info.log_evidence for r in bridged.steps]
     errors = reference.errors(bridged.means(), bridged.stds(), evidence)
     assert all(r.info.path_steps > 0 for r in bridged.steps[1:])

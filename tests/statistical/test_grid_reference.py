@@ -167,7 +167,8 @@ def test_oscillator_run9_t2_fresh_equals_bundled_and_needs_the_step1_ridge(oscil
     box = np.array([osc.PRIOR_BOUNDS["k"], osc.PRIOR_BOUNDS["c"]])
     cut = reference.grid_filter(problem.datasets[:4], osc._grid_log_likelihood, box,
                                 [c.nominal for c in kern.components], kern.noise_std, 201,
-                                first_window=[[0.5, 3.2], [0.001, 0.9]], tail_mass=1e-100, points_per_sd=3.0)
+                                first_window=[[0.5, 3.2], [0.001, 0.9]],
+                                resolution=reference.Resolution(tail_mass=1e-100, points_per_sd=3.0))
     assert abs(cut[3].mean[0] - bundled.mean[3, 0]) > 1.0 * bundled.std[3, 0]
 
 

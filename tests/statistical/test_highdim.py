@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes.models.correlated_gaussian import CorrelatedGaussian
 
@@ -28,7 +29,7 @@ def first_update(cls, dim, seed, n=1000, strict=True, **settings):
     with warnings.catch_warnings():
         warnings.simplefilter("error" if strict else "ignore")  # strict: no fallback to the path estimate
         sampler = cls(gauss.prior(), kernel, gauss.loglike, n_samples=n, rng=np.random.default_rng([99, seed]),
-                      **settings)
+                      **from_flat(cls.__name__, **settings))
         info = sampler.update(gauss.data)
     return gauss.errors(sampler.result.steps[0]), info
 

@@ -35,14 +35,14 @@ _SPEC.loader.exec_module(bench)
 
 
 def test_exact_reference_is_converged_and_is_the_kalman_filter_where_linear():
-    from seqbayes.reference import kernel_grid_filter
+    from seqbayes.reference import Resolution, kernel_grid_filter
 
     _, data = bench.simulate(4.0, "frequency")
     loglike = bench.log_likelihood("frequency")
     kernel = bench.kernels()["jump"]
     coarse, jumps = kernel_grid_filter(data, lambda axes, y: loglike(axes[0][:, None], y), kernel, [[0.2, 1.8]],
                                        log_prior=lambda axes: stats.norm.logpdf(axes[0], 1.0, 0.1),
-                                       n_points=101, points_per_sd=3.0)
+                                       n_points=101, resolution=Resolution(tail_mass=1e-100, points_per_sd=3.0))
     fine = bench.exact(4.0, "frequency", "jump")
     np.testing.assert_allclose(np.cumsum([s.log_evidence_increment for s in coarse]), fine["log_evidence"],
                                rtol=0, atol=1e-8)
@@ -125,12 +125,12 @@ def test_a_path_space_step_reports_the_mixture_steps_jump_se(monkeypatch):
         return value
     monkeypatch.setattr(jumps, "jump_probability_se", spy)
     marks = []
-    propagate = paths.PathSpace.propagate
+    propagate = paths.PathStep.propagate
 
     def marked(self, *args):
         marks.append(len(calls))
         return propagate(self, *args)
-    monkeypatch.setattr(paths.PathSpace, "propagate", marked)
+    monkeypatch.setattr(paths.PathStep, "propagate", marked)
     r = bench.run((2.0, "frequency", "jump", "SEMC", 1, 1000, 13))
     assert r["path_steps"][12] > 0 and marks, r["path_steps"]
     args, kwargs, value = calls[marks[-1]]

@@ -10,6 +10,7 @@ and 30 steps the same errors scale by sqrt(2), which these seeds (fixed in advan
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace, errors_against
 from seqbayes.predictive.smc2 import KalmanInnerFilter, NestedState, ParticleInnerFilter
@@ -25,9 +26,8 @@ def problem_and_data():
 @pytest.mark.parametrize("cls", [SEMC, SMC])
 def test_kalman_inner_filter_matches_the_kalman_filter_at_every_step(cls, problem_and_data):
     problem, data, exact = problem_and_data
-    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=5,
-                  inner_filter=KalmanInnerFilter(problem.observe))
-    assert sampler.config.predictive == "smc2"
+    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=5, **from_flat(cls.__name__, inner_filter=KalmanInnerFilter(problem.observe)))
+    assert sampler.config.predictive.method == "smc2"
     result = sampler.run(data)
     assert isinstance(sampler.state, NestedState)
     err = errors_against(result, exact)
@@ -40,8 +40,7 @@ def test_kalman_inner_filter_matches_the_kalman_filter_at_every_step(cls, proble
 def test_particle_inner_filter_matches_the_kalman_filter(cls, problem_and_data):
     """The general inner filter (bootstrap particle filter over the drifting parameters), the default."""
     problem, data, exact = problem_and_data
-    result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=6,
-                 inner_filter=ParticleInnerFilter(50)).run(data[:8])
+    result = cls(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=6, **from_flat(cls.__name__, inner_filter=ParticleInnerFilter(50))).run(data[:8])
     err = errors_against(result, exact[:8])
     assert np.all(err[:, 0] < 0.3), err
     assert np.all(err[:, 1] < 0.15), err
@@ -52,8 +51,7 @@ def test_same_seed_same_numbers_and_resume(problem_and_data):
     problem, data, _ = problem_and_data
 
     def fresh():
-        return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=3,
-                   inner_filter=ParticleInnerFilter(20))
+        return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=3, **from_flat("SMC", inner_filter=ParticleInnerFilter(20)))
 
     full = fresh().run(data[:5])
     first = fresh()
@@ -77,8 +75,7 @@ def test_auto_chooses_smc2_only_for_mixed_kernels(problem_and_data):
     assert SEMC(drifting.prior, drifting.kernel, drifting.loglike, n_samples=50,
                 rng=0).config.predictive == "transition"
     with pytest.raises(ValueError, match="inner_filter"):
-        SEMC(drifting.prior, drifting.kernel, drifting.loglike, n_samples=50, rng=0,
-             inner_filter=ParticleInnerFilter(10))
+        SEMC(drifting.prior, drifting.kernel, drifting.loglike, n_samples=50, rng=0, **from_flat("SEMC", inner_filter=ParticleInnerFilter(10)))
 
 
 def test_kalman_inner_filter_refuses_a_non_normal_drifting_prior(problem_and_data):
@@ -89,7 +86,7 @@ def test_kalman_inner_filter_refuses_a_non_normal_drifting_prior(problem_and_dat
     prior = JointPrior({"a": stats.uniform(-1, 2), "b": stats.norm(0, 1), "c": stats.norm(0, 1),
                         "e": stats.norm(0, 1)})
     with pytest.raises(ValueError, match="'a' must be normal"):
-        SMC(prior, problem.kernel, problem.loglike, n_samples=50, rng=0, inner_filter=KalmanInnerFilter(problem.observe))
+        SMC(prior, problem.kernel, problem.loglike, n_samples=50, rng=0, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe)))
 
 
 @pytest.mark.parametrize("cls", [SEMC, SMC])
@@ -102,8 +99,7 @@ def test_running_statistics_give_the_same_posterior_in_one_call(cls):
     data, _ = problem.simulate(12, rng=4)
     exact = problem.exact(data)
     plain = cls(problem.prior, problem.kernel, problem.loglike, n_samples=400, rng=2).run(data)
-    running = cls(problem.prior, problem.kernel, problem.loglike, n_samples=400, rng=2,
-                  history=problem.running_statistics()).run(data)
+    running = cls(problem.prior, problem.kernel, problem.loglike, n_samples=400, rng=2, **from_flat(cls.__name__, history=problem.running_statistics())).run(data)
     for a, b in zip(plain.steps, running.steps):
         np.testing.assert_allclose(a.posterior, b.posterior, rtol=1e-9, atol=1e-12)
         assert abs(a.info.log_evidence - b.info.log_evidence) < 1e-8
@@ -121,8 +117,7 @@ def test_state_arrays_round_trip_resumes_bit_for_bit(problem_and_data):
     problem, data, _ = problem_and_data
 
     def fresh():
-        return SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=100, rng=8,
-                    inner_filter=ParticleInnerFilter(10))
+        return SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=100, rng=8, **from_flat("SEMC", inner_filter=ParticleInnerFilter(10)))
 
     full = fresh().run(data[:4])
     first = fresh()
@@ -152,8 +147,7 @@ def test_degenerate_inner_filters_are_reported():
 
     problem = sharp_problem()
     data, _ = problem.simulate(2, rng=3)
-    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0,
-                  inner_filter=ParticleInnerFilter(100, guided=False))
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0, **from_flat("SMC", inner_filter=ParticleInnerFilter(100, guided=False)))
     sampler.update(data[0])
     with pytest.warns(InnerFilterWarning, match="degenerate"):
         info = sampler.update(data[1])

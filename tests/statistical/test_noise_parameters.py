@@ -5,6 +5,7 @@ against the exact joint posterior on a grid (exact Kalman likelihood)."""
 import numpy as np
 import pytest
 
+from seqbayes.structural.settings import sg_from_flat
 from seqbayes import SGEnMCMC
 from seqbayes.structural.filters.kalman import KalmanBank
 from seqbayes.structural.structures import ShearBuilding, discretise
@@ -53,7 +54,7 @@ def test_joint_posterior_of_stiffness_and_channel_noise_matches_the_grid(case):
     building, data = case
     # the nominal noise is 1.5x the true one: the scales must come out near log(1/1.5) = -0.41
     sg = SGEnMCMC(building, 0.02, 0.7, 1.0, 1.5 * data["noise_std"], data["process_noise_std"],
-                  noise_parameters="channel")
+                  **sg_from_flat(noise_parameters="channel"))
     run = sg.run(data["u"], data["y"], rng=2)
     assert run.names == ("theta_1", "theta_2", "log_noise_scale_1", "log_noise_scale_2")
     mean_run, sd_run = run.theta_mean[-1], np.sqrt(run.theta_var[-1])
@@ -71,26 +72,28 @@ def test_joint_posterior_of_stiffness_and_channel_noise_matches_the_grid(case):
 
 def test_shared_scale_and_validation(case):
     building, data = case
-    sg = SGEnMCMC(building, 0.02, 0.7, 1.0, 1.5 * data["noise_std"], data["process_noise_std"],
-                  noise_parameters="shared", n_members=200)
+    sg = SGEnMCMC(building, 0.02, 0.7, 1.0, 1.5 * data["noise_std"], data["process_noise_std"], n_members=200,
+                  **sg_from_flat(noise_parameters="shared"))
     u, y = data["u"][:100], data["y"][:100]
     sg.reset(3)
     sg.update(u[:40], y[:40])
     snap = sg.snapshot()
     first = sg.update(u[40:], y[40:])
-    again = SGEnMCMC(building, 0.02, 0.7, 1.0, 1.5 * data["noise_std"], data["process_noise_std"],
-                     noise_parameters="shared", n_members=200)
+    again = SGEnMCMC(building, 0.02, 0.7, 1.0, 1.5 * data["noise_std"], data["process_noise_std"], n_members=200,
+                     **sg_from_flat(noise_parameters="shared"))
     again.restore(snap)
     second = again.update(u[40:], y[40:])
     np.testing.assert_array_equal(first.theta_mean, second.theta_mean)  # resume bit for bit
     assert first.names[-1] == "log_noise_scale" and first.theta_mean.shape == (100, 3)
     assert np.all(np.abs(first.theta_mean[-1, 2]) < np.log(4))
     with pytest.raises(ValueError, match="likelihood='kalman'"):
-        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], noise_parameters="channel", likelihood="enkf")
+        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], **sg_from_flat(noise_parameters="channel",
+                                                                             likelihood="enkf"))
     with pytest.raises(ValueError, match="noise_parameters"):
-        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], noise_parameters="diagonal")
+        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], **sg_from_flat(noise_parameters="diagonal"))
     with pytest.raises(ValueError, match="noise_scale_bounds"):
-        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], noise_parameters="shared",
-                 noise_scale_bounds=(2.0, 4.0))
+        SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], **sg_from_flat(noise_parameters="shared",
+                                                                             noise_scale_bounds=(2.0, 4.0)))
     with pytest.raises(ValueError, match="independent channels"):
-        SGEnMCMC(building, 0.02, 0.7, 1.0, np.array([[1e-2, 1e-4], [1e-4, 1e-2]]), noise_parameters="shared")
+        SGEnMCMC(building, 0.02, 0.7, 1.0, np.array([[1e-2, 1e-4], [1e-4, 1e-2]]),
+                 **sg_from_flat(noise_parameters="shared"))

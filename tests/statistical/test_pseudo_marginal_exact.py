@@ -15,6 +15,7 @@ its expectation), and the steps' moves must have been pseudo-marginal in at leas
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC
 from seqbayes.predictive.pseudo_marginal import SubsampledPrior
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
@@ -43,7 +44,7 @@ def test_pseudo_marginal_runs_match_the_kalman_filter(cls, monkeypatch):
     for seed in range(3):
         data, _ = lg.simulate(20, rng=1000 + seed)
         exact = lg.exact(data)
-        sampler = cls(lg.prior, lg.kernel, lg.loglike, n_samples=2000, rng=seed, pseudo_marginal_from=1000)
+        sampler = cls(lg.prior, lg.kernel, lg.loglike, n_samples=2000, rng=seed, **from_flat(cls.__name__, pseudo_marginal_from=1000))
         for y, e in zip(data, exact):
             info = sampler.update(y)
             record = sampler.result.steps[-1]

@@ -7,6 +7,7 @@ regeneration, reproducibility and bad input."""
 import numpy as np
 import pytest
 
+from seqbayes.structural.settings import sg_from_flat
 from seqbayes.structural.sgenmcmc import SGEnMCMC
 from seqbayes.structural.summaries import stage_modes, stage_quantiles, weighted_mode, weighted_quantiles
 from seqbayes.studies.shake_table import CASES, exact_posterior, laplace_posterior, make_data
@@ -46,8 +47,8 @@ def test_paper_variant_on_reduced_replicas(case):
     # (agrees with the AIES reference of the CLI: means within 0.1 sd, sds within ~15 % on WC1 40 s)
     ref_mean, ref_cov = laplace_posterior(data, truth)
     ref_sd = np.sqrt(np.diag(ref_cov))
-    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"],
-                  n_members=500, level=6, sampler="paper")
+    sg = SGEnMCMC(data["building"], 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"], n_members=500,
+                  **sg_from_flat(level=6, sampler="paper"))
     run = sg.run(data["u"], data["y"], rng=0)
     mean, sd = run.theta_mean[-1], np.sqrt(run.theta_var[-1])
     # Measured over 8 seeds per case (24 runs): |mean - exact mean| / exact sd <= 1.5 and
@@ -65,8 +66,8 @@ def test_paper_variant_on_reduced_replicas(case):
 
 @pytest.mark.parametrize("sampler", ["resample-move", "paper"])
 def test_outputs_have_consistent_shapes_and_values(wc1, sampler):
-    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
-                  n_members=200, level=4, sampler=sampler)
+    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=200,
+                  **sg_from_flat(level=4, sampler=sampler))
     run = sg.run(wc1["u"][:250], wc1["y"][:250], rng=1)
     T = run.theta_mean.shape[0]
     assert run.theta_quantiles.shape == (T, 3, 3)
@@ -112,8 +113,8 @@ def test_state_regeneration_is_exact_for_a_linear_conditional_model():
 @pytest.mark.parametrize("sampler", ["resample-move", "paper"])
 def test_reproducible(wc1, sampler):
     def once(seed):
-        sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
-                      n_members=60, level=3, sampler=sampler)
+        sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=60,
+                      **sg_from_flat(level=3, sampler=sampler))
         return sg.run(wc1["u"][:100], wc1["y"][:100], rng=np.random.default_rng(seed))
 
     a, b, c = once(7), once(7), once(8)
@@ -127,34 +128,34 @@ def test_resample_move_with_sparse_grid_and_random_walk_moves(wc1):
     # options are wired through: a level-4 grid and random-walk or mixture proposals still reach
     # the neighbourhood of the truth on 4 s of data (not an accuracy check)
     for proposal in ("random_walk", "mixture"):
-        sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
-                      n_members=100, level=4, proposal=proposal)
+        sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=100,
+                      **sg_from_flat(level=4, proposal=proposal))
         run = sg.run(wc1["u"][:200], wc1["y"][:200], rng=0)
         assert np.all(np.abs(run.theta_mean[-1] - wc1["theta"]) < 0.02)
 
 
 def test_bad_arguments(wc1):
     with pytest.raises(ValueError, match="n_members"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=3, level=3)
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=3, **sg_from_flat(level=3))
     with pytest.raises(ValueError, match="lower, upper"):
-        SGEnMCMC(wc1["building"], 0.02, 1.0, 0.7, wc1["noise_std"], level=3)
+        SGEnMCMC(wc1["building"], 0.02, 1.0, 0.7, wc1["noise_std"], **sg_from_flat(level=3))
     with pytest.raises(ValueError, match="state_move"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], level=3, state_move="teleport")
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(level=3, state_move="teleport"))
     with pytest.raises(ValueError, match="centre"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], level=3, centre="middle")
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(level=3, centre="middle"))
     with pytest.raises(ValueError, match="sampler"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], sampler="gibbs")
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(sampler="gibbs"))
     with pytest.raises(ValueError, match="proposal"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], proposal="langevin")
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(proposal="langevin"))
     with pytest.raises(ValueError, match="max_sweeps"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], max_sweeps=0)
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(max_sweeps=0))
     with pytest.raises(ValueError, match="blas_threads"):
         SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], blas_threads=0)
     with pytest.raises(ValueError, match="likelihood"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], likelihood="particle")
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(likelihood="particle"))
     with pytest.raises(ValueError, match="enkf_members"):
-        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], likelihood="enkf", enkf_members=1)
-    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"][:2], n_members=60, level=3)
+        SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], **sg_from_flat(likelihood="enkf", enkf_members=1))
+    sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"][:2], n_members=60, **sg_from_flat(level=3))
     with pytest.raises(ValueError, match="channel"):  # 2 noise stds and 2 channels for a 3-channel model
         sg.run(wc1["u"], wc1["y"][:, :2])
 
@@ -179,7 +180,8 @@ def test_online_interface_errors(wc1):
     sg = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=60)
     with pytest.raises(ValueError, match="reset"):
         sg.update(wc1["u"][:10], wc1["y"][:10])
-    paper = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=60, level=3, sampler="paper")
+    paper = SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], n_members=60, **sg_from_flat(level=3,
+                                                                                                     sampler="paper"))
     with pytest.raises(ValueError, match="resample-move"):
         paper.reset(rng=0)
 
@@ -196,7 +198,7 @@ def test_resample_move_with_the_enkf_likelihood():
     data = synthetic_record(building, [0.84, 0.93], 3.0, rng=0, noise=0.1, ground_frequency_hz=2.0)
     ref = exact_posterior(data, n=2000, rng=0, adapt=1)
     sg = SGEnMCMC(building, 0.02, 0.7, 1.0, data["noise_std"], data["process_noise_std"], n_members=100,
-                  likelihood="enkf", enkf_members=30)
+                  **sg_from_flat(likelihood="enkf", enkf_members=30))
     run = sg.run(data["u"], data["y"], rng=1)
     z = (run.theta_mean[-1] - ref.mean) / ref.sd
     ratio = np.sqrt(run.theta_var[-1]) / ref.sd
@@ -213,8 +215,8 @@ def test_snapshot_and_restore_are_bit_identical(wc1, tmp_path, likelihood, stop,
     import json
 
     def make():
-        return SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"],
-                        n_members=60, likelihood=likelihood, enkf_members=10)
+        return SGEnMCMC(wc1["building"], 0.02, 0.7, 1.0, wc1["noise_std"], wc1["process_noise_std"], n_members=60,
+                        **sg_from_flat(likelihood=likelihood, enkf_members=10))
 
     u, y = wc1["u"][:end], wc1["y"][:end]
     whole = make()

@@ -12,6 +12,7 @@ update spends more than 20x the median, and PMMH acceptance stays at or above 0.
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC
 from seqbayes.models.sine_phase import SinePhase
 from seqbayes.predictive.pmmh import MOVE_BUDGET
@@ -31,7 +32,7 @@ def test_a_long_stream_stays_exact_at_a_bounded_cost(cls, stream):
     problem, data, grid = stream
     n, m = 500, 50
     log_z = np.cumsum([g.log_evidence_increment for g in grid])
-    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, n_inner=m)  # the budget is the default
+    sampler = cls(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, **from_flat(cls.__name__, n_inner=m))  # the budget is the default
     infos = []
     for s, y in enumerate(data, start=1):
         info = sampler.update(y)

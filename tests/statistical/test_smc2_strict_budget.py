@@ -23,6 +23,7 @@ import warnings
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.predictive.smc2 import KalmanInnerFilter
@@ -37,8 +38,7 @@ def test_a_strict_budget_keeps_the_kalman_posterior(name, mean_bar, sd_bar, log_
     exact = problem.exact(data)
     mean_err, sd_err, log_z_err = [], [], []
     for seed in range(4):
-        sampler = getattr(seqbayes, name)(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=seed,
-                                          inner_filter=KalmanInnerFilter(problem.observe), strict_budget=True)
+        sampler = getattr(seqbayes, name)(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=seed, **from_flat(name, inner_filter=KalmanInnerFilter(problem.observe), strict_budget=True))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             infos = [sampler.update(y) for y in data]

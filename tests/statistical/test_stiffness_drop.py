@@ -9,7 +9,7 @@ import pytest
 
 from seqbayes.structural.filters.kalman import kalman_filter, measurement_covariance
 from seqbayes.structural.drop_paths import grid_log_evidence, path_log_likelihood, simulate_drop
-from seqbayes.structural.stiffness_drop import StiffnessDropMonitor
+from seqbayes.structural.stiffness_drop import StiffnessDropMonitor, monitor_from_flat
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, discretise, kanai_tajimi, simulate
 
 DT = 0.02
@@ -83,8 +83,8 @@ def test_block_evidence_matches_the_exact_evidence():
     z0, z1 = grid_log_evidence(b, DT, u, y, std, sw, ends, change_every=25, hazard=0.1)
     assert z1[-1] - z0[-1] > 100  # the data decide for the drop
     for seed in range(2):
-        mon = StiffnessDropMonitor(b, DT, 0.7, 1.0, std, sw, n_particles=200, change_every=25, change_rate=0.2,
-                                   prune_below=0)
+        mon = StiffnessDropMonitor(b, DT, 0.7, 1.0, std, sw, n_particles=200,
+                                   **monitor_from_flat(change_every=25, change_rate=0.2, prune_below=0))
         mon.reset(rng=seed)
         for start in range(0, 200, 25):
             mon.update(u[start : start + 25], y[start : start + 25])
@@ -131,7 +131,8 @@ def test_input_validation_names_the_argument():
                          ({"prune_below": 0.6}, "prune_below"), ({"jump_proposal": 2.0}, "jump_proposal"),
                          ({"prune_after": 0}, "prune_after")]:
         with pytest.raises(ValueError, match=name):
-            StiffnessDropMonitor(b, DT, 0.7, 1.0, 0.1, **kwargs)
+            size = {"n_particles": kwargs.pop("n_particles")} if "n_particles" in kwargs else {}
+            StiffnessDropMonitor(b, DT, 0.7, 1.0, 0.1, **size, **monitor_from_flat(**kwargs))
     mon = StiffnessDropMonitor(b, DT, 0.7, 1.0, 0.1)
     with pytest.raises(ValueError, match="reset"):
         mon.update(np.zeros(3), np.zeros((3, 2)))

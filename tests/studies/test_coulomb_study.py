@@ -27,18 +27,21 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     out = tmp_path_factory.mktemp("coulomb")
-    return study_mod.run_study(n_runs=N_RUNS, out_dir=out, progress=False, workers=2)
+    # one process: the seeds do not depend on the workers, and the suite's own workers already use the cores
+    return study_mod.run_study(n_runs=N_RUNS, out_dir=out, progress=False, workers=1)
 
 
 def test_docs_tables_are_this_run(study):
-    """docs/coulomb_friction.md shows the tables of exactly this study (the command's defaults)."""
+    """docs/coulomb_friction.md shows the tables of this study (the command's defaults), to the
+    precision of its 10 runs (the tolerance above the tables)."""
     sys.path.insert(0, str(ROOT / "tools"))
     try:
         import docgen
     finally:
         sys.path.remove(str(ROOT / "tools"))
-    shown = docgen.generated_section(ROOT / "docs" / "coulomb_friction.md", "coulomb-tables")
-    assert study_mod.tables_markdown(study).strip("\n") == shown, "run `make docs-regen`"
+    differences = docgen.compare_section(ROOT / "docs" / "coulomb_friction.md", "coulomb-tables",
+                                         study_mod.tables_markdown(study))
+    assert not differences, "run `make docs-regen`:\n" + "\n".join(differences)
 
 
 @pytest.mark.parametrize("sampler", ["SEMC", "SMC"])

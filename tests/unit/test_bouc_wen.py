@@ -4,6 +4,7 @@ hysteresis sanity, vectorisation, and the EnKF path of SG-EnMCMC."""
 import numpy as np
 import pytest
 
+from seqbayes.structural.settings import sg_from_flat
 from seqbayes import SGEnMCMC
 from seqbayes.structural.filters.enkf import EnKFBank
 from seqbayes.structural.structures import Sensors, ShearBuilding, discretise, simulate
@@ -191,12 +192,12 @@ def test_sgenmcmc_runs_on_the_grid_surrogate_of_bouc_wen():
     bw = BoucWenBuilding.from_yield_drift(linear, 0.004, alpha=0.3)
     u = _record(40, 2.0)
     y = simulate_bouc_wen(BoucWenRK4(bw, DT, 8), [0.85, 0.78], u)[0]
-    sg = SGEnMCMC(bw, DT, 0.7, 1.0, 0.05 * y.std(axis=0), 0.05, n_members=16, likelihood="enkf",
-                  enkf_members=8, level=3)
+    sg = SGEnMCMC(bw, DT, 0.7, 1.0, 0.05 * y.std(axis=0), 0.05, n_members=16, **sg_from_flat(likelihood="enkf",
+                                                                                             enkf_members=8, level=3))
     assert isinstance(sg.transition, BoucWenExponential) and sg.transition.substeps == 4
     assert sg.transition.n_points == 17
     run = sg.run(u, y, rng=0)
-    again = SGEnMCMC(bw, DT, 0.7, 1.0, 0.05 * y.std(axis=0), 0.05, n_members=16, likelihood="enkf",
-                     enkf_members=8, level=3).run(u, y, rng=0)
+    again = SGEnMCMC(bw, DT, 0.7, 1.0, 0.05 * y.std(axis=0), 0.05, n_members=16,
+                     **sg_from_flat(likelihood="enkf", enkf_members=8, level=3)).run(u, y, rng=0)
     np.testing.assert_array_equal(run.theta_mean, again.theta_mean)  # bit-reproducible by seed
     assert np.all(np.isfinite(run.theta_mean)) and np.all(run.theta_var[-1] < run.theta_var[0])

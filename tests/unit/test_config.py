@@ -55,7 +55,7 @@ def test_valid_config_builds_prior_kernel_and_sampler(tmp_path):
     assert [type(c) for c in kernel.components] == [Drift, Decay, Static]   # c not listed -> static
     assert kernel.components[0].rate == -0.05 and kernel.components[1].noise_std == 0.01
     sampler = cfg.build_sampler()
-    assert sampler.config.tempering is False and sampler.config.n_samples == 64
+    assert type(sampler.config.tempering).__name__ == "Single" and sampler.config.n_samples == 64
     # the likelihood was imported from the folder next to the config
     assert cfg.load_likelihood()(np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0]]))[0] == 0.0
 
@@ -91,7 +91,7 @@ def test_fingerprint_ignores_name_and_executor_but_not_the_model(tmp_path):
     ('n_samples = 64', 'n_samples = 64.5', r"sampler.n_samples: expected an integer"),
     ('tempering = false', 'tempering_ess = 1.5', r"sampler: tempering_ess: must lie in \(0, 1\]"),
     ('tempering = false', 'predictive = "history"',
-     r"sampler.predictive: predictive: 'history' .* needs a kernel whose every parameter is Static"),
+     r"sampler.predictive: predictive: History .* needs a kernel whose every parameter is Static"),
     ('tempering = false', 'predictive = "histroy"', r"sampler: predictive: expected one of"),
     ('columns = ["t", "y"]', 'columns = []', r"data.columns: expected a non-empty list"),
     ('[model]', '[modle]\n[model]', r"<top level>.modle: unknown setting"),

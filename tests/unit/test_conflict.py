@@ -5,11 +5,12 @@ import warnings
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SMC
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
-from seqbayes.results import prior_data_conflict
+from seqbayes.predictive.particle import prior_data_conflict
 from seqbayes import PriorDataConflictWarning
-from seqbayes.engine.stages import step_conflict
+from seqbayes.predictive.particle import step_conflict
 
 
 def test_shift_in_prior_sds_exactly():
@@ -77,7 +78,7 @@ def test_smooth_data_stay_silent():
 def test_threshold_is_a_validated_setting():
     problem = drifting_problem()
     with pytest.raises(ValueError, match="conflict_threshold"):
-        SMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0, conflict_threshold=-1.0)
+        SMC(problem.prior, problem.kernel, problem.loglike, n_samples=50, rng=0, **from_flat("SMC", conflict_threshold=-1.0))
 
 
 @pytest.mark.slow
@@ -89,8 +90,7 @@ def test_a_step_in_the_mixtures_tail_warns_through_the_ancestor_ess():
     data, _ = problem.simulate(4, rng=3)
     data[3] += 2.0
     for remedy in (True, False):
-        sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=1,
-                      conflict_threshold=1e6, conflict_remedy=remedy)
+        sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=500, rng=1, **from_flat("SMC", conflict_threshold=1e6, conflict_remedy=remedy))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             infos = [sampler.update(y) for y in data]

@@ -1,4 +1,4 @@
-"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.paths.PathSpace``.
+"""The exact remedy for prior-data conflict (issue 11, item 2): ``seqbayes.predictive.transition.PathSpace``.
 
 A random walk ``theta_s = theta_{s-1} + N(0, Q^2)`` observed through ``M`` Gaussian measurements per
 dataset has the scalar Kalman filter as its exact answer. The data jump by 0.6 (12 Q) at step 4, so
@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
 from seqbayes import SEMC, SMC
 from seqbayes.engine.settings import SamplerConfig
-from seqbayes.engine.likelihood import ValidatedLikelihood
-from seqbayes.engine.state import PastStep, Problem, remedy_window
+from seqbayes.core.likelihood import ValidatedLikelihood
+from seqbayes.core.state import PastStep, Problem
+from seqbayes.predictive.lineage import remedy_window
 from seqbayes.predictive.lineage import ancestor_draws
 from seqbayes.predictive.paths import PathPrior, path_prior_logpdf
 
@@ -53,7 +55,7 @@ KERNEL = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=Q)])
 
 
 def run(cls, ys, seed, **settings):
-    result = cls(PRIOR, KERNEL, loglike, n_samples=1000, rng=seed, **settings).run(ys)
+    result = cls(PRIOR, KERNEL, loglike, n_samples=1000, rng=seed, **from_flat(cls.__name__, **settings)).run(ys)
     mean = np.array([r.mean()[0] for r in result.steps])
     log_evidence = np.array([r.info.log_evidence for r in result.steps])
     return result, mean, log_evidence
@@ -222,14 +224,14 @@ def test_chained_remedies_keep_the_evidence_of_the_first_ones_window(cls):
 @pytest.mark.slow
 def test_a_remedied_run_is_reproducible_and_keeps_a_bounded_window():
     ys = datasets()
-    sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3)
+    sampler = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, **from_flat("SMC", remedy_lag=3))
     first = sampler.run(ys)
     path_steps = [r.info.path_steps for r in first.steps]
     # steps 4-6 ran on the path space; steps 5 and 6 reached back to step 4's first state (step 2), which the
     # window kept, within 2 remedy_lag = 6 states
     assert path_steps == [0, 0, 0, 3, 4, 5]
-    assert 2 <= len(sampler.state.window) <= 5 and sampler.state.paths.shape == (300, len(sampler.state.window), 1)
-    again = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, remedy_lag=3).run(ys)
+    assert 2 <= len(sampler.state.memory.window) <= 5 and sampler.state.memory.paths.shape == (300, len(sampler.state.memory.window), 1)
+    again = SMC(PRIOR, KERNEL, loglike, n_samples=300, rng=5, **from_flat("SMC", remedy_lag=3)).run(ys)
     for a, b in zip(first.steps, again.steps):
         np.testing.assert_array_equal(a.posterior, b.posterior)
         assert a.info.log_evidence == b.info.log_evidence
@@ -246,7 +248,7 @@ def test_the_remedy_does_not_apply_to_static_parameters():
                                          ("remedy_bridge", None)])
 def test_bad_remedy_settings_are_refused(name, value):
     with pytest.raises(ValueError, match=name):
-        SamplerConfig(move="gaussian", **{name: value})
+        from_flat("SMC", **{name: value})
 
 
 @pytest.mark.slow
@@ -312,7 +314,7 @@ def test_a_step_with_no_predictive_draw_inside_is_rescued_by_the_bridge():
     mean = np.trapezoid(grid * marginal, grid) / z
     sd = np.sqrt(np.trapezoid((grid - mean) ** 2 * marginal, grid) / z)
     with pytest.raises(seqbayes.ZeroLikelihoodError):
-        SMC(prior, kernel, loglike, n_samples=1000, rng=0, remedy_bridge=False).run(ys)
+        SMC(prior, kernel, loglike, n_samples=1000, rng=0, **from_flat("SMC", remedy_bridge=False)).run(ys)
     result = SMC(prior, kernel, loglike, n_samples=1000, rng=0).run(ys)
     assert result.steps[1].info.path_steps == 2
     assert abs(result.steps[1].mean()[0] - mean) / sd < 0.3
@@ -326,15 +328,18 @@ def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
 
     from seqbayes.predictive import transition
 
-    monkeypatch.setattr(transition, "PathSpace", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
-    config = SamplerConfig(move="stretch", n_samples=1000)
+    monkeypatch.setattr(transition, "PathStep", lambda state, dataset, mixture, likelihood, bridge: ("path", bridge))
+    config = SamplerConfig(1000)
     mixture = transition.TransitionMixture(SimpleNamespace(kernel=KERNEL), config, "transition")
-    mixture.lagged_variance = 0.0
+    lagged = [0.0]
 
     def decide(ancestor_ess=500.0, conflict=1.0, n_found=1000, after_path_space=False, window=True):
-        state = SimpleNamespace(window=(_past(2 if after_path_space else 0),) if window else ())
-        info = SimpleNamespace(ancestor_ess=ancestor_ess, prior_data_conflict=conflict)
-        return mixture.remedy(state, None, None, info, SimpleNamespace(n_found=n_found))
+        state = SimpleNamespace(memory=SimpleNamespace(window=(_past(2 if after_path_space else 0),) if window else ()))
+        info = SimpleNamespace(conflict=SimpleNamespace(ancestor_ess=ancestor_ess, prior_data_conflict=conflict))
+        outcome = SimpleNamespace(record=SimpleNamespace(info=info), weighed=SimpleNamespace(n_found=n_found),
+                                  lagged_variance=lagged[0])
+        decision = mixture.remedy(state, None, None, outcome)
+        return None if decision is None else decision.predictive
 
     # the ancestor threshold: max(remedy_ess N, 1 / (se^2 + 1 / N)) = max(50, 1 / (0.01 + 0.001)) = 90.9
     threshold = 1.0 / (transition.REMEDY_ANCESTOR_SE**2 + 1.0 / 1000)
@@ -345,9 +350,9 @@ def test_the_remedy_trigger_rule_on_constructed_diagnostics(monkeypatch):
     assert decide(ancestor_ess=251.0, after_path_space=True) is None
     assert decide(conflict=4.01) == ("path", True) and decide(conflict=3.99) is None
     assert decide(n_found=99) == ("path", True) and decide(n_found=100) is None     # STARVED_RESTART = 0.1
-    mixture.lagged_variance = transition.REMEDY_ANCESTOR_SE**2 * 1.01
+    lagged[0] = transition.REMEDY_ANCESTOR_SE**2 * 1.01
     assert decide() == ("path", True)
-    mixture.lagged_variance = 0.0
+    lagged[0] = 0.0
     assert decide(conflict=10.0, window=False) is None        # no past step: nothing to assimilate on a path
 
 
@@ -360,7 +365,8 @@ def test_a_plain_conflict_goes_to_the_path_space_before_the_mixture_steps_last_s
     ys = datasets()[:4]
     info = {}
     for check in (True, False):
-        monkeypatch.setattr(TransitionMixture, "check_stages", check)
+        if not check:
+            monkeypatch.setattr(TransitionMixture, "stage_check", lambda self, *args: None)
         result, _, _ = run(SMC, ys, 1)   # seed 1's stages cross the trigger before the last (seeds 0-1, SMC, SEMC)
         info[check] = result.steps[3].info
     assert info[True].path_steps == info[False].path_steps == 4
@@ -368,13 +374,14 @@ def test_a_plain_conflict_goes_to_the_path_space_before_the_mixture_steps_last_s
 
 
 def test_when_the_path_space_finds_nothing_the_mixture_step_runs_to_its_end(monkeypatch):
-    from seqbayes.engine.errors import ZeroLikelihoodError
-    from seqbayes.predictive.paths import PathSpace
+    from seqbayes.core.errors import ZeroLikelihoodError
+    from seqbayes.core.state import Failure
+    from seqbayes.predictive.paths import PathStep
 
     def nothing(self, *args):
-        raise ZeroLikelihoodError("no path inside")
+        return Failure(ZeroLikelihoodError("no path inside"))
 
-    monkeypatch.setattr(PathSpace, "weigh", nothing)
+    monkeypatch.setattr(PathStep, "weigh", nothing)
     result, mean, log_evidence = run(SMC, datasets()[:4], 1)   # step 4 stops early, as in the test above
     info = result.steps[3].info
     assert info.path_steps == 0 and np.isfinite(log_evidence).all() and info.temperatures[-1] == 1.0

@@ -1,4 +1,4 @@
-"""Exact delayed acceptance (seqbayes.moves.delayed, SamplerConfig.surrogate): the target stays exact
+"""Exact delayed acceptance (seqbayes.moves.delayed, the moves' ``screen``): the target stays exact
 whatever the screen, and the screen saves likelihood calls."""
 
 from __future__ import annotations
@@ -8,7 +8,8 @@ import pytest
 from scipy import stats
 
 from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static
-from seqbayes.engine.settings import SamplerConfig
+from seqbayes.engine.settings import from_flat
+from seqbayes.moves import RandomWalk
 from seqbayes.moves import GaussianMove, StretchMove
 from seqbayes.moves.delayed import QuadraticScreen, Screening, pays, screened_sweep
 from seqbayes.moves.base import SweepStats
@@ -71,8 +72,8 @@ def test_auto_stops_screening_when_it_does_not_pay():
 
 def test_surrogate_setting_is_validated():
     with pytest.raises(ValueError, match="surrogate"):
-        SamplerConfig(move="stretch", surrogate="cubic")
-    assert SamplerConfig(move="gaussian", surrogate=lambda theta, data: theta[:, 0]).surrogate is not None
+        from_flat("SEMC", surrogate="cubic")
+    assert RandomWalk(screen=lambda theta, data: theta[:, 0]).screen is not None
 
 
 X = np.linspace(-1.0, 1.0, 20)
@@ -119,7 +120,8 @@ def test_screened_samplers_keep_the_closed_form_posterior_and_save_calls(sampler
     prior = JointPrior({"a": stats.norm(0, 2), "b": stats.norm(0, 2)})
     kernel = MarkovKernel([Static(), Static()])
     plain = sampler(prior, kernel, _loglike, n_samples=1000, rng=0)
-    screened = sampler(prior, kernel, _loglike, n_samples=1000, rng=0, surrogate=surrogate)
+    screened = sampler(prior, kernel, _loglike, n_samples=1000, rng=0,
+                       **from_flat(sampler.__name__, surrogate=surrogate))
     for y in datasets:
         plain.update(y)
         screened.update(y)

@@ -5,6 +5,7 @@ import pytest
 from scipy import stats
 from scipy.integrate import trapezoid
 
+from seqbayes.moves import proposals
 from seqbayes.predictive import mixture as density_module
 from seqbayes import Drift, MarkovKernel, Static
 from seqbayes.predictive.mixture import GaussianMixture, predictive_density, silverman_bandwidth
@@ -24,7 +25,7 @@ def test_mixture_logpdf_exact_and_chunked(monkeypatch):
     # single-precision exponent block: ~1e-6 absolute error in the log density (documented)
     np.testing.assert_allclose(mixture.logpdf(x), brute_force(mixture, x), rtol=0, atol=2e-5)
     whole = mixture.logpdf(x)
-    monkeypatch.setattr(density_module, "_BLOCK_FLOATS", 301 * 3)  # 3 queries per block
+    monkeypatch.setattr(proposals, "BLOCK_FLOATS", 301 * 3)  # 3 queries per block
     np.testing.assert_array_equal(mixture.logpdf(x), whole)
 
 

@@ -1,11 +1,11 @@
-"""The importance-sampling evidence (seqbayes.engine.evidence): its proposal at large N."""
+"""The importance-sampling evidence (seqbayes.predictive.evidence): its proposal at large N."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
 
-from seqbayes.engine.evidence import importance_step, pooled_start, step_standard_errors
+from seqbayes.predictive.evidence import importance_step, pooled_start, step_standard_errors
 from seqbayes.moves import proposals
 from seqbayes.moves.proposals import defensive_parts, thinned_components
 
@@ -79,6 +79,7 @@ def _replicated_gaussian_evidence(n_sweeps=1, pool_sweeps=False, replications=20
     return np.array(errors), np.array(reported)
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_importance_standard_error_matches_the_spread_over_replications():
     # 200 replications of the importance step from N = 200 exact posterior draws: sd of the log-evidence
     # error 0.0198, reported se (rms) 0.0202 (measured, seed 0). The sd of 200 replicates is known to 5 %,
@@ -87,6 +88,7 @@ def test_importance_standard_error_matches_the_spread_over_replications():
     assert 0.8 < np.sqrt(np.mean(np.square(reported))) / np.std(errors, ddof=1) < 1.25
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_pooled_sweeps_lower_the_evidence_error_and_report_it():
     # as above, with 4 sweeps whose draws all enter the estimate (pool_sweeps, the path-space remedy's): sd of the
     # error 0.0117 and 0.0120, reported se (rms) 0.0115 and 0.0116 (seeds 0 and 1), against 0.0198 from the first
@@ -150,6 +152,7 @@ def test_weights_increment_variance_is_the_delta_method():
                                          "transition")[0])
 
 
+@pytest.mark.slow   # statistical (a spread over replications): make test, not make check
 def test_sampler_reports_a_log_evidence_se_that_matches_the_spread_over_seeds():
     # drifting linear-Gaussian problem (transition mixture: importance + ancestor terms), N = 300, 10 seeds,
     # 3 datasets: reported 0.088 against an sd of 0.063 over the seeds (ratio 1.4, measured; at N = 1000
@@ -195,7 +198,7 @@ def _two_modes(seed):
 
 def test_pooled_proposal_moves_particles_into_the_mode_the_posterior_lacks():
     # The particles hold only mode A of _two_modes; another cloud holds only B (the path-space remedy's stored-path
-    # start, seqbayes.predictive.paths.PathSpace). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
+    # start, seqbayes.predictive.transition.PathSpace). Measured over seeds 0-39 (scratch script, 3 sweeps as the samplers):
     # with the other cloud the fraction in B is 0.045 +- 0.007 (0.029-0.065) and the error of log Z
     # -0.005 +- 0.030 (ESS >= 486); without it the fraction is 0.0007 and the error's sd 0.16 (ESS down to 3).
     # Asserted: fraction in [0.02, 0.08] (4 sd), |error| < 0.15 (5 sd), and the fraction without it < 0.01

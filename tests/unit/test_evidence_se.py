@@ -8,7 +8,7 @@ from scipy.special import logsumexp
 
 from seqbayes import SMC
 from seqbayes.predictive import mixture as density_module
-from seqbayes.predictive.ancestry import grouped_ancestor_variance
+from seqbayes.predictive.mixture import grouped_ancestor_variance
 from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 
@@ -115,7 +115,7 @@ def test_subsampled_rows_estimate_the_spread_and_the_backward_term(monkeypatch):
     sub = mixture.ancestor_spread(posterior, log_w, labels)
     assert sub.mass is None and sub.draws.shape == (512,)
     sub_backward = older.backward_spread(previous, previous_log_w, sub, older_labels)
-    monkeypatch.setattr(density_module, "_TREE_MIN_CENTRES", 10**9)   # every row
+    monkeypatch.setattr(density_module, "TREE_MIN_CENTRES", 10**9)   # every row
     every = mixture.ancestor_spread(posterior, log_w, labels)
     mass_backward = older.backward_spread(previous, previous_log_w, every, older_labels)   # rows drawn from the mass
     monkeypatch.setattr(density_module, "_BACKWARD_ROWS", 10**9)
@@ -133,22 +133,22 @@ def test_samplers_carry_the_labels_of_the_last_two_posteriors():
     model = LinearGaussianStateSpace(design, ("drift", "drift"), (0.0, 0.0), (0.1, 0.1), (0.0, 0.0), (1.0, 1.0), 0.5)
     data, _ = model.simulate(4, rng=2024)
     sampler = SMC(model.prior, model.kernel, model.loglike, n_samples=400, rng=0)
-    assert sampler.state.lineage is None and sampler.state.previous_prior is None
+    assert sampler.state.memory.lineage is None and sampler.state.previous_prior is None
     previous = None
     for s, dataset in enumerate(data):
         info = sampler.update(dataset)
         state = sampler.state
-        assert state.lineage.shape == (400, 2) and state.lineage.dtype.kind == "i"
-        assert state.lineage.min() >= 0 and state.lineage.max() < 400
+        assert state.memory.lineage.shape == (400, 2) and state.memory.lineage.dtype.kind == "i"
+        assert state.memory.lineage.min() >= 0 and state.memory.lineage.max() < 400
         if info.resampled:        # copies share their initial draw's label
-            assert np.unique(state.lineage[:, 0]).size < 400
+            assert np.unique(state.memory.lineage[:, 0]).size < 400
         elif info.n_stages == 1:  # no resampling: every particle descends from its own draw
-            np.testing.assert_array_equal(state.lineage[:, 0], np.arange(400))
+            np.testing.assert_array_equal(state.memory.lineage[:, 0], np.arange(400))
         if previous is None:
-            np.testing.assert_array_equal(state.lineage[:, 1], np.arange(400))
+            np.testing.assert_array_equal(state.memory.lineage[:, 1], np.arange(400))
             assert state.previous_prior is None                   # step 1 used the initial prior
         else:
-            np.testing.assert_array_equal(state.lineage[:, 1], previous.lineage[:, 0])
+            np.testing.assert_array_equal(state.memory.lineage[:, 1], previous.memory.lineage[:, 0])
             assert state.previous_prior is previous.prior         # the mixture this step used
         previous = state
     assert any(r.info.resampled for r in sampler.result.steps)

@@ -6,12 +6,15 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static, ZeroLikelihoodError
 from seqbayes.predictive.history import HistoryPrior
 from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.models.linear_gaussian import LinearGaussianProblem
-from seqbayes.engine.stages import count_distinct
+from seqbayes.predictive.particle import count_distinct
 from seqbayes.predictive.base import resolve_predictive
+from seqbayes.predictive.history import History
+from seqbayes.predictive.transition import KernelDensity
 
 PROBLEM = LinearGaussianProblem(drift_std=0.0)
 STATIC = MarkovKernel([Static(), Static()])
@@ -20,7 +23,7 @@ IBIS = dict(n_moves=1, moved_fraction=0.0, move_every_stage=False, evidence="pat
 
 
 def make(cls=SMC, n=300, seed=0, kernel=STATIC, **kw):
-    return cls(PROBLEM.prior, kernel, PROBLEM.loglike, n_samples=n, rng=seed, **kw)
+    return cls(PROBLEM.prior, kernel, PROBLEM.loglike, n_samples=n, rng=seed, **from_flat(cls.__name__, **kw))
 
 
 def test_history_prior_is_the_prior_times_past_likelihoods():
@@ -44,14 +47,14 @@ def test_history_prior_skips_rows_already_at_zero():
 
 
 def test_auto_chooses_history_for_static_kernels_only():
-    assert resolve_predictive("auto", STATIC) == "history"
-    assert resolve_predictive("auto", PROBLEM.kernel) == "smc2"  # a drifting and a static parameter
-    assert resolve_predictive("auto", MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])) == \
+    assert resolve_predictive(None, STATIC).method == "history"
+    assert resolve_predictive(None, PROBLEM.kernel).method == "smc2"  # a drifting and a static parameter
+    assert resolve_predictive(None, MarkovKernel([Drift(0.0, noise_std=0.1), Drift(0.0, noise_std=0.1)])).method == \
         "transition"
-    assert resolve_predictive("kde", STATIC) == "kde"
-    with pytest.raises(ValueError, match="predictive: 'history' .* needs a kernel whose every parameter is Static"):
-        resolve_predictive("history", PROBLEM.kernel)
-    with pytest.raises(ValueError, match="predictive: 'history'"):
+    assert resolve_predictive(KernelDensity(), STATIC).method == "kde"
+    with pytest.raises(ValueError, match="predictive: History .* needs a kernel whose every parameter is Static"):
+        resolve_predictive(History(), PROBLEM.kernel)
+    with pytest.raises(ValueError, match="predictive: History"):
         make(kernel=MarkovKernel([Drift(0.0, noise_std=0.1), Static()]), predictive="history")
     assert STATIC.is_static and not PROBLEM.kernel.is_static
 
@@ -159,8 +162,8 @@ def test_only_zero_weight_particles_with_a_likelihood_is_a_zero_likelihood_error
         low = theta[:, 0] < 0.5
         return np.where(low if data == "low" else ~low, 0.0, -np.inf)
 
-    sampler = SMC(prior, MarkovKernel([Static()]), loglike, n_samples=200, rng=0, min_valid_fraction=0.0,
-                  ess_threshold=0.3, **{k: v for k, v in IBIS.items() if k != "tempering"})
+    sampler = SMC(prior, MarkovKernel([Static()]), loglike, n_samples=200, rng=0, **from_flat("SMC", **{k: v for k, v in IBIS.items() if k != "tempering"}, min_valid_fraction=0.0,
+                                        ess_threshold=0.3))
     info = sampler.update("low")
     assert not info.resampled and np.isinf(sampler.state.log_weights).any()
     with pytest.raises(ZeroLikelihoodError, match="step 2: every sample with a non-zero weight has zero likelihood"):

@@ -16,6 +16,7 @@ from seqbayes.store.config import ConfigError, parse_config
 from seqbayes.predictive.mixture import GaussianMixture, MixtureSum, predictive_density
 from seqbayes.kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS, Jump, jump_posterior
 from seqbayes.predictive.base import resolve_predictive
+from seqbayes.predictive.smc2 import SMC2
 
 JUMP = Jump(Decay(0.02, noise_std=0.02), p=0.05, drop_mean=0.3, drop_sd=0.1, reference=3.0)
 
@@ -157,9 +158,9 @@ def test_jump_validation_names_the_argument():
 
 def test_predictive_choice_with_jumps():
     kernel = MarkovKernel([JUMP, Static()])
-    assert resolve_predictive("auto", kernel) == "transition"     # SMC^2 assumes Gaussian transitions
-    with pytest.raises(ValueError, match="predictive: 'smc2' does not support Jump"):
-        resolve_predictive("smc2", kernel)
+    assert resolve_predictive(None, kernel).method == "transition"     # SMC^2 assumes Gaussian transitions
+    with pytest.raises(ValueError, match="predictive: SMC2 does not support Jump"):
+        resolve_predictive(SMC2(), kernel)
 
 
 def _toml(entry):

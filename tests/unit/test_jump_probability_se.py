@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SMC, Drift, Jump, MarkovKernel, jump_posterior
 from seqbayes.predictive.jumps import jump_probability_se
 from seqbayes.predictive.mixture import predictive_density
@@ -114,7 +115,7 @@ def test_the_remedy_runs_where_the_ancestors_alone_cost_a_tenth_of_a_nat():
 
     def step_4(seed, **settings):
         return SMC(JointPrior({"k": stats.norm(1.0, 0.1)}), kernel, loglike, n_samples=200, rng=seed,
-                   **settings).run(data).steps[3].info
+                   **from_flat("SMC", **settings)).run(data).steps[3].info
 
     # the ancestor ESS at step 4 is 7-27 over seeds 0-5; seeds 0-3 hold at least one above 10
     on = [step_4(seed) for seed in range(4)]
@@ -139,7 +140,7 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     jump probability's se carries its influence back through every step of ``deeper``."""
     from types import SimpleNamespace
 
-    from seqbayes.predictive.ancestry import AncestorSpread
+    from seqbayes.predictive.mixture import AncestorSpread
     from seqbayes.predictive.lineage import lagged_ancestor_variance
     from seqbayes.predictive.mixture import backward_masses
     from seqbayes.predictive.lineage import mixture_chain
@@ -153,9 +154,9 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     # the mixtures cache their centres in single precision (GaussianMixture._scaled_centres): ~1e-7 relative
     np.testing.assert_allclose(backward_masses(priors[2], clouds[2], weights),
                                weights @ _responsibilities(priors[2], clouds[2]), rtol=1e-6)
-    window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_space=False)
+    window = tuple(SimpleNamespace(prior=p, posterior=c, log_weights=w - np.log(np.exp(w).sum()), path_states=0)
                    for p, c, w in zip(priors, clouds, logws))
-    state = SimpleNamespace(window=window, posterior_log_weights=window[-1].log_weights)
+    state = SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=window[-1].log_weights)
     assert lagged_ancestor_variance(state, AncestorSpread(1.0, 0.25, mass=None), 0.0) == 0.25   # no mass: lag 1 alone
     mass = rng.dirichlet(np.ones(7))
     total = lagged_ancestor_variance(state, AncestorSpread(1.0, float(np.sum((mass - np.exp(logws[3] - np.log(
@@ -169,8 +170,8 @@ def test_backward_masses_and_the_lagged_variance_are_their_formulas():
     assert total == pytest.approx(expected, rel=1e-5)
     # a path-space step stops the sum behind it, and its particles' term is that of steps 4 and 5 together:
     # against their own weights, not step 4's posterior masses
-    window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_space": True}),) + window[3:]
-    cut = lagged_ancestor_variance(SimpleNamespace(window=window, posterior_log_weights=state.posterior_log_weights),
+    window = window[:2] + (SimpleNamespace(**{**vars(window[2]), "path_states": 2}),) + window[3:]
+    cut = lagged_ancestor_variance(SimpleNamespace(memory=SimpleNamespace(window=window), posterior_log_weights=state.posterior_log_weights),
                                    AncestorSpread(1.0, float(np.sum((mass - np.exp(window[-1].log_weights)) ** 2)),
                                                   mass=mass), 0.0)
     r = _responsibilities(priors[3], clouds[3])
@@ -205,7 +206,7 @@ def test_a_mixture_step_after_a_path_space_step_has_no_two_step_term():
     window's start (the mixture step and the path-space step report through the same jumps.jump_fields)."""
     from types import SimpleNamespace
 
-    from seqbayes.engine.state import Cloud
+    from seqbayes.core.state import Cloud
     from seqbayes.predictive.jumps import jump_fields
     from seqbayes.predictive.transition import TransitionMixture
 
@@ -220,7 +221,7 @@ def test_a_mixture_step_after_a_path_space_step_has_no_two_step_term():
 
     def state(path_space):
         last = SimpleNamespace(prior=earlier_prior, posterior=ancestors, path_space=path_space)
-        return SimpleNamespace(window=(last,), prior=prior, posterior=ancestors, lineage=None)
+        return SimpleNamespace(memory=SimpleNamespace(window=(last,), lineage=None), prior=prior, posterior=ancestors)
 
     mixture = TransitionMixture.__new__(TransitionMixture)
     mixture.problem = SimpleNamespace(kernel=kernel)

@@ -7,9 +7,11 @@ import pytest
 from scipy import stats
 
 import seqbayes
-from seqbayes.moves.scaled import (DifferentialMove, FittedGaussian, differential_sweep, independence_sweep,
-                                   whitened_jumps)
-from seqbayes.engine.settings import HIGH_DIMENSION, SamplerConfig
+from seqbayes.moves.scaled import FittedGaussian, independence_sweep, whitened_jumps
+from seqbayes.moves.stretch import DifferentialMove, differential_sweep
+from seqbayes.engine.settings import from_flat
+from seqbayes.moves import RandomWalk, Stretch
+from seqbayes.moves.base import HIGH_DIMENSION
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 MEAN = np.array([1.0, -2.0, 0.5])
@@ -79,17 +81,16 @@ def test_independence_sweep_rejects_outside_support():
 
 
 def test_switch_by_dimension_and_settings():
-    config = SamplerConfig(move="gaussian")
-    assert not config.uses_scaled_moves(HIGH_DIMENSION)
-    assert config.uses_scaled_moves(HIGH_DIMENSION + 1)
-    assert SamplerConfig(move="gaussian", economy=True).uses_scaled_moves(2)
-    assert not SamplerConfig(move="stretch", scaled_moves=False, economy=True).uses_scaled_moves(50)
-    assert SamplerConfig(move="stretch", scaled_moves=True).uses_scaled_moves(2)
+    moves = RandomWalk()
+    assert not moves.uses_scaled(HIGH_DIMENSION)
+    assert moves.uses_scaled(HIGH_DIMENSION + 1)
+    assert RandomWalk(economy=True).uses_scaled(2)
+    assert not Stretch(scaled=False, economy=True).uses_scaled(50)
+    assert Stretch(scaled=True).uses_scaled(2)
     with pytest.raises(ValueError, match="economy"):
-        SamplerConfig(move="gaussian", economy="yes")
+        RandomWalk(economy="yes")
     with pytest.raises(ValueError, match="scaled_moves"):
-        SamplerConfig(move="gaussian", scaled_moves=1.5)
-    assert {f.name for f in dataclasses.fields(SamplerConfig)} >= {"economy", "scaled_moves"}
+        from_flat("SMC", scaled_moves=1.5)
 
 
 def _small_run(cls, **settings):
@@ -100,7 +101,7 @@ def _small_run(cls, **settings):
         return stats.norm.logpdf(y, theta[:, 0] * theta[:, 1], 0.1).sum(axis=-1) if np.ndim(y) else \
             stats.norm.logpdf(y, theta[:, 0] * theta[:, 1], 0.1)
 
-    sampler = cls(prior, kernel, loglike, n_samples=300, rng=5, **settings)
+    sampler = cls(prior, kernel, loglike, n_samples=300, rng=5, **from_flat(cls.__name__, **settings))
     sampler.run([0.7, 0.8])
     return sampler.result
 
@@ -128,7 +129,7 @@ def test_economy_from_toml(tmp_path):
     from test_config import CONFIG, write
 
     cfg = load_config(write(tmp_path, CONFIG.replace("tempering = false", "economy = true")))
-    assert cfg.build_sampler().config.economy is True
+    assert cfg.build_sampler().config.moves.economy is True
     with pytest.raises(ConfigError, match="economy"):
         load_config(write(tmp_path, CONFIG.replace("tempering = false", 'economy = "yes"')))
 
@@ -150,9 +151,9 @@ def test_the_high_dimensional_rounds_leave_the_target_invariant_stage_after_stag
     rng = np.random.default_rng(3)
     position = rng.standard_normal((n, d))
     components = component_fn(position)
-    config = SamplerConfig(move=move, scaled_moves=True, n_moves=1, max_moves=1, max_virtual=1)
+    moves = (Stretch if move == "stretch" else RandomWalk)(scaled=True, min_sweeps=1, max_sweeps=1)
     for _ in range(20):
-        position, components, *_ = schedule.scaled_rounds(config, position, components, component_fn, np.ones(1),
+        position, components, *_ = schedule.scaled_rounds(moves, position, components, component_fn, np.ones(1),
                                                            None, rng)
     np.testing.assert_allclose(components[:, 0], component_fn(position)[:, 0])
     assert abs(np.mean(np.sum(position**2, axis=1)) / d - 1.0) < 5 * np.sqrt(2 / (n * d))

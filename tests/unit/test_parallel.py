@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC, SMC, Drift, JointPrior, MarkovKernel, Static
 from seqbayes import parallel
 from seqbayes.parallel import ProcessWorkers
@@ -46,7 +47,8 @@ def make(cls, executor=None, n_chunks=None):
     kernel = MarkovKernel([Drift(-0.1, noise_std=0.05), Static()])
     # few sweeps per stage: each sweep is a round trip to the cluster, and identity needs no more
     limits = dict(moved_fraction=0.0) | (dict(max_virtual=4) if cls is SEMC else dict(max_moves=4))
-    return cls(prior, kernel, loglike, n_samples=40, rng=17, executor=executor, n_chunks=n_chunks, **limits)
+    return cls(prior, kernel, loglike, n_samples=40, rng=17, executor=parallel.Workers(executor, n_chunks),
+               **from_flat(cls.__name__, **limits))
 
 
 def assert_identical(a, b):
@@ -148,8 +150,7 @@ def test_history_prior_evaluates_past_datasets_on_the_executor_with_the_serial_n
 
     def run(executor=None, pid_dir=None):
         data = datasets(pid_dir) + [d for d in datasets(pid_dir)[:1]]  # three steps: two past datasets at s = 3
-        return SMC(prior, MarkovKernel([Static(), Static()]), loglike, n_samples=40, rng=5, executor=executor,
-                   max_moves=4, moved_fraction=0.0).run(data)
+        return SMC(prior, MarkovKernel([Static(), Static()]), loglike, n_samples=40, rng=5, executor=executor, **from_flat("SMC", max_moves=4, moved_fraction=0.0)).run(data)
 
     serial = run()
     with ProcessPoolExecutor(max_workers=2) as pool:
@@ -177,9 +178,7 @@ class CountedLoglike:
 
 
 def counted_run(executor, folder):
-    return SEMC(JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)}),
-                MarkovKernel([Drift(-0.1, noise_std=0.05), Static()]), CountedLoglike(str(folder)), n_samples=40,
-                rng=17, executor=executor, moved_fraction=0.0, max_virtual=4).run(datasets())
+    return SEMC(JointPrior({"a": stats.norm(0, 2), "b": stats.uniform(-3, 6)}), MarkovKernel([Drift(-0.1, noise_std=0.05), Static()]), CountedLoglike(str(folder)), n_samples=40, rng=17, executor=executor, **from_flat("SEMC", moved_fraction=0.0, max_virtual=4)).run(datasets())
 
 
 def test_process_workers_get_the_likelihood_and_each_dataset_once(serial, tmp_path):

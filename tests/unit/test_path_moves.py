@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from seqbayes.engine.settings import HIGH_DIMENSION, SamplerConfig
+from seqbayes.moves import RandomWalk, Stretch
+from seqbayes.moves.base import HIGH_DIMENSION
 from seqbayes.moves import schedule
 
 D = HIGH_DIMENSION + 2  # a path of six states of a two-parameter model
@@ -19,7 +20,7 @@ def gaussian_components(points):
 def rounds(kernel_density, component_fn, seed=0, cap=12):
     rng = np.random.default_rng(seed)
     walkers = rng.standard_normal((1000, D))
-    config = SamplerConfig(move="gaussian", scaled_moves=True, n_moves=1, max_moves=cap)
+    config = RandomWalk(scaled=True, min_sweeps=1, max_sweeps=cap)
     return walkers, schedule.scaled_rounds(config, walkers, component_fn(walkers), component_fn, np.ones(1), None,
                                            rng, kernel_density)
 
@@ -123,19 +124,19 @@ def test_path_stages_with_the_prior_redraws_keep_the_tempered_target_in_the_box_
     # move_stage with prior_moves: the rounds mix the prior's redraws, the kernel density's independence sweeps and
     # the random walk, in the box's logit coordinates (the prior's and the proposal's Jacobians cancel coordinate by
     # coordinate). The box [-30, 30]^3 holds the target's mass but for ~1e-100: its moments are the Gaussian's
-    from seqbayes.engine.state import Problem
+    from seqbayes.core.state import Problem
 
     beta = 0.3
     path_prior, loglike, mean, cov = _chain_target(beta)
     problem = Problem(None, path_prior.kernel, None, np.tile([-30.0, 30.0], (3, 1)))
-    config = SamplerConfig(move="gaussian", scaled_moves=True, n_moves=1, max_moves=1)
+    config = RandomWalk(scaled=True, min_sweeps=1, max_sweeps=1)
     rng = np.random.default_rng(2)
     walkers = path_prior.sample(4000, rng)
     components = np.column_stack([loglike(walkers), path_prior.logpdf(walkers)])
     accepted = 0
     for _ in range(15):
         moved = schedule.move_stage(problem, config, 1.0, walkers, components, beta, path_prior.logpdf, rng, loglike,
-                                    kernel_density=True, prior_moves=path_prior)
+                                    target=schedule.PathTarget(kernel_density=True, prior_moves=path_prior))
         walkers, components, accepted = moved.walkers, moved.components, accepted + moved.stats.n_accepted
     np.testing.assert_allclose(components, np.column_stack([loglike(walkers), path_prior.logpdf(walkers)]),
                                rtol=1e-10, atol=1e-10)
@@ -154,7 +155,7 @@ def test_the_kernel_density_sweeps_leave_the_target_invariant_stage_after_stage(
     rng = np.random.default_rng(1)
     position = rng.standard_normal((1000, D))
     components = gaussian_components(position)
-    config = SamplerConfig(move=move, scaled_moves=True, n_moves=1, max_moves=1, max_virtual=1)
+    config = (Stretch if move == "stretch" else RandomWalk)(scaled=True, min_sweeps=1, max_sweeps=1)
     for _ in range(20):
         position, components, _, _, _ = schedule.scaled_rounds(config, position, components, gaussian_components,
                                                             np.ones(1), None, rng, True)
@@ -165,7 +166,8 @@ def test_the_kernel_density_sweeps_leave_the_target_invariant_stage_after_stage(
 
 def test_the_suffix_move_keeps_each_prefix_bit_for_bit_and_draws_the_suffix_uniformly():
     from seqbayes.moves.gaussian import GaussianMove
-    from seqbayes.moves.scaled import DifferentialMove, SuffixMove
+    from seqbayes.moves.scaled import SuffixMove
+    from seqbayes.moves.stretch import DifferentialMove
     from seqbayes.moves.stretch import StretchMove
 
     rng = np.random.default_rng(3)
@@ -190,7 +192,8 @@ def test_suffix_sweeps_keep_the_chain_target(move):
     # exact MH: the suffix is drawn independently of the walker, so the restricted move stays symmetric. From the
     # path prior's draws the sweeps alone reach the tempered chain's exact Gaussian moments (5 standard errors)
     from seqbayes.moves.gaussian import GaussianMove, gaussian_sweep, weighted_covariance
-    from seqbayes.moves.scaled import DifferentialMove, SuffixMove, differential_sweep
+    from seqbayes.moves.scaled import SuffixMove
+    from seqbayes.moves.stretch import DifferentialMove, differential_sweep
 
     path_prior, loglike, mean, cov = _chain_target(beta=0.3)
     rng = np.random.default_rng(4)
@@ -215,7 +218,7 @@ def test_suffix_sweeps_keep_the_chain_target(move):
 
 def test_a_suffix_sweep_evaluates_only_the_moved_states_through_the_memo():
     # the window likelihood's memo holds every state of the walkers: a sweep's calls are its proposals' moved states
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
     from seqbayes.moves.gaussian import GaussianMove, gaussian_sweep
     from seqbayes.moves.scaled import SuffixMove
 

@@ -5,10 +5,11 @@ calls")."""
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SEMC
-from seqbayes.engine.likelihood import ValidatedLikelihood
+from seqbayes.core.likelihood import ValidatedLikelihood
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
-from seqbayes.predictive.pmmh import Rejuvenation, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import Budget, Refilter, Rejuvenation, outer_logpdf, rejuvenate, run_inner
 from seqbayes.predictive.smc2 import KalmanInnerFilter, nested_split
 
 
@@ -22,8 +23,7 @@ def mixed():
 def _rejuvenate_exact_draws(problem, data, strict, n, seed):
     """Equal-weight draws of the exact (Kalman) posterior of the static parameters, moved by PMMH until 90 % have
     moved (the stages' rule), with the exact Kalman inner filter."""
-    sampler = SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=0,
-                   inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict)
+    sampler = SEMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=0, **from_flat("SEMC", inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict))
     config, inner, split = sampler.config, sampler.problem.inner_filter, nested_split(problem.kernel)
     exact = problem.exact(data)[-1]
     mean, cov = exact.mean[split[0]], exact.cov[np.ix_(split[0], split[0])]
@@ -32,9 +32,9 @@ def _rejuvenate_exact_draws(problem, data, strict, n, seed):
     likelihood = ValidatedLikelihood(problem.loglike, None, 1)
     past, last, cloud = run_inner(sampler.problem, inner, split, static, data, (None,) * len(data), likelihood, rng)
     components = np.column_stack([last, outer_logpdf(problem.prior, split[0], static), past])
-    out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static,
+    out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static,
                      np.full(n, -np.log(n)), cloud, components, 1.0, 2.0, Rejuvenation().restarted(30, n),
-                     10**9, likelihood, rng)
+                     Budget(10**9), likelihood, rng)
     return static, out, mean, np.sqrt(np.diag(cov))
 
 

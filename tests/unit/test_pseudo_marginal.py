@@ -13,7 +13,7 @@ from seqbayes.predictive import mixture as density_module
 from seqbayes.predictive.mixture import GaussianMixture
 from seqbayes.predictive.pseudo_marginal import SubsampledPrior
 from seqbayes.moves import GaussianMove, gaussian_sweep
-from seqbayes.engine.settings import SamplerConfig
+from seqbayes.engine.settings import from_flat
 
 
 def mixture(n=3000, d=2, width=0.5, seed=0, zero_weights=True):
@@ -168,14 +168,14 @@ def test_ancestor_ess_from_a_subsample_of_rows(monkeypatch):
     theta = g.draw_one_per_component(rng)[:5000] * 0.7 + 0.3   # a posterior: a part of the mixture
     log_w = rng.normal(size=5000) * 0.5
     estimate = g.ancestor_ess(theta, log_w)
-    monkeypatch.setattr(density_module, "_TREE_MIN_CENTRES", 10**9)   # every row
+    monkeypatch.setattr(density_module, "TREE_MIN_CENTRES", 10**9)   # every row
     exact = g.ancestor_ess(theta, log_w)
     assert abs(estimate / exact - 1.0) < 0.05, (estimate, exact)
 
 
 def test_config_rejects_a_negative_threshold():
     with pytest.raises(ValueError, match="pseudo_marginal_from"):
-        SamplerConfig(move="gaussian", pseudo_marginal_from=-1)
+        from_flat("SMC", pseudo_marginal_from=-1)
 
 
 def drifting_sampler(n, seed, **settings):
@@ -185,7 +185,7 @@ def drifting_sampler(n, seed, **settings):
     def loglike(theta, y):
         return -0.5 * np.sum((y[None] - theta[:, None]) ** 2, axis=(1, 2)) / 0.25
 
-    return SMC(prior, kernel, loglike, n_samples=n, rng=seed, **settings)
+    return SMC(prior, kernel, loglike, n_samples=n, rng=seed, **from_flat("SMC", **settings))
 
 
 def test_pseudo_marginal_run_is_reproducible_and_resumes_bit_for_bit(monkeypatch):

@@ -3,12 +3,14 @@ the argument or step, reproducibility, results I/O and model comparison."""
 
 import re
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import stats
 
+from seqbayes.engine.settings import from_flat
 import seqbayes
-import seqbayes.engine.settings
 from seqbayes import SEMC, SMC, JointPrior, MarkovKernel, Static, Drift, ZeroLikelihoodError, compare
 from seqbayes.models.linear_gaussian import LinearGaussianProblem
 
@@ -96,8 +98,7 @@ def test_data_far_from_the_samples_stop_at_max_stages_and_leave_the_state():
     from seqbayes import TemperingLimitError
 
     # the transition predictive: SMC^2's guided inner filter absorbs this jump in the drifting offset
-    sampler = SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, n_samples=100, rng=0, max_stages=5,
-                  predictive="transition")
+    sampler = SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, n_samples=100, rng=0, **from_flat("SMC", max_stages=5, predictive="transition"))
     sampler.update(DATA[0])
     before = sampler.state
     with pytest.raises(TemperingLimitError, match=r"step 2: tempering reached exponent .* after max_stages = 5 "
@@ -106,7 +107,7 @@ def test_data_far_from_the_samples_stop_at_max_stages_and_leave_the_state():
     assert sampler.state is before and len(sampler.result.steps) == 1
     assert sampler.update(DATA[1]).n_stages <= 5
     with pytest.raises(ValueError, match="max_stages: must be an integer >= 1"):
-        SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, max_stages=0)
+        SMC(PROBLEM.prior, PROBLEM.kernel, PROBLEM.loglike, **from_flat("SMC", max_stages=0))
 
 
 def test_bad_input_messages_name_the_argument():
@@ -124,11 +125,11 @@ def test_bad_input_messages_name_the_argument():
     with pytest.raises(TypeError, match="loglike"):
         SEMC(prior, kernel, 3.0)
     with pytest.raises(ValueError, match="resampling"):
-        SEMC(prior, kernel, loglike, resampling="bogus")
+        SEMC(prior, kernel, loglike, **from_flat("SEMC", resampling="bogus"))
     with pytest.raises(ValueError, match="target_acceptance"):
-        SEMC(prior, kernel, loglike, target_acceptance=1.5)
+        SEMC(prior, kernel, loglike, **from_flat("SEMC", target_acceptance=1.5))
     with pytest.raises(ValueError, match="step_size"):
-        SEMC(prior, kernel, loglike, step_size=1.0)
+        SEMC(prior, kernel, loglike, **from_flat("SEMC", step_size=1.0))
 
     class NaNPrior:
         def logpdf(self, theta):
@@ -166,7 +167,7 @@ def test_result_netcdf_round_trip(tmp_path):
     assert back.names == ("a", "b") and len(back.steps) == 3
     for a, b in zip(result.steps, back.steps):
         np.testing.assert_array_equal(a.posterior, b.posterior)
-        for name, value in vars(a.info).items():  # NaN (no move in a step) counts as equal to NaN
+        for name, value in a.info.to_dict().items():  # NaN (no move in a step) counts as equal to NaN
             other = getattr(b.info, name)
             assert value == other or (value != value and other != other), (name, value, other)
     ds = result.to_xarray()
@@ -310,7 +311,7 @@ def test_mass_leaving_the_parameter_space_is_zero_likelihood(cls):
 
 
 def test_unreliable_importance_evidence_falls_back_to_the_path(monkeypatch):
-    import seqbayes.engine.evidence as evidence
+    import seqbayes.predictive.evidence as evidence
 
     real = evidence.importance_step
 
@@ -362,30 +363,30 @@ def test_a_non_integer_sample_count_is_refused(n_samples):
 
 
 @pytest.mark.parametrize("cls", [SEMC, SMC])
-def test_settings_are_explicit_keyword_arguments_with_sampler_config_defaults(cls):
-    import dataclasses
+def test_settings_are_components_and_the_flat_settings_map_onto_them(cls):
     import inspect
 
-    from seqbayes.store.config import SEMC_ONLY, SMC_ONLY
+    from seqbayes.engine.settings import FLAT, flat_names
 
     parameters = inspect.signature(cls).parameters
-    assert not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())   # no **settings
-    other = SMC_ONLY if cls is SEMC else SEMC_ONLY
-    for field in dataclasses.fields(seqbayes.engine.settings.SamplerConfig):
-        if field.name == "n_samples":
-            assert parameters["n_samples"].default == field.default
-            continue
-        if field.name == "move" or field.name in other:
-            assert field.name not in parameters
-            continue
-        assert parameters[field.name].kind is inspect.Parameter.KEYWORD_ONLY, field.name
-        default = None if field.name == "target_acceptance" else field.default   # None: Eq. (10)
-        assert parameters[field.name].default == default, field.name
-    # validation is SamplerConfig's, naming the argument
+    assert len(parameters) <= 12 and not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+    for name in ("moves", "tempering", "evidence", "predictive", "remedy", "executor", "blas_threads"):
+        assert parameters[name].kind is inspect.Parameter.KEYWORD_ONLY, name
+    sampler = make(cls)
+    assert type(sampler.config.moves).__name__ == ("Stretch" if cls is SEMC else "RandomWalk")
+    # every flat setting of the TOML [sampler] table names a field of its component, declared once there
+    defaults = from_flat(cls.__name__)
+    assert defaults["moves"] == type(sampler.config.moves)() and defaults["remedy"] == sampler.config.remedy
+    for name in flat_names(cls.__name__):
+        component, field, _ = FLAT[name]
+        if field is not None:
+            assert any(field in {f.name for f in dataclasses.fields(value)} for value in defaults.values()
+                       if dataclasses.is_dataclass(value)) or component in ("transition", "smc2"), name
+    # a refused value names the flat setting; a setting of the other sampler is refused
     with pytest.raises(ValueError, match="tempering_ess"):
-        make(cls, tempering_ess=1.5)
+        make(cls, **from_flat(cls.__name__, tempering_ess=1.5))
     with pytest.raises(TypeError, match="proposal_scale" if cls is SEMC else "step_size"):
-        make(cls, **({"proposal_scale": 2.0} if cls is SEMC else {"step_size": 3.0}))
+        from_flat(cls.__name__, **({"proposal_scale": 2.0} if cls is SEMC else {"step_size": 3.0}))
 
 
 def test_progress_bars_change_nothing_but_stderr(capsys):

@@ -4,11 +4,13 @@ Rao-Blackwellised drifting moments (issue 23)."""
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SMC
-from seqbayes.engine.errors import InnerFilterWarning
+from seqbayes.core.errors import InnerFilterWarning
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.moves import SweepStats
-from seqbayes.predictive.pmmh import MOVE_BUDGET, RESTORE_LIMIT, Rejuvenation, distinct_ess, outer_logpdf, rejuvenate, run_inner
+from seqbayes.predictive.pmmh import (MOVE_BUDGET, RESTORE_LIMIT, Budget, Refilter, Rejuvenation, distinct_ess,
+                                     outer_logpdf, rejuvenate, run_inner)
 from seqbayes.predictive.smc2 import (KalmanInnerFilter, NestedState, ParticleInnerFilter, nested_moments,
                                       nested_split, nested_state_arrays, nested_state_from_arrays,
                                       warn_rejuvenation)
@@ -41,8 +43,7 @@ def test_nested_moments_are_those_of_every_inner_particle():
 def test_update_cost_stays_within_the_budget_and_the_amortised_cost_is_reported(mixed):
     problem, data = mixed
     n = 100
-    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=1,
-                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=1, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET))
     infos = [sampler.update(y) for y in data]
     evals = np.array([i.n_loglike_evals for i in infos])
     steps = np.arange(1, len(data) + 1)
@@ -63,8 +64,7 @@ def test_pending_moves_survive_the_state_arrays(mixed):
     problem, data = mixed
 
     def fresh():
-        return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=100, rng=4,
-                   inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET)
+        return SMC(problem.prior, problem.kernel, problem.loglike, n_samples=100, rng=4, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET))
 
     sampler = fresh()
     for s, y in enumerate(data[:30], start=1):
@@ -99,8 +99,7 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
     to the particles' log targets (delayed acceptance), and only the survivors re-run their inner filters."""
     problem, data = mixed
     data = data[:12]
-    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=4000, rng=0,
-                  inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET, surrogate=surrogate)
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=4000, rng=0, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe), move_budget=MOVE_BUDGET, surrogate=surrogate))
     config, inner = sampler.config, sampler.problem.inner_filter
     split = nested_split(problem.kernel)
     exact = problem.exact(data)[-1]
@@ -118,8 +117,8 @@ def test_a_partial_rejuvenation_keeps_a_weighted_sample_of_the_exact_posterior(m
     components = np.column_stack([last, prior, past])
     pending = Rejuvenation().restarted(1, n)
     budget = (n // 2) * len(data)          # half a sweep
-    out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights, cloud,
-                     components, 1.0, 1.0, pending, budget, likelihood, rng)
+    out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static, log_weights,
+                     cloud, components, 1.0, 1.0, pending, Budget(budget), likelihood, rng)
     moved_static, _, moved_components, stats, _, _, left = out
     assert isinstance(stats, SweepStats) and left.queue.size == n - stats.n_proposed and left.sweeps_left == 0
     assert 0.3 * n < stats.n_evaluations <= n // 2 and stats.n_accepted > 0.2 * stats.n_proposed   # the budget
@@ -157,8 +156,7 @@ def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
     have spent RESTORE_LIMIT times the budget; without it they stop at the budget."""
     problem, data = mixed
     data = data[:5]
-    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0,
-                  inner_filter=KalmanInnerFilter(problem.observe))
+    sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=200, rng=0, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe)))
     config, inner = sampler.config, sampler.problem.inner_filter
     split = nested_split(problem.kernel)
     rng = np.random.default_rng(3)
@@ -172,9 +170,10 @@ def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
     assert distinct_ess(static) == pytest.approx(50.0)
     budget = 20 * len(data)
     for restore in (0.0, 0.6):
-        pending = Rejuvenation().restarted(config.max_moves, 200)
-        out = rejuvenate(sampler.problem, config, inner, split, data, (None,) * len(data), static, log_weights,
-                         cloud, components, 1.0, 1.0, pending, budget, likelihood, rng, restore=restore)
+        pending = Rejuvenation().restarted(config.moves.max_sweeps, 200)
+        out = rejuvenate(Refilter(sampler.problem, inner, split, data, (None,) * len(data)), config, static,
+                         log_weights, cloud, components, 1.0, 1.0, pending, Budget(budget, restore=restore), likelihood,
+                         rng)
         moved, stats, left = out[0], out[3], out[6]
         if not restore:
             assert stats.n_proposed == 20
@@ -187,7 +186,7 @@ def test_restoring_the_ess_after_a_resampling_goes_beyond_the_budget(mixed):
 
 
 def sampler_likelihood(sampler):
-    from seqbayes.engine.likelihood import ValidatedLikelihood
+    from seqbayes.core.likelihood import ValidatedLikelihood
 
     return ValidatedLikelihood(sampler.problem.loglike, None, 1)
 
@@ -248,8 +247,7 @@ def test_a_running_rejuvenation_with_a_low_acceptance_warns_before_it_concludes(
     problem = LinearGaussianProblem()
     datasets, _ = problem.simulate(20, rng=3)
     kernel = seqbayes.MarkovKernel([seqbayes.Drift(0.0, noise_std=0.05), seqbayes.Static()])
-    sampler = seqbayes.SMC(problem.prior, kernel, problem.loglike, n_samples=200, rng=1,
-                           inner_filter=ParticleInnerFilter(2, n_pilot=200), move_budget=1)
+    sampler = seqbayes.SMC(problem.prior, kernel, problem.loglike, n_samples=200, rng=1, **from_flat("SMC", inner_filter=ParticleInnerFilter(2, n_pilot=200), move_budget=1))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         infos = [sampler.update(d) for d in datasets]

@@ -1,11 +1,11 @@
-"""The path-space likelihood's memo (:class:`seqbayes.engine.likelihood.StateMemo`): a state evaluated once against
+"""The path-space likelihood's memo (:class:`seqbayes.core.likelihood.StateMemo`): a state evaluated once against
 its dataset is read back, bit for bit, and counted once; everything else is evaluated as before."""
 
 import numpy as np
 import pytest
 
-from seqbayes.engine.likelihood import StateMemo, ValidatedLikelihood, row_hashes
-from seqbayes.engine.state import Problem
+from seqbayes.core.likelihood import StateMemo, ValidatedLikelihood, row_hashes
+from seqbayes.core.state import Problem
 
 
 def _likelihood():

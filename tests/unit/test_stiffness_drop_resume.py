@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from seqbayes.structural.drop_paths import simulate_drop
-from seqbayes.structural.stiffness_drop import DropBlock, StiffnessDropMonitor
+from seqbayes.structural.stiffness_drop import DropBlock, StiffnessDropMonitor, monitor_from_flat
 from seqbayes.structural.structures import ShearBuilding, add_measurement_noise, kanai_tajimi
 from seqbayes.structural.structures.shear_building import Sensors
 
@@ -29,11 +29,12 @@ def case():
     return b, u, y, std, sw
 
 
-def monitor(case, **kwargs):
+def monitor(case, n_particles=40, channels="absolute_acceleration", **kwargs):
     b, u, y, std, sw = case
-    options = dict(n_particles=40, change_every=5, change_rate=0.5, prune_after=10, prune_below=1e-6)
+    options = dict(change_every=5, change_rate=0.5, prune_after=10, prune_below=1e-6)
     options.update(kwargs)
-    return StiffnessDropMonitor(b, DT, 0.7, 1.0, std, sw, **options)
+    return StiffnessDropMonitor(b, DT, 0.7, 1.0, std, sw, n_particles, channels=channels,
+                                **monitor_from_flat(**options))
 
 
 def feed(mon, case, blocks):
@@ -157,8 +158,9 @@ def test_restore_refuses_other_settings(case, uninterrupted):
         assert "\n" not in str(err.value)
     stiffer = ShearBuilding(np.array([12.0, 10.0]) * 1e3, np.array([21.0, 14.0]) * 1e6, (0.03, 0.03))
     with pytest.raises(ValueError, match="building="):
-        StiffnessDropMonitor(stiffer, DT, 0.7, 1.0, std, sw, n_particles=40, change_every=5, change_rate=0.5,
-                             prune_after=10, prune_below=1e-6).restore(snap)
+        StiffnessDropMonitor(stiffer, DT, 0.7, 1.0, std, sw, n_particles=40,
+                             **monitor_from_flat(change_every=5, change_rate=0.5, prune_after=10,
+                                                 prune_below=1e-6)).restore(snap)
     partial = {k: v for k, v in snap.items() if k != "class_cov"}
     with pytest.raises(ValueError, match="missing.*class_cov"):
         monitor(case).restore(partial)

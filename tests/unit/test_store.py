@@ -86,7 +86,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     uninterrupted run bit for bit. A random walk (sd 0.05 per step) observed through 25 points of
     noise 0.5 jumps by 0.6 (12 kernel sds) at step 4, which runs on the path space (as in
     test_conflict_remedy). With ``remedy_lag = 3`` steps 5 and 6 reach back to step 4's first state (anchored
-    windows of 4 and 5 states, seqbayes.engine.state.remedy_window) and step 7's window slides back to 2. Whether
+    windows of 4 and 5 states, seqbayes.predictive.lineage.remedy_window) and step 7's window slides back to 2. Whether
     step 6 takes the remedy again is the trigger's call on a random ancestor ESS: sampler seed 5 does (seeds 0-23 with
     the early remedy decision: 5, 7, 12, 13, 18 and 19; the rest remedy steps 5 and 7 instead); seed 0 did on the
     suffix moves alone, seed 6 on the half starts, seed 3 before them."""
@@ -104,7 +104,7 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     assert path_steps[3] > 0 and not any(path_steps[:3]), path_steps   # the remedy ran at the jump
     if remedy_lag is not None:
         assert path_steps[3:6] == [3, 4, 5], path_steps
-    assert reference.snapshot()[0].paths is not None                  # and its paths were carried on
+    assert reference.snapshot()[0].memory.paths is not None                  # and its paths were carried on
     RunStore.create(tmp_path / "run.nc", cfg)
     for i, d in enumerate(data):
         RunStore.open(tmp_path / "run.nc").assimilate(d, f"d{i}")
@@ -112,9 +112,9 @@ def test_a_run_through_a_conflict_resumes_with_the_remedys_window_and_paths(tmp_
     assert_same_steps(reference.result.steps, store.result.steps)
     state = store.state_at(len(data))[0]
     expected = reference.snapshot()[0]
-    np.testing.assert_array_equal(state.paths, expected.paths)
-    assert len(state.window) == len(expected.window)
-    for mine, theirs in zip(state.window, expected.window):
+    np.testing.assert_array_equal(state.memory.paths, expected.memory.paths)
+    assert len(state.memory.window) == len(expected.memory.window)
+    for mine, theirs in zip(state.memory.window, expected.memory.window):
         np.testing.assert_array_equal(mine.dataset, theirs.dataset)
         np.testing.assert_array_equal(mine.posterior, theirs.posterior)
         assert mine.path_space == theirs.path_space

@@ -1,5 +1,5 @@
 """Issue 24 (high): an abrupt change must not brick the run. The engine's outputs and the run store's check on
-open are one definition (:mod:`seqbayes.engine.outputs`): what the engine hands out, the store re-opens."""
+open are one definition (:mod:`seqbayes.engine.drivers`): what the engine hands out, the store re-opens."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 from _user_model import line_model
 
-from seqbayes.engine.outputs import OUTPUTS, InvalidStepError, allowed, check_step
+from seqbayes.engine.drivers import OUTPUTS, InvalidStepError, allowed, check_step
 from seqbayes.store import RunStore, StoreError, load_config, snapshot
 from seqbayes.store.base import check_finite
 
@@ -145,7 +145,7 @@ def test_the_path_prior_density_of_no_walker_is_empty():
     in tools/result_hash.py's oscillator run 0 under T6 with SEMC, the run at step 3)."""
     from types import SimpleNamespace
 
-    from seqbayes.engine.state import PastStep
+    from seqbayes.core.state import PastStep
     from seqbayes.kernels import Drift, MarkovKernel
     from seqbayes.predictive.paths import path_prior_logpdf
 

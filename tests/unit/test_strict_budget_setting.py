@@ -1,4 +1,4 @@
-"""``SamplerConfig.strict_budget``: SMC^2's move budget as a hard cap on every update, tempered ones included
+"""``SMC2(strict_budget=True)``: SMC^2's move budget as a hard cap on every update, tempered ones included
 (seqbayes.predictive.pmmh, issue 23). Its accuracy against the Kalman filter is in
 tests/statistical/test_smc2_strict_budget.py."""
 
@@ -7,8 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
+from seqbayes.engine.settings import from_flat
 from seqbayes import SMC
-from seqbayes.engine.settings import MOVE_BUDGET, SamplerConfig
+from seqbayes.predictive.pmmh import MOVE_BUDGET
 from seqbayes.models.linear_gaussian import LinearGaussianStateSpace
 from seqbayes.predictive.pmmh import RESTORE_BATCH
 from seqbayes.predictive.smc2 import KalmanInnerFilter
@@ -16,7 +17,7 @@ from seqbayes.predictive.smc2 import KalmanInnerFilter
 
 def test_strict_budget_is_checked():
     with pytest.raises(ValueError, match="strict_budget: expected True or False"):
-        SamplerConfig(move="gaussian", strict_budget="yes")
+        from_flat("SMC", strict_budget="yes")
 
 
 def test_a_strict_budget_caps_the_tempered_updates_too():
@@ -29,8 +30,7 @@ def test_a_strict_budget_caps_the_tempered_updates_too():
     n = 200
     evals, stages = {}, {}
     for strict in (False, True):
-        sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3,
-                      inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict)
+        sampler = SMC(problem.prior, problem.kernel, problem.loglike, n_samples=n, rng=3, **from_flat("SMC", inner_filter=KalmanInnerFilter(problem.observe), strict_budget=strict))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             infos = [sampler.update(y) for y in data]

@@ -1,10 +1,10 @@
-"""The one tempering rule (seqbayes.tempering): exact ESS at the chosen exponent, the whole remainder
+"""The one tempering rule (seqbayes.core.tempering): exact ESS at the chosen exponent, the whole remainder
 when it fits, and both end conventions."""
 
 import numpy as np
 import pytest
 
-from seqbayes.tempering import bisect_increment, next_exponent, next_increment, tempered_ess
+from seqbayes.core.tempering import bisect_increment, next_exponent, next_increment, tempered_ess
 
 
 def _ess(log_weights):

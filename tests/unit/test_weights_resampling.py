@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import special
 
-from seqbayes import resampling
+from seqbayes import weights as resampling
 from seqbayes.weights import ess, log_evidence_increment, log_mean_exp, logsumexp, normalise
 
 

@@ -1,4 +1,4 @@
-"""The update as one pipeline (:mod:`~seqbayes.engine.pipeline`): weigh, temper/resample/move, evidence,
+"""The update as one pipeline (:mod:`~seqbayes.engine.drivers`): weigh, temper/resample/move, evidence,
 propagate, record; the sampler's records and settings, the validated likelihood, and the drivers
 :class:`~seqbayes.engine.drivers.SMC` and :class:`~seqbayes.engine.drivers.SEMC`.
 

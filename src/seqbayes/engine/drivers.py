@@ -1,57 +1,288 @@
-"""The drivers :class:`SMC` and :class:`SEMC`: they hold the current :class:`~seqbayes.engine.state.SamplerState`
-and call :func:`~seqbayes.engine.pipeline.assimilate`."""
+"""The on-line update: the drivers :class:`SMC` and :class:`SEMC`, which hold the current state and call the pure
+function :func:`assimilate`, the pipeline :func:`run_step` that every predictive prior goes through
+(:class:`~seqbayes.core.state.Predictive`), and what the numbers a step leaves behind may hold (:data:`OUTPUTS`,
+:func:`check_step`).
+
+One dataset ``D^s`` is assimilated (docs/core.md explains each choice):
+
+1. The prior particles (prior draws at ``s = 1``, predictive draws of Eq. A3
+   after) are weighted by the likelihood (Eq. A4-A5). If few of them have a
+   non-zero likelihood, or the kernel carried some out of the parameter space,
+   the step restarts from the prior restricted to ``{inside, L > 0}``.
+2. The likelihood enters in one stage, or, when that would leave less than 10 %
+   of the ESS, in adaptive tempering stages ``0 < beta_1 < ... < 1`` chosen by
+   bisection on the ESS.
+3. After each stage the particles are resampled (always at an intermediate
+   stage; at the last when the ESS is below the threshold) and moved by an MCMC
+   kernel that leaves ``L^beta p_s`` invariant (:mod:`seqbayes.moves.schedule`).
+4. The evidence increment is estimated by defensive importance sampling from
+   the final posterior (:mod:`seqbayes.predictive.evidence`), whose proposal also drives
+   independence-MH sweeps; the stages' product of mean weights (Eq. 1) is kept
+   as the "path" estimate.
+5. The posterior is propagated through the Markov kernel (Eq. A2), and the
+   predictive density (Eq. A3) becomes the next step's prior.
+
+The parameter space is the initial prior's support and the likelihood is zero
+outside it, so a kernel that predicts impossible parameters loses evidence.
+
+What a step leaves behind: What the numbers a step leaves behind may hold: one definition for the engine and the run store.
+
+:func:`check_step` checks a step's state and record when :func:`assimilate` returns them, and the run store checks every array of a file it opens (:func:`seqbayes.store.base.check_finite`)
+with the same rules (:data:`OUTPUTS`, looked up by :func:`allowed`). A state the engine hands out is
+therefore always one the store re-opens: a step that would break this raises before anything is stored.
+
+Names are the state's and record's attribute names (``posterior``, ``log_weights``,
+``log_evidence_variance``, SMC^2's ``cloud_x`` ...); the store maps its variable names to them
+(``state_log_evidence_variance`` -> ``log_evidence_variance``, :func:`seqbayes.store.snapshot.output_name`).
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import time
 import warnings
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..core.errors import InnerFilterWarning, PriorDataConflictWarning, documented
+from ..core.likelihood import ValidatedLikelihood, check_dataset
+from ..core.state import Assimilated, Failure, Problem, Reassimilate, SamplerState
+from ..core.tempering import Adaptive, Tempering, blas_limit
 from ..kernels import MarkovKernel
-from ..moves import paper_target_acceptance
-from ..predictive.base import resolve_predictive
-from ..predictive.history import RunningStatistics
-from ..predictive.smc2 import ParticleInnerFilter, nested_split, start_nested
+from ..moves import Moves, RandomWalk, Stretch
+from ..parallel import Workers
+from ..predictive.evidence import Importance
+from ..predictive.particle import count_distinct, step_conflict
+from ..predictive.smc2 import nested_split, start_nested
+from ..predictive.transition import Conflict, PathSpace
 from ..priors import as_samples, support_of
-from ..results import Result, StepInfo, StepRecord
+from ..results import MoveInfo, Result, StepInfo, StepRecord
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit
-from .errors import InnerFilterWarning, PriorDataConflictWarning, documented
 from .forecast import forecast
-from .pipeline import assimilate
-from .settings import MOVE_BUDGET, SamplerConfig
-from .stages import step_conflict
-from .state import Problem, SamplerState
+from .settings import SamplerConfig
 
-__all__ = ["SMC", "SEMC"]
+__all__ = ["SMC", "SEMC", "assimilate", "run_step", "check_step", "InvalidStepError", "Allowed", "OUTPUTS", "allowed",
+           "violation"]
 
 
-def _settings(values: dict) -> dict:
-    """The :class:`SamplerConfig` fields among a driver's keyword arguments."""
-    names = {f.name for f in fields(SamplerConfig)} - {"move", "n_samples"}
-    return {k: v for k, v in values.items() if k in names}
+class InvalidStepError(RuntimeError):
+    """A step left a value its state or record may not hold (:data:`OUTPUTS`); nothing was stored."""
+
+
+@dataclass(frozen=True)
+class Allowed:
+    """The non-finite values an array may hold."""
+
+    nan: bool = False
+    pos_inf: bool = False
+    neg_inf: bool = False
+
+    def bad(self, values: np.ndarray) -> np.ndarray:
+        """Boolean mask of the entries of ``values`` (float) this rule refuses."""
+        bad = np.zeros(values.shape, dtype=bool)
+        if not self.nan:
+            bad |= np.isnan(values)
+        if not self.pos_inf:
+            bad |= values == np.inf
+        if not self.neg_inf:
+            bad |= values == -np.inf
+        return bad
+
+
+FINITE = Allowed()
+#: What an array not named in :data:`OUTPUTS` may hold: anything but NaN (a log-density may be -inf).
+NOT_NAN = Allowed(pos_inf=True, neg_inf=True)
+
+#: The rule of each named output.
+OUTPUTS = {
+    # samples are weighed and moved again when the run resumes
+    "posterior": FINITE, "predictive": FINITE, "particles": FINITE, "dataset": FINITE,
+    "log_weights": Allowed(neg_inf=True), "posterior_log_weights": Allowed(neg_inf=True),  # -inf: zero weight
+    # NaN: not estimated (a multi-stage tempering path's increment, SMC^2; step_standard_errors), and then
+    # unknown for the cumulative log-evidence of every later step too
+    "log_evidence_variance": Allowed(nan=True, pos_inf=True),
+    "diagnostics": Allowed(nan=True, pos_inf=True, neg_inf=True),  # NaN: a diagnostic not computed
+}
+
+
+def allowed(name: str) -> Allowed:
+    """The rule of output ``name`` (:data:`OUTPUTS`, else :data:`NOT_NAN`)."""
+    return OUTPUTS.get(name, NOT_NAN)
+
+
+def violation(name: str, values, rule_name: str | None = None) -> str | None:
+    """``None`` if ``values`` keeps the rule of output ``rule_name`` (default ``name``), else a message naming
+    ``name``, the count of refused values and the first one's index."""
+    values = np.asarray(values)
+    if values.dtype.kind != "f":
+        return None
+    bad = allowed(name if rule_name is None else rule_name).bad(values)
+    if not bad.any():
+        return None
+    where = np.argwhere(bad)[0] if bad.ndim else ()
+    return f"{name} holds {int(bad.sum())} NaN/inf value(s), first at index {tuple(int(i) for i in where)}"
+
+
+def _named_values(obj, prefix: str = ""):
+    """``(name, value)`` of the float arrays and floats among a dataclass's fields (a dict field's entries named
+    ``field_key``, a dataclass field's ``field_attr``), one level deep below the top."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        name = prefix + f.name
+        if isinstance(value, dict):
+            yield from ((f"{name}_{key}", v) for key, v in value.items() if isinstance(v, np.ndarray))
+        elif isinstance(value, (np.ndarray, float)):
+            yield name, value
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type) and not prefix:
+            yield from _named_values(value, f"{name}_")
+
+
+def check_step(state, record) -> None:
+    """Raise :class:`InvalidStepError` if ``state`` (a dataclass: ``SamplerState``, SMC^2's ``NestedState``) or
+    ``record`` (:class:`~seqbayes.results.StepRecord`) holds a value :data:`OUTPUTS` refuses.
+
+    The state's prior is checked through its own fields (``prior_centres`` ...: by the rule of anything
+    unnamed), the record's posterior, weights and predictive by theirs.
+    """
+    pairs = [("posterior", record.posterior), ("log_weights", record.log_weights), ("predictive", record.predictive),
+             *_named_values(state)]
+    for name, values in pairs:
+        message = violation(name, values)
+        if message is not None:
+            raise InvalidStepError(f"step {record.info.step}: the sampler's new state is invalid: {message}; "
+                                   f"nothing was stored (please report this with the datasets)")
+
+
+def run_step(predictive: Predictive, state, dataset, likelihood: ValidatedLikelihood, rng: np.random.Generator,
+             start: float) -> Assimilated | Failure | Reassimilate:
+    """One step through ``predictive``: weigh -> temper/resample/move -> evidence -> propagate -> record.
+
+    Returns the step (:class:`~seqbayes.core.state.Assimilated`: the new state, the record and what weighing found,
+    for the remedy's decision), or what stopped it: a stage's :class:`~seqbayes.core.state.Failure` or a remedy's
+    :class:`~seqbayes.core.state.Reassimilate`, decided between the tempering stages. ``start`` is the step's
+    ``time.perf_counter()``."""
+    weighed = predictive.weigh(state, dataset, likelihood, rng)
+    if isinstance(weighed, Failure):
+        return weighed
+    tempered = predictive.temper(state, dataset, weighed, likelihood, rng)
+    if isinstance(tempered, (Failure, Reassimilate)):
+        return tempered
+    estimate = predictive.estimate(tempered, weighed, likelihood, rng)
+    if isinstance(estimate, Failure):
+        return estimate
+    outcome = predictive.propagate(state, weighed, tempered, estimate, dataset, likelihood, rng)
+    moves, stats = estimate.moves, estimate.moves.stats
+    info = StepInfo(
+        step=state.step + 1, log_evidence_increment=float(estimate.log_increment), log_evidence=outcome.log_evidence,
+        ess=float(tempered.stage_ess), resampled=bool(tempered.resampled or weighed.rejuvenated),
+        temperatures=tempered.temperatures, n_loglike_evals=likelihood.n_evals, n_nan=likelihood.n_nan,
+        n_distinct=count_distinct(outcome.distinct), wall_time=time.perf_counter() - start,
+        moves=MoveInfo(stats.acceptance_rate, outcome.step_size, moves.n_virtual, stats.n_proposed, stats.n_accepted,
+                       stats.n_identical_partner, stats.n_evaluations, stats.n_screen_evaluations, stats.n_screened_out),
+        **outcome.records)
+    record = StepRecord(info, outcome.posterior, outcome.log_weights, outcome.predictive, outcome.moments)
+    return Assimilated(outcome.state, record, weighed, outcome.lagged_variance)
+
+
+def assimilate(state, dataset: Any, problem: Problem, config: SamplerConfig, rng: np.random.Generator, *,
+               on_evaluated: Callable[[int], None] | None = None) -> tuple[object, StepRecord]:
+    """Assimilate one dataset (pure; ``state`` is not modified): :func:`run_step` through the step's predictive
+    (the ``predictive`` component's, resolved for the run: :func:`~seqbayes.predictive.base.resolve_predictive`),
+    then as its remedy decides.
+
+    The remedy's decision is a value: ``None`` keeps the step, a :class:`~seqbayes.core.state.Reassimilate` runs the
+    step again through another predictive (the path-space step, :class:`~seqbayes.predictive.transition.PathSpace`), and,
+    should that find nothing, through its ``otherwise`` or back to the first outcome. The decision may come between
+    the first step's tempering stages (then the first outcome is the decision itself) or after it. A failure that
+    no remedy takes is raised.
+
+    ``on_evaluated(n_rows)`` is told of every likelihood evaluation (a progress bar's ``update``).
+
+    Returns
+    -------
+    new_state : SamplerState or NestedState
+    record : StepRecord
+
+    Raises
+    ------
+    ZeroLikelihoodError
+        If every sample has zero likelihood.
+    TemperingLimitError
+        If the tempering took more than ``max_stages`` stages.
+    InvalidStepError
+        The new state or record holds a value the run store would refuse (:data:`OUTPUTS`).
+    """
+    start = time.perf_counter()
+    check_dataset(dataset, state.step + 1)
+    likelihood = ValidatedLikelihood.for_step(problem, dataset, state.step + 1, on_evaluated)
+    predictive, start_state = config.predictive.predictive(state, problem, config)  # the run's resolved predictive
+    first = run_step(predictive, start_state, dataset, likelihood, rng, start)
+    decision = first if isinstance(first, Reassimilate) else predictive.remedy(state, dataset, likelihood, first)
+    outcome = first
+    if decision is not None:
+        outcome = run_step(decision.predictive, state, dataset, likelihood, rng, start)
+        if isinstance(outcome, Failure) and outcome.zero_likelihood:   # the paths' restart found nothing
+            outcome = first if decision.otherwise is None else run_step(decision.otherwise, start_state, dataset,
+                                                                        likelihood, rng, start)
+    if isinstance(outcome, Failure):
+        raise outcome.error
+    check_step(outcome.state, outcome.record)  # what the run store re-opens (one definition: OUTPUTS)
+    return outcome.state, outcome.record
 
 
 class _SequentialSampler:
-    """Driver: holds the state, calls :func:`assimilate`, keeps the records. The public
-    classes :class:`SEMC` and :class:`SMC` spell their settings out as keyword arguments."""
+    """The driver of SMC and SEMC: holds the state, calls :func:`assimilate`, keeps the
+    records. The two differ only in their default moves.
 
-    _move = ""
+    Parameters
+    ----------
+    prior : JointPrior or object with ``logpdf`` and ``sample``
+    kernel : MarkovKernel
+    loglike : callable ``(theta (N, d), dataset) -> (N,)``
+    n_samples : int
+        Number of particles ``N`` (at least ``2 d`` for the stretch move).
+    rng : int or numpy.random.Generator
+    moves : Stretch or RandomWalk, optional
+        The MCMC moves and their schedule (:mod:`seqbayes.moves`): SEMC's default ``Stretch()`` (Algorithm 2),
+        SMC's ``RandomWalk()`` (Algorithm 4).
+    tempering : Adaptive or Single
+        How the likelihood enters a step and when the stages resample (:mod:`seqbayes.core.tempering`).
+    evidence : Importance or PathEvidence
+        The evidence increment's estimator (:mod:`seqbayes.predictive.evidence`); both estimates are recorded.
+    predictive : predictive component, optional
+        Each step's prior: ``None`` lets the kernel choose (:class:`~seqbayes.predictive.base.Auto`); else
+        ``Transition()``, ``KernelDensity()``, ``History(running=...)`` or ``SMC2(inner=...)``.
+    remedy : PathSpace, Conflict or None
+        What a prior-data conflict calls for: the path-space remedy (:class:`~seqbayes.predictive.transition.PathSpace`,
+        the default), or ``Conflict()`` / ``None``: detected and reported only.
+    executor : object with ``map``, optional
+        Evaluates likelihood chunks in parallel (a ``concurrent.futures`` executor, a ``dask.distributed.Client``,
+        :class:`~seqbayes.parallel.ProcessWorkers`, or :class:`~seqbayes.parallel.Workers` with a chunk count).
+    blas_threads : int or None
+        BLAS threads inside :meth:`update` (1: the hot products have an inner dimension of d, where threads cost
+        3x; ``None`` leaves BLAS as it is).
+
+    The flat settings of a TOML ``[sampler]`` table or of earlier versions map onto the components with
+    :func:`~seqbayes.engine.settings.from_flat`: ``SEMC(prior, kernel, loglike, **from_flat(tempering_ess=0.3))``.
+    """
+
+    _moves = Moves
 
     def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None,
-                 blas_threads: int | None = 1, **settings: Any):
+                 rng: int | np.random.Generator | None = None, *, moves: Moves | None = None,
+                 tempering: Tempering = Adaptive(), evidence: Any = Importance(), predictive: Any = None,
+                 remedy: Conflict | None = PathSpace(), executor: Any = None, blas_threads: int | None = 1):
         if not (hasattr(prior, "logpdf") and hasattr(prior, "sample")):
             raise TypeError("prior: expected an object with logpdf(theta) and sample(n, rng)")
         if not isinstance(kernel, MarkovKernel):
             raise TypeError(f"kernel: expected a seqbayes.MarkovKernel, got {type(kernel).__name__}")
         if not callable(loglike):
             raise TypeError("loglike: expected a callable loglike(theta (N, d), dataset) -> (N,)")
-        if executor is not None and not hasattr(executor, "map"):
-            raise TypeError("executor: expected an object with a map method (concurrent.futures or dask Client)")
+        if executor is not None and not isinstance(executor, Workers):
+            if not hasattr(executor, "map"):
+                raise TypeError("executor: expected an object with a map method (concurrent.futures or dask Client)")
+            executor = Workers(executor)
         if blas_threads is not None and (isinstance(blas_threads, bool) or int(blas_threads) != blas_threads
                                          or blas_threads < 1):
             raise ValueError(f"blas_threads: expected an integer >= 1 or None, got {blas_threads!r}")
@@ -59,6 +290,8 @@ class _SequentialSampler:
         if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer, float)) \
                 or int(n_samples) != n_samples or n_samples < 2:
             raise ValueError(f"n_samples: must be an integer >= 2, got {n_samples!r}")
+        config = SamplerConfig(int(n_samples), self._moves() if moves is None else moves, tempering, evidence,
+                               predictive, Conflict() if remedy is None else remedy)
         self._rng = as_generator(rng)
         initial = as_samples(prior.sample(int(n_samples), self._rng), name="prior.sample(n, rng)")
         dim = initial.shape[1]
@@ -68,33 +301,19 @@ class _SequentialSampler:
             raise ValueError(f"kernel: has {kernel.dim} parameters but the prior has {dim}")
         if not np.all(np.isfinite(initial)):
             raise ValueError("prior.sample: returned non-finite samples")
-        if self._move == "stretch" and int(n_samples) < 2 * dim:
-            raise ValueError(f"n_samples: the stretch move needs at least 2 d = {2 * dim} walkers, got {n_samples}")
-        if "target_acceptance" not in settings or settings["target_acceptance"] is None:
-            settings["target_acceptance"] = paper_target_acceptance(dim)  # Eq. (10)
-        config = SamplerConfig(move=self._move, n_samples=int(n_samples), **settings)
-        # record what "auto" chose; a 'history' prior needs a static kernel
-        self.config = replace(config, predictive=resolve_predictive(config.predictive, kernel))
-        if history is not None and not isinstance(history, RunningStatistics):
-            raise TypeError("history: expected a seqbayes.RunningStatistics(summarise, loglike)")
-        if self.config.predictive == "smc2":
-            inner_filter = ParticleInnerFilter(self.config.n_inner) if inner_filter is None else inner_filter
-            if not (hasattr(inner_filter, "advance") and hasattr(inner_filter, "draws")):
-                raise TypeError("inner_filter: expected a seqbayes.ParticleInnerFilter or KalmanInnerFilter")
-        elif inner_filter is not None:
-            raise ValueError(f"inner_filter: only used with predictive='smc2' (static and drifting parameters), "
-                             f"this run uses {self.config.predictive!r}")
-        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor, n_chunks, history,
-                               inner_filter)
+        self.config = config.resolved(kernel, dim)   # what "auto" chose, the moves' Eq. (10) target
+        component = self.config.predictive
+        self.problem = Problem(prior, kernel, loglike, support_of(prior, dim), executor,
+                               getattr(component, "running", None), getattr(component, "inner", None))
         self.names = tuple(getattr(prior, "names", [f"theta_{j}" for j in range(dim)]))
-        if self.config.predictive == "smc2":
+        step_size = float(self.config.moves.initial_step_size)
+        if component.method == "smc2":
             split = nested_split(kernel)
-            inner_filter.check(self.problem, split)
-            self._state = start_nested(prior, inner_filter.outer_columns(split, dim), initial,
-                                       float(self.config.step_size))
+            component.inner.check(self.problem, split)
+            self._state = start_nested(prior, component.inner.outer_columns(split, dim), initial, step_size)
         else:
             self._state = SamplerState(step=0, particles=initial, log_weights=np.full(int(n_samples), -np.log(n_samples)),
-                                       prior=prior, log_evidence=0.0, step_size=float(self.config.step_size))
+                                       prior=prior, log_evidence=0.0, step_size=step_size)
         self._records: list[StepRecord] = []
 
     @property
@@ -133,7 +352,7 @@ class _SequentialSampler:
         return self._update(dataset, progress, leave=True)
 
     def _update(self, dataset, progress: bool, leave: bool) -> StepInfo:
-        prior = (self._state.prior_draws, self._state.log_weights)
+        before = self._state
         bar = None
         if progress and self.problem.executor is None:
             from tqdm.auto import tqdm
@@ -150,31 +369,34 @@ class _SequentialSampler:
                 bar.close()
         self._state = state
         self._records.append(record)
-        if record.info.inner_ess < 0.05:
-            warnings.warn(f"step {record.info.step}: SMC^2's inner particle filters are degenerate (mean ESS "
-                          f"{100 * record.info.inner_ess:.1f} % of n_inner = {self.config.n_inner}): the data put the "
+        info = record.info
+        if info.nested.inner_ess < 0.05:
+            warnings.warn(f"step {info.step}: SMC^2's inner particle filters are degenerate (mean ESS "
+                          f"{100 * info.nested.inner_ess:.1f} % of n_inner = {self.problem.inner_filter.n_inner}): the data put the "
                           f"drifting parameters far from where the kernel predicts them, or pin them far more tightly "
                           f"than its noise, so the likelihood estimates are noisy and the moves rarely accept. A "
                           f"kernel the data contradict loses evidence anyway; otherwise raise n_inner, declare a "
                           f"KalmanInnerFilter if the model is linear-Gaussian in them, or for a short run use "
-                          f"predictive='transition' ({documented('core')})",
+                          f"predictive=Transition() ({documented('core')})",
                           InnerFilterWarning, stacklevel=3)  # user -> update/run -> _update
         # either half of the diagnostic: the posterior mean's shift, or a posterior carried by a few of the predictive
         # mixture's components (the ancestor ESS, which catches conflicts the shift misses; docs/prior_data_conflict.md)
-        tail = record.info.ancestor_ess < self.config.remedy_ess * self.config.n_samples
-        if record.info.prior_data_conflict > self.config.conflict_threshold or tail:
-            conflict = step_conflict(*prior, record.posterior, record.log_weights, self.problem.support)
+        threshold, conflicted = self.config.remedy.threshold, info.conflict
+        tail = conflicted.ancestor_ess < self.config.remedy.ancestor_ess * self.config.n_samples
+        if conflicted.prior_data_conflict > threshold or tail:
+            conflict = step_conflict(before.prior_draws, before.log_weights, record.posterior, record.log_weights,
+                                     self.problem.support)
             far = ", ".join(f"{name} {value:.1f}" for name, value in zip(self.names, conflict)
-                            if value > self.config.conflict_threshold) or \
-                f"{self.names[record.info.conflict_parameter]} {record.info.prior_data_conflict:.1f}"
-            if np.isfinite(record.info.ancestor_ess):
-                far += (f"; {record.info.ancestor_ess:.0f} of the {self.config.n_samples} previous posterior "
+                            if value > threshold) or \
+                f"{self.names[conflicted.conflict_parameter]} {conflicted.prior_data_conflict:.1f}"
+            if np.isfinite(conflicted.ancestor_ess):
+                far += (f"; {conflicted.ancestor_ess:.0f} of the {self.config.n_samples} previous posterior "
                         f"particles carry it (StepInfo.ancestor_ess)")
-            remedy = (f"; assimilated on the path space of the last {record.info.path_steps} states, whose target is "
-                      f"the model's exact one (StepInfo.path_steps)" if record.info.path_steps else
+            remedy = (f"; assimilated on the path space of the last {conflicted.path_steps} states, whose target is "
+                      f"the model's exact one (StepInfo.path_steps)" if conflicted.path_steps else
                       "; the predictive mixture's tail is a few particles there, so the sampler may be unreliable "
                       f"(the path-space remedy is off or does not apply; {documented('prior_data_conflict')})")
-            warnings.warn(f"step {record.info.step}: prior-data conflict: the posterior lies far in the tail of "
+            warnings.warn(f"step {info.step}: prior-data conflict: the posterior lies far in the tail of "
                           f"the step's prior (posterior-mean shift in prior sds: {far}); an abrupt change or a "
                           f"kernel too narrow for the data{remedy}",
                           PriorDataConflictWarning, stacklevel=3)
@@ -219,47 +441,16 @@ class _SequentialSampler:
 
     @property
     def result(self) -> Result:
-        meta = {"sampler": type(self).__name__, "config": {k: v for k, v in vars(self.config).items()},
+        meta = {"sampler": type(self).__name__, "config": {f.name: repr(getattr(self.config, f.name))
+                                                             for f in fields(self.config)},
                 "kernel": self.problem.kernel.describe(),
                 "prior": self.problem.prior.describe() if hasattr(self.problem.prior, "describe") else repr(self.problem.prior)}
         return Result(self.names, tuple(self._records), meta)
 
 
 class SEMC(_SequentialSampler):
-    """Sequential Ensemble Monte Carlo (Algorithm 2): stretch moves with an adaptive step size.
-
-    Parameters
-    ----------
-    prior : JointPrior or object with ``logpdf`` and ``sample``
-    kernel : MarkovKernel
-    loglike : callable ``(theta (N, d), dataset) -> (N,)``
-    n_samples : int
-        Ensemble size ``N`` (at least ``2 d``).
-    rng : int or numpy.random.Generator
-    executor : object with ``map``, optional
-        Evaluates likelihood chunks in parallel (``concurrent.futures`` executor or ``dask.distributed.Client``).
-    history : RunningStatistics, optional
-        With every parameter static: the likelihood's additive statistics, so that the exact
-        history prior evaluates every past dataset in one call (bounded cost per update).
-    inner_filter : ParticleInnerFilter or KalmanInnerFilter, optional
-        With static and drifting parameters (SMC^2, :mod:`seqbayes.predictive.smc2`): the filter over the
-        drifting ones (default ``ParticleInnerFilter(100)``).
-    blas_threads : int or None
-        BLAS threads inside :meth:`update` (1: the hot products have an inner dimension of d,
-        where threads cost 3x; ``None`` leaves BLAS as it is).
-    target_acceptance : float, optional
-        SEMC's target acceptance rate ``alpha_tr`` (default: Eq. 10, ``0.21 / d + 0.23``).
-    step_size : float
-        Initial stretch-move step size ``u`` (2).
-    max_virtual, virtual_tolerance : int, float
-        Cap on virtual iterations (sweeps) per stage and their stopping tolerance.
-    tempering, tempering_ess, tempering_threshold, max_stages, ess_threshold, resampling, \
-predictive, shrink_static, n_moves, transform, min_valid_fraction, evidence, moved_fraction, \
-move_every_stage, n_independent, min_evidence_ess, max_refits, n_inner, conflict_threshold, \
-conflict_remedy, remedy_ess, remedy_lag, remedy_bridge, pseudo_marginal_from, scaled_moves, economy, \
-surrogate, move_budget, strict_budget
-        The fields of :class:`SamplerConfig` of the same names, with its defaults and
-        validation (see there for what each does).
+    """Sequential Ensemble Monte Carlo (Algorithm 2): the stretch move with an adaptive step size
+    (``moves=Stretch(...)``). Parameters as the driver's (:class:`SMC` shares them; ``moves`` may be any).
 
     Examples
     --------
@@ -274,61 +465,15 @@ surrogate, move_budget, strict_budget
     1
     """
 
-    _move = "stretch"
-
-    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
-                 target_acceptance: float | None = None, step_size: float = 2.0, max_virtual: int = 30,
-                 virtual_tolerance: float = 0.1, tempering: bool = True, tempering_ess: float = 0.5,
-                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
-                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
-                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
-                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
-                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
-                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
-        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
-                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
-                         **_settings(locals()))
+    _moves = Stretch
 
 
 class SMC(_SequentialSampler):
-    """Sequential Monte Carlo (Algorithm 4): Gaussian random-walk MH with the weighted covariance.
+    """Sequential Monte Carlo (Algorithm 4): the Gaussian random walk with the weighted covariance
+    (``moves=RandomWalk(...)``). Parameters as :class:`SEMC`'s."""
 
-    Parameters as :class:`SEMC`, without its stretch-move settings (``target_acceptance``,
-    ``step_size``, ``max_virtual``, ``virtual_tolerance``), and:
+    _moves = RandomWalk
 
-    Parameters
-    ----------
-    proposal_scale : float
-        ``gamma`` of Eq. (A7) (1).
-    max_moves : int
-        Cap on MH steps per stage (30); ``n_moves`` is the minimum (3; the paper uses 1).
-    """
-
-    _move = "gaussian"
-
-    def __init__(self, prior: JointPrior, kernel: MarkovKernel, loglike: LogLikelihood, n_samples: int = 1000,
-                 rng: int | np.random.Generator | None = None, *, executor: Any = None, n_chunks: int | None = None,
-                 history: RunningStatistics | None = None,
-                 inner_filter: ParticleInnerFilter | KalmanInnerFilter | None = None, blas_threads: int | None = 1,
-                 proposal_scale: float = 1.0, max_moves: int = 30, tempering: bool = True, tempering_ess: float = 0.5,
-                 tempering_threshold: float = 0.1, max_stages: int = 1000, ess_threshold: float = 0.5,
-                 resampling: str = "systematic", predictive: str = "auto", shrink_static: bool = True,
-                 n_moves: int = 3, transform: bool = True, min_valid_fraction: float = 0.5,
-                 evidence: str = "importance", moved_fraction: float = 0.9, move_every_stage: bool | None = None,
-                 n_independent: int = 3, min_evidence_ess: float = 0.3, max_refits: int = 5, n_inner: int = 100,
-                 conflict_threshold: float = 4.0, conflict_remedy: bool = True, remedy_ess: float = 0.05,
-                 remedy_lag: int = 10, remedy_bridge: bool = True, pseudo_marginal_from: int = 2048,
-                 scaled_moves: bool | None = None, economy: bool = False, surrogate: Any = None,
-                 move_budget: float | None = MOVE_BUDGET, strict_budget: bool = False):
-        super().__init__(prior, kernel, loglike, n_samples, rng, executor=executor, n_chunks=n_chunks,
-                         history=history, inner_filter=inner_filter, blas_threads=blas_threads,
-                         **_settings(locals()))
 
 import typing as _typing  # noqa: E402
 

@@ -62,7 +62,7 @@ HARDENING = 0.05
 #: omega_1^2 = (3 - sqrt 5) / 2 k / m.
 OMEGA_1 = float(np.sqrt(0.5 * (3.0 - np.sqrt(5.0)) * STIFFNESS / MASS))
 DT = 0.02                        # s
-WINDOW_STEPS = 76                # samples per campaign: 1.5 s
+WINDOW_STEPS = 76                # samples per campaign: 1.5 s (comment-ok: unit conversion)
 PGA_G = 0.1
 TRUE_ZETA, TRUE_SIGMA = 0.03, 0.3
 #: ``(rate, noise_std)`` of the first storey's stiffness loss per campaign.

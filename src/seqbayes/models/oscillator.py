@@ -563,8 +563,9 @@ def exact_grid_reference(datasets, kernel: MarkovKernel, *, n_points: int = 201,
         raise TypeError("kernel: expected a MarkovKernel with one component per parameter (k, c)")
     box = np.array([PRIOR_BOUNDS["k"], PRIOR_BOUNDS["c"]])
     steps = reference.grid_filter(datasets, _grid_log_likelihood, box, [c.nominal for c in kernel.components],
-                                  kernel.noise_std, n_points, n_coarse=n_coarse, tail_mass=tail_mass,
-                                  points_per_sd=points_per_sd, max_points=max_points, log_axes=(True, True))
+                                  kernel.noise_std, n_points,
+                                  resolution=reference.Resolution(n_coarse, tail_mass, points_per_sd, max_points,
+                                                                  log_axes=(True, True)))
     settings = {"n_points": int(n_points) | 1, "points_per_sd": float(points_per_sd), "tail_mass": float(tail_mass),
                 "n_coarse": int(n_coarse) | 1, "max_points": int(max_points), "kernel": kernel.describe()}
     return reference.reference_from_steps(steps, PARAMETER_NAMES, len(datasets), settings)

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import SweepStats, combine, evaluate_inside, metropolis_accept
-from .stretch import stretch_sweep
 
 __all__ = ["FittedGaussian", "independence_sweep", "DifferentialMove", "differential_sweep", "SuffixMove",
            "whitened_jumps"]
@@ -94,49 +93,6 @@ def independence_sweep(walkers, components, component_fn, coefficients, proposal
     return walkers, components, SweepStats(n, int(accept.sum()), 0, n_eval)
 
 
-@dataclass(frozen=True)
-class DifferentialMove:
-    """``x* = x + g (x_j - x_k)`` with ``g = scale * 2.38 / sqrt(2 d)`` (ter Braak 2006).
-
-    Parameters
-    ----------
-    scale : float
-        Factor on the optimal random-walk scale (adapted by Eq. 9 inside a stage).
-    """
-
-    scale: float = 1.0
-
-    def __post_init__(self):
-        if not np.isfinite(self.scale) or self.scale <= 0:
-            raise ValueError(f"scale: must be positive, got {self.scale}")
-
-    def propose(self, walkers, complement, rng: np.random.Generator):
-        """Proposals for ``walkers (n, d)`` from two distinct partners in ``complement (m, d)``, m >= 2.
-
-        Returns ``(proposals (n, d), log_hastings (n,), identical (n,) bool)``, the triple of
-        :meth:`~seqbayes.moves.StretchMove.propose`: the move is symmetric given the complement, and
-        ``identical`` is all False (a proposal that equals its walker, from two equal partners, is
-        evaluated like any other).
-        """
-        n, d = walkers.shape
-        m = complement.shape[0]
-        if m < 2:
-            raise ValueError(f"complement: the differential-evolution move needs at least 2 walkers, got {m} "
-                             f"(n_samples >= 4)")
-        first = rng.integers(m, size=n)
-        second = (first + 1 + rng.integers(m - 1, size=n)) % m  # uniform over the others
-        gamma = self.scale * 2.38 / np.sqrt(2.0 * d)
-        return walkers + gamma * (complement[first] - complement[second]), np.zeros(n), np.zeros(n, dtype=bool)
-
-
-def differential_sweep(walkers, components, component_fn, coefficients, move: DifferentialMove,
-                       rng: np.random.Generator, support):
-    """One sweep of :class:`DifferentialMove`, half of the walkers against the other half: the
-    stretch move's sweep (:func:`~seqbayes.moves.stretch_sweep`, whose arguments and returns it
-    shares) with this move's proposals."""
-    return stretch_sweep(walkers, components, component_fn, coefficients, move, rng, support)
-
-
 @dataclass(frozen=True, eq=False)
 class SuffixMove:
     """A symmetric local move (:class:`~seqbayes.moves.gaussian.GaussianMove`, :class:`DifferentialMove`)
@@ -145,7 +101,7 @@ class SuffixMove:
 
     The suffix is drawn independently of the walkers, so the proposal stays symmetric (log-Hastings 0) and the
     sweep keeps its target. With a likelihood that keeps each state's value
-    (:class:`~seqbayes.engine.likelihood.StateMemo`) a proposal costs only its moved states' calls.
+    (:class:`~seqbayes.core.likelihood.StateMemo`) a proposal costs only its moved states' calls.
 
     Parameters
     ----------

@@ -11,18 +11,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.settings import ECONOMY_JUMP_TARGET, ECONOMY_MOVED_FRACTION, HIGH_DIMENSION, JUMP_TARGET, LOCAL_ACCEPTANCE
 from ..priors import inside_space
-from .base import SweepStats, combine, evaluate_inside, metropolis_accept
+from ..weights import resample
+from ..core.state import Cloud
+from .base import HIGH_DIMENSION, MoveTally, NoScreen, SweepStats, combine, evaluate_inside, metropolis_accept
 from .delayed import ModelScreen, QuadraticScreen, Screening, screened_sweep
-from .gaussian import GaussianMove, gaussian_sweep, weighted_covariance
+from .gaussian import weighted_covariance
 from .proposals import DefensiveProposal, complement_halves
-from .scaled import (DifferentialMove, FittedGaussian, SuffixMove, differential_sweep, independence_sweep,
-                     whitened_jumps)
-from .stretch import StretchMove, stretch_sweep
-from .tuning import next_step_size
+from .scaled import FittedGaussian, SuffixMove, independence_sweep, whitened_jumps
 
-__all__ = ["move_stage", "scaled_rounds", "stage_done", "stage_screen", "StageMoves", "prior_sweep"]
+__all__ = ["move_stage", "scaled_rounds", "stage_screen", "StageMoves", "prior_sweep", "Staged", "ResampleMove",
+           "PathTarget"]
+#: Scaled moves stop when the particles' mean squared whitened travel reaches this fraction of 2 d.
+JUMP_TARGET, ECONOMY_JUMP_TARGET = 1.0, 0.5
+#: ``economy``: the scaled moves stop once this fraction of the particles has moved (at most ``moved_fraction``).
+ECONOMY_MOVED_FRACTION = 0.7
+#: Acceptance rate the scaled moves' local step aims at (Eq. 9 adapts its scale within a stage; Roberts et al. 1997).
+LOCAL_ACCEPTANCE = 0.234
 
 #: The prior's redraws' share of the global sweep in a tempering's first round (:func:`scaled_rounds` with
 #: ``resimulate``), and the bounds it adapts within.
@@ -43,49 +48,90 @@ class StageMoves:
     prior_share: float = float("nan")
 
 
-def stage_done(config, n_sweeps: int, position, start, alpha: float = float("nan"),
-               alpha_old: float = float("nan")) -> bool:
-    """Whether the sweeps of one stage stop: the schedule of SMC, SEMC and SMC^2's PMMH alike.
+@dataclass(frozen=True, eq=False)
+class Staged:
+    """The particles of an SMC/SEMC step between the stages of the tempering loop
+    (:func:`~seqbayes.core.tempering.temper`): the cloud, what the moves did so far, the prior's redraws' share
+    (:func:`scaled_rounds`) and whether the last stage resampled."""
 
-    At most ``max_moves`` (SMC) or ``max_virtual`` (SEMC) sweeps; before that, at least ``n_moves`` and until
-    ``moved_fraction`` of the particles have moved since ``start`` (every particle should have had a fair chance
-    to move, cf. PyMC's SMC), and for SEMC's stretch move until its acceptance rate ``alpha`` has settled
-    (Algorithm 2's virtual iterations: ``|alpha - alpha_old| < virtual_tolerance * alpha_tr``).
-
-    Parameters
-    ----------
-    n_sweeps : int
-        Sweeps done so far in the stage.
-    position, start : (N, d) arrays
-        The particles now and at the stage's start (in the moves' coordinates).
-    """
-    stretch = config.move == "stretch"
-    if n_sweeps >= (config.max_virtual if stretch else config.max_moves):
-        return True
-    if stretch and not abs(alpha - alpha_old) < config.virtual_tolerance * config.target_acceptance:
-        return False
-    if n_sweeps < config.n_moves:
-        return False
-    return config.moved_fraction == 0 or np.mean(np.any(position != start, axis=1)) >= config.moved_fraction
+    cloud: Cloud
+    moves: MoveTally
+    prior_share: float = PRIOR_SHARE
+    resampled: bool = False
 
 
-def move_stage(problem, config, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
-               kernel_density: bool = False, prior_moves=None, prior_share: float = PRIOR_SHARE,
-               path_states: int = 1):
-    """The sampler's MCMC move at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``).
+@dataclass(frozen=True)
+class PathTarget:
+    """How the scaled rounds move a target (:func:`move_stage`): ``kernel_density``, the independence proposal is
+    the kernel density at any dimension; ``prior_moves``, the target's prior when it can redraw part of a walker
+    given the rest; ``path_states``, the walkers are paths of that many states. The defaults: a state's target."""
 
-    With ``config.transform`` the move works in unconstrained coordinates
-    (:class:`~seqbayes.transforms.BoxTransform`, with the log-Jacobian as a third
+    kernel_density: bool = False
+    prior_moves: object = None
+    path_states: int = 1
+
+
+class ResampleMove:
+    """The particle predictives' mutation (:class:`~seqbayes.core.tempering.Mutation`): after each stage,
+    resample (always at an intermediate stage; at the last when the ESS is below ``resample_below * N`` and the
+    schedule does not defer it, IBIS's ``deferred``) and move (:func:`move_stage`) at every stage that resampled,
+    or at every stage with ``move_every_stage``, and with the moves' ``economy`` once more at the last stage of a tempered
+    step. ``stage_check(particles)`` is called with each intermediate stage's resampled particles; what it returns
+    (``None`` to go on) stops the loop. ``target``: as :func:`move_stage`."""
+
+    def __init__(self, problem, config, likelihood, prior_logpdf, move_every_stage: bool, deferred: bool, rng,
+                 target: PathTarget = PathTarget(), stage_check=None):
+        self.problem, self.config, self.likelihood, self.prior_logpdf = problem, config, likelihood, prior_logpdf
+        self.move_every_stage, self.deferred, self.rng, self.stage_check = move_every_stage, deferred, rng, stage_check
+        self.target = target
+
+    def __call__(self, staged: Staged, loglike, stage):
+        config, rng, beta = self.config, self.rng, stage.beta
+        cloud = staged.cloud
+        n = cloud.particles.shape[0]
+        particles, components, labels, log_weights = cloud.particles, cloud.components, cloud.labels, stage.log_weights
+        decision = None
+        resampled = beta < 1.0 or (stage.ess < config.tempering.resample_below * n and not self.deferred)
+        if resampled:
+            index = resample(config.tempering.scheme, stage.weights, rng, n)
+            particles, components = particles[index], components[index]
+            labels = None if labels is None else labels[index]   # copies keep their initial draw's label
+            log_weights = np.full(n, -np.log(n))
+            if self.stage_check is not None and beta < 1.0:
+                decision = self.stage_check(particles)
+        moves, prior_share = staged.moves, staged.prior_share
+        # economy: a tempered step's last moves are at the posterior itself (the intermediate stages' moves are cut short)
+        if decision is None and (resampled or self.move_every_stage
+                                 or (config.moves.economy and beta == 1.0 and stage.index > 1)):
+            components = self.prior_logpdf.refreshed(particles, components)  # a pseudo-marginal estimate gone poor
+            moved = move_stage(self.problem, config.moves, moves.step_size, particles, components, beta,
+                               self.prior_logpdf, rng, self.likelihood.loglike, prior_share, self.target)
+            particles, components, moves = moved.walkers, moved.components, moves.then(moved, config.moves)
+            prior_share = moved.prior_share  # the prior's redraws only lose ground as beta grows
+        staged = Staged(Cloud(particles, log_weights, components, labels), moves, prior_share, resampled)
+        return staged, components[:, 0], log_weights, decision
+
+
+def move_stage(problem, moves, state_step_size, walkers, components, beta, prior_logpdf, rng, loglike,
+               prior_share: float = PRIOR_SHARE, target: PathTarget = PathTarget()):
+    """The sampler's MCMC moves at one tempering stage, targeting ``L^beta p_s`` (``loglike`` is ``log L``): the
+    ``moves`` component's stage (:meth:`~seqbayes.moves.stretch.Stretch.stage`,
+    :meth:`~seqbayes.moves.gaussian.RandomWalk.stage`) or, for many parameters or with ``economy``, the scaled
+    rounds of :func:`scaled_rounds`.
+
+    With ``moves.transform`` the move works in unconstrained coordinates
+    (:class:`~seqbayes.priors.BoxTransform`, with the log-Jacobian as a third
     target component); walkers that do not move keep their exact coordinates.
-    ``kernel_density``: the scaled rounds' independence proposal is the kernel density at any dimension
-    (:func:`scaled_rounds`). ``prior_moves``: the target's prior, when it can redraw part of a walker given the
-    rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
+    ``target`` (:class:`PathTarget`): with ``kernel_density`` the scaled rounds' independence proposal is the kernel
+    density at any dimension (:func:`scaled_rounds`); ``prior_moves``, the target's prior, when it can redraw part
+    of a walker given the rest (``resimulate(theta (n, D), rng) -> (proposals (n, D), changed (n, D) bool)``, as
     :meth:`seqbayes.predictive.paths.PathPrior.resimulate`; ``prior_logpdf`` must be its exact log-density); the
     scaled rounds then mix in :func:`prior_sweep`, from ``prior_share`` (the last stage's
-    :attr:`StageMoves.prior_share`). ``path_states``: the walkers are paths of that many states, whose scaled
+    :attr:`StageMoves.prior_share`); ``path_states``, the walkers are paths of that many states, whose scaled
     rounds' local sweep moves a random suffix of each (:func:`scaled_rounds`). Returns a :class:`StageMoves`.
     """
-    transform = problem.transform if config.transform else None
+    kernel_density, prior_moves, path_states = target.kernel_density, target.prior_moves, target.path_states
+    transform = problem.transform if moves.transform else None
     if transform is None:
         position, support = walkers, problem.support if problem.bounded else None
         coefficients = np.array([beta, 1.0])
@@ -106,53 +152,20 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
             return out
 
     start = position
-    screening = Screening(stage_screen(config.surrogate, position, components, coefficients, beta, loglike,
-                                       None if transform is None else transform.inverse,
-                                       support if transform is None else None), config.surrogate == "auto")
-    if config.uses_scaled_moves(walkers.shape[1]):
+    if moves.uses_scaled(walkers.shape[1]):
         resimulate = None if prior_moves is None else _resimulation_fn(prior_moves, transform, problem.support)
         position, components, stats, n_virtual, prior_share = scaled_rounds(
-            config, position, components, component_fn, coefficients, support, rng, kernel_density, resimulate,
+            moves, position, components, component_fn, coefficients, support, rng, kernel_density, resimulate,
             prior_share, path_states)
-        step_size = state_step_size if config.move == "stretch" else float("nan")
-    elif config.move == "gaussian":
-        stats = SweepStats()
-        n_done = 0
-        while True:
-            move = GaussianMove(weighted_covariance(position), config.proposal_scale)
-            if screening.active():
-                position, components, sweep = screened_sweep(position, components, component_fn, coefficients, move,
-                                                             rng, support, screening.screen, halves=False)
-            else:
-                position, components, sweep = gaussian_sweep(position, components, component_fn, coefficients,
-                                                             move, rng, support)
-            screening.record(sweep)
-            stats = stats + sweep
-            n_done += 1
-            if stage_done(config, n_done, position, start):
-                break
-        step_size, n_virtual = float("nan"), 0
-    else:  # SEMC: Algorithm 2 lines 9-21, continuing the ensemble through the virtual iterations
-        step_size = state_step_size
-        alpha_old = config.target_acceptance
-        stats = SweepStats()
-        n_virtual = 0
-        while True:
-            if screening.active():
-                position, components, sweep = screened_sweep(position, components, component_fn, coefficients,
-                                                             StretchMove(step_size), rng, support, screening.screen,
-                                                             halves=True)
-            else:
-                position, components, sweep = stretch_sweep(position, components, component_fn, coefficients,
-                                                            StretchMove(step_size), rng, support)
-            screening.record(sweep)
-            n_virtual += 1
-            stats = stats + sweep
-            alpha = sweep.acceptance_rate
-            step_size = next_step_size(step_size, alpha, config.target_acceptance)  # Eq. (9)
-            if stage_done(config, n_virtual, position, start, alpha, alpha_old):
-                break
-            alpha_old = alpha
+        step_size = moves.step_size_after(state_step_size, float("nan"))
+    else:
+        screening = NoScreen() if moves.screen is None else Screening(
+            stage_screen(moves.screen, position, components, coefficients, beta, loglike,
+                         None if transform is None else transform.inverse, support if transform is None else None),
+            moves.screen == "auto")
+        position, components, stats, step_size, n_virtual = moves.stage(position, components, component_fn,
+                                                                         coefficients, support, rng, screening,
+                                                                         state_step_size)
     if transform is not None:
         moved = np.any(position != start, axis=1)
         walkers = walkers.copy()
@@ -165,7 +178,7 @@ def move_stage(problem, config, state_step_size, walkers, components, beta, prio
 
 
 def stage_screen(setting, position, components, coefficients, beta, loglike, to_theta, support):
-    """The cheap log target of one stage's delayed acceptance (``SamplerConfig.surrogate``), or ``None``.
+    """The cheap log target of one stage's delayed acceptance (:attr:`~seqbayes.moves.base.Moves.screen`), or ``None``.
 
     A quadratic fitted to the particles' log targets, or, for a callable ``surrogate(theta, dataset)``,
     ``beta`` times it plus the quadratic fitted to the other components (the prior's). ``None`` when the
@@ -245,9 +258,10 @@ def _global_sweep(position, components, component_fn, coefficients, gaussian, re
     return position, components, stats, share, prior_rate
 
 
-def scaled_rounds(config, position, components, component_fn, coefficients, support, rng,
+def scaled_rounds(moves, position, components, component_fn, coefficients, support, rng,
                   kernel_density: bool = False, resimulate=None, share: float = PRIOR_SHARE, path_states: int = 1):
-    """The moves of :mod:`seqbayes.moves.scaled` at one stage (``SamplerConfig.scaled_moves``).
+    """The moves of :mod:`seqbayes.moves.scaled` at one stage (:attr:`~seqbayes.moves.base.Moves.scaled`), with the
+    local move of the ``moves`` component (:meth:`~seqbayes.moves.stretch.Stretch.local_move`).
 
     Each round is an independence-MH sweep in which each half of the particles proposes from a density fitted to
     the other half (:func:`_complement_sweep`): ``N(mean, cov)`` above ``HIGH_DIMENSION``, or, up to it or with
@@ -298,10 +312,10 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
     # the global proposal, fitted afresh to the other half of the particles at each sweep (_complement_sweep): up to
     # d = 10 the importance density (kernel density + t), which follows a funnel, above it a Gaussian
     gaussian = d > HIGH_DIMENSION and not kernel_density
-    target = (ECONOMY_JUMP_TARGET if config.economy else JUMP_TARGET) * 2.0 * d
-    min_rounds = 1 if config.economy else config.n_moves
-    max_rounds = config.max_moves if config.move == "gaussian" else config.max_virtual
-    moved_fraction = min(config.moved_fraction, ECONOMY_MOVED_FRACTION) if config.economy else config.moved_fraction
+    target = (ECONOMY_JUMP_TARGET if moves.economy else JUMP_TARGET) * 2.0 * d
+    min_rounds = 1 if moves.economy else moves.min_sweeps
+    max_rounds = moves.max_sweeps
+    moved_fraction = min(moves.moved_fraction, ECONOMY_MOVED_FRACTION) if moves.economy else moves.moved_fraction
     scale, stats, travelled, n_rounds = 1.0, SweepStats(), np.zeros(n), 0
     local_rate = 1.0
     while n_rounds < max_rounds:
@@ -314,11 +328,7 @@ def scaled_rounds(config, position, components, component_fn, coefficients, supp
             position, components, sweep = prior_sweep(position, components, component_fn, coefficients, resimulate,
                                                       rng, support)
         else:
-            if config.move == "gaussian":
-                local = GaussianMove(fitted.cov, scale * 2.38 / np.sqrt(d))
-                sweep_fn = gaussian_sweep
-            else:
-                local, sweep_fn = DifferentialMove(scale), differential_sweep
+            local, sweep_fn = moves.local_move(fitted.cov, scale, d)
             if path_states > 1:
                 local = SuffixMove(local, path_states)
             position, components, sweep = sweep_fn(position, components, component_fn, coefficients, local, rng,

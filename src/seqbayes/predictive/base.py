@@ -1,45 +1,48 @@
-"""Which predictive prior a run uses, and the one a step goes through (:func:`predictive_for`)."""
+"""Which predictive prior a run uses (:class:`Auto`, :func:`resolve_predictive`); each component's ``predictive(state,
+problem, config)`` gives the one a step goes through."""
 
 from __future__ import annotations
 
-from ..engine.state import SamplerState
-from ..kernels import MarkovKernel
-from .history import ExactHistory
-from .smc2 import JointFirstStep, NestedPredictive, NestedState, nested_split
-from .transition import TransitionMixture
+from dataclasses import dataclass
 
-__all__ = ["resolve_predictive", "predictive_for"]
+from .history import History
+from .smc2 import SMC2, nested_split
+from .transition import Transition
 
-
-def resolve_predictive(method: str, kernel: MarkovKernel) -> str:
-    """The predictive construction to use: ``"auto"`` is ``"history"`` for a static kernel, ``"smc2"`` for
-    one with both static and drifting components, else ``"transition"`` (always for a kernel with jumps)."""
-    if kernel.has_jumps and method in ("auto", "smc2"):  # SMC^2's inner filters assume a Gaussian transition
-        if method == "smc2":
-            raise ValueError("predictive: 'smc2' does not support Jump components; use 'transition'")
-        return "transition"
-    if method == "auto":
-        return "history" if kernel.is_static else "smc2" if nested_split(kernel) is not None else "transition"
-    if method == "smc2" and nested_split(kernel) is None:
-        raise ValueError("predictive: 'smc2' needs a kernel of components with both Static and drifting ones")
-    if method == "history" and not kernel.is_static:
-        raise ValueError("predictive: 'history' (the exact prior p_0 x past likelihoods) needs a kernel whose "
-                         "every parameter is Static; with process noise use 'transition' or 'kde'")
-    return method
+__all__ = ["Auto", "resolve_predictive"]
 
 
-def predictive_for(state, problem, config):
-    """``(predictive, state)``: the predictive of the step after ``state`` (a
-    :class:`~seqbayes.engine.protocol.Predictive`) and the state it starts from.
+@dataclass(frozen=True)
+class Auto:
+    """The predictive the kernel calls for (the default, ``predictive=None``): ``history`` for a static kernel,
+    ``smc2`` for one with both static and drifting components (and no jumps), else ``transition``; each with its
+    own settings."""
 
-    SMC^2's first dataset with ``joint_first_step`` starts from a :class:`~seqbayes.engine.state.SamplerState`
-    over every parameter (:class:`~seqbayes.predictive.smc2.JointFirstStep`)."""
-    if isinstance(state, NestedState):
-        if state.step > 0 or not problem.inner_filter.joint_first_step:
-            return NestedPredictive(problem, config), state
-        joint = SamplerState(0, state.particles, state.log_weights, problem.prior, 0.0, state.step_size)
-        return JointFirstStep(problem, config, "joint"), joint
-    method = resolve_predictive(config.predictive, problem.kernel)
-    if method == "history":
-        return ExactHistory(problem, config, method), state
-    return TransitionMixture(problem, config, method), state
+    transition: Transition = Transition()
+    history: History = History()
+    smc2: SMC2 = SMC2()
+
+    def resolve(self, kernel):
+        if kernel.is_static:
+            return self.history
+        if not kernel.has_jumps and nested_split(kernel) is not None:
+            return self.smc2
+        return self.transition
+
+
+def resolve_predictive(predictive, kernel):
+    """The predictive component a run with ``kernel`` uses: ``predictive`` checked against it, or with ``None`` the
+    choice of :class:`Auto`.
+
+    Raises
+    ------
+    ValueError
+        The predictive does not apply to the kernel (SMC^2 without static and drifting components, the history
+        prior with process noise).
+    """
+    if predictive is None:
+        predictive = Auto()
+    if not hasattr(predictive, "resolve"):
+        raise TypeError(f"predictive: expected a predictive component (Transition(), History(), SMC2(), ...), got "
+                        f"{predictive!r}")
+    return predictive.resolve(kernel)

@@ -7,11 +7,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.protocol import ParticlePredictive
-from ..engine.stages import ExactPrior, rejuvenate_deferred
-from ..engine.state import MoveTally, kept_copy
+from ..core.likelihood import kept_copy
+from ..core.state import stored_as
+from ..moves.base import MoveTally
+from .evidence import PathEvidence
+from .particle import ExactPrior, ParticlePredictive, rejuvenate_deferred
 
-__all__ = ["HistoryPrior", "RunningStatistics", "ExactHistory"]
+__all__ = ["History", "HistoryPrior", "RunningStatistics", "ExactHistory"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +62,7 @@ class RunningStatistics:
         return {key: summary[key] + new[key] for key in summary}
 
 
+@stored_as("history", "state_log_prior", needs_datasets=True, dims={"state_log_prior": ("sample",)})
 @dataclass(frozen=True, eq=False)
 class HistoryPrior:
     """The exact prior of step ``s`` for static parameters: ``p_0(theta) prod_{k<s} L_k(theta) / Z_{1:s-1}``.
@@ -97,6 +100,18 @@ class HistoryPrior:
         summary = self.running.add(self.summary, kept) if self.running is not None else None
         return HistoryPrior(self.initial, self.datasets + (kept,), float(log_normaliser), self.running, summary)
 
+    def to_arrays(self, log_prior) -> dict:
+        """The run store's arrays: ``state_log_prior (N,)``, the prior's values at the particles (the density itself
+        is rebuilt from the initial prior and the datasets)."""
+        return {"state_log_prior": log_prior}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict):
+        """``(prior, log_prior)`` from :meth:`to_arrays` and ``context``: the ``initial_prior``, the ``datasets``
+        assimilated and the ``log_evidence`` after them."""
+        return (cls(context["initial_prior"], tuple(context["datasets"]), context["log_evidence"]),
+                np.array(arrays["state_log_prior"]))
+
     def logpdf(self, theta, loglike, summary_loglike=None) -> np.ndarray:
         """Log density at ``theta (m, d)``; returns ``(m,)``.
 
@@ -124,6 +139,37 @@ class HistoryPrior:
                 break
         return out
 
+@dataclass(frozen=True)
+class History:
+    """The exact prior of static parameters as each step's prior (the default when every parameter is static):
+    ``p_0 prod_{k<s} L_k / Z_{1:s-1}`` (:class:`HistoryPrior`, as IBIS).
+
+    Parameters
+    ----------
+    running : RunningStatistics, optional
+        The likelihood's additive statistics, so that the prior evaluates every past dataset in one call (a bounded
+        cost per update); without them each past dataset is evaluated anew.
+    """
+
+    running: RunningStatistics | None = None
+
+    method = "history"
+
+    def __post_init__(self):
+        if self.running is not None and not isinstance(self.running, RunningStatistics):
+            raise TypeError("running: expected a seqbayes.RunningStatistics(summarise, loglike)")
+
+    def resolve(self, kernel) -> "History":
+        """This predictive, checked against ``kernel`` (every parameter static)."""
+        if not kernel.is_static:
+            raise ValueError("predictive: History (the exact prior p_0 x past likelihoods) needs a kernel whose every "
+                             "parameter is Static; with process noise use Transition()")
+        return self
+
+    def predictive(self, state, problem, config):
+        return ExactHistory(problem, config, self.method), state
+
+
 class ExactHistory(ParticlePredictive):
     """The exact prior of static parameters as a step's predictive: the last posterior itself, its particles
     kept with their weights and their prior values (:class:`HistoryPrior`).
@@ -131,20 +177,21 @@ class ExactHistory(ParticlePredictive):
     IBIS's schedule: the particles are resampled and moved only when the ESS falls below ``ess_threshold``
     (a move re-evaluates every past dataset, so spacing the moves out as the posterior concentrates bounds
     the amortised cost per update); with ``move_every_stage=False`` that resample-move waits for the next
-    dataset (:func:`~seqbayes.engine.stages.rejuvenate_deferred`). A step that kept its particles takes its
+    dataset (:func:`~seqbayes.predictive.particle.rejuvenate_deferred`). A step that kept its particles takes its
     evidence from the weights, which are the exact prior's importance weights.
     """
 
     def __init__(self, problem, config, method: str = "history"):
         super().__init__(problem, config, method)
-        self.deferred = config.move_every_stage is False
+        self.deferred = config.moves.every_stage is False
 
     def exact_prior(self, state) -> bool:
         return isinstance(state.prior, HistoryPrior)  # the initial prior at the first step
 
     def moves_every_stage(self) -> bool:
-        """``SamplerConfig.move_every_stage``; when ``None``, False: moves only after a resampling."""
-        return False if self.config.move_every_stage is None else self.config.move_every_stage
+        """The moves' ``every_stage``; when ``None``, False: moves only after a resampling."""
+        every = self.config.moves.every_stage
+        return False if every is None else every
 
     def prior_logpdf(self, state, likelihood, rng):
         if self.exact_prior(state):
@@ -161,9 +208,9 @@ class ExactHistory(ParticlePredictive):
             state, self.problem, self.config, prior_logpdf, moves, rng)
         return particles, log_weights, log_prior, moves, rejuvenated, labels if rejuvenated else None
 
-    def uses_importance(self, moves) -> bool:
+    def evidence(self, moves):
         # a step that kept its particles needs no fitted proposal (which would re-evaluate the past, at O(s) cost)
-        return self.config.evidence == "importance" and moves.stats.n_proposed != 0
+        return self.config.evidence if moves.stats.n_proposed != 0 else PathEvidence()
 
     def next_prior(self, state, cloud, dataset, log_increment, log_evidence, rng):
         """This posterior, exactly: the particles and their weights are kept, with their prior values."""

@@ -9,7 +9,7 @@ import numpy as np
 from ..kernels import jump_posterior
 from ..priors import as_samples
 from ..weights import normalise
-from .ancestry import grouped_sums, label_groups
+from .mixture import grouped_sums, label_groups
 from .lineage import mixture_chain, posterior_labels
 from .mixture import GaussianMixture, MixtureSum, backward_masses
 
@@ -141,17 +141,17 @@ def jump_step_fields(kernel: MarkovKernel, prior, posterior, log_weights, labels
 
 def jump_fields(kernel: MarkovKernel, state, cloud, mixture_target: bool = True) -> dict:
     """:func:`jump_step_fields` of a step from ``state`` (its predictive prior ``state.prior``) whose posterior is
-    ``cloud`` (a :class:`~seqbayes.engine.state.Cloud` in the model's parameters), with every term of the se the state
+    ``cloud`` (a :class:`~seqbayes.core.state.Cloud` in the model's parameters), with every term of the se the state
     knows: the ancestors' labels and, where the ancestors are the last stored step's posterior drawn under its
     mixture prior (not a path-space step's), that prior and the window's chain of mixtures before it.
     ``mixture_target=False`` for a path-space step (:func:`jump_probability_se`)."""
     earlier = {}
-    last = state.window[-1] if state.window else None
+    last = state.memory.window[-1] if state.memory.window else None
     # a path-space posterior rests on its window's start, not on its mixture prior (negligible: docs/jump_kernels.md)
     if (last is not None and not last.path_space and isinstance(last.prior, (GaussianMixture, MixtureSum))
             and state.posterior is not None and np.array_equal(last.posterior, state.posterior)):
         earlier = dict(ancestors=state.posterior, earlier_prior=last.prior, earlier_labels=posterior_labels(state, 1),
-                       deeper=mixture_chain(state.window[:-1]))
+                       deeper=mixture_chain(state.memory.window[:-1]))
     return jump_step_fields(kernel, state.prior, cloud.particles, cloud.log_weights, cloud.labels,
                             posterior_labels(state), mixture_target=mixture_target, **earlier)
 

@@ -1,20 +1,20 @@
 """Ancestry of a step's posterior among the last posterior's particles: the exact transition's
-responsibilities, the particles' labels (:attr:`~seqbayes.engine.state.SamplerState.lineage`) and the
+responsibilities, the particles' labels (:attr:`~seqbayes.core.state.RemedyMemory.lineage`) and the
 parts of the evidence's standard error that come from them."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from .ancestry import AncestorSpread, grouped_ancestor_variance
+from .mixture import AncestorSpread, grouped_ancestor_variance
 from .mixture import GaussianMixture, MixtureSum, backward_masses
 
 __all__ = ["ancestor_draws", "ancestor_mass", "mass_spread", "ancestor_terms", "lineage_after", "posterior_labels",
-           "lagged_ancestor_variance", "mixture_chain"]
+           "lagged_ancestor_variance", "mixture_chain", "remedy_window", "variance_before"]
 
 
 def lineage_after(state, labels) -> np.ndarray:
-    """``(N, 2)`` :attr:`SamplerState.lineage` after a step whose posterior particles descend from the
+    """``(N, 2)`` :attr:`RemedyMemory.lineage` after a step whose posterior particles descend from the
     initial draws ``labels (N,)``: those, and the labels of the last posterior (distinct without lineage)."""
     labels = np.asarray(labels, dtype=np.intp)
     previous = posterior_labels(state)
@@ -24,13 +24,13 @@ def lineage_after(state, labels) -> np.ndarray:
 def posterior_labels(state, column=0):
     """Column ``column`` of ``state``'s lineage (0: the last posterior's labels, 1: the one's before), or
     ``None`` (every particle its own) without lineage of the posterior's size."""
-    if state.lineage is None or state.posterior is None or state.lineage.shape[0] != state.posterior.shape[0]:
+    if state.memory.lineage is None or state.posterior is None or state.memory.lineage.shape[0] != state.posterior.shape[0]:
         return None
-    return state.lineage[:, column]
+    return state.memory.lineage[:, column]
 
 
 def mass_spread(state, mass) -> AncestorSpread:
-    """The :class:`~seqbayes.predictive.ancestry.AncestorSpread` of the last posterior's particles from the mass ``a (N,)``
+    """The :class:`~seqbayes.predictive.mixture.AncestorSpread` of the last posterior's particles from the mass ``a (N,)``
     that this step's posterior gives them (the exact transition's responsibilities, :func:`ancestor_mass`)."""
     return AncestorSpread(float(1.0 / np.dot(mass, mass)),
                           grouped_ancestor_variance(mass, np.exp(state.posterior_log_weights), posterior_labels(state)),
@@ -39,7 +39,7 @@ def mass_spread(state, mass) -> AncestorSpread:
 
 def ancestor_terms(state, spread):
     """``(variance, covariance)`` of the step's increment error from the ancestors of :func:`step_standard_errors`:
-    the last posterior's (``spread``, an :class:`~seqbayes.predictive.ancestry.AncestorSpread` or None) and, through the
+    the last posterior's (``spread``, an :class:`~seqbayes.predictive.mixture.AncestorSpread` or None) and, through the
     mixture the last step used, the posterior's before (:meth:`GaussianMixture.backward_spread`)."""
     if spread is None:
         return float("nan"), 0.0
@@ -85,17 +85,17 @@ def lagged_ancestor_variance(state, spread, floor: float) -> float:
     float
     """
     total = spread.variance
-    if spread.mass is None or not state.window:
+    if spread.mass is None or not state.memory.window:
         return float(total)
     mass = np.stack([spread.mass, np.exp(state.posterior_log_weights)])
-    chain = mixture_chain(state.window)
-    since_path_step = state.window[-1 - len(chain)].path_space
+    chain = mixture_chain(state.memory.window)
+    since_path_step = state.memory.window[-1 - len(chain)].path_states > 0
     for lag, (prior, posterior) in enumerate(chain, 2):
         if posterior.shape[0] != mass.shape[1]:
             break
         mass = backward_masses(prior, posterior, mass)
         if since_path_step:
-            mass[1] = np.exp(state.window[-lag].log_weights)
+            mass[1] = np.exp(state.memory.window[-lag].log_weights)
         term = float(np.sum((mass[0] - mass[1]) ** 2))
         total += term
         if term < floor:
@@ -109,7 +109,7 @@ def mixture_chain(window) -> list:
     prior that is not a mixture (the first step's) or a change of N."""
     out = []
     for later, earlier in zip(window[:0:-1], window[-2::-1]):
-        if (later.path_space or not isinstance(later.prior, (GaussianMixture, MixtureSum))
+        if (later.path_states > 0 or not isinstance(later.prior, (GaussianMixture, MixtureSum))
                 or earlier.posterior.shape[0] != later.posterior.shape[0]):
             break
         out.append((later.prior, later.posterior))
@@ -171,3 +171,31 @@ def ancestor_mass(kernel, later, earlier, earlier_log_weights, rng=None, later_l
             r /= np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
             mass += np.exp(later_log_weights[start:start + b]) @ r
     return index, mass
+
+
+def remedy_window(window: tuple, remedy_lag: int) -> tuple:
+    """The past steps that the next path-space step's window takes: the last ``remedy_lag - 1``, or back to
+    the first step of the last path-space step's window, while that is stored and the path at most
+    ``2 remedy_lag`` states long.
+
+    A path-space step replaces the cumulative evidence from its window's first step on by its own estimate,
+    ``log Z_hat_{1:w-1} + log Z_hat_{w:s}``. A later window that starts inside it rests instead on the
+    mixture prior over a filtered cloud that the new data tilt (and on the increments the earlier step
+    superseded), whose error it brings back; consecutive remedies therefore share the earlier step's
+    first prior (docs/jump_kernels.md, "The window's first prior").
+    """
+    keep = remedy_lag - 1
+    for back, past in enumerate(reversed(window)):
+        if past.path_states:
+            anchored = back + past.path_states  # entries from that step's window start to the last one
+            if keep < anchored <= len(window) and anchored <= 2 * remedy_lag - 1:
+                keep = anchored
+            break
+    return window[-keep:]
+
+
+def variance_before(state) -> float:
+    """:attr:`PastStep.log_evidence_variance` of the step after ``state``: its cumulative variance, as the square of
+    the se the last record reports, which is what a restored run rebuilds it from (:mod:`seqbayes.store.snapshot`), so that
+    resumed runs stay bit-identical."""
+    return float(np.sqrt(state.log_evidence_variance)) ** 2

@@ -39,21 +39,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from ..gaussian_sum import TruncatedSum
+from ..core.state import stored_as
+from ..moves.proposals import TREE_MIN_CENTRES, KernelMixture, silverman_bandwidth, weighted_moments
 from ..priors import as_samples
 from ..weights import logsumexp, normalise
-from .ancestry import AncestorSpread, grouped_sums, label_groups
 
 __all__ = ["GaussianMixture", "MixtureSum", "silverman_bandwidth", "predictive_density", "systematic_selection",
-           "backward_masses"]
+           "backward_masses", "AncestorSpread", "grouped_ancestor_variance",
+           "grouped_sums", "label_groups"]
 
-
-#: Largest block of the (queries x centres) matrix held at once, in floats (~64 MB).
-_BLOCK_FLOATS = 8_000_000
-
-#: From this many centres on, a mixture is evaluated with a k-d tree where that saves work
-#: (:mod:`seqbayes.gaussian_sum`); below, every pair is summed (as fast, and bit for bit as before).
-_TREE_MIN_CENTRES = 4096
 
 #: From this many centres on, :meth:`GaussianMixture.ancestor_ess` is estimated from this many rows
 #: (``O(rows x N)`` instead of ``O(N^2)``); below, every row is used (bit for bit as before).
@@ -69,41 +63,95 @@ _BACKWARD_ROWS = 2048
 _GOLDEN = 0.6180339887498949
 
 
-def _weighted_moments(samples, log_weights):
-    w = np.exp(normalise(log_weights))
-    mean = w @ samples
-    var = w @ (samples - mean) ** 2
-    n_eff = 1.0 / np.sum(w**2)
-    return mean, var, n_eff
+def label_groups(labels, n):
+    """The ``(n, G)`` 0/1 membership matrix (sparse) of the ``G`` distinct ``labels (n,)`` and each column's group
+    index; ``None`` for ``labels=None`` or ``n`` distinct labels (every column its own group)."""
+    if labels is None:
+        return None
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or labels.dtype.kind not in "iu" or (n and labels.min() < 0):
+        raise ValueError(f"labels: expected ({n},) non-negative integers, got shape {labels.shape}, dtype {labels.dtype}")
+    _, inverse = np.unique(labels, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    n_groups = int(inverse.max()) + 1 if n else 0
+    if n_groups == n:
+        return None
+    return sparse.csr_matrix((np.ones(n), (np.arange(n), inverse)), shape=(n, n_groups)), inverse, n_groups
 
 
-def silverman_bandwidth(samples: ArrayLike, log_weights: ArrayLike | None = None) -> np.ndarray:
-    """Per-dimension Silverman bandwidth of Eq. (A10): ``sigma_j (4 / (N (d + 2)))^(1/(d + 4))``.
+def grouped_sums(values, groups):
+    """Sums of ``values`` (``(n,)`` or ``(k, n)``) over the groups of :func:`label_groups` along the last axis."""
+    if groups is None:
+        return values
+    membership, inverse, n_groups = groups
+    if values.ndim == 1:
+        return np.bincount(inverse, weights=values, minlength=n_groups)
+    # dense (k, n) @ sparse (n, G): ~10x faster than (membership.T @ values.T).T, which copies the transpose
+    return np.asarray(values @ membership.astype(values.dtype, copy=False))
 
-    With weights, ``N`` is the effective sample size and ``sigma_j`` the weighted std.
-    A dimension with zero spread gets a tiny positive width (``1e-9 (1 + |mean|)``)
-    so that the density stays finite.
+
+def grouped_ancestor_variance(mass: np.ndarray, weights: np.ndarray, labels: np.ndarray | None = None) -> float:
+    """``sum_e (A_e - V_e)^2``: the relative variance of the evidence carried by dependent ancestors.
+
+    ``A_e = sum_{j: labels_j = e} mass_j`` is the later posterior's mass on the ancestors labelled ``e``
+    and ``V_e`` their weight (both sum to one). The label of an ancestor is the index of the initial draw
+    it descends from (:attr:`~seqbayes.core.state.RemedyMemory.lineage`), so ancestors that resampling
+    copied from one draw form one group (Chan & Lai 2013; Lee & Whiteley 2018). With distinct labels it
+    is ``sum_j (mass_j - W_j)^2``, ``1 / ESS_a - 1 / N`` for equal weights.
 
     Parameters
     ----------
-    samples : (N, d) array
-    log_weights : (N,) array, optional
+    mass, weights : (N,) arrays
+    labels : (N,) int array, optional
+        Distinct if omitted.
 
     Returns
     -------
-    (d,) array
+    float
+
+    Examples
+    --------
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25)), 12)
+    0.13
+    >>> round(grouped_ancestor_variance(np.array([0.5, 0.3, 0.2, 0.0]), np.full(4, 0.25), np.array([0, 0, 1, 1])), 12)
+    0.18
     """
-    samples = as_samples(samples, name="samples")
-    n, d = samples.shape
-    log_weights = np.zeros(n) if log_weights is None else np.asarray(log_weights, dtype=float)
-    mean, var, n_eff = _weighted_moments(samples, log_weights)
-    h = np.sqrt(var) * (4.0 / (n_eff * (d + 2))) ** (1.0 / (d + 4))  # Eq. (A10)
-    return np.maximum(h, 1e-9 * (1.0 + np.abs(mean)))
+    mass, weights = np.asarray(mass, dtype=float), np.asarray(weights, dtype=float)
+    groups = label_groups(labels, mass.shape[0])
+    difference = grouped_sums(mass, groups) - grouped_sums(weights, groups)
+    return float(np.dot(difference, difference))
 
 
 @dataclass(frozen=True, eq=False)
-class GaussianMixture:
-    """``sum_i W_i N(theta; centres_i, diag(bandwidth^2))``.
+class AncestorSpread:
+    """How a later posterior spreads over a mixture's components (:meth:`GaussianMixture.ancestor_spread`).
+
+    Attributes
+    ----------
+    ess : float
+        ``1 / sum_i a_i^2``, ``a_i`` the later posterior's mass on component ``i``.
+    variance : float
+        ``sum_e (A_e - V_e)^2`` over the components' labels (:func:`grouped_ancestor_variance`).
+    mass : (N,) array or None
+        ``a`` itself, when every row was summed.
+    draws : (K,) int array or None
+        Else one component per selected row, drawn (stratified, no random draw) from its
+        responsibilities: ``a`` is their empirical distribution in expectation.
+    """
+
+    ess: float
+    variance: float
+    mass: np.ndarray | None = None
+    draws: np.ndarray | None = None
+
+
+@stored_as("mixture", "mixture_", dims={"mixture_centres": ("sample", "parameter"), "mixture_bandwidth": ("parameter",),
+                                        "mixture_log_weights": ("sample",)})
+@dataclass(frozen=True, eq=False)
+class GaussianMixture(KernelMixture):
+    """``sum_i W_i N(theta; centres_i, diag(bandwidth^2))`` as the predictive prior of Eq. (A3): the density and
+    draws of :class:`~seqbayes.moves.proposals.KernelMixture`, and how the components carry a weighted cloud (its
+    ancestors, for the evidence's standard error and the conflict remedy).
 
     Parameters
     ----------
@@ -113,84 +161,23 @@ class GaussianMixture:
         Unnormalised log mixture weights (equal if omitted).
     """
 
-    centres: np.ndarray
-    bandwidth: np.ndarray
-    log_weights: np.ndarray | None = None
+    def to_arrays(self, log_prior=None) -> dict:
+        """The run store's arrays: ``mixture_centres (N, d)``, ``mixture_bandwidth (d,)``, ``mixture_log_weights (N,)``."""
+        return {"mixture_centres": self.centres, "mixture_bandwidth": self.bandwidth,
+                "mixture_log_weights": self.log_weights}
 
-    def __post_init__(self):
-        centres = as_samples(self.centres, name="centres")
-        bandwidth = np.asarray(self.bandwidth, dtype=float)
-        if bandwidth.shape != (centres.shape[1],) or not np.all(bandwidth > 0):
-            raise ValueError(f"bandwidth: expected {centres.shape[1]} positive widths, got {self.bandwidth!r}")
-        n = centres.shape[0]
-        log_w = np.full(n, -np.log(n)) if self.log_weights is None else normalise(self.log_weights)
-        if log_w.shape != (n,):
-            raise ValueError(f"log_weights: expected shape ({n},), got {log_w.shape}")
-        object.__setattr__(self, "centres", centres)
-        object.__setattr__(self, "bandwidth", bandwidth)
-        object.__setattr__(self, "log_weights", log_w)
-        # evaluation cache: centres in bandwidth units about their mean, in single precision
-        shift = centres.mean(axis=0)
-        scaled = (centres - shift) / bandwidth
-        object.__setattr__(self, "_shift", shift)
-        object.__setattr__(self, "_scaled_centres", np.ascontiguousarray(scaled.T, dtype=np.float32))
-        object.__setattr__(self, "_offset", (log_w - 0.5 * np.einsum("ij,ij->i", scaled, scaled)).astype(np.float32))
-        object.__setattr__(self, "_const", -np.sum(np.log(bandwidth)) - 0.5 * centres.shape[1] * np.log(2.0 * np.pi))
-        # centres within ~2.5 bandwidths of their mean on every axis: the truncation radius (~10 bandwidths,
-        # gaussian_sum) holds them all, so no tree can save work (a tree only adds cost there)
-        object.__setattr__(self, "_compact", bool(np.all(scaled.std(axis=0) < 2.5)))
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict | None = None):
+        """``(mixture, None)`` from :meth:`to_arrays`, the stored normalised weights kept bit for bit (normalising
+        twice may move the last ulp)."""
+        return cls.exact(arrays["mixture_centres"], arrays["mixture_bandwidth"], arrays["mixture_log_weights"]), None
 
-    @property
-    def dim(self) -> int:
-        return self.centres.shape[1]
-
-    def logpdf(self, theta: np.ndarray) -> np.ndarray:
-        """Log density at ``theta (m, d)``, returns ``(m,)``; memory ``O(block x N)``.
-
-        Below ``_TREE_MIN_CENTRES`` centres every pair is summed (:meth:`_dense_logsum`). With more,
-        the sum is truncated with a k-d tree (:class:`~seqbayes.gaussian_sum.TruncatedSum`: the
-        dropped terms add up to less than ``e^-40`` of the kept sum, so it is the all-pairs value to
-        rounding) wherever that saves work, i.e. where the bandwidth is narrow against the spread
-        of the centres; elsewhere every pair is summed.
-        """
-        theta = as_samples(theta, self.dim)
-        x = (theta - self._shift) / self.bandwidth  # centring keeps the expansion below accurate
-        if self.centres.shape[0] < _TREE_MIN_CENTRES or self._compact:
-            return self._dense_logsum(x) + self._const
-        truncated = self.__dict__.get("_truncated")
-        if truncated is None:  # built on first use: a mixture that is only sampled never needs it
-            truncated = TruncatedSum((self.centres - self._shift) / self.bandwidth, self.log_weights)
-            object.__setattr__(self, "_truncated", truncated)
-        return truncated(x, self._dense_logsum) + self._const
-
-    def _dense_logsum(self, x) -> np.ndarray:
-        """``log sum_i W_i exp(-|x - c_i|^2 / 2)`` over every centre, ``x (m, d)`` centred and in bandwidth units.
-
-        The ``(m, N)`` exponent block is formed and exponentiated in single precision
-        (2.3x faster than double): the log-density error is ~1e-6 near the bulk of the
-        mixture and grows only where the density is negligible.
-        """
-        # log sum_i W_i exp(-|x - c_i|^2 / 2) = -|x|^2 / 2 + log sum_i exp(x.c_i - |c_i|^2 / 2 + log W_i)
-        out = np.empty(x.shape[0])
-        for rows, xb, scaled, peak in self._scaled_terms(x, np.float32):
-            out[rows] = (np.log(scaled.sum(axis=1, dtype=np.float64)) + peak[:, 0]
-                         - 0.5 * np.einsum("ij,ij->i", xb, xb))
-        return out
-
-    def _scaled_terms(self, x, dtype):
-        """Blocks of the mixture's terms at ``x (m, d)`` (centred, in bandwidth units), memory ``O(block x N)``:
-        yields ``(rows, x[rows], exp(e - peak), peak)`` with ``e_ki = x_k.c_i - |c_i|^2 / 2 + log W_i`` in
-        ``dtype`` and ``peak (b, 1)`` its row maximum; never N x N x d."""
-        centres = self._scaled_centres if dtype == np.float32 else self._scaled_centres.astype(dtype)
-        block = max(1, _BLOCK_FLOATS // max(1, self.centres.shape[0]))
-        for start in range(0, x.shape[0], block):
-            xb = x[start:start + block]
-            exponent = xb.astype(dtype) @ centres
-            exponent += self._offset
-            peak = exponent.max(axis=1, keepdims=True)
-            exponent -= peak
-            np.exp(exponent, out=exponent)
-            yield slice(start, start + xb.shape[0]), xb, exponent, peak
+    @classmethod
+    def exact(cls, centres, bandwidth, log_weights) -> "GaussianMixture":
+        """The mixture with these normalised ``log_weights`` as they are."""
+        mixture = cls(np.array(centres), np.array(bandwidth), log_weights)
+        object.__setattr__(mixture, "log_weights", np.array(log_weights, dtype=float))
+        return mixture
 
     def ancestor_ess(self, theta: np.ndarray, log_weights: np.ndarray | None = None) -> float:
         """How many components carry the weighted points ``theta (m, d)``: ``1 / sum_i a_i^2``.
@@ -220,9 +207,9 @@ class GaussianMixture:
         ``A_e = sum_{i: labels_i = e} a_i`` and ``V_e = sum_{i: labels_i = e} W_i`` (the components'
         weights): :func:`grouped_ancestor_variance`, the relative variance of the evidence that the
         components carry when components with one label are dependent (copies of one draw,
-        :attr:`~seqbayes.engine.state.SamplerState.lineage`; :func:`~seqbayes.engine.evidence.step_standard_errors`).
+        :attr:`~seqbayes.core.state.RemedyMemory.lineage`; :func:`~seqbayes.predictive.evidence.step_standard_errors`).
 
-        With fewer than ``_TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
+        With fewer than ``TREE_MIN_CENTRES`` (4096) centres or points every row is summed, ``O(m N)``
         in blocks. With more, ``K = _ANCESTOR_ROWS`` (512) rows ``k_1..k_K`` are selected with
         probabilities ``v`` (systematic selection, fixed offset 1/2: no random draw) and
         ``sum_i a_i^2 = E[r_k . r_k']`` (``k, k'`` independent draws of ``v``) is estimated by the
@@ -252,7 +239,7 @@ class GaussianMixture:
         v = np.full(m, 1.0 / m) if log_weights is None else np.exp(normalise(log_weights))
         weight = grouped_sums(np.exp(self.log_weights), groups)                     # V_e
         x = (theta - self._shift) / self.bandwidth
-        if min(m, n) >= _TREE_MIN_CENTRES:
+        if min(m, n) >= TREE_MIN_CENTRES:
             cumulative = np.cumsum(v)
             cumulative[-1] = 1.0
             rows = np.searchsorted(cumulative, (np.arange(_ANCESTOR_ROWS) + 0.5) / _ANCESTOR_ROWS)
@@ -539,16 +526,6 @@ class GaussianMixture:
             behind = behind[(cumulative[flat[behind]] <= values[behind]) & (flat[behind] < n - 1)]
         return position
 
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` draws, shape ``(n, d)``."""
-        index = rng.choice(self.centres.shape[0], size=int(n), p=np.exp(self.log_weights))
-        return self.centres[index] + rng.standard_normal((int(n), self.dim)) * self.bandwidth
-
-    def draw_one_per_component(self, rng: np.random.Generator) -> np.ndarray:
-        """One draw from each component, ``(N, d)``: a stratified draw of the mixture."""
-        return self.centres + rng.standard_normal(self.centres.shape) * self.bandwidth
-
-
 #: Share of the ancestor proposal that follows the clusters' approximate contributions at theta (the rest
 #: draws clusters by their weights: a defensive mixture, so no one-term weight exceeds 10 x its W-draw's).
 _CLUSTER_SHARE = 0.9
@@ -578,6 +555,10 @@ def systematic_selection(log_weights, k):
     return np.searchsorted(cumulative, (np.arange(k) + 0.5) / k)
 
 
+@stored_as("mixture_sum", "mixsum_", dims={"mixsum_centres": ("branch", "sample", "parameter"),
+                                           "mixsum_bandwidth": ("branch", "parameter"),
+                                           "mixsum_component_log_weights": ("branch", "sample"),
+                                           "mixsum_log_weights": ("branch",)})
 @dataclass(frozen=True, eq=False)
 class MixtureSum:
     """``sum_c V_c p_c(theta)``: a weighted sum of :class:`GaussianMixture` s over the same ancestors.
@@ -616,6 +597,23 @@ class MixtureSum:
     @property
     def dim(self) -> int:
         return self.mixtures[0].dim
+
+    def to_arrays(self, log_prior=None) -> dict:
+        """The run store's arrays: ``mixsum_centres (C, N, d)``, ``mixsum_bandwidth (C, d)``,
+        ``mixsum_component_log_weights (C, N)``, ``mixsum_log_weights (C,)``."""
+        return {"mixsum_centres": np.stack([m.centres for m in self.mixtures]),
+                "mixsum_bandwidth": np.stack([m.bandwidth for m in self.mixtures]),
+                "mixsum_component_log_weights": np.stack([m.log_weights for m in self.mixtures]),
+                "mixsum_log_weights": self.log_weights}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, context: dict | None = None):
+        """``(prior, None)`` from :meth:`to_arrays`, the stored weights kept bit for bit."""
+        mixtures = tuple(GaussianMixture.exact(c, h, w) for c, h, w in zip(
+            arrays["mixsum_centres"], arrays["mixsum_bandwidth"], arrays["mixsum_component_log_weights"]))
+        prior = cls(mixtures, arrays["mixsum_log_weights"])
+        object.__setattr__(prior, "log_weights", np.array(arrays["mixsum_log_weights"], dtype=float))
+        return prior, None
 
     def component_logpdfs(self, theta: np.ndarray) -> np.ndarray:
         """``log V_c + log p_c(theta)`` for each branch, ``(m, d) -> (m, C)``."""
@@ -716,7 +714,7 @@ def predictive_density(posterior: np.ndarray, log_weights: np.ndarray, kernel: M
     if static.any():
         h = silverman_bandwidth(centres[:, static], log_weights)
         if shrink_static:  # Liu & West (2001): a = sqrt(1 - h^2 / sigma^2) keeps mean and variance
-            mean, var, _ = _weighted_moments(centres[:, static], log_weights)
+            mean, var, _ = weighted_moments(centres[:, static], log_weights)
             a = np.sqrt(np.clip(1.0 - h**2 / np.maximum(var, 1e-300), 0.0, 1.0))
             centres[:, static] = mean + a * (centres[:, static] - mean)
         bandwidth[static] = h

@@ -1,5 +1,6 @@
-"""The path-space remedy for prior-data conflict: a step assimilated on the joint posterior of the last
-``L`` states, whose target is the model's exact one (:class:`PathSpace`; docs/prior_data_conflict.md)."""
+"""The path-space step of the conflict remedy (:class:`~seqbayes.predictive.transition.PathSpace`): a step assimilated
+on the joint posterior of the last ``L`` states, whose target is the model's exact one (:class:`PathStep`;
+docs/prior_data_conflict.md)."""
 
 from __future__ import annotations
 
@@ -7,37 +8,36 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..engine.errors import TemperingLimitError, ZeroLikelihoodError
-from ..engine.evidence import estimate_increment, step_standard_errors
-from ..engine.stages import ExactPrior, restricted_draws, step_conflict, temper_resample_move
-from ..engine.state import (Cloud, Estimate, MoveTally, Outcome, PastStep, Problem, SamplerState, Tempered, Weighed,
-                            kept_copy, remedy_window, variance_before)
+from ..core.likelihood import kept_copy
+from ..core.state import (Cloud, Estimate, Failure, Outcome, PastStep, Problem, Reassimilate, RemedyMemory, SamplerState,
+                          Tempered, Weighed)
+from ..moves.base import MoveTally
 from ..kernels import MarkovKernel
+from ..moves.schedule import PathTarget, ResampleMove
 from ..priors import as_samples, inside_space
-from ..resampling import resample
+from ..weights import resample
+from ..results import ConflictInfo, EvidenceInfo, JumpInfo
 from ..weights import logsumexp
 from .jumps import jump_fields
-from .lineage import ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread
+from .evidence import step_standard_errors
+from .lineage import (ancestor_draws, ancestor_mass, ancestor_terms, lineage_after, mass_spread, remedy_window,
+                      variance_before)
 from .mixture import GaussianMixture
+from .particle import ExactPrior, restricted_draws, step_conflict, temper_stages
 
-__all__ = ["PathSpace", "remedy_applies", "PathPrior", "path_prior_logpdf"]
-
-
-def remedy_applies(config, method, kernel) -> bool:
-    """The path-space remedy needs a transition density in every parameter (no static ones)."""
-    return config.conflict_remedy and method in ("transition", "kde") and not kernel.static_mask.any()
+__all__ = ["PathStep", "PathPrior", "path_prior_logpdf"]
 
 
 def _start_paths(state, kernel, length, rng):
     """``(N, length, d)`` paths over the window's steps ending at the posterior particles: the last
     path-space step's paths where kept, extended backwards by drawing ancestors (backward simulation
     with the exact transition) among the window's stored posteriors."""
-    window = state.window[-length:]
+    window = state.memory.window[-length:]
     n, d = state.posterior.shape
     paths = np.empty((n, length, d))
-    known = 0 if state.paths is None else min(length, state.paths.shape[1])
+    known = 0 if state.memory.paths is None else min(length, state.memory.paths.shape[1])
     if known:
-        paths[:, length - known:] = state.paths[:, -known:]
+        paths[:, length - known:] = state.memory.paths[:, -known:]
     else:
         paths[:, -1] = state.posterior
         known = 1
@@ -79,7 +79,7 @@ def path_prior_logpdf(window, kernel, likelihood, dim, memos=None):
     The window's first state has the prior its step used (exact from step 1 on), every later one
     the exact transition, every past state its dataset's likelihood; the log of the window's evidence
     ``sum_t log Z_t`` normalises it (the importance-sampling evidence needs a normalised prior).
-    ``memos``: one :class:`~seqbayes.engine.likelihood.StateMemo` per past dataset, which keeps each state's
+    ``memos``: one :class:`~seqbayes.core.likelihood.StateMemo` per past dataset, which keeps each state's
     likelihood (a move of a path's suffix keeps the earlier states)."""
     normaliser = sum(past.log_evidence_increment for past in window)
 
@@ -154,9 +154,9 @@ def _bridged_standard_errors(state, window, cloud, n, evidence_ess, d):
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-class PathSpace:
+class PathStep:
     """The exact remedy for prior-data conflict: the step assimilated on the path space (a predictive of
-    :class:`~seqbayes.engine.protocol.Predictive`, for one step).
+    :class:`~seqbayes.predictive.particle.Predictive`, for one step).
 
     The predictive mixture ``sum_j W_j T(theta | theta_j)`` is exact only where the previous
     posterior's particles are: a posterior that lies several predictive sds out is made of that
@@ -179,7 +179,7 @@ class PathSpace:
     density as the independence proposal, a local sweep on random path suffixes
     (:class:`~seqbayes.moves.scaled.SuffixMove`) and, in the bridge, redraws of path suffixes from the path prior:
     :meth:`PathPrior.resimulate`), which carry the earlier states into the tails the data call for. The evidence
-    increment is Eq. (1) or the importance estimate of :mod:`seqbayes.engine.evidence` on the path space. Every
+    increment is Eq. (1) or the importance estimate of :mod:`seqbayes.predictive.evidence` on the path space. Every
     likelihood of the window goes through one memo per dataset, so a move costs one likelihood call per state it
     changes. The record has ``StepInfo.path_steps = L``.
 
@@ -199,10 +199,10 @@ class PathSpace:
         problem, config = mixture.problem, mixture.config
         self.state, self.dataset, self.mixture, self.bridge, self.problem = state, dataset, mixture, bridge, problem
         kernel, d = problem.kernel, problem.kernel.dim
-        self.window = remedy_window(state.window, config.remedy_lag)
+        self.window = remedy_window(state.memory.window, config.remedy.lag)
         self.length = length = len(self.window)
         self.path_problem = Problem(problem.prior, kernel, problem.loglike, np.tile(problem.support, (length + 1, 1)),
-                                    problem.executor, problem.n_chunks)
+                                    problem.executor)
         self.path_likelihood = likelihood.of_last_state(d)
         # the bridge's likelihood of every state of the window, each state's value kept: a redraw of a path's suffix
         # from the path prior, or a local move of it, keeps the earlier states, whose likelihoods are not computed
@@ -212,60 +212,66 @@ class PathSpace:
         self.prior_logpdf = ExactPrior(path_prior_logpdf(self.window, kernel, likelihood, d,
                                                          self.window_likelihood.memos[:-1]))
         self.path_prior = PathPrior(self.window[0].prior, kernel, length + 1, d)  # the bridge's start and redraws
-        # the evidence's moves follow the model's d, not the path's (L + 1) d (SamplerConfig.scaled_moves)
-        self.config = replace(config, scaled_moves=config.uses_scaled_moves(d))
+        # the evidence's moves follow the model's d, not the path's (L + 1) d (Moves.scaled)
+        moves, importance = config.moves, config.evidence.importance
+        self.config = replace(config, moves=replace(moves, scaled=moves.uses_scaled(d)))
         # the path's moves are the scaled rounds (an independence sweep from the kernel density fitted to the stage's
         # particles, then a local sweep), stopped once the particles' whitened travel amounts to an independent
         # draw: a random walk on (L + 1) d dimensions decorrelates only in O(L) sweeps of N (L + 1) calls each. At
-        # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md,
-        # "Oscillator at 300,000 evaluations"). With the importance evidence they stop as economy's do (half the
-        # travel, 70 % moved): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
+        # most as many sweeps as the random walk's minimum before, 4 (L + 1) up to 30 (docs/benchmarks.md, the
+        # oscillator's path-space section). With the importance evidence they stop as economy's do (half the
+        # travel, 70 % moved; comment-ok: the stopping rule): the stages only carry the cloud to the posterior, where the importance sweeps' 2 (L + 1)
         # exact independence sweeps from the pooled fit decorrelate it; the path's evidence has no such sweeps
-        rounds = max(1, min(config.max_moves, config.max_virtual, 4 * (length + 1)) // 2)
-        self.path_config = replace(self.config, scaled_moves=True, n_moves=1, max_moves=rounds, max_virtual=rounds,
-                                   economy=config.economy or config.evidence == "importance")
+        rounds = max(1, min(moves.max_sweeps, 4 * (length + 1)) // 2)
+        self.path_config = replace(config, moves=replace(moves, scaled=True, min_sweeps=1, max_sweeps=rounds,
+                                                         economy=moves.economy or importance))
         # with the importance evidence the bridge and the stored paths' start are two independent starts of half the
         # particles each, whose union the importance sweeps start from (pooled_start draws N from it): the second
         # start guards the first against a lost or misweighed mode, for which half of N is enough, not a second N
-        self.pooled = bridge and config.evidence == "importance"
+        self.pooled = bridge and importance
         self.start_size = max(config.n_samples // 2, 1) if self.pooled else config.n_samples
-        self.start_config = replace(self.path_config, n_samples=self.start_size)
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         return None
 
-    def weigh(self, state, dataset, likelihood, rng) -> Weighed:
+    def weigh(self, state, dataset, likelihood, rng) -> Weighed | Failure:
         moves = MoveTally(step_size=state.step_size)
         return self._bridge_weigh(likelihood, moves, rng) if self.bridge else self._stored_weigh(moves, rng)
 
-    def temper(self, weighed, likelihood, rng) -> Tempered:
+    def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure:
         return self._bridge_temper(weighed, likelihood, rng) if self.bridge else self._stored_temper(weighed, rng)
 
-    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
+    def estimate(self, tempered, weighed, likelihood, rng) -> Estimate | Failure:
         other, moves = None, tempered.moves
         if self.pooled:
             # a second cloud of the same target, pooled with the bridge's: the stored paths hold the modes the
             # previous particles held, which the bridge's tempering can lose; where they cannot carry the step,
             # a second bridge, as a bridge's tempering can also end trapped in a minor mode
-            try:
-                second = self._stored_temper(self._stored_weigh(moves, rng), rng)
-            except (ZeroLikelihoodError, TemperingLimitError):
-                second = self._bridge_temper(self._bridge_weigh(likelihood, moves, rng), likelihood, rng)
+            second = self._stored_weigh(moves, rng)
+            if not isinstance(second, Failure):
+                second = self._stored_temper(second, rng)
+            if isinstance(second, Failure):
+                second = self._bridge_weigh(likelihood, moves, rng)
+                if not isinstance(second, Failure):
+                    second = self._bridge_temper(second, likelihood, rng)
+            if isinstance(second, Failure):
+                return second
             other, moves = second.cloud, second.moves
         # at least 2 (L + 1) independence sweeps per fit, as the moves: fewer leave a transient through the
         # path's earlier states; every sweep's draws enter the estimate, whose fit on the path space has an ESS
         # below the refit threshold per sweep where all of them together are well above it. Four times the refits:
         # where both starts missed the posterior (small N, a drift towards the box's edge) each refit's sweeps carry
         # the cloud further towards it, and five left the estimate tens of nats short (docs/benchmarks.md)
-        config = replace(self.config, n_independent=max(self.config.n_independent, 2 * (self.length + 1)),
-                         max_refits=4 * self.config.max_refits)
-        importance = self.config.evidence == "importance"
+        config, evidence = self.config, self.config.evidence
+        if evidence.importance:
+            evidence = replace(evidence, sweeps=max(evidence.sweeps, 2 * (self.length + 1)),
+                               max_refits=4 * evidence.max_refits)
         n_found = weighed.n_found * config.n_samples / self.start_size  # in draws per N, as the restart's threshold
-        cloud, log_increment, evidence_ess, n_independent = estimate_increment(
+        cloud, log_increment, evidence_ess, n_independent = evidence.estimate(
             tempered.cloud, tempered.log_z, n_found, self.path_problem, config, self.path_likelihood,
-            self.prior_logpdf, importance, rng, other, pool_sweeps=True)
+            self.prior_logpdf, rng, other, pool_sweeps=True)
         return Estimate(cloud, log_increment, evidence_ess, n_independent,
-                        importance and log_increment != tempered.log_z, moves)
+                        evidence.importance and log_increment != tempered.log_z, moves)
 
     def propagate(self, state, weighed, tempered, estimate, dataset, likelihood, rng) -> Outcome:
         config, kernel, d, n = self.config, self.problem.kernel, self.problem.kernel.dim, self.config.n_samples
@@ -291,27 +297,29 @@ class PathSpace:
         moves = estimate.moves
         past = PastStep(kept_copy(dataset), state.prior, posterior, cloud.log_weights, float(log_increment),
                         variance_before(state), self.length + 1)
-        window = remedy_window(state.window + (past,), config.remedy_lag)
+        window = remedy_window(state.memory.window + (past,), config.remedy.lag)
         new_state = SamplerState(step=state.step + 1, particles=predictive, log_weights=cloud.log_weights,
                                  prior=density, log_evidence=log_evidence,
-                                 step_size=float(moves.step_size if config.move == "stretch" else state.step_size),
+                                 step_size=float(config.moves.step_size_after(moves.step_size, state.step_size)),
                                  posterior=posterior, posterior_log_weights=cloud.log_weights,
-                                 window=window,
-                                 paths=cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
-                                 log_evidence_variance=evidence_variance, lineage=lineage_after(state, cloud.labels),
+                                 memory=RemedyMemory(window,
+                                                     cloud.particles.reshape(n, self.length + 1, d)[:, -len(window):],
+                                                     lineage_after(state, cloud.labels)),
+                                 log_evidence_variance=evidence_variance,
                                  previous_prior=state.prior if isinstance(state.prior, GaussianMixture) else None)
-        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      ancestor_ess=spread.ess, path_steps=self.length + 1, log_evidence_increment_se=increment_se,
-                      log_evidence_se=evidence_se,
-                      # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
-                      **jump_fields(kernel, state, replace(cloud, particles=posterior), mixture_target=False))
-        step_size = float(moves.step_size if config.move == "stretch" else float("nan"))
-        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, fields)
+        records = dict(evidence=EvidenceInfo(float(tempered.log_z), estimate.evidence_ess, estimate.n_independent,
+                                             increment_se, evidence_se),
+                       conflict=ConflictInfo(float(conflict.max()), int(conflict.argmax()), spread.ess, self.length + 1),
+                       # the mixture step's terms, with the ancestors' influence on an exact (not mixture) target
+                       jumps=JumpInfo(**jump_fields(kernel, state, replace(cloud, particles=posterior),
+                                                    mixture_target=False)))
+        step_size = float(config.moves.step_size_after(moves.step_size, float("nan")))
+        return Outcome(new_state, posterior, cloud.log_weights, predictive, posterior, log_evidence, step_size, records)
 
-    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed:
+    def _bridge_weigh(self, likelihood, moves, rng) -> Weighed | Failure:
         """The bridge's start: draws of the window's path prior ``pi_0 = p_w prod T`` (``theta_w ~ p_w``, then the
         kernel), restricted to the parameter space by rejection, whose acceptance fraction enters the evidence as
-        in :func:`~seqbayes.engine.stages.restricted_draws`, weighed by every likelihood of the window.
+        in :func:`~seqbayes.predictive.particle.restricted_draws`, weighed by every likelihood of the window.
 
         The path-space target (``w`` the window's first step, ``s`` this one),
 
@@ -325,14 +333,16 @@ class PathSpace:
         """
         d, n = self.problem.kernel.dim, self.start_size
         path_prior, window_likelihood = self.path_prior, self.window_likelihood
-        walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-            path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood,
-            max_rounds=100 * self.config.n_samples // n)  # the draws N would make: a half start is not starved sooner
+        start = restricted_draws(path_prior, self.path_problem.support, n, rng, likelihood.step, window_likelihood,
+                                 max_rounds=100 * self.config.n_samples // n)  # a half start is not starved sooner
+        if isinstance(start, Failure):
+            return start
+        walkers, loglike, log_restricted_mass, n_found, labels = start
         components = np.column_stack([loglike, path_prior.logpdf(walkers)])
         cloud = Cloud(walkers, np.full(n, -np.log(n)), components, labels)  # labels: the path-prior draws
         return Weighed(cloud, ExactPrior(path_prior.logpdf), moves, log_restricted_mass, n_found)
 
-    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered:
+    def _bridge_temper(self, weighed, likelihood, rng) -> Tempered | Failure:
         """The bridge's stages (Eq. A5, the moves on the whole path). The stages' product of mean weights
         (Eq. 1) estimates ``log Z_{w:s} = log m + sum_k log mean_i w_i^(k)``; the step's increment is that
         minus the window's stored increments ``sum_{t=w}^{s-1} log Z_t`` (the normaliser of
@@ -342,12 +352,14 @@ class PathSpace:
         d = self.problem.kernel.dim
         # every stage keeps tempering_ess of the ESS: the tempering_threshold shortcut to beta = 1 lets a cloud
         # gathered in a narrow minor mode of an early stage finish there
-        config = replace(self.start_config, tempering_threshold=self.start_config.tempering_ess)
+        config = replace(self.path_config, tempering=self.path_config.tempering.without_shortcut())
         # the early stages' targets are thin ridges of the path prior, its dominant factor: redraws of path suffixes
         # from it are accepted with (L* / L)^beta where the kernel density and the local move accept ~nothing
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, config, self.window_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        prior_moves=self.path_prior, path_states=self.length + 1)
+        tempered = temper_stages(weighed.cloud, weighed.moves, ResampleMove(
+            self.path_problem, config, self.window_likelihood, weighed.prior_logpdf, True, False, rng,
+            PathTarget(kernel_density=True, prior_moves=self.path_prior, path_states=self.length + 1)))
+        if isinstance(tempered, Failure):
+            return tempered
         cloud = tempered.cloud
         states = cloud.particles.reshape(cloud.particles.shape[0], self.length + 1, d)
         # read from the memo, where the stages left every final state's value; the rest is a difference
@@ -359,9 +371,9 @@ class PathSpace:
                       cloud.labels)
         return replace(tempered, cloud=cloud, log_z=tempered.log_z + weighed.log_restricted_mass - normaliser)
 
-    def _stored_weigh(self, moves, rng) -> Weighed:
+    def _stored_weigh(self, moves, rng) -> Weighed | Failure:
         """The regular path-space start: the previous posterior's paths (:func:`_start_paths`) extended by
-        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.engine.stages.weigh`, a
+        ``theta_s ~ T(. | theta_{s-1})`` and weighed by ``L_s``; as :func:`~seqbayes.predictive.particle.weigh`, a
         restart from the path predictive restricted to ``{inside, L > 0}`` when few of them can carry the step.
         Components ``(log L_s, log path prior)``. With fewer particles than the posterior's (:attr:`start_size`),
         the paths are resampled to them."""
@@ -370,7 +382,7 @@ class PathSpace:
         paths = _start_paths(state, kernel, self.length, rng)
         log_weights, labels = state.posterior_log_weights, np.arange(paths.shape[0])
         if n < paths.shape[0]:
-            labels = resample(config.resampling, np.exp(log_weights - logsumexp(log_weights)), rng, n)
+            labels = resample(config.tempering.scheme, np.exp(log_weights - logsumexp(log_weights)), rng, n)
             paths, log_weights = paths[labels], np.full(n, -np.log(n))
         walkers = np.concatenate([paths, kernel.propagate(paths[:, -1], rng)[:, None]], axis=1).reshape(n, -1)
         log_restricted_mass, n_found = 0.0, n
@@ -378,10 +390,12 @@ class PathSpace:
         inside = inside_space(walkers, support)
         loglike[inside] = self.path_likelihood.loglike(walkers[inside])
         valid = np.isfinite(loglike)
-        if not valid.all() and (not inside.all() or valid.sum() < config.min_valid_fraction * n):
+        if not valid.all() and (not inside.all() or valid.sum() < config.tempering.min_valid_fraction * n):
             extended = _PathPredictive(paths.reshape(n, -1), log_weights, kernel, d)
-            walkers, loglike, log_restricted_mass, n_found, labels = restricted_draws(
-                extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            restart = restricted_draws(extended, support, n, rng, self.path_likelihood.step, self.path_likelihood)
+            if isinstance(restart, Failure):
+                return restart
+            walkers, loglike, log_restricted_mass, n_found, labels = restart
             log_weights = np.full(n, -np.log(n))
         components = np.column_stack([loglike, np.full(n, -np.inf)])
         carried = np.isfinite(loglike)
@@ -389,9 +403,11 @@ class PathSpace:
         return Weighed(Cloud(walkers, log_weights, components, labels), self.prior_logpdf, moves,
                        log_restricted_mass, n_found)
 
-    def _stored_temper(self, weighed, rng) -> Tempered:
-        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.engine.stages.temper_resample_move`)."""
-        tempered = temper_resample_move(weighed.cloud, self.path_problem, self.start_config, self.path_likelihood,
-                                        weighed.prior_logpdf, weighed.moves, True, False, rng, kernel_density=True,
-                                        path_states=self.length + 1)
+    def _stored_temper(self, weighed, rng) -> Tempered | Failure:
+        """The stored paths tempered in ``L_s`` (:func:`~seqbayes.predictive.particle.temper_stages`)."""
+        tempered = temper_stages(weighed.cloud, weighed.moves, ResampleMove(
+            self.path_problem, self.path_config, self.path_likelihood, weighed.prior_logpdf, True, False, rng,
+            PathTarget(kernel_density=True, path_states=self.length + 1)))
+        if isinstance(tempered, Failure):
+            return tempered
         return replace(tempered, log_z=tempered.log_z + weighed.log_restricted_mass)

@@ -26,7 +26,7 @@ stage's ratio keeps the pseudo-marginal target exact.
 SEMC's moves are ensemble moves: a proposal for a particle of the batch is built from particles outside it. By default
 that is the stretch move with the step size adapted by Eq. (9), as in the paper's stages. With
 ``SamplerConfig.strict_budget`` it is the differential-evolution move instead (ter Braak 2006,
-:class:`~seqbayes.moves.scaled.DifferentialMove`: ``x + 2.38 / sqrt(2 d) (x_j - x_k)``, still affine invariant): when
+:class:`~seqbayes.moves.stretch.DifferentialMove`: ``x + 2.38 / sqrt(2 d) (x_j - x_k)``, still affine invariant): when
 the expensive re-runs are the budget, what counts is how far the particles travel per re-run, and at the same
 acceptance the stretch move's accepted jumps are much shorter (its proposals mix long stretches, mostly rejected, with
 short ones). The outer moves of SMC^2 are a PMMH kernel, not the paper's SEMC stage move, so any kernel that keeps the
@@ -47,17 +47,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.settings import MOVE_BUDGET
-from ..moves import GaussianMove, StretchMove, SweepStats, metropolis_accept, next_step_size, weighted_covariance
+from ..moves.base import SweepStats, metropolis_accept
 from ..moves.delayed import QuadraticScreen
-from ..moves.scaled import DifferentialMove
 from ..priors import inside_support
-from ..transforms import BoxTransform
+from ..priors import BoxTransform
 
-__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "distinct_ess", "rejuvenate", "run_inner",
-           "outer_logpdf", "rerun_cost"]
+__all__ = ["MOVE_BUDGET", "RESTORE_BATCH", "RESTORE_LIMIT", "Rejuvenation", "Refilter", "Budget", "distinct_ess",
+           "rejuvenate", "run_inner", "outer_logpdf", "rerun_cost"]
 
 
+#: SMC^2's PMMH budget per update, in units of ``N M`` (``SamplerConfig.move_budget``): with the advance itself an
+#: update without tempering costs at most ~6 ``N M`` (plus the guide's pilot) however long the stream.
+MOVE_BUDGET = 5
 
 #: While the cloud's diversity is being restored, the fraction of the particles attempted per batch: small, so that the
 #: restoring stops soon after it is reached (each batch re-runs its particles' inner filters over the whole history).
@@ -101,6 +102,30 @@ class Rejuvenation:
         return Rejuvenation(np.zeros(0, dtype=int), int(n_sweeps), 0, 0, np.zeros(n, dtype=bool))
 
 
+@dataclass(frozen=True, eq=False)
+class Refilter:
+    """What a proposal's re-run needs: the problem, its inner filter, the split of the columns
+    (:func:`~seqbayes.predictive.inner.nested_split`), the datasets so far and each one's guide."""
+
+    problem: object
+    inner: object
+    split: tuple
+    datasets: object
+    guides: object
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The evaluations a rejuvenation may spend: ``limit`` (in re-run evaluations), the ESS to restore first
+    (``restore x N``, 0: none), what the update's earlier stages have ``spent`` and the restoring allowance
+    ``restore_limit`` in budgets (:func:`rejuvenate`)."""
+
+    limit: int
+    restore: float = 0.0
+    spent: int = 0
+    restore_limit: float = RESTORE_LIMIT
+
+
 def outer_logpdf(prior, columns, outer) -> np.ndarray:
     """``log p_0`` of outer particles ``outer (K, len(columns))`` under the independent marginals of ``prior``."""
     total = np.zeros(outer.shape[0])
@@ -133,7 +158,7 @@ def _pmmh_screen(config, static, components, coefficients, transform):
     or ``None``: a quadratic fitted to the particles' log targets in the moves' coordinates, the evaluations already
     made. Fixed for the call, so for every attempt it is a function of the proposal alone, which keeps the
     pseudo-marginal target exact (the inner filters' randomness enters stage 2 only)."""
-    if config.surrogate not in ("quadratic", "auto"):
+    if config.moves.screen not in ("quadratic", "auto"):
         return None
     position = transform.forward(static) if transform is not None else static
     jacobian = transform.log_jacobian(position) if transform is not None else 0.0
@@ -141,9 +166,8 @@ def _pmmh_screen(config, static, components, coefficients, transform):
         return QuadraticScreen.fit(position, components @ coefficients + jacobian)
 
 
-def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weights, cloud, components, beta,
-               step_size, pending: Rejuvenation, budget: int, likelihood, rng, restore: float = 0.0, spent: int = 0,
-               restore_limit: float = RESTORE_LIMIT):
+def rejuvenate(refilter: Refilter, config, static, log_weights, cloud, components, beta, step_size,
+               pending: Rejuvenation, budget: Budget, likelihood, rng):
     """PMMH attempts on the queue's next particles at tempering exponent ``beta``, within ``budget`` evaluations.
 
     ``components`` is ``(N, 3)``: ``log p^(D^s | ...)``, ``log p_0(phi)``, ``log p^(D^{1:s-1} | phi)``; the target
@@ -158,48 +182,47 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
     When one particle's re-run alone exceeds a positive budget (``s`` beyond ``MOVE_BUDGET N``), one particle is
     attempted all the same, so a rejuvenation always progresses.
 
-    The budget binds only once the copies a resampling left are diverse again: while :func:`distinct_ess` is below
-    ``restore x N`` (the ESS of the weights the cloud was resampled from), particles are attempted in batches of
-    :data:`RESTORE_BATCH` x N beyond the budget, up to :data:`RESTORE_LIMIT` times it, so that a resampling does not
-    leave the cloud less diverse than its weights were (late in a long stream, where one sweep costs more than
-    that, the rest of the restoring waits with the other deferred sweeps).
+    The budget (``budget.limit``) binds only once the copies a resampling left are diverse again: while
+    :func:`distinct_ess` is below ``budget.restore x N`` (the ESS of the weights the cloud was resampled from),
+    particles are attempted in batches of :data:`RESTORE_BATCH` x N beyond the budget, up to :data:`RESTORE_LIMIT`
+    times it, so that a resampling does not leave the cloud less diverse than its weights were (late in a long
+    stream, where one sweep costs more than that, the rest of the restoring waits with the other deferred sweeps).
 
-    ``spent`` is what the update's earlier stages have spent on moves and ``restore_limit`` the restoring allowance in
-    budgets (``SamplerConfig.strict_budget`` passes the former and 1: the update's stages share one budget, restoring
-    included).
+    ``budget.spent`` is what the update's earlier stages have spent on moves and ``budget.restore_limit`` the
+    restoring allowance in budgets (``SamplerConfig.strict_budget`` passes the former and 1: the update's stages
+    share one budget, restoring included).
 
     Returns
     -------
     static, cloud, components, SweepStats, step_size, n_batches, Rejuvenation
     """
     n = static.shape[0]
+    problem, inner, split, datasets, guides = (refilter.problem, refilter.inner, refilter.split, refilter.datasets,
+                                               refilter.guides)
+    restore, spent, restore_limit, budget = budget.restore, budget.spent, budget.restore_limit, budget.limit
     per_particle = rerun_cost(inner, datasets)
     columns = inner.outer_columns(split, problem.kernel.dim)
     support = problem.support[columns]
-    transform = BoxTransform(support) if config.transform and np.isfinite(support).any() else None
+    moves, strict = config.moves, config.predictive.strict_budget
+    transform = BoxTransform(support) if moves.transform and np.isfinite(support).any() else None
     coefficients = np.array([beta, 1.0, 1.0])
     stats, n_batches = SweepStats(), 0
     queue, sweeps_left = pending.queue, pending.sweeps_left
     n_proposed, n_accepted = pending.n_proposed, pending.n_accepted
     moved_since = pending.moved.copy() if pending.moved.size == n else np.zeros(n, dtype=bool)
-    most = config.max_virtual if config.move == "stretch" else config.max_moves
     copied = False
-    ensemble = config.move == "stretch"
-    # under a strict budget SEMC's PMMH proposes by differential evolution, not the stretch move (see the module doc)
-    differential = ensemble and config.strict_budget
     screen = _pmmh_screen(config, static, components, coefficients, transform)
     while queue.size or sweeps_left:
         if not queue.size:  # a new sweep: every particle once, in an order independent of the particles
-            done = most - sweeps_left
-            if done >= config.n_moves and (config.moved_fraction == 0 or moved_since.mean() >= config.moved_fraction):
+            done = moves.max_sweeps - sweeps_left
+            if done >= moves.min_sweeps and (moves.moved_fraction == 0 or moved_since.mean() >= moves.moved_fraction):
                 sweeps_left = 0
                 break
             queue, sweeps_left = rng.permutation(n), sweeps_left - 1
         k = min(queue.size, (budget - spent) // per_particle)
         if restore and spent < restore_limit * budget and distinct_ess(static) < restore * n:  # restore the ESS first
             k = min(queue.size, max(k, int(np.ceil(RESTORE_BATCH * n))))
-        if ensemble:  # the ensemble moves need a complement to draw partners from
-            k = min(k, n // 2)
+        k = moves.pmmh_batch(k, n)  # the ensemble moves need a complement to draw partners from
         if k < 1:
             if spent or budget <= 0:
                 break
@@ -210,15 +233,8 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
             copied = True
         active, queue = queue[:k], queue[k:]
         position = transform.forward(static) if transform is not None else static
-        if ensemble:
-            rest = np.ones(n, dtype=bool)
-            rest[active] = False
-            move = DifferentialMove() if differential else StretchMove(step_size)
-            proposals, log_hastings, identical = move.propose(position[active], position[rest], rng)
-        else:
-            move = GaussianMove(weighted_covariance(position, log_weights), config.proposal_scale)
-            proposals, log_hastings = move.propose(position[active], rng)
-            identical = np.zeros(k, dtype=bool)
+        # under a strict budget SEMC's PMMH proposes by differential evolution, not the stretch move (module doc)
+        proposals, log_hastings, identical = moves.pmmh_proposals(position, active, log_weights, step_size, strict, rng)
         phi = transform.inverse(proposals) if transform is not None else proposals
         inside = ~identical & inside_support(phi, support)
         cheap_old = cheap_new = np.zeros(k)
@@ -258,7 +274,6 @@ def rejuvenate(problem, config, inner, split, datasets, guides, static, log_weig
         n_batches += 1
         n_proposed, n_accepted = n_proposed + k, n_accepted + int(accept.sum())
         stats = stats + SweepStats(k, int(accept.sum()), int(identical.sum()), int(inside.sum()))
-        if ensemble and not differential:
-            step_size = next_step_size(step_size, float(accept.mean()), config.target_acceptance)  # Eq. (9)
+        step_size = moves.pmmh_step_size(step_size, float(accept.mean()), strict)  # Eq. (9) for SEMC's
     return (static, cloud, components, stats, step_size, n_batches,
             Rejuvenation(queue, sweeps_left, n_proposed, n_accepted, moved_since))

@@ -53,7 +53,7 @@ class SubsampledPrior:
     :func:`predictive_density` returns them and the run store keeps them); the moves must never
     re-evaluate a current particle's prior value (only proposals). Tempering reweights
     by ``L^delta`` alone and resampling carries the cached values, so both keep the extended target;
-    the importance-sampling evidence (:func:`~seqbayes.engine.evidence.importance_step`) is linear in the
+    the importance-sampling evidence (:func:`~seqbayes.predictive.evidence.importance_step`) is linear in the
     prior, stays unbiased with the estimate, and its ESS (hence the stated standard error) includes
     the estimate's noise.
 

@@ -42,353 +42,99 @@ from __future__ import annotations
 import sys
 import warnings
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
-from ..engine.errors import InnerFilterWarning, ZeroLikelihoodError, zero_likelihood_message
-from ..engine.protocol import ParticlePredictive
-from ..engine.stages import prior_name, reweight_stage
-from ..engine.state import Cloud, Estimate, MoveTally, Outcome, Tempered, Weighed, kept_copy
-from ..kernels import Decay, Drift, MarkovKernel, Static
-from ..moves import SweepStats
-from ..priors import JointPrior, inside_support
-from ..resampling import resample
-from ..results import prior_data_conflict
-from ..tempering import next_increment
-from .pmmh import RESTORE_LIMIT, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
+from ..core.errors import InnerFilterWarning, ZeroLikelihoodError, prior_name, zero_likelihood_message
+from ..core.likelihood import kept_copy
+from ..core.state import Cloud, Estimate, Failure, Outcome, SamplerState, Tempered, Weighed, stored_as
+from ..moves.base import MoveTally
+from ..priors import JointPrior
+from ..weights import resample
+from ..results import ConflictInfo, EvidenceInfo, NestedInfo
+from ..core.tempering import temper
+from .inner import KalmanInnerFilter, ParticleInnerFilter, joint_columns, nested_split
+from .particle import ParticlePredictive, prior_data_conflict
+from .pmmh import MOVE_BUDGET, RESTORE_LIMIT, Budget, Refilter, Rejuvenation, outer_logpdf, rejuvenate, rerun_cost
 
-__all__ = ["ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
+__all__ = ["SMC2", "ParticleInnerFilter", "KalmanInnerFilter", "NestedState", "nested_split", "start_nested",
            "after_joint_first_step", "NestedPredictive", "JointFirstStep", "nested_state_arrays", "nested_state_from_arrays",
            "nested_guide", "nested_record_moments", "nested_moments", "warn_rejuvenation", "LOW_ACCEPTANCE"]
-
-
-def nested_split(kernel: MarkovKernel) -> tuple[np.ndarray, np.ndarray] | None:
-    """Column indices ``(static, drifting)`` when the kernel has both :class:`~seqbayes.Static`
-    components and others, else ``None`` (SMC^2 does not apply)."""
-    if not kernel.components:
-        return None
-    static = np.array([isinstance(c, Static) for c in kernel.components])
-    if static.all() or not static.any():
-        return None
-    return np.flatnonzero(static), np.flatnonzero(~static)
-
-
-def _joint(static, drifting, split, dim) -> np.ndarray:
-    """Rows ``theta (K, d)`` from static ``(K, d_s)`` and drifting ``(K, d_x)`` columns."""
-    theta = np.empty((static.shape[0], dim))
-    theta[:, split[0]] = static
-    theta[:, split[1]] = drifting
-    return theta
 
 
 def _take(cloud: dict, index) -> dict:
     return {key: value[index] for key, value in cloud.items()}
 
 
-def _systematic_rows(log_weights, rng) -> np.ndarray:
-    """Systematic resampling of each row of ``log_weights (K, M)`` at once: ancestor indices ``(K, M)``."""
-    k, m = log_weights.shape
-    weights = np.exp(log_weights - log_weights.max(axis=1, keepdims=True))
-    cdf = np.cumsum(weights, axis=1)
-    cdf /= cdf[:, -1:]
-    offsets = np.arange(k)[:, None]
-    points = (rng.random((k, 1)) + np.arange(m)) / m + offsets
-    index = np.searchsorted((cdf + offsets).ravel(), points.ravel(), side="right").reshape(k, m) - offsets * m
-    return np.clip(index, 0, m - 1)
-
-
 @dataclass(frozen=True)
-class ParticleInnerFilter:
-    """A bootstrap particle filter over the drifting parameters, one per outer particle, all at once.
+class SMC2:
+    """SMC^2 as the predictive of a kernel with static and drifting components (the module docstring): the outer
+    particles carry the static parameters, each an inner filter over the drifting ones.
 
     Parameters
     ----------
-    n_inner : int
-        Inner particles ``M`` per outer particle (100). The outer target is exact for any ``M``;
-        a larger ``M`` lowers the noise of the likelihood estimates, which raises the PMMH
-        acceptance over long histories (the variance of ``log p^(D^{1:s})`` grows like ``s / M``).
-    ess_threshold : float
-        An inner filter resamples when its ESS falls below this fraction of ``M`` (0.5).
-    guided : bool
-        Draw half of each step's inner particles from a Gaussian guide fitted to the data instead
-        of from the kernel (True). Data that pin the drifting parameters far more tightly than the
-        kernel's noise leave a bootstrap filter with almost no useful particle; the guide is fitted
-        to ``n_pilot`` separate kernel draws weighted by the likelihood, tempered so that their ESS
-        stays at a quarter (``L^beta``, so it covers the posterior with room), and fixed for that
-        step (re-runs use the same guide), so the likelihood estimate stays unbiased: each particle
-        carries ``L T / (T / 2 + G / 2)``.
-    n_pilot : int
-        Pilot draws of the guide (2000).
+    inner : ParticleInnerFilter or KalmanInnerFilter
+        The filter over the drifting parameters (``ParticleInnerFilter(100)``).
+    move_budget : float or None
+        The PMMH evaluations one update may spend on deferrable moves, in units of ``N M`` (``M`` the inner
+        particles, 1 for the Kalman inner filter; :data:`~seqbayes.predictive.pmmh.MOVE_BUDGET` = 5). Moves beyond
+        it wait for later updates (:mod:`seqbayes.predictive.pmmh`), which bounds the cost per update over a long
+        stream. Deferrable are only the moves of an untempered update, and after a resampling only once the copies
+        it left are as diverse as its weights were (up to ``pmmh.RESTORE_LIMIT`` = 4 budgets more). ``None``:
+        every rejuvenation completes in its update.
+    strict_budget : bool
+        ``True`` makes ``move_budget`` a hard cap on every update's PMMH moves: a tempered update's stages share one
+        budget, restoring the copies' diversity spends from it, and SEMC's PMMH proposes by differential evolution,
+        which travels further per inner-filter re-run (docs/benchmarks.md, "Coulomb at 50,000 calls"). ``False``
+        (default): tempered updates complete their moves.
     """
 
-    n_inner: int = 100
-    ess_threshold: float = 0.5
-    guided: bool = True
-    n_pilot: int = 2000
+    inner: ParticleInnerFilter | KalmanInnerFilter = ParticleInnerFilter()
+    move_budget: float | None = MOVE_BUDGET
+    strict_budget: bool = False
 
-    #: The outer particles carry the drifting parameters' first value too: the first dataset is then a
-    #: static problem in every parameter (tempering, restarts and the importance evidence of the other
-    #: samplers apply), and each inner filter starts from its outer particle's value instead of blind
-    #: prior draws, which a sharp dataset would leave with one or no useful inner particle.
-    joint_first_step = True
-
-    def outer_columns(self, split: tuple[np.ndarray, np.ndarray], dim: int) -> np.ndarray:
-        return np.arange(dim)
+    method = "smc2"
 
     def __post_init__(self):
-        if int(self.n_inner) != self.n_inner or self.n_inner < 1:
-            raise ValueError(f"n_inner: must be an integer >= 1, got {self.n_inner}")
-        if not 0.0 <= self.ess_threshold <= 1.0:
-            raise ValueError(f"ess_threshold: must lie in [0, 1], got {self.ess_threshold}")
+        if not (hasattr(self.inner, "advance") and hasattr(self.inner, "draws")):
+            raise TypeError("inner: expected a seqbayes.ParticleInnerFilter or KalmanInnerFilter")
+        budget = self.move_budget
+        if budget is not None and not (isinstance(budget, (int, float)) and not isinstance(budget, bool)
+                                       and budget > 0 and np.isfinite(budget)):
+            raise ValueError(f"move_budget: expected None or a finite number > 0, got {budget!r}")
+        if self.strict_budget not in (True, False):
+            raise ValueError(f"strict_budget: expected True or False, got {self.strict_budget!r}")
 
-    def check(self, problem: Problem, split: tuple[np.ndarray, np.ndarray]) -> None:
-        if not isinstance(problem.prior, JointPrior):
-            raise TypeError("prior: SMC^2 draws the drifting parameters from their own marginals; "
-                            "give a seqbayes.JointPrior (independent marginals)")
+    def resolve(self, kernel) -> "SMC2":
+        """This predictive, checked against ``kernel`` (static and drifting components, no jumps)."""
+        if kernel.has_jumps:  # the inner filters assume a Gaussian transition
+            raise ValueError("predictive: SMC2 does not support Jump components; use Transition()")
+        if nested_split(kernel) is None:
+            raise ValueError("predictive: SMC2 needs a kernel of components with both Static and drifting ones")
+        return self
 
-    def fit_guide(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, log_weights: np.ndarray,
-                  cloud: dict | None, dataset: Any, likelihood: Any,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
-        """The step's Gaussian guide ``(mean (d_x,), cov (d_x, d_x))``, or ``None`` (not guided, a kernel
-        without noise on a drifting parameter, or too few pilot draws with a non-zero likelihood).
-
-        Pilot: ``n_pilot`` inner particles picked with the outer and inner weights and propagated
-        through the kernel; a Gaussian ``P`` fitted to them stands for the predictive. Then up to
-        four rounds of tempered adaptive importance sampling towards ``L P`` (none, and no guide,
-        when the kernel's own draws keep a quarter of their ESS under ``L``): weigh the current
-        draws by ``L^beta P / q`` with ``beta`` the largest exponent keeping a quarter of their ESS,
-        fit the guide (weighted mean, twice the covariance), draw afresh from it; stop once
-        ``beta`` reaches 1. The guide only has to cover the posterior: the particles' own weights
-        use the exact transition density."""
-        noise = problem.kernel.noise_std[split[1]]
-        if not self.guided or not np.all(noise > 0):
-            return None
-        k, n_pilot, dim = outer.shape[0], int(self.n_pilot), problem.kernel.dim
-        p = np.exp(log_weights - log_weights.max())
-        rows = rng.choice(k, size=n_pilot, p=p / p.sum())
-        cols = _categorical_rows(cloud["log_w"][rows], rng)
-        prev = _joint(outer[rows][:, split[0]], cloud["x"][rows, cols], split, dim)
-        theta = problem.kernel.propagate(prev, rng)
-        x = theta[:, split[1]]
-        mean, cov = x.mean(axis=0), np.cov(x, rowvar=False).reshape(x.shape[1], x.shape[1])
-        cov = cov + np.diag(1e-12 * (1.0 + mean**2))
-        log_predictive = _gaussian_logpdf(x, mean, cov)
-        predictive = (mean, cov)
-        log_proposal = log_predictive
-        support = problem.support
-        for round_ in range(4):
-            inside = inside_support(theta, support)
-            loglike = np.full(n_pilot, -np.inf)
-            if inside.any():
-                loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
-            if np.count_nonzero(np.isfinite(loglike)) < 2 * split[1].size + 2:
-                return None
-            base = log_predictive - log_proposal
-            beta = next_increment(base, loglike, 1.0, 0.25, 0.25)
-            if round_ == 0 and beta >= 1.0:  # the kernel's own draws keep a quarter of their ESS: no guide needed
-                return None
-            log_w = np.where(np.isfinite(loglike), base + beta * np.where(np.isfinite(loglike), loglike, 0.0), -np.inf)
-            w = np.exp(log_w - log_w.max())
-            w /= w.sum()
-            mean = w @ x
-            cov = 2.0 * ((x - mean).T * w) @ (x - mean) + np.diag(1e-12 * (1.0 + mean**2))
-            if beta >= 1.0:
-                break
-            x = mean + rng.standard_normal(x.shape) @ np.linalg.cholesky(cov).T
-            theta = theta.copy()
-            theta[:, split[1]] = x
-            log_proposal = _gaussian_logpdf(x, mean, cov)
-            log_predictive = _gaussian_logpdf(x, *predictive)
-        return mean, cov
-
-    def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], outer: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, likelihood: Any, rng: np.random.Generator,
-                guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
-        """One step of every inner filter.
-
-        Parameters
-        ----------
-        outer : (K, d) array
-            Outer particles: the static parameters and the drifting parameters' first value.
-        cloud : dict or None
-            ``{"x": (K, M, d_x), "log_w": (K, M)}`` after the last step (``None`` at ``first``).
-        first : bool
-            The first dataset: its likelihood at the outer particle itself.
-        likelihood : object with ``loglike_on(theta (n, d), dataset) -> (n,)`` and ``n_evals``
-            Evaluates (and counts) the user's likelihood.
-        guide : tuple ``(mean, cov)`` or None
-            The step's guide (:meth:`fit_guide`): half the particles are drawn from it.
-
-        Returns
-        -------
-        log_increment : (K,) array
-            ``log p^(D^s | D^{1:s-1}, phi)``; ``-inf`` where every inner particle has zero likelihood.
-        cloud : dict
-        """
-        k, m, dim = outer.shape[0], int(self.n_inner), problem.kernel.dim
-        support = problem.support
-        if first:  # the outer particle holds the first value of the drifting parameters
-            inside = inside_support(outer, support)
-            log_increment = np.full(k, -np.inf)
-            if inside.any():
-                log_increment[inside] = likelihood.loglike_on(outer[inside], dataset)
-            return log_increment, {"x": outer[:, None, split[1]].copy(), "log_w": np.zeros((k, 1)), "ess": np.ones(k)}
-        x, log_w = cloud["x"], cloud["log_w"]
-        if x.shape[1] != m:  # one value per outer particle after the first step: M children each
-            x, log_w = np.repeat(x, m, axis=1), np.full((k, m), -np.log(m))
-        phi = np.repeat(outer[:, split[0]], m, axis=0)
-        previous = _joint(phi, x.reshape(k * m, -1), split, dim)
-        theta = problem.kernel.propagate(previous, rng)  # Eq. (A2)
-        correction = 0.0
-        if guide is not None:  # half from the guide G: weight L T / q with q = T / 2 + G / 2
-            mean, cov = guide
-            chol = np.linalg.cholesky(cov)
-            guided = rng.random(k * m) < 0.5
-            draws = mean + rng.standard_normal((int(guided.sum()), mean.size)) @ chol.T
-            theta[np.ix_(guided, split[1])] = draws
-            nominal = problem.kernel.nominal(previous)[:, split[1]]
-            noise = problem.kernel.noise_std[split[1]]
-            z = (theta[:, split[1]] - nominal) / noise
-            log_t = -0.5 * np.sum(z**2, axis=1) - np.sum(np.log(noise))
-            log_g = _gaussian_logpdf(theta[:, split[1]], mean, cov)
-            correction = (log_t - np.logaddexp(log_t, log_g) + np.log(2.0)).reshape(k, m)
-        inside = inside_support(theta, support)
-        loglike = np.full(k * m, -np.inf)
-        if inside.all():
-            loglike = likelihood.loglike_on(theta, dataset)
-        elif inside.any():
-            loglike[inside] = likelihood.loglike_on(theta[inside], dataset)
-        loglike = loglike.reshape(k, m) + correction
-        with np.errstate(invalid="ignore"):
-            joint = log_w + loglike
-            peak = np.max(joint, axis=1, keepdims=True)
-            alive = np.isfinite(peak[:, 0])
-            log_increment = np.full(k, -np.inf)
-            log_increment[alive] = (np.log(np.exp(joint[alive] - peak[alive]).sum(axis=1)) + peak[alive, 0])
-        log_w = np.where(alive[:, None], joint - np.where(alive, log_increment, 0.0)[:, None], -np.log(m))
-        x = theta[:, split[1]].reshape(k, m, -1)
-        ess = 1.0 / np.sum(np.exp(2.0 * log_w), axis=1)
-        rows = np.flatnonzero(alive & (ess < self.ess_threshold * m))
-        if rows.size:
-            index = _systematic_rows(log_w[rows], rng)
-            x[rows] = x[rows[:, None], index]
-            log_w[rows] = -np.log(m)
-        # "ess": each inner filter's ESS fraction after weighting, before resampling (a health diagnostic)
-        return log_increment, {"x": x, "log_w": log_w, "ess": np.where(alive, ess, 0.0) / m}
-
-    def moments(self, cloud: dict) -> tuple[np.ndarray, np.ndarray]:
-        """Each inner filter's weighted mean and variance of the drifting parameters, ``(K, d_x)`` each."""
-        w = np.exp(cloud["log_w"] - cloud["log_w"].max(axis=1, keepdims=True))
-        w /= w.sum(axis=1, keepdims=True)
-        mean = np.einsum("km,kmj->kj", w, cloud["x"])
-        return mean, np.einsum("km,kmj->kj", w, (cloud["x"] - mean[:, None]) ** 2)
-
-    def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
-        """One draw of the drifting parameters from each inner filter, ``(K, d_x)``."""
-        index = _categorical_rows(cloud["log_w"], rng)
-        return cloud["x"][np.arange(index.size), index]
+    def predictive(self, state, problem, config):
+        """The step's predictive: :class:`NestedPredictive`, or for the first dataset with ``joint_first_step``
+        :class:`JointFirstStep` from a :class:`~seqbayes.core.state.SamplerState` over every parameter."""
+        if state.step > 0 or not problem.inner_filter.joint_first_step:
+            return NestedPredictive(problem, config), state
+        return JointFirstStep(problem, config, "joint"), SamplerState(0, state.particles, state.log_weights,
+                                                                       problem.prior, 0.0, state.step_size)
 
 
-def _gaussian_logpdf(x, mean, cov) -> np.ndarray:
-    """``log N(x; mean, cov)`` up to the ``2 pi`` constant, for ``x (n, k)``."""
-    chol = np.linalg.cholesky(cov)
-    u = np.linalg.solve(chol, (x - mean).T)
-    return -0.5 * np.sum(u**2, axis=0) - np.sum(np.log(np.diag(chol)))
+def _fill_nested(arrays: dict, n_samples: int) -> None:
+    """Complete (in place) a full SMC^2 state of a store written before budgeted PMMH: nothing pending."""
+    if "nested_particles" in arrays and "nested_pmmh_queue" not in arrays:  # a full state (format 5 keeps two)
+        arrays["nested_pmmh_queue"] = np.full(n_samples, -1.0)
+        arrays["nested_pmmh_tally"] = np.zeros(4)
+        arrays["nested_pmmh_moved"] = np.zeros(n_samples)
+        arrays["nested_moments"] = np.vstack(nested_moments(arrays["nested_particles"],
+                                                            arrays["nested_log_weights"], None, []))
 
 
-def _categorical_rows(log_weights, rng) -> np.ndarray:
-    """One index per row of ``log_weights (K, M)``, drawn with those weights."""
-    weights = np.exp(log_weights - log_weights.max(axis=1, keepdims=True))
-    cdf = np.cumsum(weights, axis=1)
-    u = rng.random(weights.shape[0]) * cdf[:, -1]
-    return np.minimum((cdf < u[:, None]).sum(axis=1), weights.shape[1] - 1)
-
-
-@dataclass(frozen=True, eq=False)
-class KalmanInnerFilter:
-    """An exact inner filter for drifting parameters that enter the observation linearly.
-
-    The user declares ``y = H(phi, D) x + b(phi, D) + e``, ``e ~ N(0, diag(r(phi, D)))``; the
-    drifting parameters ``x`` then have a Gaussian filtering posterior given each ``phi`` when
-    their kernel components are :class:`~seqbayes.Drift` or :class:`~seqbayes.Decay` (linear, with
-    Gaussian noise) and their prior marginals are normal. The likelihood estimate is then the
-    exact ``p(D^s | D^{1:s-1}, phi)`` (Rao-Blackwellised SMC^2), so PMMH is exact MH.
-
-    Parameters
-    ----------
-    observe : callable ``(phi (K, d_s), dataset) -> (H, b, r, y)``
-        ``H (K, m, d_x)``, ``b (K, m)``, ``r (K, m)`` (noise variances) and ``y (m,)``.
-    """
-
-    observe: object
-
-    joint_first_step = False
-
-    def outer_columns(self, split: tuple[np.ndarray, np.ndarray], dim: int) -> np.ndarray:
-        return split[0]
-
-    def check(self, problem: Problem, split: tuple[np.ndarray, np.ndarray]) -> None:
-        prior, kernel = problem.prior, problem.kernel
-        if not isinstance(prior, JointPrior):
-            raise TypeError("prior: KalmanInnerFilter needs a seqbayes.JointPrior with normal drifting marginals")
-        for j in split[1]:
-            dist = prior.distributions[j]
-            if getattr(getattr(dist, "dist", None), "name", None) != "norm":
-                raise ValueError(f"prior: {prior.names[j]!r} must be normal for KalmanInnerFilter")
-            if not isinstance(kernel.components[j], (Drift, Decay)):
-                raise ValueError(f"kernel: {prior.names[j]!r} must be Drift or Decay for KalmanInnerFilter")
-
-    def fit_guide(self, *args: Any, **kwargs: Any) -> None:
-        """The Kalman filter needs no guide."""
-        return None
-
-    def advance(self, problem: Problem, split: tuple[np.ndarray, np.ndarray], static: np.ndarray, cloud: dict | None, dataset: Any,
-                first: bool, likelihood: Any, rng: np.random.Generator,
-                guide: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict]:
-        """One Kalman step per outer particle (``static (K, d_s)``, the static parameters); arguments and returns as :meth:`ParticleInnerFilter.advance`
-        (the cloud is ``{"mean": (K, d_x), "cov": (K, d_x, d_x)}``; each step counts as K evaluations)."""
-        k, d_x = static.shape[0], split[1].size
-        if first:
-            dists = [problem.prior.distributions[j] for j in split[1]]
-            mean = np.tile([d.mean() for d in dists], (k, 1))
-            cov = np.tile(np.diag([d.var() for d in dists]), (k, 1, 1))
-        else:  # predict through the linear kernel, Eq. (A2)
-            components = [problem.kernel.components[j] for j in split[1]]
-            gain = np.array([1.0 if isinstance(c, Drift) else np.exp(-c.rate) for c in components])
-            shift = np.array([c.rate if isinstance(c, Drift) else 0.0 for c in components])
-            noise = np.array([c.noise_std for c in components]) ** 2
-            mean = cloud["mean"] * gain + shift
-            cov = cloud["cov"] * np.outer(gain, gain) + np.diag(noise)
-        design, offset, noise_var, y = self.observe(static, dataset)
-        design = np.broadcast_to(np.asarray(design, dtype=float), (k,) + np.shape(design)[-2:])
-        if design.shape[2] != d_x:
-            raise ValueError(f"observe: H has {design.shape[2]} columns, there are {d_x} drifting parameters")
-        innovation = np.asarray(y, dtype=float) - offset - np.einsum("kmj,kj->km", design, mean)
-        precision_noise = 1.0 / np.broadcast_to(np.asarray(noise_var, dtype=float), innovation.shape)
-        # information form (d_x x d_x, never m x m): posterior precision P^-1 + H^T R^-1 H
-        information = np.einsum("kmi,km,kmj->kij", design, precision_noise, design)
-        projected = np.einsum("kmi,km->ki", design, precision_noise * innovation)
-        posterior_cov = np.linalg.inv(np.linalg.inv(cov) + information)
-        posterior_cov = 0.5 * (posterior_cov + posterior_cov.transpose(0, 2, 1))
-        correction = np.einsum("kij,kj->ki", posterior_cov, projected)
-        # log N(v; 0, S) with S = H P H^T + R, by the determinant lemma and Woodbury's identity
-        log_det = (-np.log(precision_noise).sum(axis=1) + np.linalg.slogdet(cov)[1]
-                   - np.linalg.slogdet(posterior_cov)[1])
-        quadratic = np.sum(precision_noise * innovation**2, axis=1) - np.einsum("ki,ki->k", projected, correction)
-        log_increment = -0.5 * (quadratic + log_det + innovation.shape[1] * np.log(2.0 * np.pi))
-        likelihood.n_evals += k
-        mean, cov = mean + correction, posterior_cov
-        return log_increment, {"mean": mean, "cov": cov}
-
-    def moments(self, cloud: dict) -> tuple[np.ndarray, np.ndarray]:
-        """Each filter's mean and marginal variances, ``(K, d_x)`` each."""
-        return cloud["mean"], np.diagonal(cloud["cov"], axis1=1, axis2=2).copy()
-
-    def draws(self, cloud: dict, rng: np.random.Generator) -> np.ndarray:
-        chol = np.linalg.cholesky(cloud["cov"] + 1e-300 * np.eye(cloud["cov"].shape[1]))
-        return cloud["mean"] + np.einsum("kij,kj->ki", chol, rng.standard_normal(cloud["mean"].shape))
-
-
+@stored_as("nested", "nested_", needs_datasets=True, whole=True, fill=_fill_nested,
+           every_step=("nested_guide_used", "nested_guide_mean", "nested_guide_cov", "nested_moments"))
 @dataclass(frozen=True, eq=False)
 class NestedState:
     """Everything SMC^2 needs to assimilate the next dataset.
@@ -442,6 +188,19 @@ class NestedState:
     n_evals_total: int = 0
     moments: tuple | None = None
 
+    def to_arrays(self) -> dict:
+        """The run store's arrays: :func:`nested_state_arrays`, each name prefixed ``nested_``."""
+        return {"nested_" + key: value for key, value in nested_state_arrays(self).items()}
+
+    @classmethod
+    def from_arrays(cls, arrays_by_step, datasets) -> "NestedState":
+        """The state after step ``s`` from the :meth:`to_arrays` of steps ``1 .. s`` (the earlier steps' guides only)
+        and the datasets ``D^1 .. D^s``."""
+        def strip(arrays):
+            return {key[len("nested_"):]: value for key, value in arrays.items()}
+        guides = tuple(nested_guide(strip(a)) for a in arrays_by_step[:-1])
+        return nested_state_from_arrays(strip(arrays_by_step[-1]), tuple(datasets), guides)
+
     @property
     def prior_draws(self) -> np.ndarray:
         """Draws of the next step's prior (the last posterior propagated; the prior before step 1)."""
@@ -491,7 +250,7 @@ class OuterCloud(Cloud):
 
 @dataclass(frozen=True, eq=False)
 class OuterWeighed(Weighed):
-    """:class:`~seqbayes.engine.state.Weighed` with what SMC^2's later stages need: the datasets and guides so far
+    """:class:`~seqbayes.core.state.Weighed` with what SMC^2's later stages need: the datasets and guides so far
     and the inner filters' mean ESS."""
 
     datasets: tuple = ()
@@ -499,8 +258,19 @@ class OuterWeighed(Weighed):
     inner_ess: float = float("nan")
 
 
+@dataclass(frozen=True, eq=False)
+class _Rejuvenating:
+    """SMC^2's particles between the stages of the tempering loop: the outer cloud, the moves so far (``n_virtual``:
+    the PMMH batches), the evaluations spent on them in this update and whether the last stage resampled."""
+
+    cloud: OuterCloud
+    moves: MoveTally
+    spent: int = 0
+    resampled: bool = False
+
+
 class NestedPredictive:
-    """SMC^2 as a step's predictive (:class:`~seqbayes.engine.protocol.Predictive`): the inner filters' likelihood
+    """SMC^2 as a step's predictive (:class:`~seqbayes.predictive.particle.Predictive`): the inner filters' likelihood
     estimates weigh the outer particles; they are resampled when the ESS has fallen and moved by PMMH within a
     per-update budget (:func:`~seqbayes.predictive.pmmh.rejuvenate`); the evidence increment is the tempering
     path's (Eq. 1)."""
@@ -509,10 +279,10 @@ class NestedPredictive:
         self.problem, self.config = problem, config
         self.split, self.inner = nested_split(problem.kernel), problem.inner_filter
 
-    def remedy(self, state, dataset, likelihood, info, weighed):
+    def remedy(self, state, dataset, likelihood, outcome):
         return None
 
-    def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed:
+    def weigh(self, state, dataset, likelihood, rng) -> OuterWeighed | Failure:
         problem, split, inner, step = self.problem, self.split, self.inner, state.step + 1
         guide = (inner.fit_guide(problem, split, state.outer, state.log_weights, state.cloud, dataset, likelihood, rng)
                  if step > 1 else None)
@@ -521,60 +291,69 @@ class NestedPredictive:
         inner_ess = float(np.exp(state.log_weights) @ cloud["ess"]) if "ess" in cloud else float("nan")
         components = np.column_stack([log_increment, state.log_prior, state.log_likelihood])
         if not np.isfinite(log_increment).any():
-            raise ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood))
+            return Failure(ZeroLikelihoodError(zero_likelihood_message(step, prior_name(step), likelihood)))
         return OuterWeighed(OuterCloud(state.outer, state.log_weights, components, inner=cloud, pending=state.pending),
                             None, MoveTally(step_size=state.step_size), n_found=self.config.n_samples,
                             datasets=state.datasets + (kept_copy(dataset),), guides=state.guides + (guide,),
                             inner_ess=inner_ess)
 
-    def temper(self, weighed, likelihood, rng) -> Tempered:
-        """Reweight by the likelihood estimates' ``delta`` powers (density tempering); when the ESS falls, resample
-        and schedule PMMH sweeps. A tempered update completes them at every stage; an untempered one restores the
-        copies' diversity to the ESS before the resampling, then spends what is left of
+    def temper(self, state, dataset, weighed, likelihood, rng) -> Tempered | Failure:
+        """Reweight by the likelihood estimates' ``delta`` powers (density tempering) through the one tempering loop
+        (:func:`~seqbayes.core.tempering.temper`); when the ESS falls, resample and schedule PMMH sweeps
+        (:meth:`_resample_rejuvenate`). A tempered update completes them at every stage; an untempered one restores
+        the copies' diversity to the ESS before the resampling, then spends what is left of
         ``SamplerConfig.move_budget x N M`` evaluations and defers the rest (:mod:`seqbayes.predictive.pmmh`)."""
-        config, n = self.config, self.config.n_samples
-        static, log_weights = weighed.cloud.particles, weighed.cloud.log_weights
-        components, cloud, pending = weighed.cloud.components, weighed.cloud.inner, weighed.cloud.pending
-        budget = (sys.maxsize if config.move_budget is None  # None: the rejuvenation completes in this update
-                  else int(config.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
-        beta, log_z, temperatures, concluded = 0.0, 0.0, [], float("nan")
-        stats, step_size, n_batches, resampled = SweepStats(), weighed.moves.step_size, 0, False
-        moves_spent, per_particle = 0, rerun_cost(self.inner, weighed.datasets)
-        while beta < 1.0:
-            beta, stage_log_z, log_weights, weights, stage_ess = reweight_stage(
-                log_weights, components[:, 0], beta, len(temperatures), config, likelihood.step)
-            log_z += stage_log_z
-            temperatures.append(beta)
-            resampled = beta < 1.0 or stage_ess < config.ess_threshold * n
-            if resampled:
-                index = resample(config.resampling, weights, rng, n)
-                static, components, cloud = static[index], components[index], _take(cloud, index)
-                log_weights = np.full(n, -np.log(n))
-                if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
-                    concluded = pending.acceptance
-                pending = pending.restarted(config.max_virtual if config.move == "stretch" else config.max_moves, n)
-            if pending.pending:
-                was_pending = pending.n_proposed
-                # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
-                # copies overstate); an untempered one first brings the copies back to the ESS the weights had
-                # before the resampling, then defers what exceeds the budget
-                # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
-                tempered = beta < 1.0 or len(temperatures) > 1
-                allowed = sys.maxsize if tempered and not config.strict_budget else budget
-                static, cloud, components, sweep, step_size_new, batches, pending = rejuvenate(
-                    self.problem, config, self.inner, self.split, weighed.datasets, weighed.guides, static,
-                    log_weights, cloud, components, beta, step_size, pending, allowed, likelihood, rng,
-                    restore=stage_ess / n if resampled else 0.0, spent=moves_spent if config.strict_budget else 0,
-                    restore_limit=1.0 if config.strict_budget else RESTORE_LIMIT)
-                moves_spent += sweep.n_evaluations * per_particle   # the budget's units: M s per re-run
-                stats, n_batches = stats + sweep, n_batches + batches
-                if config.move == "stretch":
-                    step_size = step_size_new
-                if not pending.pending and pending.n_proposed > was_pending:
-                    concluded = pending.acceptance
-        return Tempered(OuterCloud(static, log_weights, components, inner=cloud, pending=pending,
-                                   concluded=concluded),
-                        log_z, tuple(temperatures), MoveTally(stats, step_size, n_batches), resampled, stage_ess)
+        cloud = weighed.cloud
+        annealed = temper(_Rejuvenating(cloud, MoveTally(step_size=weighed.moves.step_size)), cloud.components[:, 0],
+                          cloud.log_weights, self.config.tempering,
+                          partial(self._resample_rejuvenate, weighed=weighed, likelihood=likelihood, rng=rng),
+                          likelihood.step)
+        if annealed.decision is not None:  # a stage's Failure
+            return annealed.decision
+        staged = annealed.particles
+        return Tempered(staged.cloud, annealed.log_z, annealed.temperatures, staged.moves, staged.resampled,
+                        annealed.last.ess)
+
+    def _resample_rejuvenate(self, staged, loglike, stage, weighed, likelihood, rng):
+        """SMC^2's mutation (:class:`~seqbayes.core.tempering.Mutation`): resample at an intermediate stage, or at the
+        last when the ESS is below ``ess_threshold * N`` (which concludes the last rejuvenation and schedules the
+        next), then the PMMH attempts the budget allows (:func:`~seqbayes.predictive.pmmh.rejuvenate`)."""
+        config, n, beta, smc2 = self.config, self.config.n_samples, stage.beta, self.config.predictive
+        outer, log_weights = staged.cloud, stage.log_weights
+        static, components, cloud = outer.particles, outer.components, outer.inner
+        pending, concluded = outer.pending, outer.concluded
+        resampled = beta < 1.0 or stage.ess < config.tempering.resample_below * n
+        if resampled:
+            index = resample(config.tempering.scheme, stage.weights, rng, n)
+            static, components, cloud = static[index], components[index], _take(cloud, index)
+            log_weights = np.full(n, -np.log(n))
+            if pending.n_proposed >= n // 2:  # the previous rejuvenation ends here: judged if it made half a sweep
+                concluded = pending.acceptance
+            pending = pending.restarted(config.moves.max_sweeps, n)
+        moves, spent = staged.moves, staged.spent
+        if pending.pending:
+            budget = (sys.maxsize if smc2.move_budget is None  # None: the rejuvenation completes in this update
+                      else int(smc2.move_budget * n * int(getattr(self.inner, "n_inner", 1))))
+            was_pending = pending.n_proposed
+            # a tempered update completes its moves (each exponent is chosen from the particles' ESS, which
+            # copies overstate); an untempered one first brings the copies back to the ESS the weights had
+            # before the resampling, then defers what exceeds the budget
+            # (with strict_budget, a tempered update too: its stages share one budget, restoring included)
+            tempered = beta < 1.0 or stage.index > 1
+            allowed = sys.maxsize if tempered and not smc2.strict_budget else budget
+            allowance = Budget(allowed, restore=stage.ess / n if resampled else 0.0,
+                               spent=spent if smc2.strict_budget else 0,
+                               restore_limit=1.0 if smc2.strict_budget else RESTORE_LIMIT)
+            static, cloud, components, sweep, step_size, batches, pending = rejuvenate(
+                Refilter(self.problem, self.inner, self.split, weighed.datasets, weighed.guides), config, static,
+                log_weights, cloud, components, beta, moves.step_size, pending, allowance, likelihood, rng)
+            spent += sweep.n_evaluations * rerun_cost(self.inner, weighed.datasets)   # the budget's units: M s per re-run
+            moves = MoveTally(moves.stats + sweep, config.moves.step_size_after(step_size, moves.step_size),
+                              moves.n_virtual + batches)
+            if not pending.pending and pending.n_proposed > was_pending:
+                concluded = pending.acceptance
+        outer = OuterCloud(static, log_weights, components, inner=cloud, pending=pending, concluded=concluded)
+        return _Rejuvenating(outer, moves, spent, resampled), components[:, 0], log_weights, None
 
     def estimate(self, tempered, weighed, likelihood, rng) -> Estimate:
         """The tempering path's estimate (Eq. 1): the likelihood estimates are unbiased, so is it."""
@@ -590,7 +369,7 @@ class NestedPredictive:
             posterior = static.copy()
             posterior[:, split[1]] = self.inner.draws(cloud, rng)
         else:
-            posterior = _joint(static, self.inner.draws(cloud, rng), split, kernel.dim)
+            posterior = joint_columns(static, self.inner.draws(cloud, rng), split, kernel.dim)
         log_evidence = float(state.log_evidence + estimate.log_increment)
         conflict = prior_data_conflict(state.prior_draws, state.log_weights, posterior, log_weights)
         predictive = kernel.propagate(posterior, rng)
@@ -606,12 +385,13 @@ class NestedPredictive:
         running = not np.isfinite(outer.concluded) and pending.n_proposed >= MIN_RUNNING_PROPOSALS
         warn_rejuvenation(step, pending.acceptance if running else outer.concluded, weighed.inner_ess,
                           len(weighed.datasets), int(getattr(self.inner, "n_inner", 0)), running)
-        fields = dict(prior_data_conflict=float(conflict.max()), conflict_parameter=int(conflict.argmax()),
-                      inner_ess=weighed.inner_ess, amortised_evals=n_evals_total / step,
-                      pmmh_acceptance=pending.acceptance if pending.n_proposed else outer.concluded,
-                      pending_moves=int(pending.queue.size + pending.sweeps_left * config.n_samples))  # at most
+        records = dict(evidence=EvidenceInfo(float(tempered.log_z), estimate.evidence_ess, estimate.n_independent),
+                       conflict=ConflictInfo(float(conflict.max()), int(conflict.argmax())),
+                       nested=NestedInfo(weighed.inner_ess, n_evals_total / step,
+                                         pending.acceptance if pending.n_proposed else outer.concluded,
+                                         int(pending.queue.size + pending.sweeps_left * config.n_samples)))  # at most
         return Outcome(new_state, posterior, log_weights, predictive, static, log_evidence,
-                       float(step_size) if config.move == "stretch" else float("nan"), fields, moments=moments)
+                       float(config.moves.step_size_after(step_size, float("nan"))), records, moments=moments)
 
 
 #: A rejuvenation whose PMMH acceptance ends below this draws a warning: the inner likelihood estimates are too
@@ -675,8 +455,8 @@ class JointFirstStep(ParticlePredictive):
                                         outcome.log_evidence, outcome.state.step_size, cloud.particles,
                                         outcome.predictive, likelihood.n_evals)
         moments = nested_moments(outcome.posterior, outcome.log_weights, None, np.zeros(0, dtype=int))
-        fields = dict(outcome.fields, amortised_evals=float(likelihood.n_evals))
-        return replace(outcome, state=replace(nested, moments=moments), fields=fields, moments=moments)
+        records = dict(outcome.records, nested=NestedInfo(amortised_evals=float(likelihood.n_evals)))
+        return replace(outcome, state=replace(nested, moments=moments), records=records, moments=moments)
 
 
 def nested_state_arrays(state: NestedState) -> dict:
@@ -720,7 +500,7 @@ def nested_state_from_arrays(arrays: dict, datasets: tuple, guides: tuple = ()) 
     if len(guides) != int(step) - 1:
         raise ValueError(f"guides: {len(guides)} guides for a state at step {int(step)} (expected {int(step) - 1})")
     pending, n_evals_total = Rejuvenation(), 0
-    if "pmmh_queue" in arrays:  # stores written before issue 23 have no pending moves
+    if "pmmh_queue" in arrays:  # stores of earlier formats have no pending moves
         queue = np.asarray(arrays["pmmh_queue"], dtype=float)
         sweeps_left, n_proposed, n_accepted, n_evals_total = (int(v) for v in np.asarray(arrays["pmmh_tally"]))
         moved = np.asarray(arrays.get("pmmh_moved", np.zeros(queue.size)), dtype=float) > 0
@@ -745,4 +525,4 @@ import typing as _typing  # noqa: E402
 if _typing.TYPE_CHECKING:  # names used only in annotations
     from typing import Any
 
-    from ..engine.state import Problem
+    from ..core.state import Problem

@@ -23,17 +23,18 @@ import contextlib
 import hashlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..engine.outputs import violation
+from ..engine.drivers import violation
 from . import files, registry
 from .datasets import read_datafile
 from .errors import DuplicateDatasetError, StoreError
 
-__all__ = ["BaseStore", "RECORD_TEXT", "record_hash", "content_hash", "rehash", "json_value", "json_values",
-           "check_finite"]
+__all__ = ["BaseStore", "Provenance", "RECORD_TEXT", "record_hash", "content_hash", "rehash", "json_value",
+           "json_values", "check_finite"]
 
 #: Attributes covered by the store's content hash (the numeric arrays carry HDF5 Fletcher-32 checksums).
 HASHED_ATTRS = ("config", "model_fingerprint", "n_steps", "initial_step_size", "result_meta")
@@ -91,12 +92,12 @@ def json_value(text, path, what):
         raise StoreError(f"{path}: damaged run store: {what} is not valid JSON ({err})") from None
 
 
-#: Run-store variables that hold an engine output under another name (:mod:`seqbayes.engine.outputs`).
+#: Run-store variables that hold an engine output under another name (:mod:`seqbayes.engine.drivers`).
 _OUTPUT_NAMES = {"initial_particles": "particles", "initial_log_weights": "log_weights", "dataset_values": "dataset"}
 
 
 def check_finite(path: Path, variables: dict, output_name=None) -> None:
-    """Refuse a non-finite value where the engine may not leave one (:data:`seqbayes.engine.outputs.OUTPUTS`,
+    """Refuse a non-finite value where the engine may not leave one (:data:`seqbayes.engine.drivers.OUTPUTS`,
     the rules of the engine's own check after every step): a store holding it cannot be resumed.
 
     ``output_name(variable)`` is the engine's name of a variable (default: the variable's own, or
@@ -121,6 +122,19 @@ def _encoding(ds, growing: dict) -> dict:
         if enc:
             encoding[name] = enc
     return encoding
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a run's steps came from, as a store keeps them: the generator's state before the first step and after
+    each, each dataset's SHA-256 and file name, when the run was created and each step's record hash (verified ones
+    from the file; new steps hash when written)."""
+
+    rng_states: tuple
+    digests: tuple = ()
+    sources: tuple = ()
+    created: str | None = None
+    record_hashes: tuple = ()
 
 
 class BaseStore:
@@ -158,15 +172,14 @@ class BaseStore:
     #: whether an update runs a likelihood the command line can count evaluations of
     evaluates_likelihood = False
 
-    def __init__(self, path, config, *, rng_states, digests=(), sources=(), created=None, record_hashes=()):
+    def __init__(self, path, config, provenance: Provenance):
         self.path = Path(path)
         self.config = config
-        self.rng_states = list(rng_states)
-        self.digests = list(digests)
-        self.sources = list(sources)
-        self.created = created or files.now()
-        # record hash of each step's text (verified ones from the file; new steps hash when written)
-        self._record_hashes = list(record_hashes or ())
+        self.rng_states = list(provenance.rng_states)
+        self.digests = list(provenance.digests)
+        self.sources = list(provenance.sources)
+        self.created = provenance.created or files.now()
+        self._record_hashes = list(provenance.record_hashes or ())
         self._token = None                          # (content hash, n_steps) of the file as last read or written
         self._disk_steps = 0                        # leading steps the file holds exactly as this object does
 

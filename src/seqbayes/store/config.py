@@ -32,7 +32,8 @@ A run is described by one TOML file::
     type = "SEMC"                      # or "SMC"
     n_samples = 500
     seed = 2024
-    # any SamplerConfig setting: tempering, resampling, target_acceptance, step_size, ...
+    # any flat setting of seqbayes.engine.settings.FLAT (mapped onto the sampler's components):
+    # tempering, resampling, target_acceptance, step_size, remedy_lag, ...
 
     [parallel]                         # optional
     executor = "serial"                # "serial", "processes" or "dask"
@@ -48,25 +49,20 @@ raises :class:`ConfigError` with a message such as
 from __future__ import annotations
 
 import difflib
-import hashlib
 import importlib.util
-import json
-import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from .schema import StoredConfig, check_keys, fail, number, table
 from .modules import (ConfigError, ModuleSource, split_likelihood, file_sha256, load_likelihood, load_located,
                       locate_module, read_toml)
 
 __all__ = ["ConfigError", "RunConfig", "load_config", "parse_config", "load_likelihood", "locate_module",
            "load_located", "ModuleSource", "file_sha256"]
 
-#: Settings of :class:`seqbayes.engine.settings.SamplerConfig` that only one of the samplers takes.
-SEMC_ONLY = ("step_size", "target_acceptance", "max_virtual", "virtual_tolerance")
-SMC_ONLY = ("proposal_scale", "max_moves")
 KERNEL_TYPES = {"static": (), "drift": ("rate",), "decay": ("rate",),
                 "jump": ("base", "rate", "p", "drop_mean", "drop_sd", "reference")}
 #: Optional settings of a jump kernel entry (``tail``: "gaussian" or "heavy"; or explicit ``scales``).
@@ -80,43 +76,8 @@ NOT_FINGERPRINTED = ("name", "search_path", "executor", "workers", "address", "l
                      "likelihood_sha256", "predict", "observed")
 
 
-def _fail(source, field_name, message):
-    raise ConfigError(f"{source}: {field_name}: {message}")
-
-
-def _table(raw, key, source, required=True):
-    value = raw.get(key)
-    if value is None:
-        if required:
-            _fail(source, f"[{key}]", "missing section")
-        return {}
-    if not isinstance(value, dict):
-        _fail(source, key, f"expected a table, got {type(value).__name__}")
-    return value
-
-
-def _check_keys(table, allowed, source, prefix):
-    for key in table:
-        if key not in allowed:
-            close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            _fail(source, f"{prefix}.{key}", f"unknown setting{hint}; expected one of {', '.join(sorted(allowed))}")
-
-
-def _number(value, source, name, *, integer=False, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(source, name, f"expected a number, got {value!r}")
-    if integer and int(value) != value:
-        _fail(source, name, f"expected an integer, got {value!r}")
-    if not math.isfinite(value):
-        _fail(source, name, f"expected a finite number, got {value!r}")
-    if positive and value <= 0:
-        _fail(source, name, f"must be positive, got {value!r}")
-    return int(value) if integer else float(value)
-
-
 @dataclass(frozen=True)
-class RunConfig:
+class RunConfig(StoredConfig):
     """A validated run configuration (see the module docstring for the TOML layout).
 
     Attributes
@@ -140,7 +101,8 @@ class RunConfig:
     n_samples : int
     seed : int
     settings : dict
-        Further sampler settings (fields of :class:`seqbayes.engine.settings.SamplerConfig`).
+        Further sampler settings, flat (:data:`seqbayes.engine.settings.FLAT`: each maps onto a field of one of
+        the sampler's components, :func:`~seqbayes.engine.settings.from_flat`).
     executor : {"serial", "processes", "dask"}
     workers : int
     address : str or None
@@ -178,6 +140,7 @@ class RunConfig:
 
     #: the run kind (:mod:`seqbayes.store.registry`): an SMC/SEMC run
     kind = "semc"
+    unfingerprinted = NOT_FINGERPRINTED
 
     # ------------------------------------------------------------------ builders
     @property
@@ -218,9 +181,10 @@ class RunConfig:
         ValueError
             ``predictive = "history"`` with a kernel that is not static.
         """
+        from ..engine.settings import from_flat
         from ..predictive.base import resolve_predictive
 
-        return resolve_predictive(self.settings.get("predictive", "auto"), self.build_kernel())
+        return resolve_predictive(from_flat(self.sampler, **self.settings)["predictive"], self.build_kernel()).method
 
     def locate_likelihood(self) -> "ModuleSource":
         """The likelihood's module (:class:`ModuleSource`), found in :attr:`search_path` or on ``sys.path``."""
@@ -242,11 +206,12 @@ class RunConfig:
             Overrides the configured likelihood (e.g. a wrapper counting evaluations).
         """
         from ..engine.drivers import SEMC, SMC
+        from ..engine.settings import from_flat
 
         cls = SEMC if self.sampler == "SEMC" else SMC
         loglike = self.load_likelihood() if loglike is None else loglike
         return cls(self.build_prior(), self.build_kernel(), loglike, n_samples=self.n_samples, rng=self.seed,
-                   executor=executor, **self.settings)
+                   executor=executor, **from_flat(self.sampler, **self.settings))
 
     # ------------------------------------------------------------- persistence
     def to_dict(self) -> dict:
@@ -276,31 +241,6 @@ class RunConfig:
         data["columns"] = tuple(data["columns"])
         return cls(**data)
 
-    def differing_fields(self, other: "RunConfig") -> list[str]:
-        """The fields (``section.key`` inside a table) in which ``other`` defines another model than this one."""
-        mine, theirs = self.to_dict(), other.to_dict()
-        out = []
-        for key in mine:
-            if key in NOT_FINGERPRINTED:
-                continue
-            if isinstance(mine[key], dict) and isinstance(theirs.get(key), dict):
-                out += [f"{key}.{sub}" for sub in sorted(set(mine[key]) | set(theirs[key]))
-                        if mine[key].get(sub) != theirs[key].get(sub)]
-            elif json.dumps(mine[key], sort_keys=True) != json.dumps(theirs.get(key), sort_keys=True):
-                out.append(key)
-        return out
-
-    def fingerprint(self) -> str:
-        """SHA-256 of everything that defines the model and the random stream.
-
-        The prior, kernel, likelihood name, data layout, sampler type and settings,
-        sample size and seed; *not* the model's display name, the executor (it
-        does not change the numbers), the folder the likelihood is imported from nor its
-        file's hash (the run store records and checks that itself, per step).
-        """
-        content = {k: v for k, v in self.to_dict().items() if k not in NOT_FINGERPRINTED}
-        return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-
     def make_executor(self) -> tuple[Any, Callable[[], None]]:
         """``(executor, close)`` for the ``[parallel]`` section (:func:`seqbayes.parallel.make_executor`)."""
         from ..parallel import make_executor
@@ -314,16 +254,16 @@ def _freeze(spec, source, prefix):
 
     dist = getattr(stats, spec["dist"], None)
     if dist is None or not isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
-        _fail(source, f"{prefix}.dist", f"unknown scipy.stats distribution {spec['dist']!r}")
+        fail(source, f"{prefix}.dist", f"unknown scipy.stats distribution {spec['dist']!r}")
     if isinstance(dist, stats.rv_discrete):
-        _fail(source, f"{prefix}.dist", f"{spec['dist']!r} is discrete; parameters need a continuous distribution")
+        fail(source, f"{prefix}.dist", f"{spec['dist']!r} is discrete; parameters need a continuous distribution")
     try:
         frozen = dist(*spec["args"], **spec["kwds"])
         frozen.logpdf(frozen.mean() if np.isfinite(frozen.mean()) else frozen.median())
     except Exception as err:  # scipy raises TypeError / ValueError with its own wording
-        _fail(source, prefix, f"scipy.stats.{spec['dist']}(args={spec['args']}, {spec['kwds']}) failed: {err}")
+        fail(source, prefix, f"scipy.stats.{spec['dist']}(args={spec['args']}, {spec['kwds']}) failed: {err}")
     if not np.isfinite(frozen.logpdf(frozen.median())):
-        _fail(source, prefix, f"invalid parameters for scipy.stats.{spec['dist']}: args={spec['args']}, "
+        fail(source, prefix, f"invalid parameters for scipy.stats.{spec['dist']}: args={spec['args']}, "
                               f"{spec['kwds']}")
     return frozen
 
@@ -331,16 +271,16 @@ def _freeze(spec, source, prefix):
 def _parse_prior(name, raw, source):
     prefix = f"priors.{name}"
     if not isinstance(raw, dict):
-        _fail(source, prefix, f"expected a table like {{ dist = \"norm\", loc = 0, scale = 1 }}, got {raw!r}")
+        fail(source, prefix, f"expected a table like {{ dist = \"norm\", loc = 0, scale = 1 }}, got {raw!r}")
     if "dist" not in raw:
-        _fail(source, f"{prefix}.dist", "missing (a scipy.stats distribution name such as \"uniform\")")
+        fail(source, f"{prefix}.dist", "missing (a scipy.stats distribution name such as \"uniform\")")
     if not isinstance(raw["dist"], str):
-        _fail(source, f"{prefix}.dist", f"expected a string, got {raw['dist']!r}")
+        fail(source, f"{prefix}.dist", f"expected a string, got {raw['dist']!r}")
     args = raw.get("args", [])
     if not isinstance(args, list):
-        _fail(source, f"{prefix}.args", f"expected a list of numbers, got {args!r}")
-    args = [_number(a, source, f"{prefix}.args[{i}]") for i, a in enumerate(args)]
-    kwds = {k: _number(v, source, f"{prefix}.{k}") for k, v in raw.items() if k not in ("dist", "args")}
+        fail(source, f"{prefix}.args", f"expected a list of numbers, got {args!r}")
+    args = [number(a, source, f"{prefix}.args[{i}]") for i, a in enumerate(args)]
+    kwds = {k: number(v, source, f"{prefix}.{k}") for k, v in raw.items() if k not in ("dist", "args")}
     if raw["dist"] == "uniform" and {"lower", "upper"} & set(kwds):
         kwds = _uniform_bounds(kwds, args, source, prefix)
     _check_prior_keywords(raw["dist"], kwds, len(args), source, prefix)
@@ -353,9 +293,9 @@ def _uniform_bounds(kwds, args, source, prefix):
     """``lower``/``upper`` of a uniform prior as scipy's ``loc``/``scale`` (stored so: the fingerprint of
     ``U(0, 2)`` does not depend on how it was written)."""
     if set(kwds) != {"lower", "upper"} or args:
-        _fail(source, prefix, "a uniform prior takes lower and upper together, or loc and scale; not a mix")
+        fail(source, prefix, "a uniform prior takes lower and upper together, or loc and scale; not a mix")
     if not kwds["lower"] < kwds["upper"]:
-        _fail(source, f"{prefix}.upper", f"must be above lower = {kwds['lower']:g}, got {kwds['upper']:g}")
+        fail(source, f"{prefix}.upper", f"must be above lower = {kwds['lower']:g}, got {kwds['upper']:g}")
     return {"loc": kwds["lower"], "scale": kwds["upper"] - kwds["lower"]}
 
 
@@ -373,12 +313,12 @@ def _check_prior_keywords(dist_name, kwds, n_args, source, prefix):
         if key not in takes:
             close = difflib.get_close_matches(key, takes, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            _fail(source, f"{prefix}.{key}", f"scipy.stats.{dist_name} has no parameter {key!r}{hint}; it takes "
+            fail(source, f"{prefix}.{key}", f"scipy.stats.{dist_name} has no parameter {key!r}{hint}; it takes "
                                              f"{', '.join(takes)} (shape parameters also as args = [...])")
     given = [*shapes, "loc", "scale"][:n_args]
     twice = [key for key in kwds if key in given]
     if twice:
-        _fail(source, f"{prefix}.{twice[0]}", "given both in args and as a keyword")
+        fail(source, f"{prefix}.{twice[0]}", "given both in args and as a keyword")
 
 
 def _memory_bound(n_samples, dim, source):
@@ -391,65 +331,51 @@ def _memory_bound(n_samples, dim, source):
     except (AttributeError, ValueError, OSError):  # not POSIX: no bound known
         return
     if need > have:
-        _fail(source, "sampler.n_samples", f"{n_samples} samples of {dim} parameters need about "
+        fail(source, "sampler.n_samples", f"{n_samples} samples of {dim} parameters need about "
                                            f"{need / 2**30:.3g} GiB of memory; this machine has {have / 2**30:.3g} GiB")
 
 
-def _sampler_settings(kind):
-    """Settings accepted in ``[sampler]`` besides ``type``, ``n_samples`` and ``seed``."""
-    import dataclasses
-
-    from ..engine.settings import SamplerConfig
-
-    names = [f.name for f in dataclasses.fields(SamplerConfig) if f.name not in ("move", "n_samples")]
-    excluded = SMC_ONLY if kind == "SEMC" else SEMC_ONLY
-    return tuple(n for n in names if n not in excluded)
-
-
 def _typed_setting(key, value, source):
-    """A ``[sampler]`` setting checked against the type of its :class:`~seqbayes.engine.settings.SamplerConfig` field.
+    """A ``[sampler]`` setting checked against its type (:data:`seqbayes.engine.settings.FLAT`).
 
     ``tempering = "false"`` (a string, which Python would take as true) or ``max_stages = 10.5``
     are refused rather than silently reinterpreted.
     """
-    import dataclasses
+    from ..engine.settings import FLAT
 
-    from ..engine.settings import SamplerConfig
-
-    kind = {f.name: f.type for f in dataclasses.fields(SamplerConfig)}.get(key)
-    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    kind = FLAT[key][2]
     name = f"sampler.{key}"
     if kind == "bool":
         if not isinstance(value, bool):
-            _fail(source, name, f"expected true or false, got {value!r}")
+            fail(source, name, f"expected true or false, got {value!r}")
         return value
     if kind in ("int", "float"):  # checked, but kept as written: the stored config (and fingerprint) stay the same
-        _number(value, source, name, integer=kind == "int")
+        number(value, source, name, integer=kind == "int")
     if kind == "str" and not isinstance(value, str):
-        _fail(source, name, f"expected a string, got {value!r}")
+        fail(source, name, f"expected a string, got {value!r}")
     return value
 
 
 def _parse_kernel(name, raw, source):
     prefix = f"kernel.{name}"
     if not isinstance(raw, dict):
-        _fail(source, prefix, f"expected a table like {{ type = \"drift\", rate = -0.1, noise_std = 0.05 }}, "
+        fail(source, prefix, f"expected a table like {{ type = \"drift\", rate = -0.1, noise_std = 0.05 }}, "
                               f"got {raw!r}")
     kind = raw.get("type")
     if kind not in KERNEL_TYPES:
-        _fail(source, f"{prefix}.type", f"expected one of {', '.join(KERNEL_TYPES)}, got {kind!r}")
+        fail(source, f"{prefix}.type", f"expected one of {', '.join(KERNEL_TYPES)}, got {kind!r}")
     allowed = {"type", "noise_std", *KERNEL_TYPES[kind], *(JUMP_OPTIONAL if kind == "jump" else ())}
-    _check_keys(raw, allowed, source, prefix)
+    check_keys(raw, allowed, source, prefix)
     for key in KERNEL_TYPES[kind]:
         if key not in raw:
-            _fail(source, f"{prefix}.{key}", f"missing (required for type = \"{kind}\")")
-    noise = _number(raw.get("noise_std", 0.0), source, f"{prefix}.noise_std")
+            fail(source, f"{prefix}.{key}", f"missing (required for type = \"{kind}\")")
+    noise = number(raw.get("noise_std", 0.0), source, f"{prefix}.noise_std")
     if noise < 0:
-        _fail(source, f"{prefix}.noise_std", f"must be >= 0, got {noise}")
+        fail(source, f"{prefix}.noise_std", f"must be >= 0, got {noise}")
     if kind == "static" and noise != 0:
-        _fail(source, f"{prefix}.noise_std", "a static parameter has no process noise; use type = \"drift\" "
+        fail(source, f"{prefix}.noise_std", "a static parameter has no process noise; use type = \"drift\" "
                                              "with rate = 0 for a random walk")
-    rate = _number(raw["rate"], source, f"{prefix}.rate") if "rate" in raw else 0.0
+    rate = number(raw["rate"], source, f"{prefix}.rate") if "rate" in raw else 0.0
     if kind == "jump":
         return _parse_jump(prefix, raw, rate, noise, source)
     return {"type": kind, "rate": rate, "noise_std": noise}
@@ -460,30 +386,30 @@ def _parse_jump(prefix, raw, rate, noise, source):
     from ..kernels import HEAVY_TAIL_SCALES, HEAVY_TAIL_WEIGHTS
 
     if raw["base"] not in ("drift", "decay"):
-        _fail(source, f"{prefix}.base", f"expected \"drift\" or \"decay\" (the no-jump evolution), got {raw['base']!r}")
+        fail(source, f"{prefix}.base", f"expected \"drift\" or \"decay\" (the no-jump evolution), got {raw['base']!r}")
     if noise <= 0:
-        _fail(source, f"{prefix}.noise_std", "a jump kernel needs the base's noise_std > 0 (the no-jump branch "
+        fail(source, f"{prefix}.noise_std", "a jump kernel needs the base's noise_std > 0 (the no-jump branch "
                                              "is a Gaussian)")
-    p = _number(raw["p"], source, f"{prefix}.p")
+    p = number(raw["p"], source, f"{prefix}.p")
     if not 0.0 < p < 1.0:
-        _fail(source, f"{prefix}.p", f"the jump probability must lie in (0, 1), got {p}")
-    drop_mean = _number(raw["drop_mean"], source, f"{prefix}.drop_mean")
-    drop_sd = _number(raw["drop_sd"], source, f"{prefix}.drop_sd", positive=True)
-    reference = _number(raw["reference"], source, f"{prefix}.reference", positive=True)
+        fail(source, f"{prefix}.p", f"the jump probability must lie in (0, 1), got {p}")
+    drop_mean = number(raw["drop_mean"], source, f"{prefix}.drop_mean")
+    drop_sd = number(raw["drop_sd"], source, f"{prefix}.drop_sd", positive=True)
+    reference = number(raw["reference"], source, f"{prefix}.reference", positive=True)
     tail = raw.get("tail", "gaussian")
     if tail not in ("gaussian", "heavy"):
-        _fail(source, f"{prefix}.tail", f"expected \"gaussian\" or \"heavy\", got {tail!r}")
+        fail(source, f"{prefix}.tail", f"expected \"gaussian\" or \"heavy\", got {tail!r}")
     if ("scales" in raw) != ("scale_weights" in raw) or ("scales" in raw and "tail" in raw):
-        _fail(source, f"{prefix}.scales", "give scales and scale_weights together, and not with tail")
+        fail(source, f"{prefix}.scales", "give scales and scale_weights together, and not with tail")
     if "scales" in raw:
         lists = {}
         for key in ("scales", "scale_weights"):
             value = raw[key]
             if not isinstance(value, list) or not value:
-                _fail(source, f"{prefix}.{key}", f"expected a non-empty list of positive numbers, got {value!r}")
-            lists[key] = [_number(v, source, f"{prefix}.{key}", positive=True) for v in value]
+                fail(source, f"{prefix}.{key}", f"expected a non-empty list of positive numbers, got {value!r}")
+            lists[key] = [number(v, source, f"{prefix}.{key}", positive=True) for v in value]
         if len(lists["scales"]) != len(lists["scale_weights"]):
-            _fail(source, f"{prefix}.scale_weights", f"expected {len(lists['scales'])} weights (one per scale), "
+            fail(source, f"{prefix}.scale_weights", f"expected {len(lists['scales'])} weights (one per scale), "
                                                      f"got {len(lists['scale_weights'])}")
         scales, weights = lists["scales"], lists["scale_weights"]
     else:
@@ -533,87 +459,85 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     check_likelihood : bool
         Import the likelihood now (default), so that a typo fails at ``init``.
     """
-    _check_keys(raw, {"model", "data", "priors", "kernel", "sampler", "parallel"}, source, "<top level>")
-    model = _table(raw, "model", source)
-    _check_keys(model, {"name", "likelihood", "predict", "observed"}, source, "model")
+    check_keys(raw, {"model", "data", "priors", "kernel", "sampler", "parallel"}, source, "<top level>")
+    model = table(raw, "model", source)
+    check_keys(model, {"name", "likelihood", "predict", "observed"}, source, "model")
     if "likelihood" not in model:
-        _fail(source, "model.likelihood", "missing (\"module:function\")")
+        fail(source, "model.likelihood", "missing (\"module:function\")")
     likelihood = model["likelihood"]
     if not isinstance(likelihood, str) or likelihood.count(":") != 1 or not all(likelihood.split(":")):
-        _fail(source, "model.likelihood", f"expected \"module:function\", got {likelihood!r}")
+        fail(source, "model.likelihood", f"expected \"module:function\", got {likelihood!r}")
     name = model.get("name", likelihood.split(":")[1])
     if not isinstance(name, str) or not name:
-        _fail(source, "model.name", f"expected a non-empty string, got {name!r}")
+        fail(source, "model.name", f"expected a non-empty string, got {name!r}")
 
-    data = _table(raw, "data", source)
-    _check_keys(data, {"columns", "format", "rows"}, source, "data")
+    data = table(raw, "data", source)
+    check_keys(data, {"columns", "format", "rows"}, source, "data")
     columns = data.get("columns")
     if (not isinstance(columns, list) or not columns or not all(isinstance(c, str) and c for c in columns)):
-        _fail(source, "data.columns", f"expected a non-empty list of column names, got {columns!r}")
+        fail(source, "data.columns", f"expected a non-empty list of column names, got {columns!r}")
     if len(set(columns)) != len(columns):
-        _fail(source, "data.columns", f"duplicate column names in {columns}")
+        fail(source, "data.columns", f"duplicate column names in {columns}")
     data_format = data.get("format", "array")
     if data_format not in ("array", "columns"):
-        _fail(source, "data.format", f"expected \"array\" or \"columns\", got {data_format!r}")
+        fail(source, "data.format", f"expected \"array\" or \"columns\", got {data_format!r}")
     rows = data.get("rows")
     if rows is not None:
-        rows = _number(rows, source, "data.rows", integer=True, positive=True)
+        rows = number(rows, source, "data.rows", integer=True, positive=True)
 
-    priors_raw = _table(raw, "priors", source)
+    priors_raw = table(raw, "priors", source)
     if not priors_raw:
-        _fail(source, "[priors]", "at least one parameter is needed")
+        fail(source, "[priors]", "at least one parameter is needed")
     priors = {str(n): _parse_prior(n, spec, source) for n, spec in priors_raw.items()}
 
-    kernel_raw = _table(raw, "kernel", source, required=False)
+    kernel_raw = table(raw, "kernel", source, required=False)
     for n in kernel_raw:
         if n not in priors:
-            _fail(source, f"kernel.{n}", f"not a parameter; the priors define {', '.join(priors)}")
+            fail(source, f"kernel.{n}", f"not a parameter; the priors define {', '.join(priors)}")
     kernel = {n: _parse_kernel(n, kernel_raw[n], source) if n in kernel_raw
               else {"type": "static", "rate": 0.0, "noise_std": 0.0} for n in priors}
 
-    sampler_raw = dict(_table(raw, "sampler", source, required=False))
+    sampler_raw = dict(table(raw, "sampler", source, required=False))
     kind = sampler_raw.pop("type", "SEMC")
     if kind not in ("SEMC", "SMC"):
-        _fail(source, "sampler.type", f"expected \"SEMC\" or \"SMC\", got {kind!r}")
-    allowed = _sampler_settings(kind)
-    n_samples = _number(sampler_raw.pop("n_samples", 1000), source, "sampler.n_samples", integer=True,
-                        positive=True)
-    seed = _number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)
-    if seed < 0:
-        _fail(source, "sampler.seed", f"must be >= 0, got {seed}")
-    _check_keys(sampler_raw, {*allowed, "type", "n_samples", "seed"}, source, "sampler")
-    settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
-    # let the core validate values, reporting the field
-    from ..engine.settings import SamplerConfig
+        fail(source, "sampler.type", f"expected \"SEMC\" or \"SMC\", got {kind!r}")
+    from ..engine.settings import SamplerConfig, flat_names, from_flat
 
-    try:
-        SamplerConfig(move="stretch" if kind == "SEMC" else "gaussian", n_samples=n_samples,
-                      **{k: v for k, v in settings.items()})
+    allowed = flat_names(kind)
+    n_samples = number(sampler_raw.pop("n_samples", 1000), source, "sampler.n_samples", integer=True,
+                        positive=True)
+    seed = number(sampler_raw.pop("seed", 0), source, "sampler.seed", integer=True)
+    if seed < 0:
+        fail(source, "sampler.seed", f"must be >= 0, got {seed}")
+    check_keys(sampler_raw, {*allowed, "type", "n_samples", "seed"}, source, "sampler")
+    settings = {key: _typed_setting(key, value, source) for key, value in sampler_raw.items()}
+    try:  # the components validate the values, naming the field
+        SamplerConfig(n_samples, **from_flat(kind, **settings))
     except (TypeError, ValueError) as err:
-        _fail(source, "sampler", str(err))
+        fail(source, "sampler", str(err))
     if kind == "SEMC" and n_samples < 2 * len(priors):
-        _fail(source, "sampler.n_samples", f"SEMC needs at least 2 d = {2 * len(priors)} samples, got {n_samples}")
+        fail(source, "sampler.n_samples", f"SEMC needs at least 2 d = {2 * len(priors)} samples, got {n_samples}")
     _memory_bound(n_samples, len(priors), source)
 
-    parallel = _table(raw, "parallel", source, required=False)
-    _check_keys(parallel, {"executor", "workers", "address"}, source, "parallel")
+    parallel = table(raw, "parallel", source, required=False)
+    check_keys(parallel, {"executor", "workers", "address"}, source, "parallel")
     executor = parallel.get("executor", "serial")
     if executor not in EXECUTORS:
-        _fail(source, "parallel.executor", f"expected one of {', '.join(EXECUTORS)}, got {executor!r}")
+        fail(source, "parallel.executor", f"expected one of {', '.join(EXECUTORS)}, got {executor!r}")
     if executor == "dask" and check_likelihood and importlib.util.find_spec("distributed") is None:
-        _fail(source, "parallel.executor", "\"dask\" needs the optional dependency dask.distributed, which is "
+        fail(source, "parallel.executor", "\"dask\" needs the optional dependency dask.distributed, which is "
                                            "not installed: pip install \"seqbayes[dask]\" (or use \"processes\")")
-    workers = _number(parallel.get("workers", 2), source, "parallel.workers", integer=True, positive=True)
+    workers = number(parallel.get("workers", 2), source, "parallel.workers", integer=True, positive=True)
     address = parallel.get("address")
     if address is not None and not isinstance(address, str):
-        _fail(source, "parallel.address", f"expected a string, got {address!r}")
+        fail(source, "parallel.address", f"expected a string, got {address!r}")
 
     predict = model.get("predict")
     if predict is not None and (not isinstance(predict, str) or not predict.isidentifier()):
-        _fail(source, "model.predict", f"expected the name of a function in the likelihood's module, got {predict!r}")
+        fail(source, "model.predict", f"expected the name of a function in the likelihood's module, got {predict!r}")
     observed = model.get("observed")
     if observed is not None and observed not in columns:
-        _fail(source, "model.observed", f"expected one of the data columns {columns}, got {observed!r}")
+        fail(source, "model.observed", f"expected one of the data columns {columns}, got {observed!r}")
 
     config = RunConfig(name=name, likelihood=likelihood, columns=tuple(columns), priors=priors, kernel=kernel,
                        sampler=kind, n_samples=n_samples, seed=seed, settings=settings, data_format=data_format,
@@ -622,7 +546,7 @@ def parse_config(raw: dict, source: str = "<config>", base_dir: str | Path | Non
     try:  # a history prior needs every parameter static
         config.predictive_method
     except ValueError as err:
-        _fail(source, "sampler.predictive", str(err))
+        fail(source, "sampler.predictive", str(err))
     if check_likelihood:
         try:
             located = config.locate_likelihood()

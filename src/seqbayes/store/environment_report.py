@@ -9,7 +9,6 @@ damage day is summed out), so they do not run in a run store; this page is what 
 
 from __future__ import annotations
 
-import html
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import plotting
-from .report import CSS, figure_html, table_html
+from .pages import figure_html, page, table_html
 from .targets import write_output
 
 if TYPE_CHECKING:
@@ -117,15 +116,12 @@ def render_environment_report(monitor: EnvironmentMonitor, table: dict, days: li
                      f"{record.damage_size:.3f}" if damaged else "-",
                      ", ".join(f"{q:.3g}" for q in record.model_probabilities), "ALARM" if record.alarm else ""])
     figure = environment_figure(monitor, table, days, records, summary["alarm_days"])
-    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>",
+    return page(title, [
              table_html(["", ""], [[k, v] for k, v in facts], left=(0, 1)),
              figure_html(figure, "Frequencies against temperature, P(damage) and the alarm, the learned law", "year"),
              "<h2>Day by day</h2>",
              table_html(["day", "P(damage)", "storey", "loss", "P(M0), " + ", ".join(f"P(M{j + 1})" for j in range(n)),
-                         "alarm"], rows, left=(4,)),
-             "</body></html>"]
-    return "\n".join(parts)
+                         "alarm"], rows, left=(4,))])
 
 
 def write_environment_report(path: str | os.PathLike, *args, **kwargs) -> Path:

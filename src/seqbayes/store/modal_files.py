@@ -22,7 +22,7 @@ import numpy as np
 __all__ = ["track_to_folder", "run_toml"]
 
 #: half-width of the uniform prior box of each mode's frequency, relative (the box is the parameter space: it
-#: must hold the whole period's range; the mast's widest track spans +-2.5 %)
+#: must hold the whole period's range of each tracked mode)
 PRIOR_HALF_WIDTH = 0.05
 
 

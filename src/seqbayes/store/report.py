@@ -12,7 +12,6 @@ from __future__ import annotations
 import html
 import math
 import textwrap
-import urllib.parse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,7 +20,7 @@ import numpy as np
 
 from .. import plotting
 from .datasets import printable
-from .targets import write_output
+from .pages import figure_html, fmt, page, table_html, text, write_page
 
 if TYPE_CHECKING:
     import os
@@ -82,15 +81,6 @@ def status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     return rows
 
 
-def _fmt(x):
-    return f"{x:.4g}" if np.isfinite(x) else "nan"
-
-
-def _e(value) -> str:
-    """``value`` as HTML text."""
-    return html.escape(str(value))
-
-
 #: What ``-`` in an acceptance column means (``status`` and the report say the same).
 NO_MOVES_NOTE = "accept '-': the step moved no samples (SMC^2 moves them only when their ESS falls)."
 
@@ -136,15 +126,15 @@ def format_status(store: BaseStore, level: float = 0.95) -> str:
     lines.append(f"{'step':>4}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}")
     for r in rows:
         for name, p in r["parameters"].items():
-            lines.append(f"{r['step']:>4}  {printable(name)[:14]:<14} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
-                         f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
+            lines.append(f"{r['step']:>4}  {printable(name)[:14]:<14} {fmt(p['mean']):>11} {fmt(p['sd']):>11} "
+                         f"{fmt(p['lower']):>11} {fmt(p['upper']):>11}")
     return "\n".join(lines)
 
 
 def _jump_rows(rows) -> list[list]:
     """``[step, P(jump), se, parameter, drop fraction, its sd]`` of the steps with a jump probability."""
-    return [[r["step"], f"{r['jump_probability']:.4f}", _fmt(r["jump_probability_se"]), r["jump_parameter"],
-             _fmt(r["jump_size"]), _fmt(r["jump_size_sd"])] for r in rows if np.isfinite(r["jump_probability"])]
+    return [[r["step"], f"{r['jump_probability']:.4f}", fmt(r["jump_probability_se"]), r["jump_parameter"],
+             fmt(r["jump_size"]), fmt(r["jump_size_sd"])] for r in rows if np.isfinite(r["jump_probability"])]
 
 
 def _jump_lines(rows) -> list[str]:
@@ -177,8 +167,8 @@ def format_forecast(rows: Sequence[dict], level: float = 0.95) -> str:
     lines = [f"{'step':>4} {'ahead':>5}  {'parameter':<14} {'mean':>11} {'sd':>11} {pct + ' lower':>11} "
              f"{pct + ' upper':>11}"]
     for r in rows:
-        lines.append(f"{r['step']:>4} {r['ahead']:>5}  {r['parameter'][:14]:<14} {_fmt(r['mean']):>11} "
-                     f"{_fmt(r['sd']):>11} {_fmt(r['lower']):>11} {_fmt(r['upper']):>11}")
+        lines.append(f"{r['step']:>4} {r['ahead']:>5}  {r['parameter'][:14]:<14} {fmt(r['mean']):>11} "
+                     f"{fmt(r['sd']):>11} {fmt(r['lower']):>11} {fmt(r['upper']):>11}")
     return "\n".join(lines)
 
 
@@ -314,39 +304,6 @@ def comparison_rows(comparison: ModelComparison) -> list[dict]:
 
 
 # ------------------------------------------------------------------ HTML report
-CSS = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 960px; color: #222; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 2em; }
-table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0; }
-th, td { border: 1px solid #ddd; padding: 0.2em 0.5em; text-align: right; }
-th { background: #f4f4f4; } td.l, th.l { text-align: left; }
-figure { margin: 1em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
-figcaption { font-size: 0.85em; color: #555; } code { background: #f4f4f4; padding: 0 0.2em; }
-"""
-
-
-def table_html(header, rows, left=(0,)):
-    out = ["<table><thead><tr>"]
-    out += [f"<th class='{'l' if i in left else ''}'>{html.escape(str(h))}</th>" for i, h in enumerate(header)]
-    out.append("</tr></thead><tbody>")
-    for row in rows:
-        out.append("<tr>" + "".join(f"<td class='{'l' if i in left else ''}'>{html.escape(str(c))}</td>"
-                                    for i, c in enumerate(row)) + "</tr>")
-    out.append("</tbody></table>")
-    return "".join(out)
-
-
-def figure_html(fig, caption, fig_id, image_dir=None):
-    if image_dir is None:
-        src = plotting.to_data_uri(fig)
-    else:
-        image_dir.mkdir(parents=True, exist_ok=True)
-        write_output(image_dir / f"{fig_id}.png", plotting.to_png(fig, dpi=100))
-        src = urllib.parse.quote(f"{image_dir.name}/{fig_id}.png")   # the output's stem is the user's text
-    return (f"<figure id='{fig_id}'><img src='{html.escape(src, quote=True)}' alt='{html.escape(caption)}'>"
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
-
-
 def _threshold_section(store, thresholds, horizon, image_dir) -> str:
     """The report's time-to-threshold section: a summary and a table per threshold, one CDF figure."""
     passages = [(t, store.time_to_threshold(t.name, t.value, horizon, direction=t.direction)) for t in thresholds]
@@ -432,13 +389,11 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
     if store.n_steps == 0:
         raise ValueError(f"{store.path}: no step to report yet (run `seqbayes update` first)")
     cfg = store.config
-    title = f"seqbayes report: {cfg.name}"
-    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    parts = []
     # every field of a stored configuration is text from a file someone was handed: escaped, all of it
-    parts.append(f"<p>Run <code>{_e(store.path)}</code>: likelihood <code>{_e(cfg.likelihood)}</code>, sampler "
-                 f"{_e(cfg.sampler)} with N = {_e(cfg.n_samples)}, seed {_e(cfg.seed)}; {store.n_steps} "
-                 f"dataset(s) assimilated. Model fingerprint <code>{_e(cfg.fingerprint()[:12])}</code>.</p>")
+    parts.append(f"<p>Run <code>{text(store.path)}</code>: likelihood <code>{text(cfg.likelihood)}</code>, sampler "
+                 f"{text(cfg.sampler)} with N = {text(cfg.n_samples)}, seed {text(cfg.seed)}; {store.n_steps} "
+                 f"dataset(s) assimilated. Model fingerprint <code>{text(cfg.fingerprint()[:12])}</code>.</p>")
     kernel_rows = [[n, describe_prior(cfg.priors[n]), describe_kernel(cfg.kernel[n])] for n in cfg.names]
     parts.append("<h2>Model</h2>" + table_html(["parameter", "prior", "evolution between steps"], kernel_rows,
                                                 left=(0, 1, 2)))
@@ -455,7 +410,7 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
 
     rows = status_rows(store, level)
     pct = f"{level:.0%}"
-    param_rows = [[r["step"], name, _fmt(p["mean"]), _fmt(p["sd"]), _fmt(p["lower"]), _fmt(p["upper"])]
+    param_rows = [[r["step"], name, fmt(p["mean"]), fmt(p["sd"]), fmt(p["lower"]), fmt(p["upper"])]
                   for r in rows for name, p in r["parameters"].items()]
     parts.append(table_html(["step", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"], param_rows,
                              left=(1,)))
@@ -466,8 +421,8 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
         parts.append("<h2>Forecast</h2>")
         frows = forecast_rows(store, forecast_steps, level, forecast)
         parts.append(table_html(["step", "ahead", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
-                                 [[r["step"], r["ahead"], r["parameter"], _fmt(r["mean"]), _fmt(r["sd"]),
-                                   _fmt(r["lower"]), _fmt(r["upper"])] for r in frows], left=(2,)))
+                                 [[r["step"], r["ahead"], r["parameter"], fmt(r["mean"]), fmt(r["sd"]),
+                                   fmt(r["lower"]), fmt(r["upper"])] for r in frows], left=(2,)))
     if thresholds:
         parts.append(_threshold_section(store, thresholds, horizon, image_dir))
     parts.append(_fit_section(store, fit_data, level, image_dir))
@@ -489,7 +444,7 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
                              [[r["step"], r["dataset"], _acceptance(r["acceptance_rate"]), f"{r['ess']:.1f}",
                                r["n_distinct"], f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"]
                               for r in rows], left=(1,)))
-    parts.append(f"<p>{html.escape(ESS_NOTE)} N = {_e(cfg.n_samples)}."
+    parts.append(f"<p>{html.escape(ESS_NOTE)} N = {text(cfg.n_samples)}."
                  + (f" {NO_MOVES_NOTE}" if any(np.isnan(r["acceptance_rate"]) for r in rows) else "") + "</p>")
     parts.append("<h2>Evidence and model probabilities</h2>")
     parts.append(figure_html(plotting.plot_evidence(runs), "Cumulative log-evidence and per-step increments",
@@ -502,19 +457,11 @@ def render_report(store: BaseStore, *, others: Sequence[BaseStore] = (), forecas
     parts.append(table_html(["step", "model", "log Z", "probability"],
                              [[r["step"], r["model"], f"{r['log_evidence']:.4f}", f"{r['probability']:.4f}"]
                               for r in comparison_rows(comparison)], left=(1,)))
-    parts.append(f"<p>Most probable model after step {n_common}: <strong>{html.escape(comparison.best)}</strong>"
-                 "</p></body></html>")
-    return "\n".join(parts)
+    parts.append(f"<p>Most probable model after step {n_common}: <strong>{html.escape(comparison.best)}</strong></p>")
+    return page(f"seqbayes report: {cfg.name}", parts)
 
 
 def write_report(store: BaseStore, output: str | os.PathLike, **kwargs: Any) -> Path:
-    """Write :func:`render_report` to ``output`` (an ``.html`` file); returns its path.
-
-    With ``embed=False`` the figures go to ``<output stem>_figures/`` next to the page.
-    """
-    output = Path(output)
-    embed = kwargs.pop("embed", True)
-    image_dir = None if embed else output.parent / f"{output.stem}_figures"
-    text = render_report(store, image_dir=image_dir, **kwargs)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    return write_output(output, text)   # atomic: a reader never sees half a page
+    """Write :func:`render_report` to ``output`` (an ``.html`` file; ``embed=False``: the figures as PNG files in
+    ``<output stem>_figures/``); returns its path."""
+    return write_page(output, lambda **k: render_report(store, **k), **kwargs)

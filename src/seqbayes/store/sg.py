@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ..rng import as_generator, generator_from_state, generator_state
-from .base import BaseStore, check_finite, json_value, json_values
+from .base import BaseStore, Provenance, check_finite, json_value, json_values
 from .datasets import DataError, check_table, dataset_digest
 from .errors import StoreError
 from .registry import register
@@ -106,10 +106,9 @@ class SGRunStore(BaseStore):
     growing = {"step": 8, "rng_index": 8, "time": 512, "event": 64}
     unit = "block"
 
-    def __init__(self, path, config: SGRunConfig, *, rng_states, tables=(), fixed=(), per_time=None,
-                 events=None, event_rows=(), infos=(), digests=(), sources=(), created=None, record_hashes=()):
-        super().__init__(path, config, rng_states=rng_states, digests=digests, sources=sources, created=created,
-                         record_hashes=record_hashes)
+    def __init__(self, path, config: SGRunConfig, provenance: Provenance, *, tables=(), fixed=(), per_time=None,
+                 events=None, event_rows=(), infos=()):
+        super().__init__(path, config, provenance)
         self.tables = list(tables)
         self.fixed = list(fixed)
         self.per_time = dict(per_time or {})
@@ -132,7 +131,7 @@ class SGRunStore(BaseStore):
     def _new(cls, path: Path, config: SGRunConfig) -> "SGRunStore":
         """A new run: nothing is drawn yet (the first block draws the prior particles from the generator
         seeded by ``config.seed``)."""
-        return cls(path, config, rng_states=[generator_state(as_generator(config.seed))])
+        return cls(path, config, Provenance([generator_state(as_generator(config.seed))]))
 
     @classmethod
     def _from_file(cls, path: Path, attrs: dict, variables: dict, config: SGRunConfig | None,
@@ -177,9 +176,10 @@ class SGRunStore(BaseStore):
             if len(event_rows) != n_steps or sum(event_rows) != events.shape[0]:
                 raise StoreError(f"{path}: inconsistent store (sg_event_rows {event_rows} for {events.shape[0]} "
                                  f"events)")
-        return cls(path, config, rng_states=rng_states, tables=tables, fixed=fixed, per_time=per_time,
-                   events=events, event_rows=event_rows, infos=infos, digests=text["dataset_sha256"],
-                   sources=text["dataset_source"], created=attrs.get("created"), record_hashes=record_hashes)
+        provenance = Provenance(rng_states, text["dataset_sha256"], text["dataset_source"], attrs.get("created"),
+                                record_hashes)
+        return cls(path, config, provenance, tables=tables, fixed=fixed, per_time=per_time, events=events,
+                   event_rows=event_rows, infos=infos)
 
     # ------------------------------------------------------------------- the identifier
     def snapshot_at(self, step: int | None = None) -> dict:

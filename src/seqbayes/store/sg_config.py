@@ -58,16 +58,13 @@ configuration and its SHA-256 recorded), and the building it returns is recorded
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import inspect
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .modules import ConfigError, load_located, locate_module, read_toml
+from .schema import StoredConfig, check_keys, fail, numbers
 
 __all__ = ["SGRunConfig", "parse_sg_config", "load_sg_config", "RUN_KIND"]
 
@@ -78,100 +75,64 @@ _OWN_SAMPLER_KEYS = ("n_members", "seed")
 #: SGEnMCMC keywords a configuration may not set (the store decides them or they are not data).
 _FIXED_KEYWORDS = ("building", "dt", "lower", "upper", "measurement_noise", "process_noise_std", "channels",
                    "transition", "sampler", "blas_threads")
-#: [monitor] settings: StiffnessDropMonitor keywords (the building, noise and prior box are the run's).
-_MONITOR_KEYWORDS = ("n_particles", "drop_range", "change_rate", "change_every", "jump_proposal", "prior_no_change",
-                     "threshold", "prune_below", "prune_after", "ess_threshold", "moves_per_particle", "max_sweeps",
-                     "resampling")
 #: DropBlock fields that are NaN where a class has no dropped particle (stored as 0, restored from ``changed``).
-
-
-def _fail(source, name, message):
-    raise ConfigError(f"{source}: {name}: {message}")
-
-
-def _numbers(value, source, name, n=None, positive=False, allow_empty=False):
-    """A number or a list of numbers as a list of floats (``n``: broadcast a number to ``n``)."""
-    values = value if isinstance(value, list) else [value]
-    if not values and not allow_empty:
-        _fail(source, name, "expected a number or a non-empty list of numbers")
-    out = []
-    for v in values:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            _fail(source, name, f"expected finite numbers, got {value!r}")
-        if positive and v <= 0:
-            _fail(source, name, f"must be positive, got {value!r}")
-        out.append(float(v))
-    if n is not None:
-        if not isinstance(value, list):
-            out = out * n
-        elif len(out) != n:
-            _fail(source, name, f"expected {n} values (one per storey/channel) or one number, got {len(out)}")
-    return out
 
 
 def _check_stored(data, source) -> None:
     """The fields of a stored :meth:`SGRunConfig.to_dict`: types, finiteness and signs, named like the TOML's."""
     if not isinstance(data, dict):
-        _fail(source, "config", f"expected a table, got {type(data).__name__}")
+        fail(source, "config", f"expected a table, got {type(data).__name__}")
     fields = {f.name for f in dataclasses.fields(SGRunConfig)}
-    _keys(data, fields | {"kind"}, source, "config")
+    check_keys(data, fields | {"kind"}, source, "config")
     missing = sorted({"name", "masses", "stiffnesses", "damping_ratios", "damping_modes", "accelerations", "drifts",
                       "dt", "input", "responses", "lower", "upper", "measurement_std"} - set(data))
     if missing:
-        _fail(source, "config", f"missing field(s) {', '.join(missing)}")
+        fail(source, "config", f"missing field(s) {', '.join(missing)}")
     if not isinstance(data["name"], str) or not data["name"]:
-        _fail(source, "model.name", f"expected a non-empty string, got {data['name']!r}")
-    n = len(_numbers(data["masses"], source, "building.masses", positive=True))
-    _numbers(data["stiffnesses"], source, "building.stiffnesses", n=n, positive=True)
-    if min(_numbers(data["damping_ratios"], source, "building.damping_ratios", n=2)) < 0:
-        _fail(source, "building.damping_ratios", f"must be >= 0, got {data['damping_ratios']!r}")
+        fail(source, "model.name", f"expected a non-empty string, got {data['name']!r}")
+    n = len(numbers(data["masses"], source, "building.masses", positive=True))
+    numbers(data["stiffnesses"], source, "building.stiffnesses", n=n, positive=True)
+    if min(numbers(data["damping_ratios"], source, "building.damping_ratios", n=2)) < 0:
+        fail(source, "building.damping_ratios", f"must be >= 0, got {data['damping_ratios']!r}")
     for key, table in (("damping_modes", "building"), ("accelerations", "sensors"), ("drifts", "sensors")):
         values = data[key]
         if not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= n
                                                    for v in values):
-            _fail(source, f"{table}.{key}", f"expected a list of floor/storey numbers 1-{n}, got {values!r}")
-    _numbers(data["dt"], source, "data.dt", positive=True)
-    lower = _numbers(data["lower"], source, "priors.lower")
-    upper = _numbers(data["upper"], source, "priors.upper", n=len(lower))
+            fail(source, f"{table}.{key}", f"expected a list of floor/storey numbers 1-{n}, got {values!r}")
+    numbers(data["dt"], source, "data.dt", positive=True)
+    lower = numbers(data["lower"], source, "priors.lower")
+    upper = numbers(data["upper"], source, "priors.upper", n=len(lower))
     if not all(lo < hi for lo, hi in zip(lower, upper)):
-        _fail(source, "priors.upper", f"must lie above lower, got lower {lower} and upper {upper}")
-    _numbers(data["measurement_std"], source, "noise.measurement_std", positive=True)
-    if _numbers(data.get("process_std", 0.0), source, "noise.process_std")[0] < 0:
-        _fail(source, "noise.process_std", f"must be >= 0, got {data['process_std']!r}")
+        fail(source, "priors.upper", f"must lie above lower, got lower {lower} and upper {upper}")
+    numbers(data["measurement_std"], source, "noise.measurement_std", positive=True)
+    if numbers(data.get("process_std", 0.0), source, "noise.process_std")[0] < 0:
+        fail(source, "noise.process_std", f"must be >= 0, got {data['process_std']!r}")
     for key in ("n_members", "seed"):
         value = data.get(key, 0 if key == "seed" else 500)
         if isinstance(value, bool) or not isinstance(value, int) or value < (2 if key == "n_members" else 0):
-            _fail(source, f"sampler.{key}", f"expected a{' positive' if key == 'n_members' else ' non-negative'} "
+            fail(source, f"sampler.{key}", f"expected a{' positive' if key == 'n_members' else ' non-negative'} "
                                             f"integer, got {value!r}")
     settings = data.get("settings", {})
-    _keys(settings, set(settings), source, "sampler")
-    from ..structural.sgenmcmc import SGEnMCMC
+    check_keys(settings, set(settings), source, "sampler")
+    from ..structural.settings import flat_defaults
 
-    defaults = {k: v.default for k, v in inspect.signature(SGEnMCMC).parameters.items()}
+    defaults = flat_defaults()
     for key, value in settings.items():
         if key not in defaults or key in _FIXED_KEYWORDS:
-            _fail(source, f"sampler.{key}", "not a setting of SGEnMCMC")
+            fail(source, f"sampler.{key}", "not a setting of SGEnMCMC")
         default = defaults[key]
         if isinstance(default, bool) and not isinstance(value, bool):
-            _fail(source, f"sampler.{key}", f"expected true or false, got {value!r}")
+            fail(source, f"sampler.{key}", f"expected true or false, got {value!r}")
         if isinstance(default, (int, float)) and not isinstance(default, bool):
-            _numbers(value, source, f"sampler.{key}")
+            numbers(value, source, f"sampler.{key}")
             if value < 0:
-                _fail(source, f"sampler.{key}", f"must be >= 0, got {value!r}")
+                fail(source, f"sampler.{key}", f"must be >= 0, got {value!r}")
         if isinstance(default, str) and default != "auto" and not isinstance(value, str):
-            _fail(source, f"sampler.{key}", f"expected a string, got {value!r}")
-
-
-def _keys(table, allowed, source, prefix):
-    if not isinstance(table, dict):
-        _fail(source, prefix, f"expected a table, got {table!r}")
-    for key in table:
-        if key not in allowed:
-            _fail(source, f"{prefix}.{key}", f"unknown setting; expected one of {', '.join(sorted(allowed))}")
+            fail(source, f"sampler.{key}", f"expected a string, got {value!r}")
 
 
 @dataclass(frozen=True)
-class SGRunConfig:
+class SGRunConfig(StoredConfig):
     """A validated SG-EnMCMC run configuration (module docstring for the TOML layout).
 
     Attributes
@@ -282,22 +243,26 @@ class SGRunConfig:
         """A fresh :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC` (``sampler="resample-move"``, the on-line one)."""
         from ..structural.sgenmcmc import SGEnMCMC
 
+        from ..structural.settings import sg_from_flat
+
         return SGEnMCMC(self.build_building(), self.dt, np.array(self.lower), np.array(self.upper),
                         np.array(self.measurement_std), process_noise_std=self.process_std,
-                        n_members=self.n_members, channels=self.build_sensors(), sampler="resample-move",
-                        **self.settings)
+                        n_members=self.n_members, channels=self.build_sensors(),
+                        **sg_from_flat(sampler="resample-move", **self.settings))
 
     def build_monitor(self):
         """A fresh :class:`~seqbayes.structural.stiffness_drop.StiffnessDropMonitor` of ``[monitor]`` (None without it)."""
         if self.monitor is None:
             return None
-        from ..structural.stiffness_drop import StiffnessDropMonitor
+        from ..structural.stiffness_drop import StiffnessDropMonitor, monitor_from_flat
 
         n = self.n_storeys
         settings = {k: (tuple(v) if isinstance(v, list) else v) for k, v in self.monitor.items() if k != "seed"}
+        size = {"n_particles": settings.pop("n_particles")} if "n_particles" in settings else {}
         return StiffnessDropMonitor(self.build_building(), self.dt, np.array(self.lower[:n]),
                                     np.array(self.upper[:n]), np.array(self.measurement_std),
-                                    process_noise_std=self.process_std, channels=self.build_sensors(), **settings)
+                                    process_noise_std=self.process_std, channels=self.build_sensors(), **size,
+                                    **monitor_from_flat(**settings))
 
     def to_dict(self) -> dict:
         """Plain JSON-able dict (stored in the run store)."""
@@ -322,17 +287,6 @@ class SGRunConfig:
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k != "kind"}
         return cls(**data)
 
-    def differing_fields(self, other: "SGRunConfig") -> list[str]:
-        """The fields in which ``other`` defines another model than this one."""
-        mine, theirs = self.to_dict(), other.to_dict()
-        return [key for key in sorted(set(mine) | set(theirs)) if key not in ("name", "search_path")
-                and json.dumps(mine.get(key), sort_keys=True) != json.dumps(theirs.get(key), sort_keys=True)]
-
-    def fingerprint(self) -> str:
-        """SHA-256 of everything that defines the model and the random stream (not the name or folder)."""
-        content = {k: v for k, v in self.to_dict().items() if k not in ("name", "search_path")}
-        return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-
 
 def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.PathLike | None = None) -> SGRunConfig:
     """Validate a parsed TOML mapping with a ``[building]`` section; errors name the field.
@@ -341,40 +295,40 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     ------
     ConfigError
     """
-    _keys(raw, {"model", "building", "sensors", "data", "priors", "noise", "sampler", "monitor"}, source,
+    check_keys(raw, {"model", "building", "sensors", "data", "priors", "noise", "sampler", "monitor"}, source,
           "<top level>")
     model = raw.get("model", {})
-    _keys(model, {"name", "type"}, source, "model")
+    check_keys(model, {"name", "type"}, source, "model")
     if model.get("type", RUN_KIND) != RUN_KIND:
-        _fail(source, "model.type", f"a [building] configuration is an SG-EnMCMC run (type = \"{RUN_KIND}\"), "
+        fail(source, "model.type", f"a [building] configuration is an SG-EnMCMC run (type = \"{RUN_KIND}\"), "
                                     f"got {model.get('type')!r}")
     name = model.get("name", "shear-building")
     if not isinstance(name, str) or not name:
-        _fail(source, "model.name", f"expected a non-empty string, got {name!r}")
+        fail(source, "model.name", f"expected a non-empty string, got {name!r}")
 
     building = raw.get("building")
     if building is None:
-        _fail(source, "[building]", "missing section")
-    _keys(building, {"masses", "stiffnesses", "damping_ratios", "damping_modes", "module"}, source, "building")
+        fail(source, "[building]", "missing section")
+    check_keys(building, {"masses", "stiffnesses", "damping_ratios", "damping_modes", "module"}, source, "building")
     module_spec = module_sha = None
     if "module" in building:
         if set(building) - {"module"}:
-            _fail(source, "building.module", "give either module or the numbers (masses, stiffnesses, ...), "
+            fail(source, "building.module", "give either module or the numbers (masses, stiffnesses, ...), "
                                              "not both")
         module_spec = building["module"]
         if not isinstance(module_spec, str) or module_spec.count(":") != 1 or not all(module_spec.split(":")):
-            _fail(source, "building.module", f"expected \"module:function\", got {module_spec!r}")
+            fail(source, "building.module", f"expected \"module:function\", got {module_spec!r}")
         try:
             located = locate_module(module_spec.split(":")[0], base_dir)
             made = load_located(module_spec, located)()
         except ConfigError as err:
             raise ConfigError(f"{source}: {str(err).replace('model.likelihood:', 'building.module:', 1)}") from None
         except Exception as err:
-            _fail(source, "building.module", f"{module_spec}() raised {type(err).__name__}: {err}")
+            fail(source, "building.module", f"{module_spec}() raised {type(err).__name__}: {err}")
         from ..structural.structures import ShearBuilding
 
         if not isinstance(made, ShearBuilding):
-            _fail(source, "building.module", f"{module_spec}() must return a seqbayes.structural.structures.ShearBuilding, "
+            fail(source, "building.module", f"{module_spec}() must return a seqbayes.structural.structures.ShearBuilding, "
                                              f"got {type(made).__name__}")
         module_sha = located.sha256
         masses, stiffnesses = [float(v) for v in made.masses], [float(v) for v in made.stiffnesses]
@@ -382,90 +336,90 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     else:
         for key in ("masses", "stiffnesses", "damping_ratios"):
             if key not in building:
-                _fail(source, f"building.{key}", "missing")
-        masses = _numbers(building["masses"], source, "building.masses", positive=True)
-        stiffnesses = _numbers(building["stiffnesses"], source, "building.stiffnesses", n=len(masses),
+                fail(source, f"building.{key}", "missing")
+        masses = numbers(building["masses"], source, "building.masses", positive=True)
+        stiffnesses = numbers(building["stiffnesses"], source, "building.stiffnesses", n=len(masses),
                                positive=True)
-        damping_ratios = _numbers(building["damping_ratios"], source, "building.damping_ratios", n=2)
+        damping_ratios = numbers(building["damping_ratios"], source, "building.damping_ratios", n=2)
         modes = building.get("damping_modes", [1, 2] if len(masses) > 1 else [1, 1])
         if (not isinstance(modes, list) or len(modes) != 2
                 or not all(isinstance(m, int) and not isinstance(m, bool) for m in modes)):
-            _fail(source, "building.damping_modes", f"expected two mode numbers, got {modes!r}")
+            fail(source, "building.damping_modes", f"expected two mode numbers, got {modes!r}")
         damping_modes = modes
     n = len(masses)
 
     sensors = raw.get("sensors", {"accelerations": list(range(1, n + 1))})
-    _keys(sensors, {"accelerations", "drifts"}, source, "sensors")
+    check_keys(sensors, {"accelerations", "drifts"}, source, "sensors")
     layout = {}
     for key in ("accelerations", "drifts"):
         values = sensors.get(key, [])
         if (not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in values)
                 or any(not 1 <= v <= n for v in values) or len(set(values)) != len(values)):
-            _fail(source, f"sensors.{key}", f"expected distinct floor numbers in 1..{n}, got {values!r}")
+            fail(source, f"sensors.{key}", f"expected distinct floor numbers in 1..{n}, got {values!r}")
         layout[key] = tuple(values)
     p = len(layout["accelerations"]) + len(layout["drifts"])
     if p == 0:
-        _fail(source, "[sensors]", "at least one sensor is needed")
+        fail(source, "[sensors]", "at least one sensor is needed")
 
     data = raw.get("data")
     if data is None:
-        _fail(source, "[data]", "missing section")
-    _keys(data, {"dt", "input", "responses", "time", "units"}, source, "data")
+        fail(source, "[data]", "missing section")
+    check_keys(data, {"dt", "input", "responses", "time", "units"}, source, "data")
     if "dt" not in data:
-        _fail(source, "data.dt", "missing (the sampling step in seconds)")
-    dt = _numbers(data["dt"], source, "data.dt", positive=True)[0]
+        fail(source, "data.dt", "missing (the sampling step in seconds)")
+    dt = numbers(data["dt"], source, "data.dt", positive=True)[0]
     column_input = data.get("input")
     if not isinstance(column_input, str) or not column_input:
-        _fail(source, "data.input", f"expected the name of the ground-acceleration column, got {column_input!r}")
+        fail(source, "data.input", f"expected the name of the ground-acceleration column, got {column_input!r}")
     responses = data.get("responses")
     if not isinstance(responses, list) or not all(isinstance(c, str) and c for c in responses):
-        _fail(source, "data.responses", f"expected a list of column names, got {responses!r}")
+        fail(source, "data.responses", f"expected a list of column names, got {responses!r}")
     if len(responses) != p:
-        _fail(source, "data.responses", f"expected {p} columns (one per sensor of [sensors]: "
+        fail(source, "data.responses", f"expected {p} columns (one per sensor of [sensors]: "
                                         f"{len(layout['accelerations'])} accelerations, then "
                                         f"{len(layout['drifts'])} drifts), got {len(responses)}")
     time_column = data.get("time")
     if time_column is not None and (not isinstance(time_column, str) or not time_column):
-        _fail(source, "data.time", f"expected a column name, got {time_column!r}")
+        fail(source, "data.time", f"expected a column name, got {time_column!r}")
     columns = ([time_column] if time_column else []) + [column_input] + responses
     if len(set(columns)) != len(columns):
-        _fail(source, "data", f"duplicate column names in {columns}")
+        fail(source, "data", f"duplicate column names in {columns}")
     units = _parse_units(data.get("units"), column_input, responses, len(layout["accelerations"]), source)
 
     priors = raw.get("priors")
     if priors is None:
-        _fail(source, "[priors]", "missing section (lower and upper bounds of the stiffness ratios)")
-    _keys(priors, {"lower", "upper"}, source, "priors")
+        fail(source, "[priors]", "missing section (lower and upper bounds of the stiffness ratios)")
+    check_keys(priors, {"lower", "upper"}, source, "priors")
     for key in ("lower", "upper"):
         if key not in priors:
-            _fail(source, f"priors.{key}", "missing")
-    lower = _numbers(priors["lower"], source, "priors.lower", n=n, positive=True)
-    upper = _numbers(priors["upper"], source, "priors.upper", n=n, positive=True)
+            fail(source, f"priors.{key}", "missing")
+    lower = numbers(priors["lower"], source, "priors.lower", n=n, positive=True)
+    upper = numbers(priors["upper"], source, "priors.upper", n=n, positive=True)
     if any(u <= lo for lo, u in zip(lower, upper)):
-        _fail(source, "priors.upper", f"must exceed priors.lower in every storey, got {lower} and {upper}")
+        fail(source, "priors.upper", f"must exceed priors.lower in every storey, got {lower} and {upper}")
 
     noise = raw.get("noise")
     if noise is None or "measurement_std" not in noise:
-        _fail(source, "noise.measurement_std", "missing (the measurement noise std of each response column)")
-    _keys(noise, {"measurement_std", "process_std"}, source, "noise")
-    measurement_std = _numbers(noise["measurement_std"], source, "noise.measurement_std", n=p, positive=True)
-    process_std = _numbers(noise.get("process_std", 0.0), source, "noise.process_std")[0]
+        fail(source, "noise.measurement_std", "missing (the measurement noise std of each response column)")
+    check_keys(noise, {"measurement_std", "process_std"}, source, "noise")
+    measurement_std = numbers(noise["measurement_std"], source, "noise.measurement_std", n=p, positive=True)
+    process_std = numbers(noise.get("process_std", 0.0), source, "noise.process_std")[0]
     if process_std < 0:
-        _fail(source, "noise.process_std", f"must be >= 0, got {process_std}")
+        fail(source, "noise.process_std", f"must be >= 0, got {process_std}")
 
     sampler = dict(raw.get("sampler", {}))
-    _keys(sampler, set(sampler), source, "sampler")
+    check_keys(sampler, set(sampler), source, "sampler")
     n_members = sampler.pop("n_members", 500)
     seed = sampler.pop("seed", 0)
     for key, value in (("n_members", n_members), ("seed", seed)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            _fail(source, f"sampler.{key}", f"expected a non-negative integer, got {value!r}")
-    from ..structural.sgenmcmc import SGEnMCMC
+            fail(source, f"sampler.{key}", f"expected a non-negative integer, got {value!r}")
+    from ..structural.settings import FLAT_SG
 
-    keywords = set(inspect.signature(SGEnMCMC).parameters) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
+    keywords = set(FLAT_SG) - set(_FIXED_KEYWORDS) - set(_OWN_SAMPLER_KEYS)
     for key in sampler:
         if key not in keywords:
-            _fail(source, f"sampler.{key}", f"unknown setting; expected one of "
+            fail(source, f"sampler.{key}", f"unknown setting; expected one of "
                                             f"{', '.join(sorted(keywords | set(_OWN_SAMPLER_KEYS)))}")
     config = SGRunConfig(name=name, masses=tuple(masses), stiffnesses=tuple(stiffnesses),
                          damping_ratios=tuple(damping_ratios), damping_modes=tuple(damping_modes),
@@ -478,11 +432,11 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
     try:  # the building and the identifier validate the numbers, naming the argument
         config.build_building().check_sampling(dt)
     except ValueError as err:
-        _fail(source, "building" if not str(err).startswith("dt") else "data.dt", str(err))
+        fail(source, "building" if not str(err).startswith("dt") else "data.dt", str(err))
     try:
         identifier = config.build_identifier()
     except (TypeError, ValueError) as err:
-        _fail(source, "sampler", str(err))
+        fail(source, "sampler", str(err))
     choice = getattr(identifier, "surrogate_choice", None)
     if choice is not None:
         # surrogate = "auto" measures the transitions' cost now, once: the choice is pinned as a
@@ -492,15 +446,18 @@ def parse_sg_config(raw: dict, source: str = "<config>", base_dir: str | os.Path
         config = dataclasses.replace(config, settings=settings, surrogate_choice=choice.reason)
     if "monitor" in raw:
         monitor = dict(raw["monitor"])
-        _keys(monitor, set(_MONITOR_KEYWORDS) | {"seed"}, source, "monitor")
+        from ..structural.stiffness_drop import FLAT_MONITOR
+
+        # n_particles, the seed and the monitor's flat settings (the building, noise and prior box are the run's)
+        check_keys(monitor, {"n_particles", "seed", *FLAT_MONITOR}, source, "monitor")
         monitor_seed = monitor.setdefault("seed", seed + 1)
         if isinstance(monitor_seed, bool) or not isinstance(monitor_seed, int) or monitor_seed < 0:
-            _fail(source, "monitor.seed", f"expected a non-negative integer, got {monitor_seed!r}")
+            fail(source, "monitor.seed", f"expected a non-negative integer, got {monitor_seed!r}")
         config = dataclasses.replace(config, monitor=monitor)
         try:
             config.build_monitor()
         except (TypeError, ValueError) as err:
-            _fail(source, "monitor", str(err))
+            fail(source, "monitor", str(err))
     return config
 
 
@@ -519,14 +476,14 @@ def _parse_units(raw, column_input, responses, n_accelerations, source) -> dict:
     if isinstance(raw, str):
         raw = {c: raw for c, kind in kinds.items() if kind == "acceleration"}
     if not isinstance(raw, dict):
-        _fail(source, "data.units", f"expected a unit (\"g\") or a table {{ column = \"unit\" }}, got {raw!r}")
+        fail(source, "data.units", f"expected a unit (\"g\") or a table {{ column = \"unit\" }}, got {raw!r}")
     out = {}
     for column, unit in raw.items():
         if column not in kinds:
-            _fail(source, f"data.units.{column}", f"not an input or response column ({', '.join(kinds)})")
+            fail(source, f"data.units.{column}", f"not an input or response column ({', '.join(kinds)})")
         allowed = _ACCELERATION_UNITS if kinds[column] == "acceleration" else _LENGTH_UNITS
         if unit not in allowed:
-            _fail(source, f"data.units.{column}", f"an {kinds[column]} column takes one of {', '.join(allowed)}, "
+            fail(source, f"data.units.{column}", f"an {kinds[column]} column takes one of {', '.join(allowed)}, "
                                                   f"got {unit!r}")
         if unit not in ("m/s2", "m/s^2", "m"):
             out[column] = unit

@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import plotting
 from .datasets import printable, read_regular
-from .targets import write_output
+from .pages import figure_html, fmt, page, table_html, text, write_page
 
 __all__ = ["sg_status_rows", "format_sg_status", "modal_rows", "format_modal", "read_mode_shapes",
            "nominal_mode_shapes", "plot_sg_ratios", "plot_modal", "render_sg_report", "write_sg_report"]
@@ -50,15 +50,6 @@ def sg_status_rows(store: BaseStore, level: float = 0.95) -> list[dict]:
     return rows
 
 
-def _fmt(x) -> str:
-    return f"{x:.4g}" if np.isfinite(x) else "nan"
-
-
-def _e(value) -> str:
-    """``value`` as HTML text (a stored configuration is text from a file someone was handed)."""
-    return html.escape(str(value))
-
-
 def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
     """The ``status`` command's plain-text tables for an SG-EnMCMC run."""
     cfg = store.config
@@ -83,8 +74,8 @@ def format_sg_status(store: BaseStore, level: float = 0.95) -> str:
               f"{'step':>4}  {'parameter':<10} {'mean':>11} {'sd':>11} {pct + ' lower':>11} {pct + ' upper':>11}"]
     for r in rows:
         for name, p in r["parameters"].items():
-            lines.append(f"{r['step']:>4}  {name:<10} {_fmt(p['mean']):>11} {_fmt(p['sd']):>11} "
-                         f"{_fmt(p['lower']):>11} {_fmt(p['upper']):>11}")
+            lines.append(f"{r['step']:>4}  {name:<10} {fmt(p['mean']):>11} {fmt(p['sd']):>11} "
+                         f"{fmt(p['lower']):>11} {fmt(p['upper']):>11}")
     if cfg.monitor is not None:
         lines += [""] + textwrap.wrap("stiffness-drop monitor: probability of each model class at the end of "
                                       "each block (none: no change; storey j: a drop in storey j), P(changed by "
@@ -263,8 +254,6 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
     truth : (n,) array, optional
         Reference ratios drawn in the figure (a synthetic record's truth).
     """
-    from .report import CSS, figure_html, table_html
-
     if store.n_steps == 0:
         raise ValueError(f"{store.path}: no block to report yet (run `seqbayes update` first)")
     cfg = store.config
@@ -278,16 +267,14 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
         reference = reference[:, None] if reference.ndim == 1 else reference
         reference_label = f"identified ({identified_source or 'given'})"
     summaries = [store.modal(i, reference) for i in range(store.n_steps)]
-    title = f"seqbayes report: {cfg.name}"
-    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{CSS}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    parts = []
     sensors = ", ".join([f"acceleration at floor {f}" for f in cfg.accelerations]
                         + [f"drift of storey {f}" for f in cfg.drifts])
-    parts.append(f"<p>Run <code>{_e(store.path)}</code>: SG-EnMCMC (resample-move, "
-                 f"N = {_e(cfg.n_members)}, seed {_e(cfg.seed)}) of a {cfg.n_storeys}-storey shear building; "
+    parts.append(f"<p>Run <code>{text(store.path)}</code>: SG-EnMCMC (resample-move, "
+                 f"N = {text(cfg.n_members)}, seed {text(cfg.seed)}) of a {cfg.n_storeys}-storey shear building; "
                  f"{store.n_steps} block(s), {store.n_samples} samples at dt = {cfg.dt:g} s "
                  f"({store.n_samples * cfg.dt:.2f} s of record). Sensors: {html.escape(sensors)}. Model fingerprint "
-                 f"<code>{_e(cfg.fingerprint()[:12])}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
+                 f"<code>{text(cfg.fingerprint()[:12])}</code>; cumulative log-evidence {store.log_evidence:.4f}.</p>")
     parts.append("<h2>Model</h2>" + table_html(
         ["storey", "mass [kg]", "undamaged stiffness k^u [N/m]", "prior of the ratio theta"],
         [[j + 1, f"{cfg.masses[j]:.6g}", f"{cfg.stiffnesses[j]:.6g}", f"U({cfg.lower[j]:g}, {cfg.upper[j]:g})"]
@@ -296,9 +283,9 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
                  f"{cfg.damping_ratios[1]:g} in modes {cfg.damping_modes[0]} / {cfg.damping_modes[1]} of the "
                  f"undamaged building (coefficients fixed, so the damping ratios change with the stiffness); "
                  f"measurement noise sd {', '.join(f'{v:g}' for v in cfg.measurement_std)}"
-                 + (f", times a scale factor estimated with the ratios ({_e(cfg.settings['noise_parameters'])}; "
+                 + (f", times a scale factor estimated with the ratios ({text(cfg.settings['noise_parameters'])}; "
                     f"log_noise_scale is its logarithm, log-uniform prior over "
-                    f"{_e(tuple(cfg.settings.get('noise_scale_bounds', (0.25, 4.0))))})"
+                    f"{text(tuple(cfg.settings.get('noise_scale_bounds', (0.25, 4.0))))})"
                     if cfg.settings.get("noise_parameters") else "")
                  + (f"; transition chosen at init by surrogate = \"auto\": {html.escape(cfg.surrogate_choice)}"
                     if cfg.surrogate_choice else "") + ".</p>")
@@ -309,8 +296,8 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
     rows = sg_status_rows(store, level)
     pct = f"{level:.0%}"
     parts.append(table_html(["step", "dataset", "t end [s]", "parameter", "mean", "sd", f"{pct} lower", f"{pct} upper"],
-                             [[r["step"], r["dataset"], f"{r['time_end']:.2f}", name, _fmt(p["mean"]), _fmt(p["sd"]),
-                               _fmt(p["lower"]), _fmt(p["upper"])]
+                             [[r["step"], r["dataset"], f"{r['time_end']:.2f}", name, fmt(p["mean"]), fmt(p["sd"]),
+                               fmt(p["lower"]), fmt(p["upper"])]
                               for r in rows for name, p in r["parameters"].items()], left=(1, 3)))
 
     parts.append("<h2>Modal results</h2>")
@@ -340,18 +327,15 @@ def render_sg_report(store: BaseStore, *, level: float = 0.95, image_dir: Path |
                                f"{r['ess']:.1f}", r["moves"], "-" if r["acceptance"] is None else f"{r['acceptance']:.3f}",
                                f"{r['log_evidence_increment']:.4f}", f"{r['log_evidence']:.4f}"] for r in rows],
                              left=(1,)))
-    parts.append(f"<p>{html.escape(ESS_NOTE_SG)} N = {_e(cfg.n_members)}.</p></body></html>")
-    return "\n".join(parts)
+    parts.append(f"<p>{html.escape(ESS_NOTE_SG)} N = {text(cfg.n_members)}.</p>")
+    return page(f"seqbayes report: {cfg.name}", parts)
 
 
 def write_sg_report(store: BaseStore, output: str | os.PathLike, *, embed: bool = True, **kwargs: Any) -> Path:
     """Write :func:`render_sg_report` to ``output`` (an ``.html`` file; ``embed=False``: figures as PNG files
     in ``<output stem>_figures/``); returns its path."""
-    output = Path(output)
-    image_dir = None if embed else output.parent / f"{output.stem}_figures"
-    text = render_sg_report(store, image_dir=image_dir, **kwargs)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    return write_output(output, text)   # atomic: a reader never sees half a page
+    return write_page(output, lambda **k: render_sg_report(store, **k), embed, **kwargs)
+
 
 import typing as _typing  # noqa: E402
 

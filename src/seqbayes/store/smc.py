@@ -81,7 +81,7 @@ from ..prognostics import FirstPassage, time_to_threshold
 from ..results import Result, StepInfo, StepRecord
 from ..rng import generator_from_state
 from . import snapshot
-from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, check_finite, json_value, json_values
+from .base import HASHED_ATTRS, RECORD_TEXT, BaseStore, Provenance, check_finite, json_value, json_values
 from .config import RunConfig
 from .datasets import as_likelihood_data, check_table, dataset_digest
 from .errors import BoundWarning, ModelChangedError, StoreError, StoreWarning
@@ -153,11 +153,9 @@ class RunStore(BaseStore):
     #: the configuration class a stored run is read back as (a subclass's: seqbayes.store.modal)
     config_type = RunConfig
 
-    def __init__(self, path, config: RunConfig, *, initial_particles, initial_log_weights, initial_step_size,
-                 rng_states, result: Result, states, step_sizes, digests, sources, tables=(), created=None,
-                 module_hashes=None, record_hashes=None):
-        super().__init__(path, config, rng_states=rng_states, digests=digests, sources=sources, created=created,
-                         record_hashes=record_hashes)
+    def __init__(self, path, config: RunConfig, provenance: Provenance, *, initial_particles, initial_log_weights,
+                 initial_step_size, result: Result, states, step_sizes, tables=(), module_hashes=None):
+        super().__init__(path, config, provenance)
         self.initial_particles = initial_particles
         self.initial_log_weights = initial_log_weights
         self.initial_step_size = float(initial_step_size)
@@ -181,10 +179,9 @@ class RunStore(BaseStore):
             config = _replace(config, likelihood_file=located.file, likelihood_sha256=located.sha256)
         sampler = config.build_sampler(loglike=_likelihood_not_needed)  # drawing the prior runs no user code
         state, records, rng_state = sampler.snapshot()
-        return cls(path, config, initial_particles=np.array(state.particles),
+        return cls(path, config, Provenance([rng_state]), initial_particles=np.array(state.particles),
                    initial_log_weights=np.array(state.log_weights), initial_step_size=state.step_size,
-                   rng_states=[rng_state], result=Result(sampler.names, (), {}), states=[], step_sizes=[],
-                   digests=[], sources=[])
+                   result=Result(sampler.names, (), {}), states=[], step_sizes=[])
 
     # ------------------------------------------------------------------ reading
     @classmethod
@@ -221,7 +218,7 @@ class RunStore(BaseStore):
             generator_from_state(rng_states[-1])
         except ValueError as err:
             raise StoreError(f"{path}: damaged run store: rng_state[{len(rng_states) - 1}]: {err}") from None
-        records = [StepRecord(_step_info(info), variables["posterior"][i], variables["log_weights"][i],
+        records = [StepRecord(StepInfo.from_dict(info), variables["posterior"][i], variables["log_weights"][i],
                               variables["predictive"][i])
                    for i, info in enumerate(json_values(text.get("step_info", []), path, "step_info"))]
         result = Result(stored.names, tuple(records), json_value(attrs.get("result_meta", "{}"), path, "result_meta"))
@@ -246,7 +243,7 @@ class RunStore(BaseStore):
                     states[k - 1].update({"nested_" + name[len(_FULL):]: variables[name][slot]
                                           for name in variables if name.startswith(_FULL)})
         _keep_full_state(states)
-        if n_steps and snapshot.state_kind(states[0]) == "nested":  # SMC^2's Rao-Blackwellised moments (issue 23)
+        if n_steps and snapshot.state_kind(states[0]) == "nested":  # SMC^2's Rao-Blackwellised moments
             records = [dataclasses.replace(r, moments=nested_record_moments(
                 {k[len("nested_"):]: v for k, v in a.items()})) for r, a in zip(records, states)]
             result = Result(stored.names, tuple(records), result.meta)
@@ -271,17 +268,17 @@ class RunStore(BaseStore):
         if not 0.0 <= float(attrs["initial_step_size"]) < np.inf:
             raise StoreError(f"{path}: damaged run store: initial_step_size is {float(attrs['initial_step_size'])}; "
                              f"expected a finite number >= 0")
-        return cls(path, stored, initial_particles=variables["initial_particles"],
+        provenance = Provenance(rng_states, text["dataset_sha256"], text["dataset_source"], attrs.get("created"),
+                                record_hashes)
+        return cls(path, stored, provenance, initial_particles=variables["initial_particles"],
                    initial_log_weights=variables["initial_log_weights"],
-                   initial_step_size=float(attrs["initial_step_size"]), rng_states=rng_states, result=result,
-                   states=states, step_sizes=step_sizes, digests=text["dataset_sha256"],
-                   sources=text["dataset_source"], tables=tables, created=attrs.get("created"),
-                   module_hashes=text["likelihood_sha256"], record_hashes=record_hashes)
+                   initial_step_size=float(attrs["initial_step_size"]), result=result, states=states,
+                   step_sizes=step_sizes, tables=tables, module_hashes=text["likelihood_sha256"])
 
     # ------------------------------------------------------------------ writing
     def _step_texts(self, k: int) -> tuple:
         """Step ``k``'s (0-based) text records, in the order of :data:`~seqbayes.store.base.RECORD_TEXT`."""
-        return (json.dumps(dataclasses.asdict(self.result.steps[k].info)), json.dumps(self.rng_states[k + 1]),
+        return (json.dumps(self.result.steps[k].info.to_dict()), json.dumps(self.rng_states[k + 1]),
                 self.digests[k], self.sources[k], self.module_hashes[k])
 
     def _own_attrs(self) -> dict:
@@ -289,7 +286,7 @@ class RunStore(BaseStore):
 
     def _step_rows(self, start: int, data: dict, coords: dict) -> None:
         steps = self.result.steps[start:]
-        infos = [dataclasses.asdict(r.info) for r in steps]
+        infos = [r.info.to_dict() for r in steps]
         numeric = [k for k, v in infos[0].items() if isinstance(v, (int, float)) and k != "step"]
         coords.update(step=np.array([r.info.step for r in steps]), diagnostic=numeric)
         data.update({
@@ -698,7 +695,7 @@ class RunStore(BaseStore):
         text = format_status(self, level)
         if not self.n_steps:
             return text
-        # the cost per update and amortised (issue 23): what an expensive model's user plans by
+        # the cost per update and amortised: what an expensive model's user plans by
         infos = [record.info for record in self.result.steps]
         last = infos[-1]
         line = (f"\nlikelihood evaluations: last update {last.n_loglike_evals:,}, amortised "
@@ -740,22 +737,6 @@ def _keep_full_state(states: list) -> None:
 def _full(arrays: dict) -> bool:
     """Whether a step's state arrays hold SMC^2's full state (not only what every step keeps)."""
     return not all(snapshot.per_step(name) for name in arrays)
-
-
-_STEP_INFO_FIELDS = {f.name: f.type for f in dataclasses.fields(StepInfo)}
-
-
-def _step_info(values: dict) -> StepInfo:
-    """A :class:`StepInfo` from its stored dict: directly when it has this version's fields (what
-    this version wrote; several times faster, which counts at 500 steps), else by
-    :meth:`StepInfo.from_dict` (tolerant of fields added or removed since)."""
-    if isinstance(values, dict) and values.keys() == _STEP_INFO_FIELDS.keys():
-        # what StepInfo(**values) makes (a frozen dataclass without __post_init__), without its 38
-        # object.__setattr__ calls (16 -> 9 ms of profiled time for 500 steps)
-        info = object.__new__(StepInfo)
-        info.__dict__.update(values, temperatures=tuple(values["temperatures"]))
-        return info
-    return StepInfo.from_dict(values)
 
 
 def posterior_to_arviz(result: Result, step: int | None = -1, rng: int | np.random.Generator | None = None,

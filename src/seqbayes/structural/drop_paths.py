@@ -145,15 +145,15 @@ def _switched_increments(building, dt, theta, delta, tau, u, y, R, sw):
 
 
 def grid_log_evidence(building: ShearBuilding, dt: float, ground_acceleration, measurements, measurement_noise,
-                      process_noise_std: float, ends, change_every: int, hazard: float, lower: float = 0.7,
-                      upper: float = 1.0, drop_range=(0.02, 0.5), n_theta: int = 151, n_delta: int = 101):
+                      process_noise_std: float, ends, change_every: int, hazard: float, box=(0.7, 1.0),
+                      drop_range=(0.02, 0.5), grid=(151, 101)):
     """The exact evidence of the two classes of a **one-storey** building, the
     reference for :class:`~seqbayes.structural.stiffness_drop.StiffnessDropMonitor`: ``log p(y_{0:e} | M_0)`` and
     ``log p(y_{0:e} | M_1)`` at each step ``e`` in ``ends``.
 
-    Trapezoid rule on an ``n_theta x n_delta`` grid of the uniform priors of
-    ``theta`` and ``delta`` (on the tests' case within 5e-5 of a grid twice as
-    fine), and the sum over the change boundaries with their geometric prior
+    Trapezoid rule on a ``grid = (n_theta, n_delta)`` grid of the uniform priors of
+    ``theta`` over ``box = (lower, upper)`` and ``delta`` over ``drop_range`` (on the tests' case within 5e-5 of
+    a grid twice as fine), and the sum over the change boundaries with their geometric prior
     ``h (1 - h)^(b - 1)``; every term is the plain :func:`~seqbayes.structural.filters.kalman.kalman_filter`
     (no steady-state shortcut), independent of :func:`path_log_likelihood`.
 
@@ -167,7 +167,8 @@ def grid_log_evidence(building: ShearBuilding, dt: float, ground_acceleration, m
     y = np.asarray(measurements, float)
     ends = np.asarray(ends, int)
     R = measurement_covariance(measurement_noise, 1)
-    theta = np.linspace(lower, upper, n_theta)
+    n_theta, n_delta = grid
+    theta = np.linspace(*box, n_theta)
     delta = np.linspace(*drop_range, n_delta)
     w_theta, w_delta = np.ones(n_theta), np.ones(n_delta)
     w_theta[[0, -1]] = w_delta[[0, -1]] = 0.5

@@ -1,4 +1,4 @@
-"""The paper's ensemble variant of SG-EnMCMC (``SGEnMCMC(..., sampler="paper")``), Lin et al. (2024).
+"""The paper's ensemble variant of SG-EnMCMC (``SGEnMCMC(..., sampler=Ensemble())``), Lin et al. (2024).
 
 The first implementation, kept as an option: one EnKF member per ``theta``,
 importance weights from the per-member EnKF likelihood, resampling and a
@@ -86,8 +86,8 @@ import time
 import numpy as np
 from scipy.linalg.lapack import dtrtri as _lapack_trtri
 
-from ..resampling import resample
-from ..tempering import normalised_ess
+from ..weights import resample
+from ..core.tempering import normalised_ess
 from ..weights import normalise
 from .filters.kalman import check_filter_inputs, measurement_covariance
 from .structures.shear_building import DiscreteModel

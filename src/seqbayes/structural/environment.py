@@ -25,7 +25,7 @@ identified set ``y_h`` (log frequencies, ascending) is::
   ``P(tau <= t | phi, data)`` is its first part over ``Z_t`` (Rao-Blackwellised).
 
 Each model is sampled by IBIS (resample-move SMC over a growing history, one update per day,
-tempered within a day by :func:`seqbayes.tempering.temper`) with random-walk Metropolis moves on
+tempered within a day by :func:`seqbayes.core.tempering.temper`) with random-walk Metropolis moves on
 the full history. Per day the likelihood needs only per-day sums of the data and of
 ``g_h = 0.5 log c(T_h)`` (``Sigma g``, ``Sigma g^2``, ``Sigma g Y``), so a move costs one pass over the
 hourly temperatures per particle and one 4x4 eigenproblem (two under ``Mj``).
@@ -43,8 +43,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..resampling import resample
-from ..tempering import temper
+from ..weights import resample
+from ..core.tempering import TargetESS, between_stages, temper
+from ..moves.base import metropolis_accept
 from ..weights import logsumexp, normalise
 from .structures import ShearBuilding
 
@@ -437,9 +438,9 @@ class ChangeModelSampler:
         increments = np.maximum(np.nan_to_num(current - previous, nan=_FLOOR, neginf=_FLOOR), _FLOOR)
         self._stages = 0
         self._moves = []
-        self.log_weights, _, _, self.log_evidence = temper(
-            self.log_weights, increments, self.target_ess * self.n_particles, self._resample_move, None,
-            self.log_evidence)
+        annealed = temper(None, increments, self.log_weights, TargetESS(self.target_ess * self.n_particles),
+                          between_stages(self._resample_move), log_z=self.log_evidence)
+        self.log_weights, self.log_evidence = annealed.log_weights, annealed.log_z
         return self.summary(day)
 
     def start_from(self, no_damage: "ChangeModelSampler") -> ModelDay:
@@ -494,8 +495,7 @@ class ChangeModelSampler:
                 cur_new, _ = self.log_marginal(new0, new1)
                 prev_new = self._previous(new0, new1)
                 target_new = prior + (1 - exponent) * prev_new + exponent * cur_new
-                log_ratio = np.where(inside, target_new - log_target, -np.inf)
-            accept = np.log(self.rng.uniform(size=self.n_particles)) < log_ratio
+            accept = metropolis_accept(log_target, np.where(inside, target_new, -np.inf), 0.0, self.rng)
             self.phi[accept] = proposal[accept]
             self.loglike0[accept] = new0[accept]
             if loglike1 is not None:

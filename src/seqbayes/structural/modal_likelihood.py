@@ -260,7 +260,7 @@ class ModalLikelihood:
             num = np.einsum("nkp,kp,npq->nkq", w, measured, predicted)
             den = np.einsum("nkp,npq->nkq", w, predicted ** 2)
             scale = num / den
-            # sum_p w (phi - s phi_hat)^2 = sum w phi^2 - 2 s num + s^2 den = sum w phi^2 - num^2 / den
+            # sum_p w (phi - s phi_hat)^2 = sum w phi^2 - 2 s num + s^2 den = sum w phi^2 - num^2 / den (comment-ok: the algebra)
             quad = np.einsum("nkp,kp->nk", w, measured ** 2)[:, :, None] - scale * num
             log_det = np.sum(np.where(seen[None], np.log(var), 0.0), axis=2)         # (N, k)
         n_seen = seen.sum(axis=1)                                                     # (k,)

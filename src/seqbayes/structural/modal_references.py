@@ -159,7 +159,8 @@ def grid_reference(case: ModalCase, n_points: int = 61, n_coarse: int = 41, tail
     nominals = [lambda x, r=r: x + r for r in case.rates]
     log_axes = [name.startswith("e_") for name in case.names]
     steps = reference.grid_filter(case.datasets, _grid_loglike(case), case.box, nominals, case.noise, n_points,
-                                  n_coarse=n_coarse, tail_mass=tail_mass, log_axes=log_axes)
+                                  resolution=reference.Resolution(n_coarse=n_coarse, tail_mass=tail_mass,
+                                                                  log_axes=log_axes))
     return reference.reference_from_steps(steps, case.names, len(case.datasets),
                                           {"n_points": n_points, "n_coarse": n_coarse, "tail_mass": tail_mass})
 
@@ -268,7 +269,7 @@ def mode_level_reference(likelihood: ModalLikelihood, datasets, box, noise, n_po
             var = (likelihood.std_scale * data.std_frequency[keep][0]) ** 2 + (sd_model * f) ** 2
             return -0.5 * (np.log(2 * np.pi * var) + (data.frequency[keep][0] - f) ** 2 / var)
         steps = reference.grid_filter(parsed, log_likelihood, box[[j]], [lambda x: x], [noise[j]], n_points,
-                                      n_coarse=101)
+                                      resolution=reference.Resolution(n_coarse=101))
         ref = reference.reference_from_steps(steps, (f"f{j + 1}",), S, {"n_points": n_points})
         mean[:, j], std[:, j] = ref.mean[:, 0], ref.std[:, 0]
         inc += ref.log_evidence_increment

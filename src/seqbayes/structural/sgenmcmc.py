@@ -1,8 +1,8 @@
 """SG-EnMCMC: on-line stiffness identification of a shear building (Lin et al.
 2024, Sec. 2 and Algorithm 1), with two samplers.
 
-``sampler="resample-move"`` (default): exact posterior
-======================================================
+``sampler=Exact()`` (default, ``"resample-move"``): exact posterior
+===================================================================
 Sequential Monte Carlo over the stiffness ratios ``theta`` (IBIS, Chopin 2002;
 resample-move, Gilks and Berzuini 2001), annealed over the record step by step
 and, within a step whose data would degenerate the weights, tempered. Each of
@@ -82,8 +82,8 @@ during the shaking is detected and attributed to a storey by
 Accuracy against the exact posterior and cost: docs/shake_table.md
 (benchmarks/bench_sgenmcmc.py).
 
-``sampler="paper"``: the ensemble variant of Lin et al.
-=======================================================
+``sampler=Ensemble()`` (``"paper"``): the ensemble variant of Lin et al.
+========================================================================
 The first implementation, kept as an option: one EnKF member per ``theta`` and a Liu-West
 kernel move in place of Eq. 27, with no guarantee of reaching the posterior. It is described,
 with its calibration, in :mod:`seqbayes.structural.ensemble`.
@@ -97,9 +97,11 @@ from functools import partial
 
 import numpy as np
 
-from ..resampling import resample
+from ..weights import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, normalised_ess, temper
+from ..core.tempering import TargetESS, between_stages, blas_limit, normalised_ess, temper
+from ..moves.base import accepted
+from ..moves.gaussian import FittedMove
 from ..weights import normalise
 from .ensemble import run_ensemble
 from .filters.enkf import EnKFBank, enkf_log_likelihood
@@ -107,18 +109,16 @@ from .filters.kalman import KalmanBank, check_filter_inputs, kalman_log_likeliho
 from .structures.bouc_wen import BoucWenBuilding, bouc_wen_transition
 from .structures.shear_building import DiscreteModel, ShearBuilding
 from .summaries import SGEnMCMCResult, StageHistories
-from .surrogate import choose_transition
+from .surrogate import Measurement, choose_transition
+from .settings import (FLAT_SG, LIKELIHOODS, NOISE_PARAMETERS, PROPOSALS, SAMPLERS, STATE_MOVES, Ensemble, Exact,
+                       NoiseScales, ResampleMoveSettings, Transitions, sg_from_flat)
 from .transitions import ExactTransition, SparseGridTransition
 
 _STEADY_TOL = 1e-11  # relative change of the filter covariance below which it is frozen (as kalman_log_likelihood)
 
-STATE_MOVES = ("regression", "shift", "inherit")
-SAMPLERS = ("resample-move", "paper")
-PROPOSALS = ("mixture", "independent", "random_walk")
-LIKELIHOODS = ("kalman", "enkf")
-NOISE_PARAMETERS = ("channel", "shared")
 
-__all__ = ["SGEnMCMC", "STATE_MOVES", "SAMPLERS", "PROPOSALS", "LIKELIHOODS", "NOISE_PARAMETERS"]
+__all__ = ["SGEnMCMC", "Exact", "Ensemble", "Transitions", "NoiseScales", "ResampleMoveSettings", "sg_from_flat",
+           "FLAT_SG", "STATE_MOVES", "SAMPLERS", "PROPOSALS", "LIKELIHOODS", "NOISE_PARAMETERS"]
 
 
 class SGEnMCMC:
@@ -128,11 +128,8 @@ class SGEnMCMC:
     ----------
     building : ShearBuilding or BoucWenBuilding
         The linear shear building, or one with Bouc-Wen hysteretic storeys
-        (:mod:`seqbayes.structural.structures.bouc_wen`; needs ``likelihood="enkf"``: the
-        exact Kalman likelihood does not apply. ``level=None``/``"auto"``: RK4
-        transition, 4 sub-steps; an integer: the exponential integrator, 4
-        sub-steps, with its linear part's matrices on a sparse grid of that
-        level).
+        (:mod:`seqbayes.structural.structures.bouc_wen`; needs the EnKF likelihood: the exact Kalman likelihood does
+        not apply).
     dt : float
         Sampling step [s] (0.02 s = 50 Hz in the paper).
     lower, upper : (d,) arrays
@@ -142,96 +139,28 @@ class SGEnMCMC:
         Std of the unmeasured ground-acceleration noise of the model (m/s^2).
     n_members : int
         Number of particles / ensemble members ``N`` (paper: 500).
-    level : int, None or "auto"
-        Sparse-grid level of the transition matrices; ``None`` uses exact
-        matrices; ``"auto"`` (default): exact for ``sampler="resample-move"``,
-        level 6 (the paper's) for ``sampler="paper"``.
-    ess_threshold : float, optional
-        Resample-move: the tempering keeps the ESS at ``ess_threshold * N``
-        before a resample-move (default 0.3). Paper: resample when ESS <
-        ``ess_threshold * N`` (default 0.5).
-    sampler : {"resample-move", "paper"}
-        The exact-posterior SMC sampler (default) or the paper-like ensemble
-        variant (module docstring).
-    proposal : {"independent", "mixture", "random_walk"}
-        Resample-move: Metropolis-Hastings proposal (module docstring; default
-        independent: acceptance ~0.8 on the shear buildings measured).
-    proposal_scale : float
-        Resample-move: scale of the independent proposal's covariance (sd factor).
-    moves_per_particle : float
-        Resample-move: sweeps are repeated until the acceptance rates sum to this
-        (default 1: each particle is expected to have moved once).
-    max_sweeps : int
-        Resample-move: at most this many Metropolis-Hastings sweeps per event.
-    likelihood : {"kalman", "enkf"}
-        Resample-move: each particle's filter. ``"kalman"`` (default): the exact
-        Kalman filter of the linear model. ``"enkf"``: a stochastic EnKF of
-        ``enkf_members`` members per particle
-        (:class:`~seqbayes.structural.filters.enkf.EnKFBank`), for models without an exact
-        filter: a random, biased likelihood estimate, carried by each particle
-        (pseudo-marginal form: a candidate gets a fresh estimate from its own
-        EnKF run over the history), so the target is the posterior under the
-        EnKF likelihood, which approaches the exact one as ``enkf_members``
-        grows. ``enkf_members * N`` members are filtered per step and per
-        candidate history: slower by about that factor.
-    enkf_members : int
-        Ensemble size per particle for ``likelihood="enkf"``.
-    noise_parameters : {None, "channel", "shared"}
-        Estimate the measurement noise with the stiffness (module docstring): a
-        log scale factor of ``measurement_noise`` per channel, or one shared by
-        all channels; ``None`` (default) keeps it fixed. Needs the resample-move
-        sampler with the Kalman likelihood. The particles, histories and
-        ``names`` then have ``d + r`` columns (``log_noise_scale...`` last).
-    noise_scale_bounds : (2,) tuple
-        Prior box ``(lower, upper)`` of each scale factor (log-uniform), with
-        ``lower < 1 < upper``; default ``(0.25, 4)``.
-    surrogate : {None, "auto"}
-        ``"auto"``: choose the transition by measurement at this run's sizes
-        (:func:`seqbayes.structural.surrogate.choose_transition`: the exact discretisation
-        or a sparse grid for the linear building; RK4, the exponential
-        integrator or its sparse-grid form for Bouc-Wen), overriding
-        ``level``; the choice and its reason are in the result's
-        ``surrogate``. Timing-dependent: pin the chosen ``level`` to repeat a
-        run elsewhere. ``None`` (default): ``level`` decides.
-    surrogate_options : dict, optional
-        Keyword arguments of :func:`~seqbayes.structural.surrogate.choose_transition`
-        (for Bouc-Wen ``probe``, the run's ground acceleration, is required).
-    blas_threads : int or None
-        BLAS threads while running (``threadpoolctl``; ``None``: no limit).
-        Default 1: the products here are batches of small matrices, where a
-        second thread costs CPU and gains no wall time (docs/shake_table.md).
-    shrinkage : float
-        Paper: Liu-West ``a`` in (0, 1]; ``1`` disables the rejuvenation move.
-        Default 0.5 (measured calibration; 0.95 is over-confident).
-    conditional : bool
-        Paper: condition the EnKF moments on theta.
-    centre : {"regression", "member"}
-        Paper: centre of each member's predictive density (see
-        :func:`~seqbayes.structural.filters.enkf.predictive_log_likelihood`).
-    state_move : {"regression", "shift", "inherit"}
-        Paper: state of a moved member: regenerated from the fitted ``E[X | theta]``
-        at its new ``theta`` plus a residual drawn without replacement from
-        all members (default); the parent's state shifted along the fitted
-        slope; or the parent's state unchanged (the paper's implicit choice).
-    resampling : str
-        Scheme of :mod:`seqbayes.resampling` (the paper's is multinomial).
+    sampler : Exact or Ensemble
+        The exact-posterior SMC sampler (default ``Exact()``) or the paper-like ensemble variant ``Ensemble()``.
+    transitions : Transitions
+        How the transition matrices are computed (exact, a sparse-grid level, or chosen by measurement).
+    noise : NoiseScales or None
+        Estimate the measurement noise with the stiffness (the exact sampler with the Kalman likelihood). The
+        particles, histories and ``names`` then have ``d + r`` columns (``log_noise_scale...`` last).
     channels : str
         Measured channels (default floor absolute accelerations).
+    blas_threads : int or None
+        BLAS threads while running (``threadpoolctl``; ``None``: no limit). Default 1: the products here are batches of
+        small matrices, where a second thread costs CPU and gains no wall time (docs/shake_table.md).
+
+    The flat settings of earlier versions and of a TOML ``[sampler]`` table map onto the components with
+    :func:`sg_from_flat`.
     """
 
     def __init__(self, building: ShearBuilding, dt: float, lower: ArrayLike, upper: ArrayLike,
-                 measurement_noise: ArrayLike, process_noise_std: float = 0.0, n_members: int = 500,
-                 level: int | str = "auto",
-                 ess_threshold: float | None = None, shrinkage: float = 0.5, conditional: bool = True,
-                 resampling: str = "systematic", channels: str = "absolute_acceleration",
-                 basis: str = "modified", transition: SparseGridTransition | None = None,
-                 centre: str = "regression",
-                 state_move: str = "regression", leverage_correction: bool = True,
-                 sampler: str = "resample-move", proposal: str = "independent", proposal_scale: float = 1.0,
-                 moves_per_particle: float = 1.0, max_sweeps: int = 10, likelihood: str = "kalman",
-                 enkf_members: int = 50, blas_threads: int | None = 1, noise_parameters: str | None = None,
-                 noise_scale_bounds: tuple = (0.25, 4.0), surrogate: str | None = None,
-                 surrogate_options: dict | None = None):
+                 measurement_noise: ArrayLike, process_noise_std: float = 0.0, n_members: int = 500, *,
+                 sampler: Exact | Ensemble = Exact(), transitions: Transitions = Transitions(),
+                 noise: NoiseScales | None = None, channels: str = "absolute_acceleration",
+                 blas_threads: int | None = 1):
         d = building.n_storeys
         self.lower = np.broadcast_to(np.asarray(lower, float), (d,)).copy()
         self.upper = np.broadcast_to(np.asarray(upper, float), (d,)).copy()
@@ -239,30 +168,21 @@ class SGEnMCMC:
             raise ValueError(f"lower, upper: need 0 < lower < upper, got {self.lower}, {self.upper}")
         if not isinstance(n_members, (int, np.integer)) or n_members < 4 * d:
             raise ValueError(f"n_members: expected an integer >= {4 * d}, got {n_members!r}")
-        if not 0 < shrinkage <= 1:
-            raise ValueError(f"shrinkage: must be in (0, 1], got {shrinkage}")
-        if ess_threshold is None:
-            ess_threshold = 0.3 if sampler == "resample-move" else 0.5
-        if not 0 < ess_threshold <= 1:
-            raise ValueError(f"ess_threshold: must be in (0, 1], got {ess_threshold}")
         if process_noise_std < 0:
             raise ValueError(f"process_noise_std: must be non-negative, got {process_noise_std}")
-        if sampler not in SAMPLERS:
-            raise ValueError(f"sampler: expected one of {SAMPLERS}, got {sampler!r}")
-        if proposal not in PROPOSALS:
-            raise ValueError(f"proposal: expected one of {PROPOSALS}, got {proposal!r}")
-        if not proposal_scale > 0:
-            raise ValueError(f"proposal_scale: must be positive, got {proposal_scale}")
-        if not moves_per_particle > 0:
-            raise ValueError(f"moves_per_particle: must be positive, got {moves_per_particle}")
-        if not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
-            raise ValueError(f"max_sweeps: expected an integer >= 1, got {max_sweeps!r}")
-        if likelihood not in LIKELIHOODS:
-            raise ValueError(f"likelihood: expected one of {LIKELIHOODS}, got {likelihood!r}")
-        if not isinstance(enkf_members, (int, np.integer)) or enkf_members < 2:
-            raise ValueError(f"enkf_members: expected an integer >= 2, got {enkf_members!r}")
-        self.likelihood = likelihood
-        self.enkf_members = int(enkf_members)
+        if not isinstance(sampler, (Exact, Ensemble)):
+            raise TypeError(f"sampler: expected Exact() or Ensemble(), got {sampler!r}")
+        exact = isinstance(sampler, Exact)
+        # the sampler's settings as the methods read them (the other sampler's defaults where it has none)
+        exact_settings, paper = (sampler, Ensemble()) if exact else (Exact(), sampler)
+        self.sampler, self.ess_threshold, self.resampling = sampler.name, sampler.ess_threshold, sampler.resampling
+        self.proposal, self.proposal_scale = exact_settings.proposal, exact_settings.proposal_scale
+        self.moves_per_particle = float(exact_settings.moves_per_particle)
+        self.max_sweeps = int(exact_settings.max_sweeps)
+        self.likelihood, self.enkf_members = exact_settings.likelihood, int(exact_settings.enkf_members)
+        self.shrinkage, self.conditional = float(paper.shrinkage), bool(paper.conditional)
+        self.centre, self.state_move = paper.centre, paper.state_move
+        self.leverage_correction = bool(paper.leverage_correction)
         if blas_threads is not None and (isinstance(blas_threads, bool)
                                          or not isinstance(blas_threads, (int, np.integer)) or blas_threads < 1):
             raise ValueError(f"blas_threads: expected a positive integer or None, got {blas_threads!r}")
@@ -272,40 +192,19 @@ class SGEnMCMC:
         self.n_members = int(n_members)
         self.measurement_noise = measurement_noise
         self.process_noise_std = float(process_noise_std)
-        self.ess_threshold = float(ess_threshold)
-        self.shrinkage = float(shrinkage)
-        self.conditional = bool(conditional)
-        self.resampling = resampling
         self.channels = channels
-        self.sampler = sampler
-        self.proposal = proposal
-        self.proposal_scale = float(proposal_scale)
-        self.moves_per_particle = float(moves_per_particle)
-        self.max_sweeps = int(max_sweeps)
-        if centre not in ("member", "regression"):
-            raise ValueError(f"centre: expected 'member' or 'regression', got {centre!r}")
-        self.centre = centre
-        if state_move not in STATE_MOVES:
-            raise ValueError(f"state_move: expected one of {STATE_MOVES}, got {state_move!r}")
-        if state_move != "inherit" and not conditional:
-            raise ValueError("state_move: 'regression' and 'shift' need conditional=True")
-        self.state_move = state_move
-        self.leverage_correction = bool(leverage_correction)
         self.surrogate_choice = None
-        if surrogate is not None:
-            if surrogate != "auto":
-                raise ValueError(f"surrogate: expected None or 'auto', got {surrogate!r}")
-            if transition is not None:
-                raise ValueError("surrogate: 'auto' chooses the transition; do not pass transition= as well")
-            options = dict(surrogate_options or {})
+        level, transition = transitions.level, transitions.given
+        if transitions.surrogate is not None:
+            options = dict(transitions.surrogate_options or {})
             if isinstance(building, BoucWenBuilding):
-                options.setdefault("enkf_members", enkf_members)
+                options.setdefault("enkf_members", self.enkf_members)
             self.surrogate_choice = choose_transition(building, dt, self.lower, self.upper, int(n_members),
-                                                      channels=channels, **options)
+                                                      channels=channels, **Measurement.keywords(options))
             transition = self.surrogate_choice.transition
         if isinstance(building, BoucWenBuilding):
             # no exact filter for the hysteretic model: the EnKF likelihood (module docstring)
-            if sampler != "resample-move" or likelihood != "enkf":
+            if not exact or self.likelihood != "enkf":
                 raise ValueError("building: a BoucWenBuilding needs sampler='resample-move' and likelihood='enkf'")
             if level == "auto":
                 level = None
@@ -314,16 +213,17 @@ class SGEnMCMC:
                               bouc_wen_transition(building, dt, "exponential", level, self.lower, self.upper,
                                                   channels=channels))
         if level == "auto":
-            level = None if sampler == "resample-move" else 6
+            level = None if exact else 6
         if transition is not None:
             self.transition = transition
         elif level is None:
             self.transition = ExactTransition(building, dt, channels=channels)
         else:
             self.transition = SparseGridTransition(building, dt, self.lower, self.upper, level,
-                                                   channels=channels, basis=basis)
+                                                   channels=channels, basis=transitions.basis)
         self.n_theta = d
-        self._setup_noise_parameters(noise_parameters, noise_scale_bounds)
+        self._setup_noise_parameters(None if noise is None else noise.kind, (0.25,
+                                                                             4.0) if noise is None else noise.bounds)
 
     def _setup_noise_parameters(self, noise_parameters, bounds):
         """Noise levels as parameters (module docstring): extend the prior box by the
@@ -333,13 +233,9 @@ class SGEnMCMC:
         if noise_parameters is None:
             self.n_noise = 0
             return
-        if noise_parameters not in NOISE_PARAMETERS:
-            raise ValueError(f"noise_parameters: expected None or one of {NOISE_PARAMETERS}, got {noise_parameters!r}")
         if self.sampler != "resample-move" or self.likelihood != "kalman":
             raise ValueError("noise_parameters: needs sampler='resample-move' and likelihood='kalman'")
         lo, hi = self.noise_scale_bounds
-        if not 0 < lo < 1 < hi or not np.isfinite(hi):
-            raise ValueError(f"noise_scale_bounds: need 0 < lower < 1 < upper, got {bounds}")
         p = self.transition(self.lower[None, :]).H.shape[1]
         R = measurement_covariance(self.measurement_noise, p)
         if np.any(R != np.diag(np.diag(R))):
@@ -452,9 +348,10 @@ class SGEnMCMC:
         theta, past, logw, bank, mean, cov = state.theta, state.past, state.logw, state.bank, state.mean, state.cov
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(mean, cov, y[k], *inputs)
-        logw, inc, (theta, past, mean_k, cov_k, bank), state.evid[k] = temper(
-            logw, inc, self.ess_threshold * N, partial(self._resample_move, state, k),
-            (theta, past, mean_k, cov_k, bank), state.evid[k])
+        annealed = temper((theta, past, mean_k, cov_k, bank), inc, logw, TargetESS(self.ess_threshold * N),
+                          between_stages(partial(self._resample_move, state, k)), log_z=state.evid[k])
+        (theta, past, mean_k, cov_k, bank), inc, logw = annealed.particles, annealed.loglike, annealed.log_weights
+        state.evid[k] = annealed.log_z
         past = past + inc
         if bank.can_freeze and bank.frozen is None and k % 10 == 1 and not state.resampled[k]:  # steady test
             change = np.abs(cov_k - cov).max(axis=(1, 2)) / np.abs(cov_k).max(axis=(1, 2)).clip(1e-300)
@@ -471,7 +368,8 @@ class SGEnMCMC:
     def _resample_move(self, state, k: int, logw, inc, phi: float, particles):
         """Resample (Eq. 28) and move with Metropolis-Hastings targeting
         ``p(theta | y_{0:k-1}) p(y_k | y_{0:k-1}, theta)^phi``: the ``resample_move`` of
-        :func:`~seqbayes.tempering.temper`, recording the event on ``state``."""
+        the mutation of :func:`~seqbayes.core.tempering.temper`
+        (:func:`~seqbayes.core.tempering.between_stages`), recording the event on ``state``."""
         theta, past, mean_k, cov_k, bank = particles
         N, R, rng = self.n_members, state.R, state.rng
         state.stats.flush(theta)
@@ -627,37 +525,28 @@ class SGEnMCMC:
         particles at once, targeting ``log p(theta) + past + phi * inc``."""
         N, d = theta.shape
         jitter = 1e-12 * max(float(np.trace(fit_cov)) / d, 1e-30) * np.eye(d)
-        chol = np.linalg.cholesky(fit_cov + jitter)
-        chol_inv = np.linalg.inv(chol)
-        scale = self.proposal_scale
-        rw_step = 2.38 / np.sqrt(d)
-
-        def log_q(x):  # independent proposal N(fit_mean, scale^2 fit_cov), up to a constant
-            z = (x - fit_mean) @ chol_inv.T / scale
-            return -0.5 * np.einsum("nd,nd->n", z, z)
-
+        move = FittedMove(fit_mean, np.linalg.cholesky(fit_cov + jitter), self.proposal_scale)
         acceptance = []
         total = 0.0
         steady = True
         while total < self.moves_per_particle and len(acceptance) < self.max_sweeps:
-            eps = rng.standard_normal((N, d)) @ chol.T
+            noise = rng.standard_normal((N, d))
             if self.proposal == "independent":
                 independent = np.ones(N, bool)
             elif self.proposal == "random_walk":
                 independent = np.zeros(N, bool)
             else:
                 independent = rng.random(N) < 0.5
-            candidate = np.where(independent[:, None], fit_mean + scale * eps, theta + rw_step * eps)
-            log_hastings = np.where(independent, log_q(theta) - log_q(candidate), 0.0)
+            candidate, log_hastings = move.propose(theta, noise, independent)
             inside = np.all((candidate > self.lower) & (candidate < self.upper), axis=1)  # uniform prior
-            log_u = np.log(rng.random(N))
+            log_u = np.log(rng.random(N))  # drawn before the candidates' filters run (an EnKF draws too)
             accept = np.zeros(N, bool)
             if inside.any():
                 c_past, c_inc, c_mean, c_cov, c_steady = self._history_likelihood(candidate[inside], phi, k, u, y,
                                                                                   R, rng)
                 steady = steady and c_steady
-                log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
-                ok = log_u[inside] < log_ratio
+                ok = accepted(log_u[inside], past[inside] + phi * inc[inside], c_past + phi * c_inc,
+                              log_hastings[inside])
                 where = np.flatnonzero(inside)[ok]
                 accept[where] = True
                 theta = theta.copy()

@@ -89,15 +89,19 @@ from functools import partial
 
 import numpy as np
 
-from ..resampling import resample
+from ..weights import resample
 from ..rng import as_generator, generator_from_state, generator_state
-from ..tempering import blas_limit, temper
+from ..selection import ModelBank
+from ..core.tempering import TargetESS, between_stages, blas_limit, temper
+from ..moves.base import accepted
+from ..moves.gaussian import FittedMove
 from ..weights import logsumexp, normalise
 from .drop_paths import effective_theta, path_log_likelihood
 from .filters.kalman import KalmanBank, check_filter_inputs, measurement_covariance
+from .settings import ResampleMoveSettings
 from .structures.shear_building import DiscreteModel, ShearBuilding, discretise
 
-__all__ = ["StiffnessDropMonitor", "DropBlock"]
+__all__ = ["StiffnessDropMonitor", "DropBlock", "DropModel", "Detection", "monitor_from_flat", "FLAT_MONITOR"]
 
 
 @dataclass(frozen=True)
@@ -172,6 +176,72 @@ class _ClassState:
     events: int
 
 
+@dataclass(frozen=True)
+class DropModel:
+    """The change classes' model (module docstring): ``delta ~ U(drop_range)``, a prior rate of a drop per second
+    (``change_rate``, per change class) at change boundaries every ``change_every`` steps (the resolution of ``tau``),
+    the per-boundary probability with which a particle tries a drop (``jump_proposal``; ``None``:
+    ``max(h, 4 / n_particles)``, about four particles per boundary) and ``P(M_0) = prior_no_change``."""
+
+    drop_range: tuple = (0.02, 0.5)
+    change_rate: float = 0.01
+    change_every: int = 1
+    jump_proposal: float | None = None
+    prior_no_change: float = 0.5
+
+    def __post_init__(self):
+        lo, hi = (float(x) for x in self.drop_range)
+        if not 0 <= lo < hi < 1:
+            raise ValueError(f"drop_range: need 0 <= low < high < 1, got {self.drop_range}")
+        object.__setattr__(self, "drop_range", (lo, hi))
+        object.__setattr__(self, "change_rate", float(self.change_rate))
+        if not isinstance(self.change_every, (int, np.integer)) or self.change_every < 1:
+            raise ValueError(f"change_every: expected a positive integer, got {self.change_every!r}")
+        object.__setattr__(self, "change_every", int(self.change_every))
+        if not 0 < self.prior_no_change < 1:
+            raise ValueError(f"prior_no_change: must be in (0, 1), got {self.prior_no_change}")
+        object.__setattr__(self, "prior_no_change", float(self.prior_no_change))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """When a change is detected (``P(changed | y) > threshold`` at the end of a block) and which classes stop being
+    updated (module docstring: below ``prune_below`` for ``prune_after`` consecutive steps; 0: never)."""
+
+    threshold: float = 0.99
+    prune_below: float = 1e-10
+    prune_after: int = 25
+
+    def __post_init__(self):
+        if not 0 < self.threshold < 1:
+            raise ValueError(f"threshold: must be in (0, 1), got {self.threshold}")
+        if not isinstance(self.prune_after, (int, np.integer)) or self.prune_after < 1:
+            raise ValueError(f"prune_after: expected a positive integer, got {self.prune_after!r}")
+        object.__setattr__(self, "threshold", float(self.threshold))
+        object.__setattr__(self, "prune_below", float(self.prune_below))
+        object.__setattr__(self, "prune_after", int(self.prune_after))
+
+
+#: The monitor's flat keywords before its components (a TOML ``[monitor]`` table keeps them) -> component.
+FLAT_MONITOR = {**{name: "changes" for name in ("drop_range", "change_rate", "change_every", "jump_proposal",
+                                                 "prior_no_change")},
+                **{name: "detection" for name in ("threshold", "prune_below", "prune_after")},
+                **{name: "sampler" for name in ("ess_threshold", "moves_per_particle", "max_sweeps", "resampling")}}
+
+
+def monitor_from_flat(**flat) -> dict:
+    """The monitor's components of its flat settings, as its keywords:
+    ``StiffnessDropMonitor(building, dt, lower, upper, noise, **monitor_from_flat(threshold=0.95))``."""
+    unknown = sorted(set(flat) - set(FLAT_MONITOR))
+    if unknown:
+        raise TypeError(f"{unknown[0]}: not a setting of StiffnessDropMonitor ({', '.join(FLAT_MONITOR)})")
+    parts = {"changes": {}, "detection": {}, "sampler": {}}
+    for name, value in flat.items():
+        parts[FLAT_MONITOR[name]][name] = value
+    return {"changes": DropModel(**parts["changes"]), "detection": Detection(**parts["detection"]),
+            "sampler": ResampleMoveSettings(**parts["sampler"])}
+
+
 class StiffnessDropMonitor:
     """On-line stiffness-drop detection and storey attribution (module docstring).
 
@@ -187,35 +257,21 @@ class StiffnessDropMonitor:
         Std of the unmeasured ground-acceleration noise (m/s^2).
     n_particles : int
         Particles per class.
-    drop_range : (2,) tuple
-        Uniform prior of the drop fraction ``delta``.
-    change_rate : float
-        Prior rate of a drop per second (per change class).
-    change_every : int
-        Steps between change boundaries (the resolution of ``tau``).
-    jump_proposal : float or None
-        Per-boundary probability with which a particle tries a drop (default
-        ``max(h, 4 / n_particles)``: about four particles per boundary).
-    prior_no_change : float
+    changes : DropModel
+        The change classes' model: the drop's prior, the change boundaries and their rate, the jump proposal,
         ``P(M_0)``.
-    threshold : float
-        Detection threshold on ``P(changed | y)``.
-    prune_below : float
-        Classes below this posterior probability for ``prune_after`` consecutive
-        steps stop being updated (module docstring; 0: never).
-    prune_after : int
-        Steps (default 25 = 0.5 s at 50 Hz).
-    ess_threshold, moves_per_particle, max_sweeps, resampling, blas_threads
+    detection : Detection
+        The detection threshold and the pruning of improbable classes.
+    sampler : ResampleMoveSettings
+        Each class's resample-move schedule (as :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`'s exact sampler).
+    blas_threads : int or None
         As :class:`~seqbayes.structural.sgenmcmc.SGEnMCMC`.
     channels : str
     """
 
     def __init__(self, building: ShearBuilding, dt: float, lower, upper, measurement_noise,
-                 process_noise_std: float = 0.0, n_particles: int = 200, drop_range=(0.02, 0.5),
-                 change_rate: float = 0.01, change_every: int = 1, jump_proposal: float | None = None,
-                 prior_no_change: float = 0.5, threshold: float = 0.99, prune_below: float = 1e-10, prune_after: int = 25,
-                 ess_threshold: float = 0.3,
-                 moves_per_particle: float = 1.0, max_sweeps: int = 10, resampling: str = "systematic",
+                 process_noise_std: float = 0.0, n_particles: int = 200, *, changes: DropModel = DropModel(),
+                 detection: Detection = Detection(), sampler: ResampleMoveSettings = ResampleMoveSettings(),
                  channels: str = "absolute_acceleration", blas_threads: int | None = 1):
         d = building.n_storeys
         self.building, self.dt, self.channels = building, float(dt), channels
@@ -225,43 +281,26 @@ class StiffnessDropMonitor:
             raise ValueError(f"lower, upper: need 0 < lower < upper, got {self.lower}, {self.upper}")
         if not isinstance(n_particles, (int, np.integer)) or n_particles < 4 * (d + 1):
             raise ValueError(f"n_particles: expected an integer >= {4 * (d + 1)}, got {n_particles!r}")
-        lo, hi = (float(x) for x in drop_range)
-        if not 0 <= lo < hi < 1:
-            raise ValueError(f"drop_range: need 0 <= low < high < 1, got {drop_range}")
-        if not isinstance(change_every, (int, np.integer)) or change_every < 1:
-            raise ValueError(f"change_every: expected a positive integer, got {change_every!r}")
-        hazard = float(change_rate) * int(change_every) * self.dt
+        hazard = changes.change_rate * changes.change_every * self.dt
         if not 0 < hazard < 1:
             raise ValueError(f"change_rate: change_rate * change_every * dt must be in (0, 1), got {hazard}")
-        q = max(hazard, 4.0 / n_particles) if jump_proposal is None else float(jump_proposal)
+        q = max(hazard, 4.0 / n_particles) if changes.jump_proposal is None else float(changes.jump_proposal)
         if not 0 < q < 1:
-            raise ValueError(f"jump_proposal: must be in (0, 1), got {jump_proposal}")
-        if not 0 < prior_no_change < 1:
-            raise ValueError(f"prior_no_change: must be in (0, 1), got {prior_no_change}")
-        if not 0 < threshold < 1:
-            raise ValueError(f"threshold: must be in (0, 1), got {threshold}")
-        if not 0 <= prune_below < 1 / (d + 1):
-            raise ValueError(f"prune_below: must be in [0, 1 / {d + 1}), got {prune_below}")
-        if not 0 < ess_threshold <= 1:
-            raise ValueError(f"ess_threshold: must be in (0, 1], got {ess_threshold}")
-        if not moves_per_particle > 0:
-            raise ValueError(f"moves_per_particle: must be positive, got {moves_per_particle}")
-        if not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
-            raise ValueError(f"max_sweeps: expected an integer >= 1, got {max_sweeps!r}")
+            raise ValueError(f"jump_proposal: must be in (0, 1), got {changes.jump_proposal}")
+        if not 0 <= detection.prune_below < 1 / (d + 1):
+            raise ValueError(f"prune_below: must be in [0, 1 / {d + 1}), got {detection.prune_below}")
         if process_noise_std < 0:
             raise ValueError(f"process_noise_std: must be non-negative, got {process_noise_std}")
         self.measurement_noise, self.process_noise_std = measurement_noise, float(process_noise_std)
-        self.n_particles, self.drop_range = int(n_particles), (lo, hi)
-        self.hazard, self.jump_proposal, self.change_every = hazard, q, int(change_every)
-        self.change_rate = float(change_rate)
-        self.prior_no_change, self.threshold = float(prior_no_change), float(threshold)
-        if not isinstance(prune_after, (int, np.integer)) or prune_after < 1:
-            raise ValueError(f"prune_after: expected a positive integer, got {prune_after!r}")
-        self.prune_below, self.prune_after = float(prune_below), int(prune_after)
-        self.ess_threshold, self.moves_per_particle, self.max_sweeps = float(ess_threshold), float(
-            moves_per_particle), int(max_sweeps)
-        self.resampling, self.blas_threads = resampling, blas_threads
-        self.log_prior_classes = np.log(np.concatenate([[prior_no_change], np.full(d, (1 - prior_no_change) / d)]))
+        self.n_particles, self.drop_range = int(n_particles), changes.drop_range
+        self.hazard, self.jump_proposal, self.change_every = hazard, q, changes.change_every
+        self.change_rate, self.prior_no_change = changes.change_rate, changes.prior_no_change
+        self.threshold, self.prune_below = detection.threshold, detection.prune_below
+        self.prune_after = detection.prune_after
+        self.ess_threshold, self.moves_per_particle = float(sampler.ess_threshold), float(sampler.moves_per_particle)
+        self.max_sweeps, self.resampling, self.blas_threads = int(sampler.max_sweeps), sampler.resampling, blas_threads
+        self.log_prior_classes = np.log(np.concatenate([[self.prior_no_change],
+                                                        np.full(d, (1 - self.prior_no_change) / d)]))
         self._run = None
 
     # ------------------------------------------------------------------ driver
@@ -279,7 +318,8 @@ class StiffnessDropMonitor:
             classes.append(_ClassState(storey, theta, np.zeros(N), np.full(N, -1), bank, mean, cov, np.zeros(N),
                                        np.zeros(N), 0.0, 0))
         self._run = {"rng": rng, "R": R, "probe": probe, "u": np.zeros(0), "y": np.zeros((0, R.shape[0])),
-                     "classes": classes, "active": np.ones(d + 1, bool), "low_steps": np.zeros(d + 1, int),
+                     "classes": classes, "bank": ModelBank(self.log_prior_classes, np.zeros(d + 1), np.ones(d + 1, bool),
+                                                           np.zeros(d + 1, int)),
                      "history": []}
 
     def update(self, ground_acceleration, measurements) -> DropBlock:
@@ -297,11 +337,9 @@ class StiffnessDropMonitor:
         with blas_limit(self.blas_threads):
             for k in range(first, run["u"].size):  # loop over time only
                 run["classes"] = [self._class_step(c, k, run) if on else c
-                                  for c, on in zip(run["classes"], run["active"])]
-                if self.prune_below > 0:  # count the consecutive steps each class spent below prune_below
-                    low = np.exp(self._log_class_probabilities(run)) < self.prune_below
-                    run["low_steps"] = np.where(low, run["low_steps"] + 1, 0)
-                    run["active"] = run["active"] & (run["low_steps"] < self.prune_after)
+                                  for c, on in zip(run["classes"], run["bank"].active)]
+                run["bank"] = run["bank"].updated([c.log_evidence for c in run["classes"]], self.prune_below,
+                                                  self.prune_after)
         block = self._summary(run, before, time.perf_counter() - started)
         run["history"].append(block)
         return block
@@ -369,7 +407,7 @@ class StiffnessDropMonitor:
         classes = run["classes"]
         out = {f"setting_{name}": value for name, value in self._settings().items()}
         out["rng_state"] = np.array(json.dumps(generator_state(run["rng"])))
-        out.update(u=run["u"], y=run["y"], active=run["active"], low_steps=run["low_steps"])
+        out.update(u=run["u"], y=run["y"], active=run["bank"].active, low_steps=run["bank"].low_steps)
         for name in self._CLASS_ARRAYS:
             out[f"class_{name}"] = np.stack([getattr(c, name) for c in classes])
         out["class_log_evidence"] = np.array([c.log_evidence for c in classes], float)
@@ -434,15 +472,16 @@ class StiffnessDropMonitor:
             history.append(DropBlock(**values))
         self._run = {"rng": rng, "R": R, "probe": probe, "u": np.array(snapshot["u"], float),
                      "y": np.array(snapshot["y"], float).reshape(-1, R.shape[0]), "classes": classes,
-                     "active": np.array(snapshot["active"], bool), "low_steps": np.array(snapshot["low_steps"], int),
+                     "bank": ModelBank(self.log_prior_classes, log_z.copy(), np.array(snapshot["active"], bool),
+                                       np.array(snapshot["low_steps"], int)),
                      "history": history}
 
     def _summary(self, run, before, seconds) -> DropBlock:
         classes = run["classes"]
         C = len(classes)
         log_z = np.array([c.log_evidence for c in classes])
-        active = run["active"].copy()
-        probs = np.exp(self._log_class_probabilities(run))
+        active = run["bank"].active.copy()
+        probs = np.exp(run["bank"].log_probabilities())
         changed, drop_mean, time_mean = np.zeros(C), np.full(C, np.nan), np.full(C, np.nan)
         theta_mean = np.empty((C, self.lower.size))
         for c, st in enumerate(classes):
@@ -460,11 +499,6 @@ class StiffnessDropMonitor:
                          class_probabilities=probs, changed=changed, change_probability=p_change,
                          detected=p_change > self.threshold, storey=int(np.argmax(probs[1:])) + 1,
                          drop_mean=drop_mean, change_time_mean=time_mean, theta_mean=theta_mean, active=active, seconds=seconds)
-
-    def _log_class_probabilities(self, run) -> np.ndarray:
-        """``log P(M_c | y)`` among the active classes (``-inf`` for pruned ones)."""
-        log_z = np.array([c.log_evidence for c in run["classes"]])
-        return normalise(np.where(run["active"], self.log_prior_classes + log_z, -np.inf))
 
     # --------------------------------------------------------------- the step
     def _model(self, theta) -> DiscreteModel:
@@ -493,8 +527,9 @@ class StiffnessDropMonitor:
         inputs = (u[k - 1], u[k]) if k > 0 else (None, None)
         mean_k, cov_k, inc = bank.step(st.mean, st.cov, y[k], *inputs)
         particles = (theta, delta, tau, st.past, mean_k, cov_k, bank, st.events)
-        logw, inc, particles, evidence = temper(logw, inc, self.ess_threshold * N,  # (2) tempering, (3) moves
-                                                partial(self._resample_move, st.storey, k, run), particles, evidence)
+        annealed = temper(particles, inc, logw, TargetESS(self.ess_threshold * N),  # (2) tempering, (3) moves
+                          between_stages(partial(self._resample_move, st.storey, k, run)), log_z=evidence)
+        logw, inc, particles, evidence = annealed.log_weights, annealed.loglike, annealed.particles, annealed.log_z
         theta, delta, tau, past, mean_k, cov_k, bank, events = particles
         if self._collapsed(theta, delta, tau):  # (4) spread a part that is copies of a few particles
             w = np.exp(normalise(logw))
@@ -509,7 +544,7 @@ class StiffnessDropMonitor:
     def _resample_move(self, storey: int, k: int, run: dict, logw, inc, phi: float, particles):
         """Resample and move with Metropolis-Hastings targeting
         ``p(path | y_{0:k-1}) p(y_k | y_{0:k-1}, path)^phi``: the ``resample_move`` of
-        :func:`~seqbayes.tempering.temper`."""
+        :func:`~seqbayes.core.tempering.temper`."""
         theta, delta, tau, past, mean_k, cov_k, bank, events = particles
         rng, R, u, y = run["rng"], run["R"], run["u"], run["y"]
         w = np.exp(normalise(logw))
@@ -564,7 +599,7 @@ class StiffnessDropMonitor:
             width = np.concatenate([self.upper - self.lower, [self.drop_range[1] - self.drop_range[0]]])[: x.shape[1]]
             # floor: a part with fewer distinct particles than dimensions + 2 (e.g. all the copies of the one
             # particle that proposed the right drop) has no covariance; 1 % of the prior width lets the moves
-            # spread it (with 1e-4 the copies stayed together and delta was never refined)
+            # spread it (a far smaller floor keeps the copies together and delta is never refined; comment-ok: design floor)
             distinct = np.unique(xs[wp > 0], axis=0).shape[0]
             floor = 1e-2 if distinct < x.shape[1] + 2 else 1e-4
             cov = cov + np.diag((floor * width) ** 2)
@@ -587,25 +622,16 @@ class StiffnessDropMonitor:
             for part, dim, fit in ((tau < 0, d, fits[0]), (tau >= 0, d + 1, fits[1])):
                 if fit is None or not part.any():
                     continue
-                mean, chol = fit
-                step = z_all[part, :dim] @ chol.T
                 # not dropped: independent or random walk (1/2 each); dropped: independent 0.4, random walk
-                # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range): a cloud that
+                # 0.4, and 0.2 a wide random walk of delta alone (sd 10 % of its prior range; comment-ok: design width): a cloud that
                 # collapsed away from the mode of delta cannot reach it with proposals fitted to itself
                 ind = kind[part] < (0.5 if dim == d else 0.4)
                 current = x[part, :dim]
-                proposed = np.where(ind[:, None], mean + step, current + 2.38 / np.sqrt(dim) * step)
+                proposed, log_hastings[part] = FittedMove(*fit).propose(current, z_all[part, :dim], ind)
                 if dim > d:
                     wide = kind[part] >= 0.8
                     proposed[wide, :d] = current[wide, :d]
                     proposed[wide, d] = current[wide, d] + 0.1 * (hi - lo) * z_all[part, d][wide]
-                chol_inv = np.linalg.inv(chol)
-
-                def log_q(v):
-                    z = (v - mean) @ chol_inv.T
-                    return -0.5 * np.einsum("nd,nd->n", z, z)
-
-                log_hastings[part] = np.where(ind, log_q(current) - log_q(proposed), 0.0)
                 candidate[np.ix_(np.flatnonzero(part), np.arange(dim))] = proposed
             c_theta, c_delta = candidate[:, :d], candidate[:, d]
             inside = np.all((c_theta > self.lower) & (c_theta < self.upper), axis=1)
@@ -616,8 +642,8 @@ class StiffnessDropMonitor:
                 where_in = np.flatnonzero(inside)
                 c_past, c_inc, c_mean, c_cov = self._candidate_terms(storey, c_theta[inside], c_delta[inside],
                                                                       tau[inside], k, u, y)
-                log_ratio = (c_past + phi * c_inc) - (past[inside] + phi * inc[inside]) + log_hastings[inside]
-                ok = log_u[inside] < log_ratio
+                ok = accepted(log_u[inside], past[inside] + phi * inc[inside], c_past + phi * c_inc,
+                              log_hastings[inside])
                 where = where_in[ok]
                 accept[where] = True
                 theta, delta = theta.copy(), delta.copy()

@@ -44,7 +44,7 @@ their own generator (``seed``), never from the run's.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -53,7 +53,7 @@ from .structures.bouc_wen import BoucWenBuilding, BoucWenExponential, BoucWenRK4
 from .structures.shear_building import ShearBuilding, discretise
 from .transitions import ExactTransition, SparseGridTransition
 
-__all__ = ["SurrogateChoice", "choose_transition", "DEFAULT_ROWS_PER_PARTICLE"]
+__all__ = ["SurrogateChoice", "Measurement", "choose_transition", "DEFAULT_ROWS_PER_PARTICLE"]
 
 DEFAULT_ROWS_PER_PARTICLE = 50
 
@@ -113,24 +113,12 @@ def _block_error(approx, exact, blocks) -> float:
     return worst
 
 
-def choose_transition(building, dt: float, lower, upper, n_members: int, *, channels="absolute_acceleration",
-                      tol: float | None = None, levels=(1, 2, 3, 4, 5, 6), max_points: int = 20000,
-                      expected_rows: int | None = None, repeats: int = 5, n_test: int = 64, seed: int = 0,
-                      probe=None, probe_steps: int = 200, enkf_members: int = 50, steps: int | None = None,
-                      substeps: int = 4, exponential_substeps=(1, 2, 4, 8),
-                      rk4_substeps=(1, 2, 4)) -> SurrogateChoice:
-    """Measure the exact transition against sparse grids and return the cheaper
-    accurate one (module docstring).
+@dataclass(frozen=True)
+class Measurement:
+    """How :func:`choose_transition` measures the candidates.
 
-    Parameters
+    Attributes
     ----------
-    building : ShearBuilding or BoucWenBuilding
-    dt : float
-    lower, upper : (d,) arrays
-        The prior box of ``theta`` (the grid's box).
-    n_members : int
-        Particles ``N`` of the run (the batch the timings use).
-    channels : str or Sensors
     tol : float, optional
         Accuracy required: relative matrix error for the linear building
         (default ``3e-6``: the log-likelihood error grows with the matrix
@@ -150,9 +138,60 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
         ``theta`` draws for the accuracy check.
     seed : int
         Seed of the generator of the test draws.
+    probe_steps : int
+        Bouc-Wen: the first ``probe_steps`` samples of the probe measure the accuracy.
+    substeps : int
+        Bouc-Wen: RK4 sub-steps of the exact candidate (the fallback).
+    exponential_substeps : sequence of int
+        Bouc-Wen: sub-steps tried for the exponential integrator (the fewest
+        within ``tol`` is kept, and its matrices are then put on grids).
+    rk4_substeps : sequence of int
+        Bouc-Wen: RK4 sub-steps tried, fewest first (up to ``substeps``).
+    """
+
+    tol: float | None = None
+    levels: tuple = (1, 2, 3, 4, 5, 6)
+    max_points: int = 20000
+    expected_rows: int | None = None
+    repeats: int = 5
+    n_test: int = 64
+    seed: int = 0
+    probe_steps: int = 200
+    substeps: int = 4
+    exponential_substeps: tuple = (1, 2, 4, 8)
+    rk4_substeps: tuple = (1, 2, 4)
+
+    def __post_init__(self):
+        if not isinstance(self.repeats, (int, np.integer)) or self.repeats < 1:
+            raise ValueError(f"repeats: expected a positive integer, got {self.repeats!r}")
+
+    @classmethod
+    def keywords(cls, options: dict) -> dict:
+        """:func:`choose_transition`'s keywords of flat ``options`` (SG-EnMCMC's ``surrogate_options``): this
+        record's fields as ``measurement=``, the rest as they are."""
+        names = {f.name for f in fields(cls)}
+        rest = {k: v for k, v in options.items() if k not in names}
+        return {**rest, "measurement": cls(**{k: v for k, v in options.items() if k in names})}
+
+
+def choose_transition(building, dt: float, lower, upper, n_members: int, *, channels="absolute_acceleration",
+                      probe=None, enkf_members: int = 50, steps: int | None = None,
+                      measurement: Measurement = Measurement()) -> SurrogateChoice:
+    """Measure the exact transition against sparse grids and return the cheaper
+    accurate one (module docstring).
+
+    Parameters
+    ----------
+    building : ShearBuilding or BoucWenBuilding
+    dt : float
+    lower, upper : (d,) arrays
+        The prior box of ``theta`` (the grid's box).
+    n_members : int
+        Particles ``N`` of the run (the batch the timings use).
+    channels : str or Sensors
     probe : (T,) array
         Bouc-Wen: the run's ground acceleration (required); its first
-        ``probe_steps`` samples measure the accuracy.
+        ``measurement.probe_steps`` samples measure the accuracy.
     enkf_members : int
         Bouc-Wen: EnKF members per particle (the ensemble step timed has
         ``n_members x enkf_members`` states).
@@ -160,13 +199,8 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
         Bouc-Wen: steps of the run (default ``len(probe)``); with the
         resample-move sampler the histories are re-filtered at every move,
         so this undercounts, equally for every candidate.
-    substeps : int
-        Bouc-Wen: RK4 sub-steps of the exact candidate (the fallback).
-    rk4_substeps : sequence of int
-        Bouc-Wen: RK4 sub-steps tried, fewest first (up to ``substeps``).
-    exponential_substeps : sequence of int
-        Bouc-Wen: sub-steps tried for the exponential integrator (the fewest
-        within ``tol`` is kept, and its matrices are then put on grids).
+    measurement : Measurement
+        The accuracy required and how the candidates are measured.
 
     Returns
     -------
@@ -176,21 +210,22 @@ def choose_transition(building, dt: float, lower, upper, n_members: int, *, chan
     upper = np.broadcast_to(np.asarray(upper, float), (building.n_storeys,)).copy()
     if not isinstance(n_members, (int, np.integer)) or n_members < 1:
         raise ValueError(f"n_members: expected a positive integer, got {n_members!r}")
-    if not isinstance(repeats, (int, np.integer)) or repeats < 1:
-        raise ValueError(f"repeats: expected a positive integer, got {repeats!r}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(measurement.seed)
+    box = (lower, upper)
     if isinstance(building, BoucWenBuilding):
-        return _choose_bouc_wen(building, dt, lower, upper, n_members, channels, 1e-2 if tol is None else tol,
-                                levels, max_points, repeats, n_test, rng, probe, probe_steps, enkf_members, steps,
-                                substeps, exponential_substeps, rk4_substeps)
+        tol = 1e-2 if measurement.tol is None else measurement.tol
+        return _choose_bouc_wen(building, dt, box, n_members, channels, tol, measurement, rng, probe, enkf_members,
+                                steps)
     if not isinstance(building, ShearBuilding):
         raise TypeError(f"building: expected a ShearBuilding or BoucWenBuilding, got {type(building).__name__}")
-    return _choose_linear(building, dt, lower, upper, n_members, channels, 3e-6 if tol is None else tol, levels,
-                          max_points, expected_rows, repeats, n_test, rng)
+    return _choose_linear(building, dt, box, n_members, channels, 3e-6 if measurement.tol is None else measurement.tol,
+                          measurement, rng)
 
 
-def _choose_linear(building, dt, lower, upper, n_members, channels, tol, levels, max_points, expected_rows,
-                   repeats, n_test, rng):
+def _choose_linear(building, dt, box, n_members, channels, tol, measurement: Measurement, rng):
+    lower, upper = box
+    levels, max_points, expected_rows = measurement.levels, measurement.max_points, measurement.expected_rows
+    repeats, n_test = measurement.repeats, measurement.n_test
     d, m = building.n_storeys, building.state_dim
     rows = DEFAULT_ROWS_PER_PARTICLE * n_members if expected_rows is None else int(expected_rows)
     batch = lower + (upper - lower) * rng.random((n_members, d))
@@ -241,9 +276,13 @@ def _choose_linear(building, dt, lower, upper, n_members, channels, tol, levels,
     return SurrogateChoice("exact", None, None, reason, tuple(candidates), exact)
 
 
-def _choose_bouc_wen(building, dt, lower, upper, n_members, channels, tol, levels, max_points, repeats, n_test,
-                     rng, probe, probe_steps, enkf_members, steps, substeps, exponential_substeps,
-                     rk4_substeps):
+def _choose_bouc_wen(building, dt, box, n_members, channels, tol, measurement: Measurement, rng, probe, enkf_members,
+                     steps):
+    lower, upper = box
+    levels, max_points, repeats, n_test = (measurement.levels, measurement.max_points, measurement.repeats,
+                                           measurement.n_test)
+    probe_steps, substeps = measurement.probe_steps, measurement.substeps
+    exponential_substeps, rk4_substeps = measurement.exponential_substeps, measurement.rk4_substeps
     if probe is None:
         raise ValueError("probe: a Bouc-Wen building needs the run's ground acceleration to measure accuracy "
                          "(the nonlinearity depends on the amplitude)")

@@ -507,7 +507,7 @@ def reference_from_poles(poles: PoleTable, settings: TrackerSettings = TrackerSe
         if freqs.size == 0 or not np.all(np.isfinite(freqs) & (freqs > 0)):
             raise ValueError(f"frequencies: expected positive frequencies [Hz], got {frequencies!r}")
         spreads = 0.003 * freqs
-        if len(window) < 5:       # too little to fit the noise: a drift of half, a scatter of the whole 0.3 %
+        if len(window) < 5:       # too little to fit the noise: a drift of half, a scatter of the whole default spread (comment-ok: the 0.003 above)
             return ReferenceModes(freqs, spreads, drift=0.5 * spreads, scatter=spreads, std_scale=0.0,
                                   spacing=spacing)
     elif len(window) < 5:

@@ -147,15 +147,17 @@ def run_config(problem: str, n_samples: int, tempering: bool, target: float, ste
     printed, the study's default; ``"defaults"``: the library's defaults).
     """
     from ..engine.drivers import SEMC
-    from ..engine.errors import ZeroLikelihoodError
+    from ..engine.settings import from_flat
+    from ..core.errors import ZeroLikelihoodError
 
     if settings not in SETTINGS:
         raise ValueError(f"settings: expected one of {sorted(SETTINGS)}, got {settings!r}")
     prior, kernel, loglike, datasets = _problem(problem)
     dim = prior.support.shape[0]
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(int(1000 * target), n_samples)))
-    sampler = SEMC(prior, kernel, loglike, n_samples=n_samples, rng=rng, target_acceptance=target,
-                   step_size=step_size, tempering=tempering, **SETTINGS[settings])
+    sampler = SEMC(prior, kernel, loglike, n_samples=n_samples, rng=rng,
+                   **from_flat("SEMC", target_acceptance=target, step_size=step_size, tempering=tempering,
+                               **SETTINGS[settings]))
     rows = []
     failed_step = 0
     for s, dataset in enumerate(datasets):

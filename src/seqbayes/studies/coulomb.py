@@ -31,42 +31,24 @@ from ..predictive.smc2 import ParticleInnerFilter
 
 __all__ = ["SAMPLER_SETTINGS", "BOUNDED_COST", "PAPER", "PAPER_STD", "CoulombStudy", "run_study", "summary", "main", "single_blas_thread"]
 
-#: SMC^2 at a bounded cost per update (issue 23): 8 inner particles (the inner log-likelihood estimate's sd is then
-#: 0.34-0.81 at the posterior over steps 2-4, against 0.15-0.34 with 30; Pitt et al. 2012 put the cost optimum near 1),
-#: a pilot of 500 draws for the inner filters' guide, every PMMH proposal screened by the quadratic fitted to the
-#: particles' log targets (delayed acceptance) and a hard budget of 5 N M re-run evaluations per update, tempered
-#: updates included (``strict_budget``): an update then costs at most about N M + 2,000 + 5 N M = 50,000 calls.
+#: SMC^2 at a bounded cost per update: 8 inner particles (Pitt et al. 2012 put the cost optimum near an inner
+#: log-likelihood sd of 1), a pilot of 500 draws for the inner filters' guide, every PMMH proposal screened by the
+#: quadratic fitted to the particles' log targets (delayed acceptance) and a hard budget of 5 N M re-run evaluations
+#: per update, tempered updates included (``strict_budget``): an update then costs at most about N M + 2,000 + 5 N M
+#: calls (comment-ok: the budget's arithmetic).
 BOUNDED_COST = {"inner_filter": ParticleInnerFilter(8, n_pilot=500), "surrogate": "quadratic", "move_budget": 5,
                 "strict_budget": True}
 
-#: Settings passed to the samplers (fields of ``seqbayes.engine.settings.SamplerConfig``); empty: the core's
-#: defaults (tempering when one stage would leave ESS < 10 %, importance-sampling evidence
-#: refitted until its ESS reaches 30 %, log/logit moves until 90 % have moved, independence
-#: sweeps). An earlier core without the refits needed ``tempering_threshold=0.5`` here: in one
-#: SMC run of 40 (seed ``SeedSequence(2023).spawn(40)[15]``) the jump from beta = 0.24 to 1 left
-#: too few distinct particles for the importance density (ESS 8). With the refits the 40 seeds
-#: give SMC -14.559 +- 0.023 and SEMC -14.568 +- 0.037 (exact -14.556), every SMC run's means
-#: within 0.16 posterior sd and SEMC's within 0.28.
-#:
-#: F_mu drifts and the other three are static, so the defaults run SMC^2 (:mod:`seqbayes.predictive.smc2`);
-#: 30 inner particles per outer particle (not the default 100) meet the exact grid reference at every
-#: step (``benchmarks/bench_coulomb_exact.py``: within 0.2 posterior sd and 15 % in every run) at a
-#: third of the cost, because the kernels' noise (0.04 N) is about one posterior sd of F_mu.
-#: Six independence-MH sweeps at the (static) first step instead of three (twelve for SEMC, below): SEMC's s = 1 means then
-#: lie within 0.15 posterior sd of the exact ones in 20 of 20 runs (worst 0.203 with three; median
-#: error 0.050 against 0.125); SMC^2 uses them only at s = 1, so they cost 3 N likelihood calls a run.
-#:
-#: Both samplers' SMC^2 updates (steps 2-4) run at a bounded cost (:data:`BOUNDED_COST`): at most 40,750 expensive
-#: calls per update over 20 runs and both kernels, against 135,000-534,000 with 30 inner particles, every step of
-#: every run within 0.2 sd and 15 % of the exact grid (docs/benchmarks.md, "Coulomb at 50,000 calls"). SEMC's PMMH
-#: then proposes by differential evolution (``strict_budget``), which travels twice as far per re-run as the stretch
-#: move. SEMC runs 12 independence sweeps at s = 1: with 6 its static step left sigma_r's mean +0.027 +- 0.006 sd
-#: high on average over 40 seeds (the stages stop moving before the cloud has fully mixed), which the SMC^2 updates
-#: inherit; with 12, +0.005 +- 0.005 (6 N more calls, at s = 1 only).
+#: Settings passed to the samplers (flat, :func:`seqbayes.engine.settings.from_flat`) on top of the core's
+#: defaults. F_mu drifts and the other three are static, so the defaults run SMC^2
+#: (:mod:`seqbayes.predictive.smc2`) at the bounded cost above. The static first step gets more independence-MH
+#: sweeps than the default (six for SMC, twelve for SEMC, whose stages stop moving before the cloud has mixed);
+#: SMC^2 uses them only at s = 1. Their accuracy against the exact grid and their cost: docs/coulomb_friction.md
+#: and docs/benchmarks.md (the Coulomb sections).
 SAMPLER_SETTINGS = {"SEMC": {"n_independent": 12, **BOUNDED_COST},
                     "SMC": {"n_independent": 6, **BOUNDED_COST}}
 
-#: The paper's tables (Tables 4-13), mean over its 10 runs, per step 1..4: {(table, sampler, kernel): values}.
+#: The paper's tables (Tables 4-13), mean over the paper's runs, per step 1..4: {(table, sampler, kernel): values}.
 PAPER = {
     ("log_evidence", "SEMC", "T1"): (-23.614, -37.486, -51.988, -65.276),
     ("log_evidence", "SEMC", "T2"): (-23.574, -38.913, -53.311, -67.125),
@@ -143,13 +125,14 @@ def _one_run(task):
     ``runs_dir`` is given (so the two processes share the ~0.2 s per file of h5netcdf).
     ``task = (sampler, kernel, run, seed, n_samples, settings, runs_dir)``."""
     import seqbayes
+    from seqbayes.engine.settings import from_flat
 
     sampler_name, kernel_name, run, seed, n_samples, settings, runs_dir = task
     cls = {"SEMC": seqbayes.SEMC, "SMC": seqbayes.SMC}[sampler_name]
     with single_blas_thread():
         start = time.perf_counter()
         sampler = cls(model.prior(), model.kernel(kernel_name), model.loglike, n_samples=n_samples,
-                      rng=np.random.default_rng(seed), **settings)
+                      rng=np.random.default_rng(seed), **from_flat(sampler_name, **settings))
         result = sampler.run(model.load_experiment())
         elapsed = time.perf_counter() - start
     if runs_dir is not None:

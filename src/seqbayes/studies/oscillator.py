@@ -62,7 +62,9 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     independent sampler seed. Returns a dict of plain arrays (posterior summaries
     per step, forecast summaries, per-step diagnostics, wall time).
     """
-    from ..engine import drivers, errors
+    from ..core import errors
+    from ..engine import drivers
+    from ..engine.settings import from_flat
 
     problem = osc.make_problem(np.random.default_rng(problem_seed(seed, run)))
     ki, si = KERNELS.index(kernel), SAMPLERS.index(sampler)
@@ -79,7 +81,8 @@ def run_task(seed: int, run: int, kernel: str, sampler: str, n_samples: int = 10
     out.update({name: np.full(n_steps, np.nan) for name in _STEP_FIELDS[2:]})
     out["log_mass_inside"] = np.zeros(n_steps)
     start = time.perf_counter()
-    smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=n_samples, rng=rng, **opts)
+    smp = cls(osc.prior(), problem.kernels[kernel].kernel, osc.log_likelihood, n_samples=n_samples, rng=rng,
+              **from_flat(sampler, **opts))
     support = osc.prior().support
     for s, dataset in enumerate(problem.datasets):
         if s > 0:  # diagnostic only: the core's increment already accounts for mass outside the box
@@ -573,7 +576,7 @@ def correctness_report(ds, summary: StudySummary | None = None) -> str:
                  f"of (run, step); all kernels: {100 * summary.semc_acceptance_in_bounds_all_kernels:.1f}%")
     lines.append(f"- SMC true acceptance rate, selected kernel: range [{summary.smc_acceptance_range[0]:.3f}, "
                  f"{summary.smc_acceptance_range[1]:.3f}]")
-    # the cost as counts (machine-independent; issue 23's bar is on the mean over runs, samplers and kernels)
+    # the cost as counts (machine-independent; the cost bar is on the mean over runs, samplers and kernels)
     evals = ds["n_loglike_evals"].sum("step").mean(("run", "sampler")).values      # (K,)
     lines.append(f"- likelihood evaluations per run of {ds.sizes['step']} steps, mean over runs and samplers: "
                  + ", ".join(f"{k} {v:,.0f}" for k, v in zip(ds["kernel"].values, evals))

@@ -26,7 +26,7 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from ..priors import JointPrior
-from ..resampling import multinomial
+from ..weights import multinomial
 from ..rng import as_generator
 from ..weights import log_mean_exp, normalise
 
@@ -101,7 +101,9 @@ class Illustration:
 def run(n_samples: int = 10_000, rng=0) -> Illustration:
     """Draw the prior samples, weight them, resample, and run one step of SMC and SEMC."""
     from ..kernels import MarkovKernel, Static
+    from ..core.tempering import Single
     from ..engine.drivers import SEMC, SMC
+    from ..moves import RandomWalk, Stretch
 
     seeds = np.random.SeedSequence(as_generator(rng).integers(2**63)).spawn(3)
     gen = np.random.default_rng(seeds[0])
@@ -114,10 +116,11 @@ def run(n_samples: int = 10_000, rng=0) -> Illustration:
     dataset = np.zeros(1)                     # the likelihood ignores it; one "dataset" = one step
     posteriors, evidence, acceptance = {}, {}, {}
     for name, cls, seed in (("smc", SMC, seeds[1]), ("semc", SEMC, seeds[2])):
-        # the paper's single reweighting and one move (n_moves=1, no "90% moved" rule); the
+        # the paper's single reweighting and one move (n_moves=1, no "moved fraction" rule); the
         # rest (log/logit coordinates, importance-sampling evidence) are the library's defaults
+        moves = (Stretch if cls is SEMC else RandomWalk)(min_sweeps=1, moved_fraction=0.0)
         sampler = cls(the_prior, kernel, log_likelihood, n_samples=n_samples, rng=np.random.default_rng(seed),
-                      tempering=False, n_moves=1, moved_fraction=0.0)
+                      moves=moves, tempering=Single())
         info = sampler.update(dataset)
         posteriors[name] = sampler.result.steps[-1].posterior
         evidence[name] = float(info.log_evidence)

@@ -43,6 +43,7 @@ import numpy as np
 
 from ..rng import as_generator
 from ..structural.filters import AugmentedModel, ekf, ukf
+from ..structural.settings import sg_from_flat
 from ..structural.sgenmcmc import SGEnMCMC
 from ..structural.structures import (
     ShearBuilding,
@@ -54,7 +55,7 @@ from ..structural.structures import (
     scale_to_pga,
     simulate,
 )
-from ..tempering import normalised_ess
+from ..core.tempering import normalised_ess
 
 __all__ = ["CASES", "Case", "make_data", "reference_posterior", "ReferencePosterior", "laplace_posterior",
            "integrated_autocorrelation_time", "run_case", "main", "synthetic_record", "ExactPosterior",
@@ -369,7 +370,8 @@ def run_case(case: Case, duration: float = 40.0, members: int = 500, level="auto
     data = make_data(case, duration, rng=rng)
     b, u, y, std, sw = data["building"], data["u"], data["y"], data["noise_std"], data["process_noise_std"]
     truth = data["theta"]
-    sg = SGEnMCMC(b, DT, LOWER, UPPER, std, sw, n_members=members, level=level, **(sgenmcmc_options or {}))
+    sg = SGEnMCMC(b, DT, LOWER, UPPER, std, sw, n_members=members,
+                  **sg_from_flat(level=level, **(sgenmcmc_options or {})))
     t0 = time.perf_counter()
     sg_result = sg.run(u, y, rng=rng, progress=progress)
     sg_time = time.perf_counter() - t0

@@ -22,7 +22,7 @@ from ..structures.shear_building import check_dt
 __all__ = ["Poles", "check_record", "check_sampling_step", "output_covariances", "toeplitz", "poles_at_order",
            "ssi_poles", "complex_mac", "phase_collinearity", "real_shapes", "MIN_RATE_HZ", "MAX_RATE_HZ"]
 
-#: Sampling rates accepted [Hz]: from one sample per 100 s (long-period towers, slowly sampled) to 1 MHz.
+#: Sampling rates accepted [Hz]: from one sample per 100 s (long-period towers, slowly sampled) to 1 MHz (comment-ok: accepted range).
 MIN_RATE_HZ, MAX_RATE_HZ = 1e-2, 1e6
 
 

@@ -35,7 +35,7 @@ from scipy import signal
 __all__ = ["OMAWarning", "Settings", "choose_settings", "spectrum", "normalise", "decimate", "warn", "MIN_CYCLES"]
 
 #: Fewest cycles of the band's lowest frequency a record must hold (the frequency's standard error is about
-#: ``sqrt(2 zeta / (2 pi n))`` after ``n`` cycles: 0.8 % at 1 % damping and 50 cycles).
+#: ``sqrt(2 zeta / (2 pi n))`` after ``n`` cycles: 0.8 % at 1 % damping and 50 cycles; comment-ok: the closed form's value).
 MIN_CYCLES = 50
 #: Largest Toeplitz dimension ``s p`` and block rows chosen automatically.
 MAX_TOEPLITZ, MAX_BLOCK_ROWS = 720, 150

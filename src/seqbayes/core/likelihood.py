@@ -4,7 +4,7 @@
 history prior's past datasets, their running statistics, the path-space remedy's window) goes through it,
 so that shapes are checked, NaN counts as zero likelihood (``-inf``, counted in ``StepInfo.n_nan``),
 ``+inf`` is an error, every evaluated row is counted (``StepInfo.n_loglike_evals``) and the user's code
-sees read-only views (:func:`seqbayes.parallel.read_only`) that it cannot make writable again: views of a
+sees read-only views (:func:`read_only`) that it cannot make writable again: views of a
 copy of ``theta`` (``setflags(write=True)`` then changes only the copy) and of the dataset frozen in an
 immutable buffer (:func:`frozen`; ``setflags(write=True)`` raises). The path-space views
 (:meth:`ValidatedLikelihood.of_last_state`, :meth:`ValidatedLikelihood.over_window`) are thin compositions
@@ -13,13 +13,13 @@ of it on flattened paths ``(M, T d)``.
 
 from __future__ import annotations
 
+import copy
 from functools import partial
 
 import numpy as np
 
-from ..parallel import evaluate_loglike, read_only
 
-__all__ = ["ValidatedLikelihood", "check_dataset", "frozen", "row_hashes"]
+__all__ = ["ValidatedLikelihood", "check_dataset", "frozen", "row_hashes", "kept_copy", "read_only", "call_loglike"]
 
 #: Odd 64-bit multipliers of the row hash in :func:`row_hashes`.
 _HASH_MULTIPLIERS = np.random.default_rng(20231).integers(0, 2**63, size=64, dtype=np.uint64) * 2 + 1
@@ -37,6 +37,39 @@ def row_hashes(samples) -> np.ndarray | None:
 #: What a likelihood must be, for the errors of one that is not vectorised.
 _VECTORISED = ("the likelihood is called once for all samples: theta has shape {shape} = (N, d), one row per "
                "sample (theta[:, 0] is the first parameter of every sample), and it must return an (N,) array")
+
+
+def read_only(value):
+    """``value`` as user code may see it: arrays as read-only views, dicts, lists and tuples rebuilt
+    around read-only views (so the caller's containers cannot be changed either); others as they are.
+
+    >>> a = np.zeros(2)
+    >>> read_only(a).flags.writeable, a.flags.writeable
+    (False, True)
+    """
+    if isinstance(value, np.ndarray):
+        view = value.view()
+        view.flags.writeable = False
+        return view
+    if isinstance(value, dict):
+        return {key: read_only(item) for key, item in value.items()}
+    if type(value) in (list, tuple):
+        return type(value)(read_only(item) for item in value)
+    return value
+
+
+def call_loglike(loglike, theta, dataset):
+    """The user's ``loglike`` on read-only views; its values as a new float array."""
+    try:
+        values = loglike(read_only(theta), read_only(dataset))
+    except ValueError as err:
+        if "read-only" not in str(err):
+            raise
+        raise ValueError(f"loglike: wrote into its input theta or data ({err}); they are read-only so that "
+                         f"the run cannot be corrupted: copy them first (np.array(theta)) to change them") from err
+    if np.iscomplexobj(values):
+        raise ValueError("loglike: returned complex values; a log-likelihood is real")
+    return np.array(values, dtype=float)  # a copy: never a view of theta
 
 
 def frozen(value):
@@ -87,8 +120,8 @@ class ValidatedLikelihood:
         The step's dataset, for :meth:`loglike`.
     step : int
         The step, for error messages.
-    executor, n_chunks : optional
-        Parallel evaluation (:func:`seqbayes.parallel.evaluate_loglike`).
+    executor : object with ``evaluate(loglike, theta, dataset)``, optional
+        Evaluates on workers (:class:`seqbayes.parallel.Workers`); ``None``: here.
     history : RunningStatistics, optional
         Evaluates past datasets from their summed statistics (:meth:`summary_loglike`).
     on_evaluated : callable ``(n_rows) -> None``, optional
@@ -98,18 +131,17 @@ class ValidatedLikelihood:
     function wherever one is expected.
     """
 
-    def __init__(self, loglike, dataset=None, step: int = 0, *, executor=None, n_chunks: int | None = None,
-                 history=None, on_evaluated=None):
+    def __init__(self, loglike, dataset=None, step: int = 0, *, executor=None, history=None, on_evaluated=None):
         self.function, self.dataset, self.step = loglike, frozen(dataset), step
-        self.executor, self.n_chunks, self.history, self.on_evaluated = executor, n_chunks, history, on_evaluated
+        self.executor, self.history, self.on_evaluated = executor, history, on_evaluated
         self.n_evals = 0
         self.n_nan = 0
 
     @classmethod
     def for_step(cls, problem, dataset, step: int, on_evaluated=None) -> "ValidatedLikelihood":
-        """The likelihood of ``problem`` (a :class:`~seqbayes.engine.state.Problem`) for ``dataset`` at ``step``."""
-        return cls(problem.loglike, dataset, step, executor=problem.executor, n_chunks=problem.n_chunks,
-                   history=problem.history, on_evaluated=on_evaluated)
+        """The likelihood of ``problem`` (a :class:`~seqbayes.core.state.Problem`) for ``dataset`` at ``step``."""
+        return cls(problem.loglike, dataset, step, executor=problem.executor, history=problem.history,
+                   on_evaluated=on_evaluated)
 
     def __call__(self, theta, dataset) -> np.ndarray:
         return self.loglike_on(theta, dataset)
@@ -123,8 +155,9 @@ class ValidatedLikelihood:
         # theta is copied (N d floats, less than any likelihood reads) so that a likelihood that makes its
         # view writable changes only the copy; the dataset is frozen (once per step for the step's own)
         try:
-            values = evaluate_loglike(self.function, np.array(theta, dtype=float), frozen(dataset), self.executor,
-                                      self.n_chunks)
+            theta, dataset = np.array(theta, dtype=float), frozen(dataset)
+            values = (call_loglike(self.function, theta, dataset) if self.executor is None
+                      else self.executor.evaluate(self.function, theta, dataset))
         except ValueError as err:
             if "values to unpack" in str(err):  # `a, b, c = theta`: a likelihood written for one sample
                 raise ValueError(f"loglike: {err}: {_VECTORISED.format(shape=theta.shape)}") from err
@@ -254,3 +287,8 @@ class WindowLikelihood:
     def loglike(self, walkers) -> np.ndarray:
         states = walkers.reshape(walkers.shape[0], len(self.datasets), self.dim)  # explicit: may have no rows
         return self.base.add_along_paths(np.zeros(walkers.shape[0]), states, self.datasets, self.memos)
+
+
+def kept_copy(dataset):
+    """A copy of a dataset that the sampler keeps (callers reuse their buffers): ``ndarray.copy``, else a deep copy."""
+    return dataset.copy() if isinstance(dataset, np.ndarray) else copy.deepcopy(dataset)

@@ -1,14 +1,19 @@
-"""The engine's exceptions and warnings, and where the package documents them."""
+"""The samplers' exceptions and warnings, and where the package documents them."""
 
-__all__ = ["ZeroLikelihoodError", "PlainConflict", "TemperingLimitError", "PriorDataConflictWarning",
-           "InnerFilterWarning", "zero_likelihood_message", "documented"]
+__all__ = ["ZeroLikelihoodError", "TemperingLimitError", "PriorDataConflictWarning",
+           "InnerFilterWarning", "zero_likelihood_message", "prior_name", "documented"]
+
+
+def prior_name(step: int) -> str:
+    """What the particles of ``step`` were drawn from, for error messages."""
+    return "prior" if step == 1 else "predictive distribution"
 
 
 def zero_likelihood_message(step: int, prior: str, likelihood) -> str:
     """Why no sample of ``step`` has a non-zero likelihood: the model returned NaN for every one (a failed
     solve: the model's fault, not the prior's) or the ``prior`` is too far from the data.
 
-    ``likelihood``: the step's :class:`~seqbayes.engine.likelihood.ValidatedLikelihood` (its counts).
+    ``likelihood``: the step's :class:`~seqbayes.core.likelihood.ValidatedLikelihood` (its counts).
     """
     if 0 < likelihood.n_evals <= likelihood.n_nan:
         return (f"step {step}: the likelihood returned NaN for every sample ({likelihood.n_nan} evaluations): the "
@@ -34,16 +39,6 @@ def documented(page: str) -> str:
 
 class ZeroLikelihoodError(RuntimeError):
     """Every sample has zero likelihood for a dataset."""
-
-
-class PlainConflict(Exception):
-    """Raised by a step's tempering once its conflict with the data already calls for the path-space remedy, before
-    its last stage (:meth:`seqbayes.predictive.transition.TransitionMixture.stage_check`): ``remedy`` is the
-    predictive that assimilates the step instead (:func:`seqbayes.engine.pipeline.assimilate`)."""
-
-    def __init__(self, remedy):
-        super().__init__("the step's prior-data conflict calls for the remedy before its last stage")
-        self.remedy = remedy
 
 
 class PriorDataConflictWarning(RuntimeWarning):

@@ -10,7 +10,7 @@ right. This module estimates the same increment from the final posterior:
     Z = E_q[ L(theta(u)) p_s(theta(u)) |d theta / d u| / q(u) ]
 
 with ``q`` fitted to the posterior particles in unconstrained coordinates ``u``
-(:class:`~seqbayes.transforms.BoxTransform`): half a Gaussian kernel density of
+(:class:`~seqbayes.priors.BoxTransform`): half a Gaussian kernel density of
 the distinct particles (follows several modes; beyond ``MAX_PROPOSAL_COMPONENTS`` = 1000
 distinct particles, of 1000 of them chosen by systematic selection, so that the cost stays
 ``O(N)``: the proposal need not be exact, only the target), half a multivariate Student t
@@ -29,7 +29,7 @@ funnel that the local moves cross slowly. Why by hand: no library offers defensi
 against an arbitrary vectorised prior density.
 
 Two clouds of the same posterior (the conflict remedy's bridge and stored-path
-start, :func:`seqbayes.predictive.paths.PathSpace`) are pooled: :func:`clustered_parts`
+start, :func:`seqbayes.predictive.transition.PathSpace`) are pooled: :func:`clustered_parts`
 fits one defensive proposal per k-means cluster of each (SciPy's ``kmeans2``),
 :func:`pooled_start` gives each cluster its importance-sampling share of the mass,
 and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of them.
@@ -38,19 +38,27 @@ and :func:`importance_step` sweeps with the :class:`PooledProposal` of all of th
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.state import Cloud
 from ..moves import metropolis_accept
 from ..moves.proposals import DefensiveProposal, PooledProposal, clustered_parts, complement_halves
 from ..priors import inside_support
-from ..resampling import resample
-from ..transforms import BoxTransform
+from ..weights import resample
+from ..priors import BoxTransform
 from ..weights import logsumexp, normalise
-from .settings import ECONOMY_EVIDENCE_SE, HIGH_DIMENSION, STARVED_RESTART
-from .state import Cloud
+from ..moves.base import HIGH_DIMENSION
 
-__all__ = ["importance_step", "pooled_start", "step_standard_errors", "estimate_increment"]
+__all__ = ["Importance", "PathEvidence", "Precision", "importance_step", "pooled_start", "step_standard_errors",
+           "STARVED_RESTART"]
+
+#: ``economy``: the importance sweeps continue until the increment's standard error is below this.
+ECONOMY_EVIDENCE_SE = 0.02
+#: Fewest distinct draws, as a fraction of N, a restart from the restricted prior may rest on: below it the
+#: step's evidence and posterior rest on a handful of draws of the prior's far tail.
+STARVED_RESTART = 0.1
 
 
 
@@ -82,7 +90,7 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
 
     Two samplers of one posterior may each hold a different mode, weigh two modes differently, or one may be
     trapped in a minor one (on the path space: the bridge from the path prior and the start from the stored
-    paths, :func:`seqbayes.predictive.paths.PathSpace`). The share of each part of the
+    paths, :func:`seqbayes.predictive.transition.PathSpace`). The share of each part of the
     :class:`PooledProposal` ``q = sum_c alpha_c q_c`` fitted to the clusters of the clouds
     (:func:`clustered_parts`) is estimated by importance sampling: N draws of ``q``, weights ``w = pi / q``,
     and part ``c``'s share is ``sum w r_c / sum w`` with ``r_c`` the draw's responsibility, ``alpha_c q_c / q``
@@ -132,9 +140,19 @@ def pooled_start(clouds, prior_logpdf, loglike, support, rng, gaussian: bool = F
     return resample("systematic", weights / weights.sum(), rng, n), shares
 
 
+@dataclass(frozen=True)
+class Precision:
+    """Economy's evidence sweeps (``SamplerConfig.economy``; :func:`importance_step`): sweeps continue while the
+    pooled estimate's standard error exceeds ``se``, up to ``max_sweeps``, and while the pooled ESS is at least
+    ``min_fraction`` of the draws."""
+
+    se: float
+    max_sweeps: int | None = None
+    min_fraction: float = 0.0
+
+
 def importance_step(posterior, log_weights, components, prior_logpdf, loglike, support, rng, n_sweeps: int = 1,
-                    gaussian: bool = False, se_target: float | None = None, max_sweeps: int | None = None,
-                    min_fraction: float = 0.0, other=None, pool_sweeps: bool = False):
+                    gaussian: bool = False, until: Precision | None = None, other=None, pool_sweeps: bool = False):
     """Evidence by defensive importance sampling, then independence-MH sweeps with the same proposal.
 
     Parameters
@@ -154,28 +172,29 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
     n_sweeps : int
         Independence sweeps, each with N fresh draws, half from the proposal fitted to each half of the
         particles (:func:`~seqbayes.moves.proposals.complement_halves`); the first sweep's draws give the evidence
-        (every sweep's with ``pool_sweeps`` or ``se_target``).
+        (every sweep's with ``pool_sweeps`` or ``until``).
     gaussian : bool
         The proposal's first half is the fitted Gaussian instead of the kernel density (:func:`_proposal`).
-    se_target : float, optional
+    until : Precision, optional
         Economy (``SamplerConfig.economy``): every sweep's draws enter the evidence (one importance
         estimate over all of them, as they are independent draws of the same proposal), and sweeps continue
         after ``n_sweeps`` while the estimate's standard error ``sqrt(1 / ESS - 1 / M)`` (M draws)
-        exceeds ``se_target``, up to ``max_sweeps``, and while the pooled ESS is at least ``min_fraction``
-        of the draws (below it the caller refits the proposal rather than pool a poor one's draws).
+        exceeds ``until.se``, up to ``until.max_sweeps``, and while the pooled ESS is at least
+        ``until.min_fraction`` of the draws (below it the caller refits the proposal rather than pool a poor
+        one's draws).
     other : tuple of (M, d) array and (M,) array, optional
         Another cloud of the same posterior (points, log-weights), which may hold a mode ``posterior``
         lacks: the proposal is then the :class:`PooledProposal` of both (:func:`clustered_parts`).
     pool_sweeps : bool
-        Every sweep's draws enter the evidence, as with ``se_target`` but without sweeps beyond ``n_sweeps``
+        Every sweep's draws enter the evidence, as with ``until`` but without sweeps beyond ``n_sweeps``
         (each sweep's terms are unbiased given its proposal, which is fitted before its draws), and the ESS is
-        reported as with ``se_target``.
+        reported as with ``until``.
 
     Returns
     -------
     log_evidence : float
     ess : float
-        Effective sample size of the first sweep's importance weights (out of N); with ``se_target``,
+        Effective sample size of the first sweep's importance weights (out of N); with ``until``,
         the pooled estimate's equivalent for N draws, ``1 / (1 / ESS_M - 1 / M + 1 / N)``, which has the
         same variance ``1 / ESS - 1 / N``.
     posterior, components : arrays after the sweeps
@@ -183,6 +202,8 @@ def importance_step(posterior, log_weights, components, prior_logpdf, loglike, s
         Particle moves accepted over all sweeps.
     """
     n = posterior.shape[0]
+    se_target, max_sweeps, min_fraction = (None, None, 0.0) if until is None else (until.se, until.max_sweeps,
+                                                                                   until.min_fraction)
     transform = BoxTransform(support)
     u = transform.forward(posterior)
     other_u = None if other is None else (transform.forward(other[0]), other[1])
@@ -263,7 +284,7 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
         not independent: their terms are summed per draw first, ``sum_e (A_e - V_e)^2`` (the
         genealogy estimator of Chan & Lai 2013 and Lee & Whiteley 2018, as Du & Guyader 2021 use it
         for adaptive SMC with MCMC moves; :meth:`~seqbayes.predictive.mixture.GaussianMixture.ancestor_spread`,
-        labels in :attr:`~seqbayes.engine.state.SamplerState.lineage`). With distinct labels and equal
+        labels in :attr:`~seqbayes.core.state.RemedyMemory.lineage`). With distinct labels and equal
         weights it is ``1 / ESS_a - 1 / N``.
       - the posterior's before, through the mixture the last step used: ``Z_s`` is the ratio of the
         two- and one-step evidence through those particles, which makes consecutive increments'
@@ -349,72 +370,113 @@ def step_standard_errors(previous_variance: float, n_samples: int, importance: b
     return float(np.sqrt(increment)), float(np.sqrt(cumulative)), float(cumulative)
 
 
-def estimate_increment(cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, use_importance, rng,
-              other=None, pool_sweeps: bool = False):
-    """Stage 5: the evidence increment, by defensive importance sampling from the final posterior
-    (:mod:`seqbayes.engine.evidence`; its draws drive independence-MH sweeps) or the path's Eq. (1).
+@dataclass(frozen=True)
+class PathEvidence:
+    """The evidence increment from the tempering path alone: the stages' product of mean weights (Eq. 1, the
+    paper's estimate)."""
 
-    ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
-    sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.engine.evidence.pooled_start`),
-    and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
-    ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
+    importance = False
 
-    When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
-    (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
-
-    Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
-    n, step = config.n_samples, likelihood.step
-    if not use_importance:
+    def estimate(self, cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, rng, other=None,
+                 pool_sweeps: bool = False):
+        """The path's increment: ``(cloud, log_increment_path, NaN, 0)`` (the arguments as :meth:`Importance.estimate`)."""
         return cloud, log_increment_path, float("nan"), 0
-    n_independent = 0
-    scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
-    if config.uses_scaled_moves(cloud.particles.shape[1]):
-        scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
-        if config.economy:
-            scaled.update(se_target=ECONOMY_EVIDENCE_SE, max_sweeps=config.n_independent + 2 * config.max_refits,
-                          min_fraction=config.min_evidence_ess)
-    # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
-    # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
-    if other is not None:
-        index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
-                                likelihood.loglike, problem.support, rng, scaled.get("gaussian", False), n)
-        labels = None
-        if cloud.labels is not None and other.labels is not None:
-            labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
-        cloud = Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
-                       np.concatenate([cloud.components, other.components])[index], labels)
-    also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
-    particles, components = cloud.particles, cloud.components
-    warm_up = 1 if config.economy else 0
-    reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
-    estimates = []
-    for attempt in range(warm_up + 1 + config.max_refits):
-        # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
-        # them and estimate again (each q is independent of its own draws, so every estimate is valid)
-        log_increment, evidence_ess, particles, components, accepted = importance_step(
-            particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
-            config.n_independent, other=also_fit, pool_sweeps=pool_sweeps,
-            **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
-        n_independent += accepted
-        if attempt >= warm_up:
-            if evidence_ess >= config.min_evidence_ess * n:
-                break
-            estimates.append((log_increment, evidence_ess))
-    else:
-        pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
-        # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
-        # not one of ESS 12
-        if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
-            log_z, fit_ess = np.array(pooled).T
-            total = float(fit_ess.sum())
-            log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
-            # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
-            evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
-    # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
-    # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
-    if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
-        warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
-                      f"{n_found} distinct restart draws); using the tempering path's estimate and the "
-                      f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
-        log_increment = log_increment_path
-    return Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent
+
+
+@dataclass(frozen=True)
+class Importance:
+    """The evidence increment by defensive importance sampling from the final posterior (the module docstring; N extra
+    likelihood evaluations per sweep, whose draws also drive independence-MH sweeps of the particles). The path's
+    estimate (Eq. 1) is kept as ``StepInfo.log_evidence_increment_path``.
+
+    Parameters
+    ----------
+    sweeps : int
+        Independence sweeps per fitted proposal (3).
+    min_ess : float
+        A fit whose importance ESS is below this fraction of N is refitted to the swept particles (0.3).
+    max_refits : int
+        At most this many refits (5); when none reaches ``min_ess`` the fits' estimates are pooled by their ESS.
+    """
+
+    sweeps: int = 3
+    min_ess: float = 0.3
+    max_refits: int = 5
+
+    importance = True
+
+    def __post_init__(self):
+        if isinstance(self.sweeps, bool) or int(self.sweeps) != self.sweeps or self.sweeps < 1:
+            raise ValueError(f"sweeps: must be an integer >= 1, got {self.sweeps}")
+        if not 0.0 <= self.min_ess <= 1.0:
+            raise ValueError(f"min_ess: must lie in [0, 1], got {self.min_ess}")
+        if isinstance(self.max_refits, bool) or int(self.max_refits) != self.max_refits or self.max_refits < 0:
+            raise ValueError(f"max_refits: must be an integer >= 0, got {self.max_refits}")
+
+    def estimate(self, cloud, log_increment_path, n_found, problem, config, likelihood, prior_logpdf, rng, other=None,
+                 pool_sweeps: bool = False):
+        """Stage 5: the evidence increment, by defensive importance sampling from the final posterior (its draws
+        drive independence-MH sweeps; ``n_found`` the distinct restart draws, ``config`` the sampler's settings,
+        whose ``n_samples`` and moves it follows).
+
+        ``other``: another :class:`Cloud` of the same target. The N particles then start from the union of the two (of any
+        sizes), each cluster of each given its estimated share of the mass (:func:`~seqbayes.predictive.evidence.pooled_start`),
+        and every proposal is fitted to the clusters of both (:class:`~seqbayes.moves.proposals.PooledProposal`).
+        ``pool_sweeps``: every independence sweep's draws enter each fit's estimate (:func:`importance_step`).
+
+        When no fit reaches ``min_evidence_ess`` the estimates of all the fits are pooled, each weighted by its ESS
+        (each is unbiased for ``Z``, its variance ~ ``Z^2 / ESS``): the last fit alone can be as poor as any.
+
+        Returns the cloud after the sweeps, the increment, the importance ESS and the sweeps' accepted moves."""
+        n, step, moves = config.n_samples, likelihood.step, config.moves
+        n_independent = 0
+        scaled = {}  # the defaults' proposal and single-sweep estimate, unchanged up to d = 10
+        if moves.uses_scaled(cloud.particles.shape[1]):
+            scaled["gaussian"] = cloud.particles.shape[1] > HIGH_DIMENSION
+            if moves.economy:
+                scaled["until"] = Precision(ECONOMY_EVIDENCE_SE, self.sweeps + 2 * self.max_refits, self.min_ess)
+        # economy: the first n_independent sweeps only move the particles (a fit to the cut-short moves' cloud can be
+        # poor); q is refitted to the swept particles for the estimate (docs/core.md, "Economy of likelihood calls")
+        if other is not None:
+            index, _ = pooled_start([(c.particles, c.log_weights) for c in (cloud, other)], prior_logpdf,
+                                    likelihood.loglike, problem.support, rng, scaled.get("gaussian", False), n)
+            labels = None
+            if cloud.labels is not None and other.labels is not None:
+                labels = np.concatenate([cloud.labels, other.labels + cloud.labels.max() + 1])[index]
+            cloud = Cloud(np.concatenate([cloud.particles, other.particles])[index], np.full(n, -np.log(n)),
+                           np.concatenate([cloud.components, other.components])[index], labels)
+        also_fit = None if other is None else (other.particles, other.log_weights)  # half of every proposal
+        particles, components = cloud.particles, cloud.components
+        warm_up = 1 if moves.economy else 0
+        reliable = max(10.0, 0.01 * n)  # the least ESS of an estimate used on its own (else the path's, below)
+        estimates = []
+        for attempt in range(warm_up + 1 + self.max_refits):
+            # a poor fit (low ESS) still improves the particles through its independence sweeps: refit q to
+            # them and estimate again (each q is independent of its own draws, so every estimate is valid)
+            log_increment, evidence_ess, particles, components, accepted = importance_step(
+                particles, cloud.log_weights, components, prior_logpdf, likelihood.loglike, problem.support, rng,
+                self.sweeps, other=also_fit, pool_sweeps=pool_sweeps,
+                **(scaled if attempt >= warm_up else {"gaussian": scaled.get("gaussian", False)}))
+            n_independent += accepted
+            if attempt >= warm_up:
+                if evidence_ess >= self.min_ess * n:
+                    break
+                estimates.append((log_increment, evidence_ess))
+        else:
+            pooled = [(z, e) for z, e in estimates if np.isfinite(z) and e > 0]
+            # only when one fit at least is reliable on its own: six fits of a collapsed posterior with ESS 2 each are
+            # not one of ESS 12
+            if len(pooled) > 1 and max(e for _, e in pooled) >= reliable:
+                log_z, fit_ess = np.array(pooled).T
+                total = float(fit_ess.sum())
+                log_increment = float(logsumexp(log_z + np.log(fit_ess)) - np.log(total))
+                # the N draws' equivalent of the pooled variance 1 / sum ESS - 1 / (K N), as importance_step's economy
+                evidence_ess = 1.0 / (1.0 / total - 1.0 / (n * len(pooled)) + 1.0 / n)
+        # A collapsed posterior cannot be fitted (tiny ESS), and one rebuilt from fewer than N / 10 restart draws
+        # fits a proposal to duplicates whose ESS looks healthy: there, the rejection mass (path) is the estimate.
+        if not evidence_ess >= reliable or n_found < STARVED_RESTART * n:
+            warnings.warn(f"step {step}: importance-sampling evidence unreliable (ESS {evidence_ess:.1f} of {n}, "
+                          f"{n_found} distinct restart draws); using the tempering path's estimate and the "
+                          f"posterior may be degenerate", RuntimeWarning, stacklevel=4)
+            log_increment = log_increment_path
+        return Cloud(particles, cloud.log_weights, components, cloud.labels), log_increment, evidence_ess, n_independent
