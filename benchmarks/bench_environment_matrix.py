@@ -44,6 +44,8 @@ from seqbayes.studies.environment_matrix import (DEFAULT_RULES, FULL_PLAN, METHO
 
 PURPOSES = {0: "matrix", 1: "calibration"}
 BASELINES = ("regression", "pca", "ekf")
+#: The lowest P(damage) threshold calibrated for a monitor: an alarm means damage is the more probable state.
+PROBABILITY_FLOOR = 0.5
 
 
 def year_paths(out: Path, cell: str, kind: str, index: int, purpose: int) -> tuple[Path, Path]:
@@ -78,16 +80,21 @@ def done_methods(results: Path) -> set:
 
 
 def _append(results: Path, record: dict) -> None:
+    """One JSON line, under an exclusive lock: two runs of different methods may share a year's file."""
+    import fcntl
+
     text = json.dumps(record) + "\n"
-    if results.exists() and results.stat().st_size:
-        with open(results, "rb") as handle:  # a kill mid-line leaves no newline: start on a fresh line
+    with open(results, "a+b") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        handle.seek(0, os.SEEK_END)
+        if handle.tell():
             handle.seek(-1, os.SEEK_END)
-            if handle.read(1) != b"\n":
+            if handle.read(1) != b"\n":  # a kill mid-line leaves no newline: start on a fresh line
                 text = "\n" + text
-    with open(results, "a") as handle:
-        handle.write(text)
+        handle.write(text.encode())
         handle.flush()
         os.fsync(handle.fileno())
+        fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def run_year(out: str, plan_record: dict, year: tuple, methods: list) -> list:
@@ -139,10 +146,19 @@ def check_plan(out: Path, plan: MatrixPlan) -> dict:
     return record
 
 
+def priority(plan: MatrixPlan, year: tuple) -> tuple:
+    """The order years run in, so that a run stopped early has balanced cells: round ``i`` holds the ``i``-th healthy
+    calibration year of every cell, then the ``i``-th matrix year of every cell and kind; the damaged calibration
+    years join round 1 (they only choose the days in a row)."""
+    cell, kind, index, purpose = year
+    round_ = index if purpose == 0 or kind == "healthy" else 1
+    return (round_, purpose == 0, plan.cells.index(cell), list(KINDS).index(kind))
+
+
 def run(out: Path, plan: MatrixPlan, methods: list, workers: int, purposes=(1, 0)) -> int:
     """Every year of ``purposes`` through ``methods`` (skipping what is done); returns the number of method runs."""
     record = check_plan(out, plan)
-    years = [y for p in purposes for y in plan.years(p)]
+    years = sorted((y for p in purposes for y in plan.years(p)), key=lambda y: priority(plan, y))
     pending = [y for y in years if set(methods) - done_methods(year_paths(out, *y)[1])]
     print(f"{len(years)} years, {len(pending)} with methods to run ({', '.join(methods)})", flush=True)
     count = 0
@@ -184,9 +200,11 @@ def calibrate_step(out: Path, plan: MatrixPlan, methods: list, target_rate: floa
         damaged = [r for r in mine if r["truth"]["damage_day"] is not None]
         if not healthy:
             continue
-        bounds = (0.0, 1.0) if method.startswith("monitor") else (-np.inf, np.inf)
+        probability = method.startswith("monitor")
         result = calibrate(healthy, target_rate, damaged=[DailyVerdict.from_json(r["verdict"]) for r in damaged],
-                           damaged_truths=[r["truth"] for r in damaged], score_bounds=bounds)
+                           damaged_truths=[r["truth"] for r in damaged],
+                           score_bounds=(0.0, 1.0) if probability else (-np.inf, np.inf),
+                           floor=PROBABILITY_FLOOR if probability else -np.inf)
         report[method] = result.to_json()
         report[method]["damaged_kinds"] = [r["kind"] for r in damaged]
         rule = result.rule

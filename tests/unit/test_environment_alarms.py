@@ -147,3 +147,12 @@ def test_the_cell_summary_applies_the_bars():
     assert s["loss2"]["found"] == 7 and s["loss2"]["both_covered"] == 10
     assert s["bars"] == {"healthy": True, "loss5": True, "loss2": False, "intervals": True}
     assert summarise(records, None)["bars"]["healthy"] is False  # no rule: nothing passes
+
+
+def test_calibration_raises_a_threshold_below_the_floor_and_refuses_a_floor_at_the_top():
+    healthy = [_verdict(np.full(365, 0.01)) for _ in range(40)]
+    assert calibrate(healthy, 0.1, consecutive=(1,), score_bounds=(0.0, 1.0)).rule.threshold == 0.01
+    raised = calibrate(healthy, 0.1, consecutive=(1,), score_bounds=(0.0, 1.0), floor=0.5)
+    assert raised.rule.threshold == 0.5 and raised.false_alarms["false_alarms"] == 0
+    with pytest.raises(ValueError, match="floor"):
+        calibrate(healthy, 0.1, score_bounds=(0.0, 1.0), floor=1.0)

@@ -16,7 +16,8 @@ Carlo error is Poisson: standard error ``sqrt(c) / E`` and the one-sided 95 % up
 **Calibration** (:func:`calibrate`): for each number of days in a row ``k`` of ``consecutive``, the threshold is
 the lowest at which the healthy calibration years' false alarms ``c`` keep the upper bound at or below the
 user's ``target_rate`` (scanned down from the largest ``k``-day run minimum, so that no threshold above it breaks
-the bound either); then the ``k`` whose rule detects the damaged calibration years soonest (the most detections
+the bound either), raised to the user's ``floor`` where it falls below it (0.5 for a probability of damage:
+an alarm then always means damage is the more probable state); then the ``k`` whose rule detects the damaged calibration years soonest (the most detections
 within ``within_days``, then the smallest median delay). The target is demonstrated only when ``E >= 3 /
 target_rate`` (a zero count bounds the rate at ``3 / E``): at 0.1 false alarms a year, 30 healthy years.
 """
@@ -272,7 +273,8 @@ def _delays(damaged, truths, rule: AlarmRule) -> dict:
 
 
 def calibrate(healthy, target_rate: float, *, damaged=(), damaged_truths=(), consecutive=(1, 2, 3),
-              within_days: float = 30.0, days_per_year: float = 365.0, score_bounds=(-np.inf, np.inf)) -> Calibration:
+              within_days: float = 30.0, days_per_year: float = 365.0, score_bounds=(-np.inf, np.inf),
+              floor: float = -np.inf) -> Calibration:
     """The rule with the soonest detection among those whose false alarms on ``healthy`` meet ``target_rate``.
 
     Parameters
@@ -289,6 +291,9 @@ def calibrate(healthy, target_rate: float, *, damaged=(), damaged_truths=(), con
         A detection counts when its delay is at most this.
     score_bounds : (2,) tuple
         Thresholds outside this open interval are not rules (``(0, 1)`` for a probability).
+    floor : float
+        The lowest threshold the user accepts (a calibrated threshold below it is raised to it): ``0.5`` for a
+        posterior probability of damage, so that an alarm always means damage is the more probable state.
 
     Returns
     -------
@@ -296,6 +301,8 @@ def calibrate(healthy, target_rate: float, *, damaged=(), damaged_truths=(), con
     """
     if not target_rate > 0:
         raise ValueError(f"target_rate: expected a positive rate per year, got {target_rate}")
+    if np.isnan(floor) or floor >= score_bounds[1]:
+        raise ValueError(f"floor: expected a threshold below the scores' upper bound {score_bounds[1]}, got {floor}")
     healthy = list(healthy)
     if not healthy:
         raise ValueError("healthy: expected at least one healthy year")
@@ -307,7 +314,7 @@ def calibrate(healthy, target_rate: float, *, damaged=(), damaged_truths=(), con
     for k in consecutive:
         threshold = _threshold_for(healthy, int(k), target_rate, days_per_year)
         if threshold is not None:
-            threshold = float(np.clip(threshold, np.nextafter(score_bounds[0], np.inf),
+            threshold = float(np.clip(max(threshold, floor), np.nextafter(score_bounds[0], np.inf),
                                       np.nextafter(score_bounds[1], -np.inf)))
         entry = {"consecutive": int(k), "threshold": threshold}
         if threshold is not None and threshold < score_bounds[1]:

@@ -171,7 +171,7 @@ class Misspecification:
             raise ValueError(f"humidity_effect: expected a finite value, got {self.humidity_effect}")
 
 
-#: The matrix's cells (issue 40): each is the common base (:class:`YearBase`, the old monitor's law with the
+#: The matrix's cells: each is the common base (:class:`YearBase`, the old monitor's law with the
 #: nominal building scattered) with one departure.
 CELLS = {
     "lag0": Misspecification(),

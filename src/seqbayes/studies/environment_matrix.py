@@ -32,7 +32,8 @@ from .environment_baselines import ekf_tracking, novelty_detection
 from .environment_cells import CELLS, KINDS, YearBase
 
 __all__ = ["MatrixPlan", "FULL_PLAN", "REDUCED_PLAN", "METHODS", "DEFAULT_RULES", "BARS", "year_rows",
-           "run_method", "summarise", "matrix_table", "monitor_available", "frequency_columns"]
+           "run_method", "summarise", "matrix_table", "monitor_available", "frequency_columns",
+           "monitor_verdict"]
 
 
 @dataclass(frozen=True)
@@ -67,7 +68,7 @@ class MatrixPlan:
         return [(cell, kind, i, purpose) for cell in self.cells for kind in KINDS for i in range(counts.get(kind, 0))]
 
 
-#: The issue's matrix: 8 cells x 30 years (10 healthy, 10 with a 5 % loss, 10 with a 2 % loss), and 48
+#: The issue's matrix: 8 cells x 30 years (10 healthy, 10 with each loss of KINDS), and 48
 #: calibration years (4 healthy, one of each loss per cell).
 FULL_PLAN = MatrixPlan()
 #: The reduced form the slow test runs: 2 cells x 3 years of 120 days, the loss on a day in 70..90.
@@ -146,29 +147,60 @@ def _monitor_v1(table, building, seed, *, train_days):
 
 
 def monitor_available() -> bool:
-    """Whether this code has the new monitor's entry point ``monitor_table``."""
-    return _find_monitor_table() is not None
+    """Whether the new monitor (``seqbayes.structural.monitor.table.monitor_table``) imports in this code."""
+    try:
+        _monitor_entry()
+    except ImportError:
+        return False
+    return True
 
 
-def _find_monitor_table():
-    import importlib
+def _monitor_entry():
+    from ..structural.monitor.model import MonitorModel
+    from ..structural.monitor.table import monitor_table
 
-    for name in ("seqbayes.structural.monitor", "seqbayes.structural.monitor.replay", "seqbayes.structural.environment"):
-        try:
-            module = importlib.import_module(name)
-        except ImportError:
-            continue
-        if hasattr(module, "monitor_table"):
-            return module.monitor_table
-    return None
+    return MonitorModel, monitor_table
+
+
+def monitor_code() -> str:
+    """A digest of the monitor's source files (``structural/monitor/*.py``): which monitor a result came from."""
+    import hashlib
+    from pathlib import Path
+
+    from ..structural import monitor
+
+    digest = hashlib.sha256()
+    for path in sorted(Path(monitor.__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _estimate(value) -> tuple:
+    return (np.nan, np.nan, np.nan) if value is None else (value.mean, value.lower, value.upper)
+
+
+def monitor_verdict(days) -> DailyVerdict:
+    """The monitor's days (``MonitorDay`` records of ``monitor_table``) as a :class:`DailyVerdict`: the score is
+    ``P(damage)``, the element the most probable storey, the size the stiffness fraction lost and the onset the
+    calendar day the loss began, each with its posterior mean and central 95 % interval."""
+    element = [int(d.damage.location) if d.damage.location is not None else 0 for d in days]
+    return DailyVerdict(np.array([d.day for d in days], int), np.array([d.p_damage for d in days]),
+                        np.array(element, int), np.array([_estimate(d.damage.size) for d in days], float),
+                        np.array([_estimate(d.damage.day) for d in days], float), 0.0)
 
 
 def _monitor(table, building, seed, *, train_days):
-    monitor_table = _find_monitor_table()
-    if monitor_table is None:
-        raise RuntimeError("the new monitor (monitor_table) is not in this code: merge main once it has it, or run "
-                           "--methods monitor_v1")
-    raise NotImplementedError("the adapter to monitor_table is written when its signature is on main")
+    """The new monitor (issue 40): on-line from day 0, told the nominal building and the air temperature only
+    (no humidity, no lag, no knee: it learns them), with its default settings and ``seed``."""
+    MonitorModel, monitor_table = _monitor_entry()
+    model = MonitorModel.shear_building(building.masses, building.stiffnesses)
+    days = monitor_table(table, model, rng=np.random.default_rng(seed))
+    last = days[-1]
+    return monitor_verdict(days), {
+        "environment": {k: [v.mean, v.lower, v.upper] for k, v in last.environment.static.items()},
+        "coefficients": {k: [v.mean, v.lower, v.upper] for k, v in last.environment.coefficients.items()},
+        "p_lag": last.environment.p_lag, "n_sweeps": int(sum(d.n_sweeps for d in days)),
+        "log_evidence": last.log_evidence, "monitor_code": monitor_code()}
 
 
 METHODS = {"monitor": _monitor, "monitor_v1": _monitor_v1, "regression": _regression, "pca": _pca, "ekf": _ekf}
