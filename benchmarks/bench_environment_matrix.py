@@ -19,7 +19,7 @@ Steps (each resumable; ``all`` runs them in turn)::
 - ``table``: scores the matrix years under the calibrated rules (``--rule default``: each method's rule before
   calibration) and writes ``DIR/matrix.md`` (the one table of docs/environment.md) and ``DIR/matrix.json``.
 
-``--reduced`` is the slow test's form (2 cells x 3 years of 120 days, 6 calibration years). ``DIR/plan.json`` holds
+``--reduced`` is the slow test's form (2 cells x 3 years of 90 days, 4 calibration years). ``DIR/plan.json`` holds
 the plan; a directory made with another plan is refused.
 """
 

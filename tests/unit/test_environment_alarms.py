@@ -156,3 +156,22 @@ def test_calibration_raises_a_threshold_below_the_floor_and_refuses_a_floor_at_t
     assert raised.rule.threshold == 0.5 and raised.false_alarms["false_alarms"] == 0
     with pytest.raises(ValueError, match="floor"):
         calibrate(healthy, 0.1, score_bounds=(0.0, 1.0), floor=1.0)
+
+
+def test_the_monitor_s_days_become_a_daily_verdict():
+    from types import SimpleNamespace
+
+    from seqbayes.studies.environment_matrix import monitor_verdict
+
+    def estimate(mean, lower, upper):
+        return SimpleNamespace(mean=mean, lower=lower, upper=upper)
+
+    quiet = SimpleNamespace(day=0, p_damage=0.0, damage=SimpleNamespace(location=None, size=None, day=None))
+    found = SimpleNamespace(day=3, p_damage=0.99, damage=SimpleNamespace(location="2", size=estimate(0.05, 0.04, 0.06),
+                                                                        day=estimate(2.5, 2.0, 3.0)))
+    v = monitor_verdict([quiet, found])
+    assert v.days.tolist() == [0, 3] and v.score.tolist() == [0.0, 0.99] and v.element.tolist() == [0, 2]
+    assert np.isnan(v.size[0]).all() and v.size[1].tolist() == [0.05, 0.04, 0.06]
+    assert v.onset[1].tolist() == [2.5, 2.0, 3.0] and v.first_day == 0.0
+    s = score_year(v, {"damage_day": 2.0, "damage_storey": 2, "damage_size": 0.05}, AlarmRule(0.5, 1))
+    assert s.delay == 2.0 and s.element == 2 and s.size_covered and s.onset_covered

@@ -372,16 +372,19 @@ def write_cell_year(path, table: dict, truth: YearTruth) -> Path:
 
     Written to a temporary name and renamed, so that a killed run leaves no half file. Returns the sidecar's path.
     """
+    import os
+
     path = Path(path)
     columns = _column_order(table)
     values = np.column_stack([np.asarray(table[c], float) for c in columns])
-    partial = path.with_name(path.name + ".part")
+    # a name of this process's own: two runs that simulate the same year never write into one file
+    partial = path.with_name(f"{path.name}.{os.getpid()}.part")
     with open(partial, "w", newline="") as handle:
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(columns)
         writer.writerows([["" if np.isnan(v) else f"{v:.10g}" for v in row] for row in values])
     sidecar = path.with_suffix(".json")
-    sidecar_partial = sidecar.with_name(sidecar.name + ".part")
+    sidecar_partial = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
     sidecar_partial.write_text(json.dumps(asdict(truth), indent=1) + "\n")
     sidecar_partial.replace(sidecar)
     partial.replace(path)  # the CSV last: its presence says the year is complete
