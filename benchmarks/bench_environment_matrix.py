@@ -40,7 +40,8 @@ from seqbayes.studies.environment import read_truth
 from seqbayes.studies.environment_alarms import AlarmRule, DailyVerdict, calibrate
 from seqbayes.studies.environment_cells import CELLS, KINDS, cell_year, read_cell_year, write_cell_year
 from seqbayes.studies.environment_matrix import (DEFAULT_RULES, FULL_PLAN, METHODS, REDUCED_PLAN, MatrixPlan,
-                                                 matrix_table, monitor_available, run_method, summarise)
+                                                 calibration_table, matrix_table, monitor_available, run_method,
+                                                 summarise)
 
 PURPOSES = {0: "matrix", 1: "calibration"}
 BASELINES = ("regression", "pca", "ekf")
@@ -211,6 +212,9 @@ def calibrate_step(out: Path, plan: MatrixPlan, methods: list, target_rate: floa
         print(f"{method}: rule {None if rule is None else (rule.threshold, rule.consecutive)}, "
               f"demonstrated {result.demonstrated}, false alarms {result.false_alarms}", flush=True)
     (out / "calibration.json").write_text(json.dumps(report, indent=1) + "\n")
+    lines = calibration_table(report, methods)
+    (out / "calibration.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
     return report
 
 

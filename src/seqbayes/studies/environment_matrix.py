@@ -33,7 +33,7 @@ from .environment_cells import CELLS, KINDS, YearBase
 
 __all__ = ["MatrixPlan", "FULL_PLAN", "REDUCED_PLAN", "METHODS", "DEFAULT_RULES", "BARS", "year_rows",
            "run_method", "summarise", "matrix_table", "monitor_available", "frequency_columns",
-           "monitor_verdict"]
+           "monitor_verdict", "calibration_table"]
 
 
 @dataclass(frozen=True)
@@ -247,6 +247,13 @@ def summarise(records: list, rule: AlarmRule | None) -> dict:
                      "onset_covered": sum(bool(s.onset_covered) for s in news),
                      "both_covered": sum(bool(s.size_covered and s.onset_covered) for s in news),
                      "has_intervals": any(s.size_covered is not None for s in news)}
+    # the baselines' default threshold is the 1 - rate quantile of their training days: this share, over the
+    # healthy years' monitored days, is what that rate becomes on days the training did not see
+    monitored = [(v.score[v.days >= v.first_day]) for v in (DailyVerdict.from_json(r["verdict"])
+                                                              for r in by_kind["healthy"])]
+    days = sum(m.size for m in monitored)
+    out["healthy_days"] = int(days)
+    out["share_above_one"] = float(sum(np.sum(m > 1.0) for m in monitored) / days) if days else None
     out["cpu_seconds"] = float(np.mean([r["cpu_seconds"] for r in records])) if records else None
     n = {kind: len(rs) for kind, rs in by_kind.items()}
     bars = {"healthy": n["healthy"] > 0 and out["healthy_with_alarm"] == 0,
@@ -292,4 +299,24 @@ def matrix_table(summaries: dict, methods) -> list:
                         f"| {s['loss2']['found']} of {n['loss2']} | {_fmt(s['loss2']['median_delay'])} "
                         f"| {coverage} | {_fmt(s['cpu_seconds'])} "
                         f"| {met} of 4{'' if not failing else ' (not: ' + ', '.join(failing) + ')'} |")
+    return rows
+
+
+def calibration_table(report: dict, methods) -> list:
+    """Markdown lines: each method's calibrated rule and what it did on the calibration years (``report`` as the
+    benchmark's ``calibration.json``: :meth:`~seqbayes.studies.environment_alarms.Calibration.to_json` per method)."""
+    rows = ["| method | rule (threshold, days) | healthy calibration years | false alarms | per year +- se (95 % "
+            "upper) | target shown | damaged calibration years found in 30 days | their median delay [d] |",
+            "|---|---|---|---|---|---|---|---|"]
+    for method in methods:
+        c = report.get(method)
+        if c is None:
+            continue
+        rule = "none" if c["rule"] is None else f"{c['rule']['threshold']:.4g}, {c['rule']['consecutive']}"
+        fa, delays = c["false_alarms"], c["delays"]
+        found = sum(d is not None and d <= 30 for d in delays.get("delays", []))
+        rows.append(f"| {method} | {rule} | {fa.get('years', 0)} ({fa.get('exposure_years', 0):.1f} monitored years) "
+                    f"| {fa.get('false_alarms', '-')} | {fa.get('rate', 0):.2f} +- {fa.get('rate_se', 0):.2f} "
+                    f"({fa.get('rate_upper', float('nan')):.2f}) | {'yes' if c['demonstrated'] else 'no'} "
+                    f"| {found} of {delays.get('years', 0)} | {_fmt(delays.get('median_delay'))} |")
     return rows
