@@ -111,6 +111,9 @@ class TableSpec:
     extra : {"ignore", "refuse"}
         Columns of the file beyond ``columns``: ignored (a run's ``[data] columns`` says which it reads)
         or refused, naming them (a file with ``f1..f5`` for a 4-storey building).
+    missing : tuple of str
+        Columns where an empty cell (NaN) is allowed and means "not observed" (a mode not identified in a set);
+        inf is still refused.
     describe : str
         The header expected, in words, for messages (default: the columns).
     hints : dict
@@ -141,14 +144,16 @@ class TableSpec:
     extra: str = "ignore"
     describe: str = ""
     hints: dict = field(default_factory=dict)
+    missing: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "columns", tuple(self.columns))
+        object.__setattr__(self, "missing", tuple(self.missing))
         object.__setattr__(self, "positive", tuple(self.positive))
         object.__setattr__(self, "ascending", tuple(self.ascending))
         if not self.columns or len(set(self.columns)) != len(self.columns):
             raise ValueError(f"columns: expected distinct names, got {list(self.columns)}")
-        for name in (self.time, *self.ranges, *self.positive, *self.ascending):
+        for name in (self.time, *self.ranges, *self.positive, *self.ascending, *self.missing):
             if name is not None and name not in self.columns:
                 raise ValueError(f"{name!r}: not one of the columns {list(self.columns)}")
         for name, (low, high) in {**self.ranges, **({self.time: self.time_range} if self.time else {})}.items():
@@ -291,6 +296,9 @@ def check_table(table, config, source: str = "table", lines=None) -> np.ndarray:
         return f"data row {row + 1}" + (f" (line {lines[row]})" if lines is not None else "")
 
     bad = ~np.isfinite(array)
+    allowed = [config.columns.index(name) for name in _rule(config, "missing", ())]
+    if allowed:
+        bad[:, allowed] &= ~np.isnan(array[:, allowed])
     if bad.any():
         row, col = np.argwhere(bad)[0]
         count = int(bad[:, col].sum())

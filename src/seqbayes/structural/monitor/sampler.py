@@ -18,9 +18,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...tempering import temper
-from ...resampling import resample
-from ...weights import normalise
+from ...core.tempering import TargetESS, between_stages, temper
+from ...moves.base import metropolis_accept
+from ...moves.scaled import FittedGaussian
+from ...weights import normalise, resample
 from .change import Bank, backward_bank, bank_chunk, change_posterior, empty_bank
 from .daily_filter import FilterState, chunk_statistics, chunk_update, initial_state, new_day
 from .law import design, lagged
@@ -116,8 +117,10 @@ class MonitorState:
 
 @dataclass(frozen=True)
 class StepInfo:
-    """What one assimilation did: its chunks, tempering stages, sweeps (passes over the history), acceptance and
-    the ESS after it."""
+    """What one assimilation did: its chunks, tempering stages, sweeps (passes over the history), acceptance,
+    the ESS after it, and its work: ``filter_updates``, the per-particle chunk updates of the filters (the new
+    chunks for every particle, then each sweep's pass over the whole history for every proposal inside the
+    prior's box)."""
 
     n_chunks: int
     n_stages: int
@@ -125,6 +128,7 @@ class StepInfo:
     acceptance: float
     ess: float
     log_evidence_increment: float
+    filter_updates: int = 0
 
 
 # ------------------------------------------------------------------------------------ the likelihood
@@ -224,39 +228,22 @@ def _finite(x):
     return np.maximum(np.nan_to_num(x, nan=_FLOOR, neginf=_FLOOR), _FLOOR)
 
 
-def _accept(current, proposal, rng):
-    """Metropolis-Hastings decision (``proposal`` includes the log-Hastings term); a non-finite one is refused."""
-    log_u = np.log(rng.random(current.shape))
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(proposal) & (log_u < proposal - current)
+def _proposals(move: FittedGaussian, walk: FittedGaussian, u, rng):
+    """Half the walkers (at random) draw afresh from the fitted Gaussian ``move`` (an independence proposal),
+    the others step by ``walk`` (the same covariance scaled by ``2.38^2 / d``): proposals and log-Hastings terms."""
+    independent = rng.random(u.shape[0]) < 0.5
+    fresh = move.sample(u.shape[0], rng)
+    steps = walk.sample(u.shape[0], rng)
+    proposal = np.where(independent[:, None], fresh, u + steps)
+    log_hastings = np.where(independent, move.logpdf(u) - move.logpdf(proposal), 0.0)
+    return proposal, log_hastings
 
 
-class _FittedMove:
-    """Independence draws from ``N(mean, L L^T)`` or random-walk steps ``2.38 / sqrt(d) L z`` per walker."""
-
-    def __init__(self, mean, chol):
-        self.mean, self.chol = mean, chol
-        self._chol_inv = np.linalg.inv(chol)
-
-    def log_q(self, points):
-        z = (points - self.mean) @ self._chol_inv.T
-        return -0.5 * np.einsum("nd,nd->n", z, z)
-
-    def propose(self, walkers, noise, independent):
-        step = noise @ self.chol.T
-        d = walkers.shape[1]
-        proposals = np.where(independent[:, None], self.mean + step, walkers + 2.38 / np.sqrt(d) * step)
-        return proposals, np.where(independent, self.log_q(walkers) - self.log_q(proposals), 0.0)
-
-
-def _fitted(u) -> _FittedMove:
-    """The Gaussian fitted to equally weighted particles ``u (N, d)`` (its covariance regularised)."""
-    mean = u.mean(axis=0)
-    cov = np.cov(u, rowvar=False).reshape(u.shape[1], u.shape[1])
-    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
-    values = np.maximum(values, 1e-12 * max(values.max(), 1e-300))
-    cov = (vectors * values) @ vectors.T
-    return _FittedMove(mean, np.linalg.cholesky(cov))
+def _fitted(u):
+    """The independence and random-walk proposals fitted to equally weighted particles ``u (N, d)``."""
+    d = u.shape[1]
+    cov = np.cov(u, rowvar=False).reshape(d, d)
+    return FittedGaussian(u.mean(axis=0), cov), FittedGaussian(np.zeros(d), cov * (2.38 ** 2 / d))
 
 
 def assimilate(state: MonitorState, model, settings, history, first: int, rng: np.random.Generator):
@@ -268,7 +255,7 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
     parts = Particles(parts.u, cache, parts.loglike, loglike)
     box = model.prior.box(model.n_modes)
     dim = box.shape[0]
-    tally = {"stages": 0, "sweeps": 0, "proposed": 0, "accepted": 0}
+    tally = {"stages": 0, "sweeps": 0, "proposed": 0, "accepted": 0, "passes": 0}
 
     def resample_move(log_weights, increments, beta, particles):
         tally["stages"] += 1
@@ -278,11 +265,9 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
         log_prior = model.prior.logpdf(u, model.n_modes)
         target = log_prior + particles.loglike_previous + beta * (particles.loglike - particles.loglike_previous)
         begin = u.copy()
-        move = _fitted(u)                 # fitted once per stage: the kernel does not depend on the walkers
+        move, walk = _fitted(u)           # fitted once per stage: the kernel does not depend on the walkers
         for sweep in range(settings.max_sweeps):
-            noise = rng.standard_normal(u.shape)
-            independent = rng.random(u.shape[0]) < 0.5
-            proposal, log_hastings = move.propose(u, noise, independent)
+            proposal, log_hastings = _proposals(move, walk, u, rng)
             inside = np.all((proposal > box[:, 0]) & (proposal < box[:, 1]), axis=1)
             new_target = np.full(u.shape[0], -np.inf)
             index_in = np.flatnonzero(inside)
@@ -291,7 +276,8 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
                                                     settings.chunk_particles)
                 new_target[index_in] = (model.prior.logpdf(proposal[index_in], model.n_modes) + prev
                                         + beta * (end - prev))
-            accept = _accept(target, new_target + log_hastings, rng)
+                tally["passes"] += index_in.size * history.n_chunks
+            accept = metropolis_accept(target, new_target, log_hastings, rng)
             tally["sweeps"] += 1
             tally["proposed"] += u.shape[0]
             tally["accepted"] += int(accept.sum())
@@ -310,12 +296,14 @@ def assimilate(state: MonitorState, model, settings, history, first: int, rng: n
         return _finite(particles.loglike - particles.loglike_previous), particles
 
     increments = _finite(parts.loglike - parts.loglike_previous)
-    log_weights, _, parts, log_evidence = temper(state.log_weights, increments, settings.ess * settings.n_particles,
-                                                  resample_move, parts, state.log_evidence)
+    annealed = temper(parts, increments, state.log_weights, TargetESS(settings.ess * settings.n_particles),
+                      between_stages(resample_move), log_z=state.log_evidence)
+    log_weights, parts, log_evidence = normalise(annealed.log_weights), annealed.particles, annealed.log_z
     parts = replace(parts, loglike_previous=parts.loglike)
     new = MonitorState(parts, log_weights, float(log_evidence))
     w = new.weights
     acceptance = tally["accepted"] / tally["proposed"] if tally["proposed"] else float("nan")
     info = StepInfo(history.n_chunks - first, tally["stages"], tally["sweeps"], acceptance, float(1.0 / (w @ w)),
-                    float(log_evidence - state.log_evidence))
+                    float(log_evidence - state.log_evidence),
+                    int(parts.u.shape[0] * (history.n_chunks - first) + tally["passes"]))
     return new, info

@@ -56,6 +56,9 @@ class DamageSummary:
     day : Estimate or None
         The calendar day the loss began (0: the first monitored day).
     day_mode : int or None
+        The most probable first day.
+    location_index : int
+        1-based index of ``location`` in ``classes`` (0: none).
     """
 
     p_damage: float
@@ -65,6 +68,7 @@ class DamageSummary:
     size: Estimate | None
     day: Estimate | None
     day_mode: int | None
+    location_index: int = 0
 
 
 @dataclass(frozen=True)
@@ -174,7 +178,8 @@ def damage_summary(state, model, settings, last_day: int) -> DamageSummary:
     upper = days[min(int(np.searchsorted(cdf, (1 + _LEVEL) / 2)), days.size - 1)]
     location = classes[best] if isinstance(pattern, ElementLoss) else None
     return DamageSummary(p_damage, classes, tuple(float(c) for c in class_p), location, size,
-                         Estimate(float(day_p @ days), float(lower), float(upper)), int(days[int(np.argmax(day_p))]))
+                         Estimate(float(day_p @ days), float(lower), float(upper)), int(days[int(np.argmax(day_p))]),
+                         best + 1 if location is not None else 0)
 
 
 def _weighted_estimate(values, weights) -> Estimate:

@@ -20,7 +20,7 @@ from .model import MonitorModel, MonitorSettings
 from .sampler import MonitorState, assimilate, prior_state
 from .summary import DamageSummary, EnvironmentSummary, damage_summary, environment_summary
 
-__all__ = ["Monitor", "MonitorDay", "monitor_table", "table_days"]
+__all__ = ["Monitor", "MonitorDay", "monitor_table", "table_days", "verdicts"]
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,9 @@ class MonitorDay:
         Tempering stages with a resample-move, and their sweeps (passes over the history).
     acceptance : float
         Of the sweeps' proposals (NaN without sweeps).
+    filter_updates : int
+        The update's work: per-particle chunk updates of the filters (the new day's for every particle, and each
+        move sweep's pass over the whole history).
     cpu_seconds : float
         Process CPU time of the update.
     """
@@ -67,6 +70,7 @@ class MonitorDay:
     n_stages: int
     n_sweeps: int
     acceptance: float
+    filter_updates: int
     cpu_seconds: float
 
     def to_dict(self) -> dict:
@@ -137,7 +141,7 @@ class Monitor:
         return MonitorDay(day, float(history.times[-1]), int(arrays[0].size), damage.p_damage, days_above,
                           rule.raised(days_above), damage, environment_summary(state, self.model),
                           state.log_evidence, info.ess, info.n_stages, info.n_sweeps, info.acceptance,
-                          time.process_time() - started)
+                          info.filter_updates, time.process_time() - started)
 
 
 def table_days(table: dict) -> list:
@@ -147,9 +151,22 @@ def table_days(table: dict) -> list:
     return np.split(np.arange(day.size), breaks)
 
 
-def monitor_table(table: dict, model: MonitorModel, settings: MonitorSettings | None = None,
-                  rng: np.random.Generator | None = None) -> list:
+def _as_model(model) -> MonitorModel:
+    if isinstance(model, MonitorModel):
+        return model
+    from ..structures import ShearBuilding
+    from ..structures.linear import ShearBuildingModel
+
+    if isinstance(model, ShearBuilding):
+        return MonitorModel.linear(ShearBuildingModel(model))
+    raise TypeError(f"model: expected a MonitorModel or a ShearBuilding, got {type(model).__name__}")
+
+
+def monitor_table(table: dict, model, seed, settings: MonitorSettings | None = None) -> list:
     """Monitor a whole table day by day: one :class:`MonitorDay` per calendar day with sets.
+
+    The stable entry point of the misspecification matrix (:mod:`seqbayes.studies.environment_matrix`) and of
+    ``seqbayes environment`` (which runs the same updates through a monitor run store).
 
     Parameters
     ----------
@@ -157,18 +174,30 @@ def monitor_table(table: dict, model: MonitorModel, settings: MonitorSettings | 
         The year CSV's columns (docs/environment.md): ``day`` (float days since the first monitored day,
         increasing), ``temperature`` (the air's, degC), the model's covariates by name, ``f1 .. fn`` [Hz] (NaN where
         a mode was not identified) and optionally ``sf1 .. sfn`` (the OMA's standard errors [Hz], NaN where not
-        given).
-    model : MonitorModel
+        given). Other columns are not used.
+    model : MonitorModel or ShearBuilding
+        A shear building (:class:`~seqbayes.structural.structures.ShearBuilding`) becomes
+        :meth:`MonitorModel.shear_building` (a loss located in a storey, named ``"1"`` .. ``"n"``, no further
+        covariates).
+    seed : int or numpy.random.Generator
+        The seed reproduces the run bit for bit.
     settings : MonitorSettings, optional
-    rng : numpy.random.Generator
-        Required: the seed reproduces the run bit for bit.
 
     Returns
     -------
     list of MonitorDay
+        Per day: ``p_damage``, ``alarm`` (the settings' rule), ``damage.location`` (the element's name; None
+        without a structural model), ``damage.location_index`` (1-based, 0 for none), ``damage.size`` (the
+        stiffness fraction lost: mean and 95 % interval), ``damage.day`` (the loss's first day: mean and 95 %
+        interval), the learned ``environment``; :func:`verdicts` stacks them into arrays.
     """
-    if rng is None:
-        raise TypeError("rng: monitor_table needs a numpy.random.Generator (its seed reproduces the run)")
+    if isinstance(seed, np.random.Generator):
+        rng = seed
+    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        rng = np.random.default_rng(int(seed))
+    else:
+        raise TypeError(f"seed: expected an integer or a numpy.random.Generator, got {type(seed).__name__}")
+    model = _as_model(model)
     settings = MonitorSettings() if settings is None else settings
     n = model.n_modes
     missing = [c for c in ["day", "temperature", *model.covariates, *(f"f{i + 1}" for i in range(n))]
@@ -188,3 +217,20 @@ def monitor_table(table: dict, model: MonitorModel, settings: MonitorSettings | 
                                    np.asarray(table["temperature"], dtype=float)[rows], f[rows],
                                    None if sf is None else sf[rows], None if z is None else z[rows]))
     return days
+
+
+def verdicts(days) -> dict:
+    """The days of :func:`monitor_table` as arrays: ``day (D,)`` int, ``p_damage (D,)``, ``alarm (D,)`` bool,
+    ``element (D,)`` (1-based, 0: none or no location), ``size (D, 3)`` (the stiffness fraction lost, or a mode's
+    relative drop: mean, 2.5 % and 97.5 %; NaN where no loss is reported) and ``onset (D, 3)`` (the loss's first
+    day: mean and 95 % interval)."""
+    size = np.full((len(days), 3), np.nan)
+    onset = np.full((len(days), 3), np.nan)
+    for i, d in enumerate(days):
+        if d.damage.size is not None:
+            size[i] = (d.damage.size.mean, d.damage.size.lower, d.damage.size.upper)
+        if d.damage.day is not None:
+            onset[i] = (d.damage.day.mean, d.damage.day.lower, d.damage.day.upper)
+    return {"day": np.array([d.day for d in days], dtype=int), "p_damage": np.array([d.p_damage for d in days]),
+            "alarm": np.array([d.alarm for d in days], dtype=bool),
+            "element": np.array([d.damage.location_index for d in days], dtype=int), "size": size, "onset": onset}
