@@ -148,12 +148,12 @@ def check_plan(out: Path, plan: MatrixPlan) -> dict:
 
 
 def priority(plan: MatrixPlan, year: tuple) -> tuple:
-    """The order years run in, so that a run stopped early has balanced cells: round ``i`` holds the ``i``-th healthy
-    calibration year of every cell, then the ``i``-th matrix year of every cell and kind; the damaged calibration
+    """The order years run in, so that a run stopped early has balanced cells: round ``i`` holds the ``i``-th matrix
+    year of every cell and kind, then the ``i``-th healthy calibration year of every cell; the damaged calibration
     years join round 1 (they only choose the days in a row)."""
     cell, kind, index, purpose = year
     round_ = index if purpose == 0 or kind == "healthy" else 1
-    return (round_, purpose == 0, plan.cells.index(cell), list(KINDS).index(kind))
+    return (round_, purpose == 1, plan.cells.index(cell), list(KINDS).index(kind))
 
 
 def run(out: Path, plan: MatrixPlan, methods: list, workers: int, purposes=(1, 0)) -> int:

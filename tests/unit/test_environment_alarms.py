@@ -159,17 +159,13 @@ def test_calibration_raises_a_threshold_below_the_floor_and_refuses_a_floor_at_t
 
 
 def test_the_monitor_s_days_become_a_daily_verdict():
-    from types import SimpleNamespace
-
     from seqbayes.studies.environment_matrix import monitor_verdict
 
-    def estimate(mean, lower, upper):
-        return SimpleNamespace(mean=mean, lower=lower, upper=upper)
-
-    quiet = SimpleNamespace(day=0, p_damage=0.0, damage=SimpleNamespace(location=None, size=None, day=None))
-    found = SimpleNamespace(day=3, p_damage=0.99, damage=SimpleNamespace(location="2", size=estimate(0.05, 0.04, 0.06),
-                                                                        day=estimate(2.5, 2.0, 3.0)))
-    v = monitor_verdict([quiet, found])
+    nan = [np.nan] * 3
+    stacked = {"day": np.array([0, 3]), "p_damage": np.array([0.0, 0.99]), "alarm": np.array([False, True]),
+               "element": np.array([0, 2]), "size": np.array([nan, [0.05, 0.04, 0.06]]),
+               "onset": np.array([nan, [2.5, 2.0, 3.0]])}
+    v = monitor_verdict(stacked)
     assert v.days.tolist() == [0, 3] and v.score.tolist() == [0.0, 0.99] and v.element.tolist() == [0, 2]
     assert np.isnan(v.size[0]).all() and v.size[1].tolist() == [0.05, 0.04, 0.06]
     assert v.onset[1].tolist() == [2.5, 2.0, 3.0] and v.first_day == 0.0

@@ -157,10 +157,9 @@ def monitor_available() -> bool:
 
 
 def _monitor_entry():
-    from ..structural.monitor.model import MonitorModel
-    from ..structural.monitor.table import monitor_table
+    from ..structural.monitor.table import monitor_table, verdicts
 
-    return MonitorModel, monitor_table
+    return monitor_table, verdicts
 
 
 def monitor_code() -> str:
@@ -176,28 +175,22 @@ def monitor_code() -> str:
     return digest.hexdigest()[:16]
 
 
-def _estimate(value) -> tuple:
-    return (np.nan, np.nan, np.nan) if value is None else (value.mean, value.lower, value.upper)
-
-
-def monitor_verdict(days) -> DailyVerdict:
-    """The monitor's days (``MonitorDay`` records of ``monitor_table``) as a :class:`DailyVerdict`: the score is
-    ``P(damage)``, the element the most probable storey, the size the stiffness fraction lost and the onset the
-    calendar day the loss began, each with its posterior mean and central 95 % interval."""
-    element = [int(d.damage.location) if d.damage.location is not None else 0 for d in days]
-    return DailyVerdict(np.array([d.day for d in days], int), np.array([d.p_damage for d in days]),
-                        np.array(element, int), np.array([_estimate(d.damage.size) for d in days], float),
-                        np.array([_estimate(d.damage.day) for d in days], float), 0.0)
+def monitor_verdict(stacked: dict) -> DailyVerdict:
+    """The monitor's days stacked by ``seqbayes.structural.monitor.table.verdicts`` (``day``, ``p_damage``,
+    ``element``, ``size (D, 3)``, ``onset (D, 3)``) as a :class:`DailyVerdict`: the score is ``P(damage)``, the
+    element the most probable storey, the size the stiffness fraction lost and the onset the loss's first day, each
+    with its posterior mean and central 95 % interval."""
+    return DailyVerdict(stacked["day"], stacked["p_damage"], stacked["element"], stacked["size"], stacked["onset"],
+                        0.0)
 
 
 def _monitor(table, building, seed, *, train_days):
-    """The new monitor (issue 40): on-line from day 0, told the nominal building and the air temperature only
-    (no humidity, no lag, no knee: it learns them), with its default settings and ``seed``."""
-    MonitorModel, monitor_table = _monitor_entry()
-    model = MonitorModel.shear_building(building.masses, building.stiffnesses)
-    days = monitor_table(table, model, rng=np.random.default_rng(seed))
+    """The new monitor: on-line from day 0, told the nominal building and the air temperature only (no humidity,
+    no lag, no knee: it learns them), with its default settings and ``seed``."""
+    monitor_table, verdicts = _monitor_entry()
+    days = monitor_table(table, building, int(seed))
     last = days[-1]
-    return monitor_verdict(days), {
+    return monitor_verdict(verdicts(days)), {
         "environment": {k: [v.mean, v.lower, v.upper] for k, v in last.environment.static.items()},
         "coefficients": {k: [v.mean, v.lower, v.upper] for k, v in last.environment.coefficients.items()},
         "p_lag": last.environment.p_lag, "n_sweeps": int(sum(d.n_sweeps for d in days)),
