@@ -40,7 +40,7 @@ from seqbayes.studies.environment import read_truth
 from seqbayes.studies.environment_alarms import AlarmRule, DailyVerdict, calibrate
 from seqbayes.studies.environment_cells import CELLS, KINDS, cell_year, read_cell_year, write_cell_year
 from seqbayes.studies.environment_matrix import (DEFAULT_RULES, FULL_PLAN, METHODS, REDUCED_PLAN, MatrixPlan,
-                                                 calibration_table, matrix_table, monitor_available, run_method,
+                                                 calibration_table, matrix_table, nominal_table, monitor_available, run_method,
                                                  summarise)
 
 PURPOSES = {0: "matrix", 1: "calibration"}
@@ -240,13 +240,17 @@ def table_step(out: Path, plan: MatrixPlan, methods: list, rule_source: str = "c
             mine = [r for r in records if r["method"] == method and r["cell"] == cell]
             if not mine:
                 continue
-            if rule_source == "calibrated":
-                held = calibration.get(method, {}).get("rule")
+            source = rule_source if method in calibration or rule_source == "default" else "default"
+            if source == "calibrated":  # a calibration that found no rule stays None: every bar fails
+                held = calibration[method].get("rule")
                 rule = None if held is None else AlarmRule(**held)
-            else:
+            else:  # no calibration years of this method yet: its rule before calibration, flagged in the table
                 rule = DEFAULT_RULES[method]
-            summaries[cell][method] = summarise(mine, rule)
+            summaries[cell][method] = {**summarise(mine, rule), "rule_source": source}
     lines = matrix_table(summaries, methods)
+    baselines = [m for m in methods if not m.startswith("monitor")]
+    lines += ["", "Baselines: share of healthy monitored days above the training threshold (set for 1 % of days)",
+              "", *nominal_table(summaries, baselines)]
     (out / "matrix.md").write_text("\n".join(lines) + "\n")
     (out / "matrix.json").write_text(json.dumps(summaries, indent=1) + "\n")
     print("\n".join(lines))

@@ -56,10 +56,9 @@ def _check_plumbing(bench, out, methods):
         assert calibration[method]["rule"] is not None
         assert calibration[method]["false_alarms"]["years"] == 2  # one healthy calibration year per cell
     table = (out / "matrix.md").read_text().splitlines()
-    assert len(table) == 2 + len(REDUCED_PLAN.cells) * len(methods)
     for cell in REDUCED_PLAN.cells:
         for method in methods:
-            assert any(row.startswith(f"| {cell} | {method} |") for row in table)
+            assert sum(row.startswith(f"| {cell} | {method} |") for row in table) == 1
     # resumed: nothing left to do
     assert bench.run(out, REDUCED_PLAN, methods, 1) == 0
     # a line cut by a kill is ignored and redone, with the same numbers

@@ -33,7 +33,7 @@ from .environment_cells import CELLS, KINDS, YearBase
 
 __all__ = ["MatrixPlan", "FULL_PLAN", "REDUCED_PLAN", "METHODS", "DEFAULT_RULES", "BARS", "year_rows",
            "run_method", "summarise", "matrix_table", "monitor_available", "frequency_columns",
-           "monitor_verdict", "calibration_table"]
+           "monitor_verdict", "calibration_table", "nominal_table"]
 
 
 @dataclass(frozen=True)
@@ -280,6 +280,8 @@ def matrix_table(summaries: dict, methods) -> list:
                 continue
             n = s["years"]
             rule = "none" if s["rule"] is None else f"{s['rule']['threshold']:.4g}, {s['rule']['consecutive']}"
+            if s.get("rule_source") == "default":
+                rule += " (not calibrated)"
             rate = ("-" if "rate" not in s else
                     f"{s['rate']:.2f} +- {s['rate_se']:.2f} ({s['rate_upper']:.2f})")
             coverage = " / ".join(
@@ -290,7 +292,7 @@ def matrix_table(summaries: dict, methods) -> list:
             rows.append(f"| {cell} | {method} | {rule} | {s['healthy_with_alarm']} of {n['healthy']} | {rate} "
                         f"| {s['loss5']['found']} of {n['loss5']} | {_fmt(s['loss5']['median_delay'])} "
                         f"| {s['loss2']['found']} of {n['loss2']} | {_fmt(s['loss2']['median_delay'])} "
-                        f"| {coverage} | {_fmt(s['cpu_seconds'])} "
+                        f"| {coverage} | {_fmt(s['cpu_seconds'], '.1f')} "
                         f"| {met} of 4{'' if not failing else ' (not: ' + ', '.join(failing) + ')'} |")
     return rows
 
@@ -312,4 +314,23 @@ def calibration_table(report: dict, methods) -> list:
                     f"| {fa.get('false_alarms', '-')} | {fa.get('rate', 0):.2f} +- {fa.get('rate_se', 0):.2f} "
                     f"({fa.get('rate_upper', float('nan')):.2f}) | {'yes' if c['demonstrated'] else 'no'} "
                     f"| {found} of {delays.get('years', 0)} | {_fmt(delays.get('median_delay'))} |")
+    return rows
+
+
+def nominal_table(summaries: dict, methods, nominal: float = 0.01) -> list:
+    """Markdown lines: each baseline's share of healthy monitored days above its training threshold, per cell and
+    pooled, against the ``nominal`` rate that threshold was set for (binomial standard error over days, which
+    understates the error of correlated days)."""
+    rows = ["| method | " + " | ".join(summaries) + " | pooled (+- se) |", "|---|" + "---|" * (len(summaries) + 1)]
+    for method in methods:
+        cells = [summaries[c].get(method) for c in summaries]
+        if all(c is None or c.get("share_above_one") is None for c in cells):
+            continue
+        above = sum(round(c["share_above_one"] * c["healthy_days"]) for c in cells if c and c["healthy_days"])
+        days = sum(c["healthy_days"] for c in cells if c)
+        share = above / days
+        se = float(np.sqrt(nominal * (1 - nominal) / days))
+        rows.append(f"| {method} | " + " | ".join("-" if c is None or c["share_above_one"] is None
+                                                   else f"{c['share_above_one']:.3f}" for c in cells)
+                    + f" | {share:.4f} +- {se:.4f} (nominal {nominal}) |")
     return rows
