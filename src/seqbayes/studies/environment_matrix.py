@@ -249,12 +249,14 @@ def summarise(records: list, rule: AlarmRule | None) -> dict:
     out["share_above_one"] = float(sum(np.sum(m > 1.0) for m in monitored) / days) if days else None
     out["cpu_seconds"] = float(np.mean([r["cpu_seconds"] for r in records])) if records else None
     n = {kind: len(rs) for kind, rs in by_kind.items()}
-    bars = {"healthy": n["healthy"] > 0 and out["healthy_with_alarm"] == 0,
-            "loss5": n["loss5"] > 0 and out["loss5"]["found"] >= np.ceil(BARS["loss5"] / 10 * n["loss5"]),
-            "loss2": n["loss2"] > 0 and out["loss2"]["found"] >= np.ceil(BARS["loss2"] / 10 * n["loss2"]),
-            "intervals": all(n[k] > 0 and out[k]["both_covered"] >= np.ceil(BARS["intervals"] / 10 * n[k])
-                             for k in ("loss5", "loss2"))}
-    out["bars"] = {k: bool(v) for k, v in bars.items()}
+    bars = {"healthy": None if not n["healthy"] else out["healthy_with_alarm"] == 0,
+            "loss5": None if not n["loss5"] else out["loss5"]["found"] >= np.ceil(BARS["loss5"] / 10 * n["loss5"]),
+            "loss2": None if not n["loss2"] else out["loss2"]["found"] >= np.ceil(BARS["loss2"] / 10 * n["loss2"]),
+            "intervals": (None if not (n["loss5"] or n["loss2"]) else
+                          all(out[k]["both_covered"] >= np.ceil(BARS["intervals"] / 10 * n[k])
+                              for k in ("loss5", "loss2") if n[k]))}
+    # None: no year of that kind has run yet (the bar is not judged, neither met nor failed)
+    out["bars"] = {k: None if v is None else bool(v) for k, v in bars.items()}
     return out
 
 
@@ -287,13 +289,17 @@ def matrix_table(summaries: dict, methods) -> list:
             coverage = " / ".join(
                 (f"{s[k]['both_covered']} of {n[k]}" if s[k]["has_intervals"] else "no interval")
                 for k in ("loss5", "loss2"))
-            met = sum(bool(v) for v in s["bars"].values())
-            failing = [k for k, v in s["bars"].items() if not v]
+            met = sum(v is True for v in s["bars"].values())
+            judged = sum(v is not None for v in s["bars"].values())
+            failing = [k for k, v in s["bars"].items() if v is False]
+            unjudged = [k for k, v in s["bars"].items() if v is None]
+            verdict = f"{met} of {judged}" + ("" if not failing else " (not: " + ", ".join(failing) + ")")
+            if unjudged:
+                verdict += "; no years yet: " + ", ".join(unjudged)
             rows.append(f"| {cell} | {method} | {rule} | {s['healthy_with_alarm']} of {n['healthy']} | {rate} "
                         f"| {s['loss5']['found']} of {n['loss5']} | {_fmt(s['loss5']['median_delay'])} "
                         f"| {s['loss2']['found']} of {n['loss2']} | {_fmt(s['loss2']['median_delay'])} "
-                        f"| {coverage} | {_fmt(s['cpu_seconds'], '.1f')} "
-                        f"| {met} of 4{'' if not failing else ' (not: ' + ', '.join(failing) + ')'} |")
+                        f"| {coverage} | {_fmt(s['cpu_seconds'], '.1f')} | {verdict} |")
     return rows
 
 
