@@ -2,6 +2,7 @@
 files it did not write, and says so in one line before any work."""
 
 import os
+import re
 
 import pytest
 
@@ -46,3 +47,19 @@ def test_every_example_refuses_a_users_folder_in_one_line_before_the_work(tmp_pa
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and f"{option} {tmp_path}: holds files" in err, err
     assert os.listdir(tmp_path) == ["notes.txt"] and (tmp_path / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("how", ["free", "enospc", "read-only"])
+def test_a_full_or_read_only_disk_for_an_examples_folder_is_one_line_before_the_work(tmp_path, capsys, monkeypatch,
+                                                                                     how):
+    """The folder's mark is the study's first write: a full disk or a read-only folder stops it there, in one line
+    (simulated as tests/unit/test_hardening_outputs.py does), and leaves no half-written file."""
+    from tests.unit.test_hardening_outputs import _fail_writes
+
+    with monkeypatch.context() as patch:
+        expected = _fail_writes(patch, how)
+        code = cli.main(["example", "resampling", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert re.search(expected, err), err
+    assert [p.name for p in (tmp_path / "out").iterdir()] == []
