@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 from pathlib import Path
+
 
 import pytest
 
@@ -84,6 +86,9 @@ def test_reduced_matrix_baselines(tmp_path):
 
 
 @pytest.mark.skipif(not monitor_available(), reason="the monitor (structural/monitor/table.py) does not import")
+@pytest.mark.skipif(os.environ.get("SEQBAYES_MATRIX_MONITOR") != "1",
+                    reason="about 4 CPU-minutes: opt in with SEQBAYES_MATRIX_MONITOR=1 (docs/testing.md); the "
+                           "monitor's own tests (tests/unit/test_monitor_*.py) run in every suite")
 def test_reduced_matrix_monitor(tmp_path):
     bench, out = _run_all(tmp_path, ["monitor"])
     lines, summaries = _check_plumbing(bench, out, ["monitor"])
