@@ -372,7 +372,13 @@ def test_damaged_stores_get_one_line_naming_the_file(tmp_path, capsys):
     xr.Dataset({"x": ("i", np.zeros(2))}).to_netcdf(tmp_path / "classic.nc", engine="scipy")
     cli_fails(capsys, ["status", tmp_path / "classic.nc"], r"classic.nc: a NetCDF-3 \(classic\) file; run stores are "
                                                            r"NetCDF-4")
-    cli_fails(capsys, ["status", tmp_path], r": is a folder, not a run store")
+    # a folder is a fleet (docs/fleet.md): its status lists every damaged store with its one line, exit status 1
+    from seqbayes import cli
+
+    code = cli.main(["status", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 1 and "stores with errors" in out, out
+    assert all(name in out for name in cases) and "inconsistent store" in out, out
 
 
 def test_a_flipped_bit_in_the_stored_arrays_is_detected(tmp_path):

@@ -177,17 +177,18 @@ def test_a_few_hostile_tables_end_in_a_result_or_one_line(tmp_path, pristine_sto
 @pytest.mark.slow
 def test_many_hostile_tables_per_command_end_in_a_result_or_one_line(tmp_path, pristine_store, capsys):
     """120 tables per command (``SEQBAYES_HOSTILE_TABLES=240`` runs the 240 of issue 42): the first tables of
-    the same seeded sequence, in which every class is met at least 6 times for update and 5 for environment
-    (17 and 12 in 240), so each class still meets each command several times in different combinations."""
+    the same seeded sequence, in which every class is met at least 3 times per command (oma's least-met class;
+    6 for update and 5 for environment, 17 and 12 in 240), so each class still meets each command several times
+    in different combinations."""
     from _hostile import CLASSES
 
     outcomes = _run_all(COMMANDS, N_TABLES, tmp_path, pristine_store, capsys)
     for name in COMMANDS:
-        # every class met at least 5 times per 120 tables of a command (the covariate's only where there is
+        # every class met at least 3 times per 120 tables of a command (the covariate's only where there is
         # one), and both outcomes: some tables are refused and some (a BOM, CRLF; for update more) give a result
         met = {f.__name__: outcomes[name, f.__name__] for f in CLASSES
                if COMMANDS[name].covariate or f.__name__ != "extreme_temperatures"}
-        assert min(met.values()) >= 5 * N_TABLES // 120, (name, met)
+        assert min(met.values()) >= 3 * N_TABLES // 120, (name, met)
         assert outcomes[name, 2] > 0 and outcomes[name, 0] > 0, outcomes
     print(sorted(outcomes.items(), key=str))
 
